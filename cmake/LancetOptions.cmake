@@ -1,0 +1,32 @@
+# Compiler warnings, sanitizers and ccache for every Lancet target.
+
+option(LANCET_WERROR "Treat warnings as errors (on in CI and in every preset)" OFF)
+set(LANCET_SANITIZE "" CACHE STRING "Sanitizers: '', 'address;undefined' or 'thread'")
+
+find_program(LANCET_CCACHE ccache)
+if(LANCET_CCACHE)
+  set(CMAKE_C_COMPILER_LAUNCHER ${LANCET_CCACHE})
+  set(CMAKE_CXX_COMPILER_LAUNCHER ${LANCET_CCACHE})
+endif()
+
+add_library(lancet_warnings INTERFACE)
+add_library(lancet::warnings ALIAS lancet_warnings)
+target_compile_options(lancet_warnings INTERFACE -Wall -Wextra -Wpedantic -Wshadow
+                       -Wnon-virtual-dtor -Wold-style-cast -Wcast-align -Wunused
+                       -Woverloaded-virtual -Wimplicit-fallthrough)
+if(LANCET_WERROR)
+  target_compile_options(lancet_warnings INTERFACE -Werror)
+endif()
+
+if(LANCET_SANITIZE)
+  string(REPLACE ";" "," _lancet_san "${LANCET_SANITIZE}")
+  add_compile_options(-fsanitize=${_lancet_san} -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  add_link_options(-fsanitize=${_lancet_san})
+endif()
+
+# True when this build is instrumented by a sanitizer; tests use it to scale their workloads.
+if(LANCET_SANITIZE MATCHES "thread")
+  set(LANCET_TSAN ON)
+else()
+  set(LANCET_TSAN OFF)
+endif()

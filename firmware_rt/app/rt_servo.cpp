@@ -1,0 +1,138 @@
+#include "rt_servo.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+
+namespace lancet::app {
+
+RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns)
+    : model_(model), shared_(shared), data_(std::make_unique<RtData>()) {
+  data_->start_ns = start_ns;
+  data_->pid = static_cast<std::int32_t>(getpid());
+  data_->stylus.position = device::scripted_target(0.0, model_.script_depth);
+}
+
+void RtServo::apply(const Command& c) noexcept {
+  RtData& d = *data_;
+  ++d.commands_applied;
+  switch (c.kind) {
+    case CommandKind::kSetToolMode: d.mode = c.mode; break;
+    case CommandKind::kReset:
+      d.mode = ToolMode::kProbe;
+      d.nan_guards = 0;
+      break;
+    case CommandKind::kSetMaterial:  // materials arrive with the haptic core; the penalty model ignores them
+    case CommandKind::kNone: break;
+  }
+}
+
+void RtServo::tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t overruns) noexcept {
+  RtData& d = *data_;
+  const double dt = static_cast<double>(model_.period_ns) * 1e-9;
+  const double t = static_cast<double>(deadline_ns - d.start_ns) * 1e-9;
+  ++d.tick;
+  d.overruns = overruns;
+  d.max_wake_latency_ns = std::max(d.max_wake_latency_ns, now_ns - deadline_ns);
+
+  // Commands from the viz.
+  for (;;) {
+    const std::size_t n = shared_.commands.try_pop_n(d.command_batch.data(), d.command_batch.size());
+    for (std::size_t i = 0; i < n; ++i) apply(d.command_batch[i]);
+    if (n < d.command_batch.size()) break;
+  }
+
+  // Where the hand pulls the stylus: the viz's target while it is fresh, else the script.
+  (void)shared_.stylus_target.try_read_if_newer(d.target, d.target_version);
+  const bool target_fresh = d.target.active != 0 && now_ns - d.target.t_ns <= model_.target_timeout_ns;
+  const Vec3 target = target_fresh ? d.target.target.position : device::scripted_target(t, model_.script_depth);
+
+  // Newest patch, into the back buffer; swap only on a consistent read.
+  TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];
+  if (shared_.patch.try_read_if_newer(back, d.patch_version) == ReadStatus::kOk) {
+    d.front = 1 - d.front;
+    ++d.patches_received;
+  }
+  const TissuePatch& patch = d.patches[static_cast<std::size_t>(d.front)];
+
+  // Contact force against the patch.
+  const haptics::ContactResult c = d.patch_version != 0
+                                       ? haptics::penalty_contact(model_.contact, patch, d.stylus.position, d.stylus.velocity)
+                                       : haptics::ContactResult{};
+  std::uint32_t events = 0;
+  if (c.contact != d.contact) events |= c.contact ? event::kContactBegin : event::kContactEnd;
+  d.contact = c.contact;
+  if (c.contact) ++d.contact_ticks;
+
+  // The viz owns the tissue: without its heartbeat the patch is stale, so fade the force out.
+  const std::int64_t beat = shared_.viz_heartbeat.last_ns();
+  const bool alive = shared_.viz_heartbeat.fresh(now_ns, model_.fade.timeout_ns);
+  if (d.viz_alive && !alive) {
+    d.viz_lost_at_beat_ns = d.viz_last_beat_ns;
+    d.force_zero_ns = 0;
+  }
+  d.viz_alive = alive;
+  if (alive) d.viz_last_beat_ns = beat;
+  const double scale = d.fade.update(alive, model_.period_ns, model_.fade);
+  if (scale < 1.0) events |= event::kForceFaded;
+
+  // Safety: NaN guard, then clamp the magnitude.
+  Vec3 f = scale * c.force;
+  if (!is_finite(f)) {
+    f = Vec3{};
+    ++d.nan_guards;
+    events |= event::kFault;
+  }
+  const double mag = norm(f);
+  if (mag > model_.max_force) {
+    f = (model_.max_force / mag) * f;
+    ++d.clamps;
+    events |= event::kForceClamped;
+  }
+  d.force = f;
+  d.max_force_seen = std::max(d.max_force_seen, norm(f));
+  if (!alive && d.viz_lost_at_beat_ns != 0 && d.force_zero_ns == 0 && f == Vec3{}) d.force_zero_ns = deadline_ns;
+
+  // Write the device: the simulated stylus feels the force.
+  device::step_sim_stylus(model_.stylus, d.stylus, target, f, dt);
+
+  // One ToolSample per tick.
+  ToolSample& s = d.sample;
+  s.seq = d.tick;
+  s.t_ns = deadline_ns;
+  s.n_joints = 3;  // the sim stylus is a Cartesian 3-DOF point: q = position
+  s.mode = d.mode;
+  s.stage = c.contact ? Stage::kDeform : Stage::kFree;
+  s.q[0] = d.stylus.position.x, s.q[1] = d.stylus.position.y, s.q[2] = d.stylus.position.z;
+  s.qd[0] = d.stylus.velocity.x, s.qd[1] = d.stylus.velocity.y, s.qd[2] = d.stylus.velocity.z;
+  s.tau[0] = f.x, s.tau[1] = f.y, s.tau[2] = f.z;
+  s.tool = Pose{d.stylus.position, Quat{}};
+  s.proxy = Pose{c.contact ? c.closest : d.stylus.position, Quat{}};
+  s.force = f;
+  s.patch_version = d.patch_version;
+  s.events = events;
+  s.payload = EventPayload{c.closest, c.normal, Vec3{}, -c.signed_distance};
+  (void)shared_.samples.try_push(s);  // a full ring is counted by the ring itself
+
+  RtStatus& st = d.status;
+  st.tick = d.tick;
+  st.t_ns = deadline_ns;
+  st.period_ns = model_.period_ns;
+  st.overruns = d.overruns;
+  st.max_wake_latency_ns = d.max_wake_latency_ns;
+  st.force = f;
+  st.force_scale = scale;
+  st.patch_version = d.patch_version;
+  st.viz_alive = alive ? 1u : 0u;
+  st.contact = c.contact ? 1u : 0u;
+  st.samples_pushed = shared_.samples.pushed_count();
+  st.samples_dropped = shared_.samples.overflow_count();
+  st.viz_last_beat_ns = alive ? d.viz_last_beat_ns : d.viz_lost_at_beat_ns;
+  st.force_zero_ns = d.force_zero_ns;
+  shared_.rt_status.write(st);
+  shared_.rt_heartbeat.beat(now_ns, d.pid);
+}
+
+}  // namespace lancet::app

@@ -1,0 +1,84 @@
+#pragma once
+// The lancet-rt servo tick in the model/data manner: an immutable RtModel, a preallocated RtData,
+// and RtServo::tick(), which never allocates, locks, blocks, throws or logs.
+//
+// One tick: drain commands → stylus target (viz or script) → read the simulated device → take the
+// newest TissuePatch (seqlock, never waits) → penalty contact → fade by viz liveness → safety
+// (NaN guard, clamp) → write the device → push one ToolSample → publish RtStatus and heartbeat.
+
+#include <array>
+#include <cstdint>
+#include <memory>
+
+#include "device/sim_stylus.hpp"
+#include "haptics/force_fade.hpp"
+#include "haptics/penalty_contact.hpp"
+#include "lancet/shared_model/shared_state.hpp"
+
+namespace lancet::app {
+
+/// Immutable configuration of the servo (built once at start-up).
+struct RtModel {
+  std::int64_t period_ns = 1'000'000;            ///< 1 kHz
+  haptics::PenaltyParams contact{};
+  double max_force = 8.0;                        ///< N, clamp on the rendered force
+  haptics::ForceFadeParams fade{};
+  device::SimStylusParams stylus{};
+  double script_depth = 0.004;                   ///< m below z = 0 the script presses to
+  std::int64_t target_timeout_ns = 250'000'000;  ///< a StylusTarget older than this is ignored
+};
+
+/// Everything the tick reads and writes, allocated once.
+struct RtData {
+  std::uint64_t tick = 0;
+  std::int32_t pid = 0;
+  std::int64_t start_ns = 0;
+  device::SimStylusState stylus{};
+  StylusTarget target{};
+  std::uint64_t target_version = 0;
+  // Double-buffered patch: a read that fails (writer busy) must not clobber the one in use.
+  std::array<TissuePatch, 2> patches{};
+  int front = 0;
+  std::uint64_t patch_version = 0;
+  std::uint64_t patches_received = 0;
+  haptics::ForceFade fade{};
+  bool viz_alive = false;
+  bool contact = false;
+  ToolMode mode = ToolMode::kProbe;
+  Vec3 force{};
+  double max_force_seen = 0;
+  std::uint64_t nan_guards = 0;
+  std::uint64_t clamps = 0;
+  std::uint64_t contact_ticks = 0;
+  std::uint64_t commands_applied = 0;
+  std::int64_t viz_last_beat_ns = 0;
+  std::int64_t viz_lost_at_beat_ns = 0;  ///< last beat seen before the viz was judged lost
+  std::int64_t force_zero_ns = 0;        ///< first tick at zero force after the loss
+  std::int64_t max_wake_latency_ns = 0;
+  std::uint64_t overruns = 0;
+  ToolSample sample{};
+  RtStatus status{};
+  std::array<Command, 16> command_batch{};
+};
+
+class RtServo {
+ public:
+  /// shared must outlive the servo. Not real-time safe (it is the configure step).
+  RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns);
+
+  /// One servo tick for the deadline `deadline_ns`, running at `now_ns`; `overruns` is the
+  /// timer's running count. Real-time safe.
+  void tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t overruns) noexcept;
+
+  [[nodiscard]] const RtData& data() const noexcept { return *data_; }
+  [[nodiscard]] const RtModel& model() const noexcept { return model_; }
+
+ private:
+  void apply(const Command& c) noexcept;
+
+  const RtModel model_;
+  SharedState& shared_;
+  std::unique_ptr<RtData> data_;  // large (two patches): on the heap, allocated once here
+};
+
+}  // namespace lancet::app

@@ -1,0 +1,202 @@
+#pragma once
+// Messages that cross the lancet-rt <-> lancet-viz boundary. Every type here is a flat POD:
+// trivially copyable, standard-layout, fixed capacity, no pointers (static_asserted below), so
+// copying one is a memcpy. Units are SI and stated on every field; frames are the world frame of
+// the tissue unless stated. A change to any of these types changes the layout hash
+// (shared_state.hpp) so that a mismatched peer refuses to attach.
+
+#include <cstdint>
+#include <type_traits>
+
+#include "lancet/shared_model/geometry.hpp"
+
+namespace lancet {
+
+/// Most joints any arm may have (DH chains up to 8 joints).
+inline constexpr std::uint32_t kMaxJoints = 8;
+/// Triangles a TissuePatch can carry.
+inline constexpr std::uint32_t kPatchCapacity = 1024;
+/// Edge length, in voxels, of the cubic voxel brick carried by a TissuePatch.
+inline constexpr std::uint32_t kBrickDim = 16;
+
+/// What the stylus is being used as.
+enum class ToolMode : std::uint8_t { kProbe = 0, kScalpel = 1, kRetractor = 2, kDrill = 3 };
+
+/// Interaction stage of the haptic step (ALGORITHMS.md §2).
+enum class Stage : std::uint8_t {
+  kFree = 0,      ///< no contact
+  kDeform = 1,    ///< in contact, tissue deforms elastically (Hooke)
+  kRupture = 2,   ///< the yield force was exceeded this tick
+  kCutting = 3,   ///< blade inside the tissue, directional friction
+  kPulling = 4,   ///< retractor holding and pulling
+  kDrilling = 5,  ///< drill removing voxels
+};
+
+/// Event bits of ToolSample::events. Several may be set in one tick; the payload describes the
+/// most significant one (the highest bit set).
+namespace event {
+inline constexpr std::uint32_t kContactBegin = 1u << 0;
+inline constexpr std::uint32_t kContactEnd = 1u << 1;
+inline constexpr std::uint32_t kRupture = 1u << 2;      ///< payload: position, normal, blade direction
+inline constexpr std::uint32_t kCutProgress = 1u << 3;  ///< payload: proxy position on the cut path
+inline constexpr std::uint32_t kGrab = 1u << 4;         ///< payload: control point
+inline constexpr std::uint32_t kPull = 1u << 5;         ///< payload: control point, displacement (m)
+inline constexpr std::uint32_t kRelease = 1u << 6;
+inline constexpr std::uint32_t kDrillRemove = 1u << 7;  ///< payload: centre, magnitude = radius (m)
+inline constexpr std::uint32_t kForceClamped = 1u << 8; ///< the safety layer limited the force
+inline constexpr std::uint32_t kForceFaded = 1u << 9;   ///< force scaled down: viz or patch stale
+inline constexpr std::uint32_t kFault = 1u << 10;       ///< watchdog or device fault: zero force
+}  // namespace event
+
+/// Data attached to the events of one tick.
+struct EventPayload {
+  Vec3 position;      ///< m
+  Vec3 normal;        ///< unit surface normal
+  Vec3 direction;     ///< unit blade or pull direction
+  double magnitude;   ///< event-specific scalar (m for radius/displacement, N for force)
+};
+
+/// One servo tick, pushed by lancet-rt once per tick on the ToolSample ring.
+struct ToolSample {
+  std::uint64_t seq;              ///< tick number since lancet-rt started, +1 per tick
+  std::int64_t t_ns;              ///< CLOCK_MONOTONIC deadline of this tick (ns)
+  std::uint32_t n_joints;         ///< valid entries in q, qd, tau
+  ToolMode mode;                  ///< tool mode in force this tick
+  Stage stage;                    ///< interaction stage
+  std::uint16_t reserved0;
+  double q[kMaxJoints];           ///< joint positions (rad, or m for prismatic) (n_joints)
+  double qd[kMaxJoints];          ///< joint velocities (rad/s or m/s) (n_joints)
+  double tau[kMaxJoints];         ///< commanded joint torques (N·m, or N) (n_joints)
+  Pose tool;                      ///< tool tip (haptic interface point) pose
+  Pose proxy;                     ///< proxy pose (equals tool when free)
+  Vec3 force;                     ///< force commanded on the hand, after safety (N)
+  std::uint64_t patch_version;    ///< TissuePatch version this force used (0: none)
+  std::uint32_t events;           ///< event:: bits
+  std::uint32_t reserved1;
+  EventPayload payload;           ///< see event::
+};
+
+/// Kinds of Command.
+enum class CommandKind : std::uint8_t {
+  kNone = 0,
+  kSetToolMode = 1,  ///< use Command::mode from now on
+  kSetMaterial = 2,  ///< replace material Command::material_id with Command::material
+  kReset = 3,        ///< return to the free stage, clear faults that allow it
+};
+
+/// Mechanical parameters of one tissue material (ALGORITHMS.md §1–2).
+struct MaterialParams {
+  double stiffness;          ///< N/m, contact spring k
+  double damping;            ///< N·s/m, contact damper D
+  double yield_force;        ///< N, force at which the surface ruptures
+  double friction_static;    ///< static friction coefficient (dimensionless)
+  double friction_dynamic;   ///< dynamic friction coefficient (dimensionless)
+  double cut_drag_along;     ///< N·s/m, viscous drag along the blade while cutting
+  double cut_drag_across;    ///< N·s/m, viscous drag across the blade while cutting
+  double density;            ///< kg/m³, for drilling resistance
+};
+
+/// lancet-viz → lancet-rt on the Command ring.
+struct Command {
+  std::uint64_t seq;         ///< sender's counter, +1 per command
+  std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
+  CommandKind kind;
+  ToolMode mode;             ///< kSetToolMode
+  std::uint16_t material_id; ///< kSetMaterial
+  std::uint32_t reserved0;
+  MaterialParams material;   ///< kSetMaterial
+};
+
+/// One triangle of the local tissue surface. Vertices counter-clockwise seen from outside, so
+/// (v1-v0)x(v2-v0) points out of the tissue.
+struct PatchTriangle {
+  Vec3f v[3];                ///< vertex positions (m)
+  std::uint16_t material;    ///< material id
+  std::uint16_t flags;       ///< kTriangleOnCutEdge, ...
+};
+inline constexpr std::uint16_t kTriangleOnCutEdge = 1u << 0;
+
+/// Blade frame of the scalpel, as the viz last saw it.
+struct BladeFrame {
+  Vec3 origin;     ///< blade tip (m)
+  Vec3 direction;  ///< unit cutting direction (along the edge)
+  Vec3 normal;     ///< unit normal of the blade plane
+};
+
+/// State of the cut the tool is making.
+struct CutState {
+  std::uint32_t active;      ///< 1 while a cut is in progress
+  std::uint32_t n_cuts;      ///< cuts made on this tissue so far
+  Vec3 entry;                ///< where the current cut entered (m)
+  Vec3 last;                 ///< last point of the current cut path (m)
+  double opening_width;      ///< current opening D of the cut (m)
+};
+
+/// Small cube of CT densities around the tool, for volume haptics and drilling.
+struct VoxelBrick {
+  std::uint32_t valid;       ///< 1 when hu holds data
+  std::uint32_t dim;         ///< edge length in voxels (kBrickDim)
+  Vec3 origin;               ///< centre of voxel (0,0,0) (m)
+  Vec3 spacing;              ///< voxel spacing along x, y, z (m)
+  std::int16_t hu[kBrickDim * kBrickDim * kBrickDim];  ///< Hounsfield units, x fastest
+};
+
+/// lancet-viz → lancet-rt (seqlock): the tissue near the tool, nearest triangles first.
+struct TissuePatch {
+  std::uint64_t seq;         ///< viz frame counter when built
+  std::int64_t t_ns;         ///< CLOCK_MONOTONIC when built (ns)
+  Vec3 centre;               ///< query centre: the tool position the viz used (m)
+  double radius;             ///< query radius (m)
+  std::uint32_t n_triangles; ///< valid entries in triangles
+  std::uint32_t reserved0;
+  BladeFrame blade;
+  CutState cut;
+  PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)
+  VoxelBrick brick;
+};
+
+/// lancet-viz → lancet-rt (seqlock): where the simulated arm's stylus should go (mouse, script).
+struct StylusTarget {
+  std::uint64_t seq;         ///< sender's counter
+  std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
+  Pose target;               ///< desired stylus pose
+  std::uint32_t active;      ///< 1: follow this target; 0: lancet-rt uses its own script
+  std::uint32_t buttons;     ///< bit i = button i pressed
+};
+
+/// lancet-rt → anyone (seqlock): live figures of the servo loop, for the viz overlay, lancetctl
+/// and test rigs.
+struct RtStatus {
+  std::uint64_t tick;              ///< ticks run
+  std::int64_t t_ns;               ///< deadline of the last tick (ns)
+  std::int64_t period_ns;          ///< nominal period (ns)
+  std::uint64_t overruns;          ///< ticks that started after their deadline + period
+  std::int64_t max_wake_latency_ns;///< worst wake-up latency seen (ns)
+  Vec3 force;                      ///< last commanded force (N)
+  double force_scale;              ///< fade factor applied (1 = full, 0 = faded out)
+  std::uint64_t patch_version;     ///< TissuePatch version in use (0: none)
+  std::uint32_t viz_alive;         ///< 1 while the viz heartbeat is fresh
+  std::uint32_t contact;           ///< 1 while the tool touches the patch
+  std::uint64_t samples_pushed;    ///< ToolSamples pushed
+  std::uint64_t samples_dropped;   ///< ToolSamples refused because the ring was full
+  std::int64_t viz_last_beat_ns;   ///< last viz heartbeat seen (ns; 0: never)
+  std::int64_t force_zero_ns;      ///< first tick with zero force after the viz was lost (ns; 0: n/a)
+};
+
+#define LANCET_ASSERT_WIRE_TYPE(T)                                                        \
+  static_assert(std::is_trivially_copyable_v<T>, #T " must be trivially copyable");       \
+  static_assert(std::is_standard_layout_v<T>, #T " must be standard-layout")
+LANCET_ASSERT_WIRE_TYPE(EventPayload);
+LANCET_ASSERT_WIRE_TYPE(ToolSample);
+LANCET_ASSERT_WIRE_TYPE(MaterialParams);
+LANCET_ASSERT_WIRE_TYPE(Command);
+LANCET_ASSERT_WIRE_TYPE(PatchTriangle);
+LANCET_ASSERT_WIRE_TYPE(BladeFrame);
+LANCET_ASSERT_WIRE_TYPE(CutState);
+LANCET_ASSERT_WIRE_TYPE(VoxelBrick);
+LANCET_ASSERT_WIRE_TYPE(TissuePatch);
+LANCET_ASSERT_WIRE_TYPE(StylusTarget);
+LANCET_ASSERT_WIRE_TYPE(RtStatus);
+#undef LANCET_ASSERT_WIRE_TYPE
+
+}  // namespace lancet

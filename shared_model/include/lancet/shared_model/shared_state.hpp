@@ -1,0 +1,116 @@
+#pragma once
+// SharedState: everything lancet-rt and lancet-viz share, laid out in one ShmSegment payload, and
+// the layout hash that guards it. See ARCHITECTURE.md for the data flow:
+//   rt  → viz : ToolSample ring (one per tick), RtStatus (seqlock), rt heartbeat
+//   viz → rt  : TissuePatch (seqlock), StylusTarget (seqlock), Command ring, viz heartbeat
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <new>
+#include <string>
+
+#include "lancet/shared_model/heartbeat.hpp"
+#include "lancet/shared_model/messages.hpp"
+#include "lancet/shared_model/seqlock.hpp"
+#include "lancet/shared_model/shm_segment.hpp"
+#include "lancet/shared_model/spsc_ring.hpp"
+#include "lancet/shared_model/units.hpp"
+
+namespace lancet {
+
+/// Bump when the meaning of a field changes without changing the layout.
+inline constexpr std::uint64_t kProtocolVersion = 1;
+/// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
+inline constexpr std::size_t kSampleRingCapacity = 4096;
+inline constexpr std::size_t kCommandRingCapacity = 256;
+/// Default segment name; processes take --shm to use another.
+inline constexpr const char* kDefaultShmName = "/lancet";
+
+struct SharedState {
+  SpscRing<ToolSample, kSampleRingCapacity> samples;  ///< rt → viz
+  SpscRing<Command, kCommandRingCapacity> commands;   ///< viz → rt
+  Seqlock<TissuePatch> patch;                         ///< viz → rt
+  Seqlock<StylusTarget> stylus_target;                ///< viz → rt
+  Seqlock<RtStatus> rt_status;                        ///< rt → anyone
+  Heartbeat rt_heartbeat;                             ///< written by lancet-rt every tick
+  Heartbeat viz_heartbeat;                            ///< written by lancet-viz every frame
+};
+static_assert(std::is_standard_layout_v<SharedState>);
+
+namespace detail {
+constexpr std::uint64_t fnv1a(std::uint64_t h, std::uint64_t v) {
+  for (int i = 0; i < 8; ++i) {
+    h ^= (v >> (8 * i)) & 0xffu;
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
+template <class... V>
+constexpr std::uint64_t fold(std::uint64_t h, V... v) {
+  ((h = fnv1a(h, static_cast<std::uint64_t>(v))), ...);
+  return h;
+}
+}  // namespace detail
+
+/// Hash of everything that must agree between peers: protocol version, sizes, alignments and
+/// field offsets of every message, ring capacities and the SharedState member offsets.
+constexpr std::uint64_t shared_layout_hash() {
+  using detail::fold;
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  h = fold(h, kProtocolVersion, kMaxJoints, kPatchCapacity, kBrickDim, kSampleRingCapacity, kCommandRingCapacity);
+  h = fold(h, sizeof(ToolSample), alignof(ToolSample), offsetof(ToolSample, seq), offsetof(ToolSample, t_ns),
+           offsetof(ToolSample, n_joints), offsetof(ToolSample, mode), offsetof(ToolSample, stage),
+           offsetof(ToolSample, q), offsetof(ToolSample, qd), offsetof(ToolSample, tau), offsetof(ToolSample, tool),
+           offsetof(ToolSample, proxy), offsetof(ToolSample, force), offsetof(ToolSample, patch_version),
+           offsetof(ToolSample, events), offsetof(ToolSample, payload), sizeof(EventPayload));
+  h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, material_id),
+           offsetof(Command, material), sizeof(MaterialParams), offsetof(MaterialParams, yield_force),
+           offsetof(MaterialParams, density));
+  h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, centre), offsetof(TissuePatch, n_triangles),
+           offsetof(TissuePatch, blade), offsetof(TissuePatch, cut), offsetof(TissuePatch, triangles),
+           offsetof(TissuePatch, brick), sizeof(PatchTriangle), offsetof(PatchTriangle, material),
+           sizeof(CutState), offsetof(CutState, opening_width), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
+  h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
+  h = fold(h, sizeof(RtStatus), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
+           offsetof(RtStatus, force_zero_ns));
+  h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
+           offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
+           offsetof(SharedState, rt_status), offsetof(SharedState, rt_heartbeat),
+           offsetof(SharedState, viz_heartbeat));
+  return h;
+}
+inline constexpr std::uint64_t kSharedLayoutHash = shared_layout_hash();
+
+/// A mapped SharedState and the segment that owns the mapping.
+class SharedChannel {
+ public:
+  /// lancet-rt: creates the segment and constructs a fresh SharedState in it.
+  static Result<SharedChannel> create(const std::string& name, const ShmSegment::CreateOptions& options) {
+    auto seg = ShmSegment::create(name, sizeof(SharedState), kSharedLayoutHash, options);
+    if (!seg) return seg.error();
+    SharedChannel ch(std::move(seg).value());
+    ch.state_ = new (ch.segment_.payload()) SharedState{};
+    ch.segment_.mark_ready();
+    return ch;
+  }
+  /// lancet-viz and monitors: attaches to an existing segment (checked, see ShmSegment::open).
+  static Result<SharedChannel> open(const std::string& name) {
+    auto seg = ShmSegment::open(name, sizeof(SharedState), kSharedLayoutHash);
+    if (!seg) return seg.error();
+    SharedChannel ch(std::move(seg).value());
+    ch.state_ = std::launder(static_cast<SharedState*>(ch.segment_.payload()));
+    return ch;
+  }
+
+  [[nodiscard]] SharedState& state() const noexcept { return *state_; }
+  [[nodiscard]] ShmSegment& segment() noexcept { return segment_; }
+  [[nodiscard]] const ShmSegment& segment() const noexcept { return segment_; }
+
+ private:
+  explicit SharedChannel(ShmSegment seg) : segment_(std::move(seg)) {}
+  ShmSegment segment_;
+  SharedState* state_ = nullptr;
+};
+
+}  // namespace lancet

@@ -1,0 +1,278 @@
+#include "lancet/shared_model/shm_segment.hpp"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cinttypes>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <new>
+#include <sstream>
+#include <utility>
+
+namespace lancet {
+namespace {
+
+std::string errno_text(int err) { return std::string(std::strerror(err)); }
+
+std::string hex(std::uint64_t v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "0x%016" PRIx64, v);
+  return buf;
+}
+
+std::size_t round_up_page(std::size_t n) {
+  const auto page = static_cast<std::size_t>(sysconf(_SC_PAGESIZE));
+  return (n + page - 1) / page * page;
+}
+
+// Closes a file descriptor on scope exit.
+struct Fd {
+  int fd = -1;
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+// Reads the header of an existing segment without trusting it: returns false when the object is
+// too small or cannot be mapped.
+bool peek_header(const std::string& name, SegmentHeader& out, std::uint64_t& size_out) {
+  Fd f{shm_open(name.c_str(), O_RDONLY, 0)};
+  if (f.fd < 0) return false;
+  struct stat st {};
+  if (fstat(f.fd, &st) != 0 || static_cast<std::size_t>(st.st_size) < sizeof(SegmentHeader)) return false;
+  void* p = mmap(nullptr, sizeof(SegmentHeader), PROT_READ, MAP_SHARED, f.fd, 0);
+  if (p == MAP_FAILED) return false;
+  std::memcpy(static_cast<void*>(&out), p, sizeof(SegmentHeader));
+  munmap(p, sizeof(SegmentHeader));
+  size_out = static_cast<std::uint64_t>(st.st_size);
+  return true;
+}
+
+}  // namespace
+
+std::uint64_t process_start_ticks(std::int32_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  if (!std::getline(in, line)) return 0;
+  // The command name (field 2) is in parentheses and may contain spaces: parse after the last ')'.
+  const auto close = line.rfind(')');
+  if (close == std::string::npos) return 0;
+  std::istringstream rest(line.substr(close + 1));
+  std::string field;
+  // Fields after ')' start at field 3 (state); starttime is field 22.
+  for (int i = 3; i <= 22; ++i) {
+    if (!(rest >> field)) return 0;
+  }
+  return std::strtoull(field.c_str(), nullptr, 10);
+}
+
+bool process_alive(std::int32_t pid, std::uint64_t start_ticks) {
+  if (pid <= 0) return false;
+  if (::kill(pid, 0) != 0 && errno == ESRCH) return false;
+  if (start_ticks == 0) return true;
+  const std::uint64_t now = process_start_ticks(pid);
+  return now == 0 || now == start_ticks;  // unreadable /proc: trust kill()
+}
+
+Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t payload_size,
+                                      std::uint64_t layout_hash, const CreateOptions& options) {
+  if (name.size() < 2 || name[0] != '/' || name.find('/', 1) != std::string::npos) {
+    return Error{ErrorCode::kInvalid, "shared memory name '" + name +
+                                          "' is invalid: expected '/' followed by a name without '/'"};
+  }
+  ShmSegment seg;
+  seg.name_ = name;
+  Fd f;
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    f.fd = shm_open(name.c_str(), O_CREAT | O_EXCL | O_RDWR, 0600);
+    if (f.fd >= 0) break;
+    if (errno != EEXIST) {
+      return Error{ErrorCode::kSystem, "shm_open(" + name + ", O_CREAT|O_EXCL) failed: " + errno_text(errno)};
+    }
+    SegmentHeader old{};
+    std::uint64_t old_size = 0;
+    const bool readable = peek_header(name, old, old_size);
+    if (readable && old.magic == kSegmentMagic && process_alive(old.creator_pid, old.creator_start_ticks)) {
+      return Error{ErrorCode::kInUse, "shared memory segment " + name + " is in use by " +
+                                          std::string(old.creator_name) + " (pid " +
+                                          std::to_string(old.creator_pid) +
+                                          "); stop it first or pick another name with --shm"};
+    }
+    if (!options.replace_stale) {
+      return Error{ErrorCode::kStale, "shared memory segment " + name +
+                                          " exists but its creator is gone; remove /dev/shm" + name};
+    }
+    if (shm_unlink(name.c_str()) != 0 && errno != ENOENT) {
+      return Error{ErrorCode::kSystem, "cannot remove stale segment " + name + ": " + errno_text(errno)};
+    }
+    seg.notes_.push_back(readable && old.magic == kSegmentMagic
+                             ? "removed stale segment " + name + " left by pid " + std::to_string(old.creator_pid) +
+                                   " (no longer running)"
+                             : "removed unrecognised object " + name + " (not a Lancet segment)");
+  }
+  if (f.fd < 0) return Error{ErrorCode::kInUse, "shared memory segment " + name + " keeps reappearing; another creator races us"};
+
+  const std::size_t total = round_up_page(kSegmentPayloadOffset + payload_size);
+  if (ftruncate(f.fd, static_cast<off_t>(total)) != 0) {
+    const int err = errno;
+    shm_unlink(name.c_str());
+    return Error{ErrorCode::kSystem, "ftruncate(" + name + ", " + std::to_string(total) + ") failed: " + errno_text(err)};
+  }
+  void* p = mmap(nullptr, total, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_POPULATE, f.fd, 0);
+  if (p == MAP_FAILED) {
+    const int err = errno;
+    shm_unlink(name.c_str());
+    return Error{ErrorCode::kSystem, "mmap of " + name + " failed: " + errno_text(err)};
+  }
+  seg.base_ = static_cast<unsigned char*>(p);
+  seg.size_ = total;
+  seg.creator_ = true;
+  struct stat st {};
+  if (fstat(f.fd, &st) == 0) seg.inode_ = st.st_ino;
+  // Prefault: touch every page for writing so the first real-time access does not fault.
+  std::memset(seg.base_, 0, total);
+  if (options.lock_memory) {
+    if (mlock(seg.base_, total) == 0) {
+      seg.locked_ = true;
+    } else {
+      seg.notes_.push_back("mlock of " + std::to_string(total) + " bytes refused (" + errno_text(errno) +
+                           "): the segment may be paged out; run as root or raise RLIMIT_MEMLOCK (ulimit -l)");
+    }
+  }
+  auto* h = new (seg.base_) SegmentHeader{};
+  h->magic = kSegmentMagic;
+  h->header_version = kSegmentHeaderVersion;
+  h->creator_pid = static_cast<std::int32_t>(getpid());
+  h->creator_start_ticks = process_start_ticks(h->creator_pid);
+  h->layout_hash = layout_hash;
+  h->total_size = total;
+  h->payload_offset = kSegmentPayloadOffset;
+  h->payload_size = payload_size;
+  h->state.store(static_cast<std::uint32_t>(SegmentState::kInitialising), std::memory_order_relaxed);
+  std::snprintf(h->creator_name, sizeof h->creator_name, "%s", options.creator_name.c_str());
+  return seg;
+}
+
+Result<ShmSegment> ShmSegment::open(const std::string& name, std::size_t payload_size, std::uint64_t layout_hash) {
+  Fd f{shm_open(name.c_str(), O_RDWR, 0)};
+  if (f.fd < 0) {
+    if (errno == ENOENT) {
+      return Error{ErrorCode::kNotFound, "shared memory segment " + name + " does not exist: is lancet-rt running?"};
+    }
+    return Error{ErrorCode::kSystem, "shm_open(" + name + ") failed: " + errno_text(errno)};
+  }
+  struct stat st {};
+  if (fstat(f.fd, &st) != 0) return Error{ErrorCode::kSystem, "fstat(" + name + ") failed: " + errno_text(errno)};
+  const auto actual = static_cast<std::size_t>(st.st_size);
+  if (actual < kSegmentPayloadOffset) {
+    return Error{ErrorCode::kNotReady, "segment " + name + " is " + std::to_string(actual) +
+                                           " bytes, smaller than its header: still being created?"};
+  }
+  void* p = mmap(nullptr, actual, PROT_READ | PROT_WRITE, MAP_SHARED, f.fd, 0);
+  if (p == MAP_FAILED) return Error{ErrorCode::kSystem, "mmap of " + name + " failed: " + errno_text(errno)};
+  ShmSegment seg;
+  seg.name_ = name;
+  seg.base_ = static_cast<unsigned char*>(p);
+  seg.size_ = actual;
+  seg.inode_ = st.st_ino;
+  const SegmentHeader& h = seg.header();
+  if (h.magic != kSegmentMagic) {
+    return Error{ErrorCode::kMismatch, "segment " + name + " is not a Lancet segment: magic " + hex(h.magic) +
+                                           ", expected " + hex(kSegmentMagic)};
+  }
+  if (h.header_version != kSegmentHeaderVersion) {
+    return Error{ErrorCode::kMismatch, "segment " + name + " has header version " + std::to_string(h.header_version) +
+                                           ", expected " + std::to_string(kSegmentHeaderVersion)};
+  }
+  const auto state = static_cast<SegmentState>(h.state.load(std::memory_order_acquire));
+  if (state == SegmentState::kInitialising) {
+    if (!process_alive(h.creator_pid, h.creator_start_ticks)) {
+      return Error{ErrorCode::kStale, "segment " + name + " was left half-built by pid " +
+                                          std::to_string(h.creator_pid) + ", which is gone"};
+    }
+    return Error{ErrorCode::kNotReady, "segment " + name + " is still being initialised by pid " +
+                                           std::to_string(h.creator_pid)};
+  }
+  if (h.layout_hash != layout_hash) {
+    return Error{ErrorCode::kMismatch, "segment " + name + " layout hash mismatch: the segment (made by " +
+                                           std::string(h.creator_name) + ", pid " + std::to_string(h.creator_pid) +
+                                           ") has " + hex(h.layout_hash) + ", this process expects " +
+                                           hex(layout_hash) + "; rebuild both processes from the same source"};
+  }
+  if (h.payload_size != payload_size || h.total_size != actual || h.payload_offset != kSegmentPayloadOffset) {
+    return Error{ErrorCode::kMismatch, "segment " + name + " size mismatch: payload " + std::to_string(h.payload_size) +
+                                           " bytes (expected " + std::to_string(payload_size) + "), total " +
+                                           std::to_string(h.total_size) + " (file is " + std::to_string(actual) + ")"};
+  }
+  if (state != SegmentState::kReady || !process_alive(h.creator_pid, h.creator_start_ticks)) {
+    return Error{ErrorCode::kStale, "segment " + name + " is stale: its creator " + std::string(h.creator_name) +
+                                        " (pid " + std::to_string(h.creator_pid) + ") is no longer running"};
+  }
+  return seg;
+}
+
+ShmSegment::ShmSegment(ShmSegment&& o) noexcept
+    : name_(std::move(o.name_)),
+      base_(std::exchange(o.base_, nullptr)),
+      size_(std::exchange(o.size_, 0)),
+      creator_(std::exchange(o.creator_, false)),
+      locked_(std::exchange(o.locked_, false)),
+      inode_(o.inode_),
+      notes_(std::move(o.notes_)) {}
+
+ShmSegment& ShmSegment::operator=(ShmSegment&& o) noexcept {
+  if (this != &o) {
+    release();
+    name_ = std::move(o.name_);
+    base_ = std::exchange(o.base_, nullptr);
+    size_ = std::exchange(o.size_, 0);
+    creator_ = std::exchange(o.creator_, false);
+    locked_ = std::exchange(o.locked_, false);
+    inode_ = o.inode_;
+    notes_ = std::move(o.notes_);
+  }
+  return *this;
+}
+
+ShmSegment::~ShmSegment() { release(); }
+
+void ShmSegment::release() noexcept {
+  if (base_ == nullptr) return;
+  if (creator_) {
+    auto* h = reinterpret_cast<SegmentHeader*>(base_);
+    h->state.store(static_cast<std::uint32_t>(SegmentState::kClosed), std::memory_order_release);
+    // Unlink only our own segment: a successor may already have replaced the name.
+    struct stat st {};
+    Fd f{shm_open(name_.c_str(), O_RDONLY, 0)};
+    if (f.fd >= 0 && fstat(f.fd, &st) == 0 && st.st_ino == inode_) shm_unlink(name_.c_str());
+  }
+  if (locked_) munlock(base_, size_);
+  munmap(base_, size_);
+  base_ = nullptr;
+}
+
+void ShmSegment::mark_ready() noexcept {
+  reinterpret_cast<SegmentHeader*>(base_)->state.store(static_cast<std::uint32_t>(SegmentState::kReady),
+                                                       std::memory_order_release);
+}
+
+bool ShmSegment::creator_alive() const {
+  const SegmentHeader& h = header();
+  if (h.state.load(std::memory_order_acquire) == static_cast<std::uint32_t>(SegmentState::kClosed)) return false;
+  return process_alive(h.creator_pid, h.creator_start_ticks);
+}
+
+bool ShmSegment::replaced() const {
+  Fd f{shm_open(name_.c_str(), O_RDONLY, 0)};
+  if (f.fd < 0) return true;
+  struct stat st {};
+  return fstat(f.fd, &st) != 0 || st.st_ino != inode_;
+}
+
+}  // namespace lancet
