@@ -1,0 +1,273 @@
+// lancet-viz: the visualizer process. Draws the tissue and the tool, drains lancet-rt's
+// ToolSamples every frame and publishes the TissuePatch around the tool. Keeps running (and says
+// so on screen) when lancet-rt is absent or goes away.
+
+#include <epoxy/gl.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <thread>
+
+#include "app/viz_session.hpp"
+#include "render/overlay.hpp"
+#include "render/scene_renderer.hpp"
+#include "render/window.hpp"
+
+namespace {
+
+std::atomic<bool> g_stop{false};
+extern "C" void on_signal(int) { g_stop.store(true, std::memory_order_relaxed); }
+
+const char* mode_name(lancet::ToolMode m) {
+  switch (m) {
+    case lancet::ToolMode::kProbe: return "probe";
+    case lancet::ToolMode::kScalpel: return "scalpel";
+    case lancet::ToolMode::kRetractor: return "retractor";
+    case lancet::ToolMode::kDrill: return "drill";
+  }
+  return "?";
+}
+
+// Mouse and keyboard state of the interactive window.
+struct Interaction {
+  bool mouse_drives_stylus = false;
+  double depth_mm = 3.0;       // how far below the surface the mouse-driven stylus is pushed
+  bool rotating = false;
+  double last_x = 0, last_y = 0;
+  float yaw = 0.6f, pitch = 0.55f, distance = 0.26f;
+};
+Interaction* g_ui = nullptr;
+
+void on_scroll(GLFWwindow*, double, double dy) {
+  if (g_ui == nullptr) return;
+  if (g_ui->mouse_drives_stylus) {
+    g_ui->depth_mm = std::clamp(g_ui->depth_mm + dy, -10.0, 15.0);
+  } else {
+    g_ui->distance = std::clamp(g_ui->distance * static_cast<float>(std::pow(0.9, dy)), 0.05f, 1.0f);
+  }
+}
+
+struct VizOptions {
+  std::string shm = lancet::kDefaultShmName;
+  bool headless = false;
+  double duration = 0;
+  std::string screenshot;
+  std::string stats;
+  int width = 1280, height = 720;
+  double patch_radius_mm = 20;
+  double fps = 60;
+};
+
+bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance) {
+  std::FILE* f = std::fopen(o.stats.c_str(), "w");
+  if (f == nullptr) return false;
+  const auto& st = s.stats();
+  std::fprintf(f,
+               "{\n  \"frames\": %llu,\n  \"connections\": %u,\n  \"rt_losses\": %u,\n  \"link\": \"%s\",\n"
+               "  \"samples_received\": %llu,\n  \"samples_total\": %llu,\n  \"first_seq\": %llu,\n  \"last_seq\": %llu,\n"
+               "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
+               "  \"patches_published\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
+               static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
+               s.link() == lancet::viz::Link::kConnected ? "connected"
+               : s.link() == lancet::viz::Link::kLost   ? "lost"
+                                                        : "waiting",
+               static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(s.samples_total()),
+               static_cast<unsigned long long>(st.first_seq), static_cast<unsigned long long>(st.last_seq),
+               static_cast<unsigned long long>(st.lost), static_cast<unsigned long long>(st.out_of_order),
+               static_cast<unsigned long long>(st.discarded), static_cast<unsigned long long>(st.max_batch),
+               static_cast<unsigned long long>(s.patches_published()), o.screenshot.c_str(), variance);
+  return std::fclose(f) == 0;
+}
+
+std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSession& s, const Interaction& ui,
+                                                      bool headless) {
+  using lancet::render::OverlayLine;
+  std::vector<OverlayLine> lines;
+  lines.push_back({s.link_message(), s.link() != lancet::viz::Link::kConnected});
+  char buf[256];
+  if (const auto& st = s.rt_status(); st && s.link() == lancet::viz::Link::kConnected) {
+    std::snprintf(buf, sizeof buf, "servo: tick %llu at %.0f Hz, overruns %llu, worst wake %.0f us",
+                  static_cast<unsigned long long>(st->tick), 1e9 / static_cast<double>(st->period_ns),
+                  static_cast<unsigned long long>(st->overruns), static_cast<double>(st->max_wake_latency_ns) / 1e3);
+    lines.push_back({buf});
+    std::snprintf(buf, sizeof buf, "force %.2f N (scale %.2f)%s", lancet::norm(st->force), st->force_scale,
+                  st->contact ? "  in contact" : "");
+    lines.push_back({buf});
+  }
+  if (s.has_sample()) {
+    const auto& t = s.latest();
+    std::snprintf(buf, sizeof buf, "tool %s at (%.1f, %.1f, %.1f) mm", mode_name(t.mode), t.tool.position.x * 1e3,
+                  t.tool.position.y * 1e3, t.tool.position.z * 1e3);
+    lines.push_back({buf});
+  }
+  const auto& st = s.stats();
+  std::snprintf(buf, sizeof buf, "samples %llu received, %llu lost, %llu out of order; patch %u triangles",
+                static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(st.lost),
+                static_cast<unsigned long long>(st.out_of_order), s.patch().n_triangles);
+  lines.push_back({buf, st.lost > 0 || st.out_of_order > 0});
+  if (!headless) {
+    lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
+                                            : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
+    lines.push_back({"1-4: probe / scalpel / retractor / drill   R: reset   Esc: quit"});
+  }
+  return lines;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App cli{"lancet-viz: Lancet's visualizer (tissue, tool, link to lancet-rt)"};
+  VizOptions o;
+  cli.add_option("--shm", o.shm, "shared-memory segment of lancet-rt")->capture_default_str();
+  cli.add_flag("--headless", o.headless, "render offscreen in a hidden window (needs an X display, e.g. xvfb-run)");
+  cli.add_option("--duration", o.duration, "seconds to run; 0 runs until the window closes (headless default 5)")
+      ->check(CLI::NonNegativeNumber);
+  cli.add_option("--screenshot", o.screenshot, "write a PNG of the last frame here on exit");
+  cli.add_option("--stats", o.stats, "write a JSON summary here on exit");
+  cli.add_option("--width", o.width, "image width in pixels")->check(CLI::Range(64, 8192))->capture_default_str();
+  cli.add_option("--height", o.height, "image height in pixels")->check(CLI::Range(64, 8192))->capture_default_str();
+  cli.add_option("--patch-radius-mm", o.patch_radius_mm, "radius of the tissue patch sent to lancet-rt")
+      ->check(CLI::Range(1.0, 200.0))->capture_default_str();
+  cli.add_option("--fps", o.fps, "frame-rate cap")->check(CLI::Range(1.0, 1000.0))->capture_default_str();
+  CLI11_PARSE(cli, argc, argv);
+  if (o.headless && o.duration == 0) o.duration = 5;
+
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+
+  auto window = lancet::render::Window::create({o.width, o.height, !o.headless, "Lancet"});
+  if (!window) {
+    std::fprintf(stderr, "lancet-viz: %s\n", window.error().message.c_str());
+    return 3;
+  }
+  auto& win = *window.value();
+  std::printf("lancet-viz: %s\n", win.gl_description().c_str());
+
+  const lancet::surface::TriangleMesh mesh = lancet::surface::make_tissue_block({});
+  lancet::viz::VizSessionParams sp;
+  sp.shm_name = o.shm;
+  sp.patch.radius = o.patch_radius_mm * 1e-3;
+  lancet::viz::VizSession session(sp);
+
+  int exit_code = 0;
+  std::uint64_t frames = 0;
+  double variance = -1;
+  try {
+    lancet::render::SceneRenderer renderer(o.width, o.height);
+    renderer.set_mesh(mesh);
+    lancet::render::Overlay overlay(win.handle(), !o.headless);
+    Interaction ui;
+    g_ui = &ui;
+    if (!o.headless) glfwSetScrollCallback(win.handle(), on_scroll);
+
+    const auto start = std::chrono::steady_clock::now();
+    const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
+    std::string last_message;
+    bool mode_key_down[5] = {false, false, false, false, false};
+    while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
+      const auto frame_start = std::chrono::steady_clock::now();
+      if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
+      const std::int64_t now = lancet::monotonic_ns();
+      session.frame(now, mesh);
+      if (session.link_message() != last_message) {
+        last_message = session.link_message();
+        std::printf("lancet-viz: %s\n", last_message.c_str());
+        std::fflush(stdout);
+      }
+
+      int fw = o.width, fh = o.height;
+      if (!o.headless) {
+        win.framebuffer_size(fw, fh);
+        if (fw > 0 && fh > 0) renderer.resize(fw, fh);
+        GLFWwindow* h = win.handle();
+        if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
+        // Edge-triggered keys: M toggles mouse drive, 1-4 pick the tool, R resets.
+        const int keys[5] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4};
+        for (int k = 0; k < 5; ++k) {
+          const bool down = glfwGetKey(h, keys[k]) == GLFW_PRESS;
+          if (down && !mode_key_down[k]) {
+            if (k == 0) {
+              ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
+              if (!ui.mouse_drives_stylus) session.set_stylus_target(false, {}, now);
+            } else {
+              lancet::Command c{};
+              c.kind = lancet::CommandKind::kSetToolMode;
+              c.mode = static_cast<lancet::ToolMode>(k - 1);
+              (void)session.send(c, now);
+            }
+          }
+          mode_key_down[k] = down;
+        }
+        if (glfwGetKey(h, GLFW_KEY_R) == GLFW_PRESS) {
+          lancet::Command c{};
+          c.kind = lancet::CommandKind::kReset;
+          (void)session.send(c, now);
+        }
+        double mx = 0, my = 0;
+        glfwGetCursorPos(h, &mx, &my);
+        const bool left = glfwGetMouseButton(h, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS && !overlay.wants_mouse();
+        if (left && ui.rotating) {
+          ui.yaw += static_cast<float>(mx - ui.last_x) * 0.005f;
+          ui.pitch = std::clamp(ui.pitch + static_cast<float>(my - ui.last_y) * 0.005f, 0.05f, 1.5f);
+        }
+        ui.rotating = left;
+        ui.last_x = mx, ui.last_y = my;
+        int ww = 0, wh = 0;
+        glfwGetWindowSize(h, &ww, &wh);
+        lancet::Vec3 p;
+        if (ui.mouse_drives_stylus && renderer.pick_plane(mx, my, ww, wh, p)) {
+          p.z = -ui.depth_mm * 1e-3;
+          session.set_stylus_target(true, p, now);
+        }
+      }
+
+      lancet::render::SceneInput in;
+      in.has_tool = session.has_sample();
+      if (in.has_tool) {
+        in.tool = session.latest().tool.position;
+        in.proxy = session.latest().proxy.position;
+        in.force = session.latest().force;
+      }
+      in.patch = session.patches_published() > 0 ? &session.patch() : nullptr;
+      in.camera_yaw = ui.yaw, in.camera_pitch = ui.pitch, in.camera_distance = ui.distance;
+      renderer.render(in);
+      overlay.draw("Lancet", status_lines(session, ui, o.headless), renderer.width(), renderer.height());
+      if (!o.headless) renderer.present(fw, fh);
+      win.swap_and_poll();
+      ++frames;
+      std::this_thread::sleep_until(frame_start + frame_period);
+    }
+
+    if (!o.screenshot.empty()) {
+      const lancet::render::Image img = renderer.read_back();
+      variance = lancet::render::luminance_variance(img);
+      if (!lancet::render::write_png(o.screenshot, img)) {
+        std::fprintf(stderr, "lancet-viz: cannot write screenshot %s\n", o.screenshot.c_str());
+        exit_code = 1;
+      } else {
+        std::printf("lancet-viz: wrote %s (%dx%d, luminance variance %.1f)\n", o.screenshot.c_str(), img.width,
+                    img.height, variance);
+      }
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "lancet-viz: %s\n", e.what());
+    exit_code = 4;
+  }
+  g_ui = nullptr;
+  std::printf("lancet-viz: %llu frames, %llu samples received (%llu lost), %llu patches published\n",
+              static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
+              static_cast<unsigned long long>(session.stats().lost),
+              static_cast<unsigned long long>(session.patches_published()));
+  if (!o.stats.empty() && !write_stats(o, session, frames, variance)) {
+    std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
+    exit_code = exit_code ? exit_code : 1;
+  }
+  return exit_code;
+}

@@ -1,0 +1,42 @@
+#pragma once
+// SampleStats: what the viz received on the ToolSample ring, checked for loss and order.
+
+#include <cstddef>
+#include <cstdint>
+
+#include "lancet/shared_model/messages.hpp"
+
+namespace lancet::viz {
+
+struct SampleStats {
+  std::uint64_t received = 0;      ///< samples taken from the ring
+  std::uint64_t first_seq = 0;     ///< seq of the first sample (0: none yet)
+  std::uint64_t last_seq = 0;      ///< seq of the newest sample
+  std::uint64_t lost = 0;          ///< seq numbers skipped between consecutive samples
+  std::uint64_t out_of_order = 0;  ///< samples whose seq did not increase (duplicates, reordering)
+  std::uint64_t discarded = 0;     ///< backlog dropped when attaching
+  std::uint64_t max_batch = 0;     ///< most samples drained in one frame
+
+  /// Accounts n samples in ring order.
+  void ingest(const ToolSample* samples, std::size_t n) noexcept {
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint64_t s = samples[i].seq;
+      if (received > 0) {
+        if (s <= last_seq) {
+          ++out_of_order;
+          continue;
+        }
+        lost += s - last_seq - 1;
+      } else {
+        first_seq = s;
+      }
+      last_seq = s;
+      ++received;
+    }
+    if (n > max_batch) max_batch = n;
+  }
+  /// Starts counting afresh (a new lancet-rt has a new sequence).
+  void restart() noexcept { *this = SampleStats{}; }
+};
+
+}  // namespace lancet::viz

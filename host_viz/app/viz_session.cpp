@@ -1,0 +1,109 @@
+#include "app/viz_session.hpp"
+
+#include <unistd.h>
+
+#include <utility>
+
+namespace lancet::viz {
+
+VizSession::VizSession(VizSessionParams params)
+    : params_(std::move(params)), batch_(512), patch_(std::make_unique<TissuePatch>()) {
+  message_ = "waiting for lancet-rt on " + params_.shm_name;
+}
+
+void VizSession::try_attach(std::int64_t now_ns) {
+  if (now_ns < next_attempt_ns_) return;
+  next_attempt_ns_ = now_ns + params_.retry_ns;
+  auto ch = SharedChannel::open(params_.shm_name);
+  if (!ch) {
+    const Error& e = ch.error();
+    // A mismatched peer is a build problem the user must fix: say exactly that.
+    if (link_ == Link::kWaiting || e.code == ErrorCode::kMismatch) message_ = e.message;
+    return;
+  }
+  channel_.emplace(std::move(ch).value());
+  SharedState& s = channel_->state();
+  total_received_ += stats_.received;
+  stats_.restart();
+  // Samples queued before we attached are history; start from the live edge.
+  stats_.discarded = s.samples.discard_all();
+  link_ = Link::kConnected;
+  ++connections_;
+  message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) + ") on " +
+             params_.shm_name;
+}
+
+void VizSession::detach(const std::string& why) {
+  if (channel_) channel_->state().viz_heartbeat.stop();
+  channel_.reset();
+  link_ = Link::kLost;
+  ++rt_losses_;
+  rt_status_.reset();
+  message_ = why;
+}
+
+void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
+  ++frame_;
+  if (!channel_) try_attach(now_ns);
+  if (!channel_) return;
+  SharedState& s = channel_->state();
+
+  // Is lancet-rt still there? A clean exit stops its heartbeat at once; a crash leaves it stale.
+  if (!s.rt_heartbeat.fresh(now_ns, params_.rt_timeout_ns)) {
+    const bool alive = channel_->segment().creator_alive();
+    // last_ns() == 0 with beats counted is a clean exit; with none counted, rt has not ticked yet.
+    if (!alive || (s.rt_heartbeat.last_ns() == 0 && s.rt_heartbeat.count() > 0)) {
+      detach("lancet-rt is not running (pid " + std::to_string(channel_->segment().header().creator_pid) +
+             " exited): haptics stopped, waiting for it to restart");
+      return;
+    }
+    if (s.rt_heartbeat.count() > 0) {
+      message_ = "lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) +
+                 ") is not answering: its loop is stalled";
+    }
+  } else if (link_ == Link::kConnected && message_.find("not answering") != std::string::npos) {
+    message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) + ")";
+  }
+
+  // Drain every ToolSample since the last frame.
+  for (;;) {
+    const std::size_t n = s.samples.try_pop_n(batch_.data(), batch_.size());
+    if (n == 0) break;
+    stats_.ingest(batch_.data(), n);
+    latest_ = batch_[n - 1];
+    if (n < batch_.size()) break;
+  }
+
+  RtStatus st{};
+  if (s.rt_status.try_read(st) == ReadStatus::kOk) rt_status_ = st;
+
+  // Publish the tissue near the newest tool position.
+  if (has_sample()) {
+    TissuePatch& p = *patch_;
+    hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p);
+    p.seq = frame_;
+    p.t_ns = now_ns;
+    s.patch.write(p);
+    ++patches_published_;
+  }
+  s.viz_heartbeat.beat(now_ns, static_cast<std::int32_t>(getpid()));
+}
+
+void VizSession::set_stylus_target(bool active, Vec3 position, std::int64_t now_ns) {
+  if (!channel_) return;
+  StylusTarget t{};
+  t.seq = ++target_seq_;
+  t.t_ns = now_ns;
+  t.target = Pose{position, Quat{}};
+  t.active = active ? 1u : 0u;
+  channel_->state().stylus_target.write(t);
+}
+
+bool VizSession::send(Command c, std::int64_t now_ns) {
+  if (!channel_) return false;
+  c.seq = ++command_seq_;
+  c.t_ns = now_ns;
+  return channel_->state().commands.try_push(c);
+}
+
+}  // namespace lancet::viz

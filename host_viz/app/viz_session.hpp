@@ -1,0 +1,84 @@
+#pragma once
+// VizSession: lancet-viz's side of the shared-memory link, with no OpenGL in it (tested headless).
+// Each frame: attach to lancet-rt's segment if not attached (retrying twice a second), notice when
+// lancet-rt goes away (and keep running), drain every ToolSample since the last frame, publish a
+// TissuePatch around the newest tool position, beat the viz heartbeat.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "app/sample_stats.hpp"
+#include "hybrid/patch_export.hpp"
+#include "lancet/shared_model/shared_state.hpp"
+#include "surface/placeholder_mesh.hpp"
+
+namespace lancet::viz {
+
+enum class Link {
+  kWaiting,    ///< never attached yet
+  kConnected,  ///< attached and lancet-rt's heartbeat is fresh
+  kLost,       ///< was attached; lancet-rt exited or stopped answering
+};
+
+struct VizSessionParams {
+  std::string shm_name = kDefaultShmName;
+  hybrid::PatchExportParams patch{};
+  std::int64_t retry_ns = 500'000'000;       ///< attach retry interval
+  std::int64_t rt_timeout_ns = 1'000'000'000;  ///< rt heartbeat age that counts as lost
+};
+
+class VizSession {
+ public:
+  explicit VizSession(VizSessionParams params);
+
+  /// One frame's worth of link work at now_ns (CLOCK_MONOTONIC). Not real-time; allocates only
+  /// while its scratch buffers grow.
+  void frame(std::int64_t now_ns, const surface::TriangleMesh& mesh);
+
+  /// Sets (active=true) or releases the stylus target sent to the simulated arm.
+  void set_stylus_target(bool active, Vec3 position, std::int64_t now_ns);
+
+  /// Queues a command for lancet-rt; false when not attached or its ring is full.
+  bool send(Command c, std::int64_t now_ns);
+
+  [[nodiscard]] Link link() const noexcept { return link_; }
+  /// One line for the user: what the link is doing and what to do about it.
+  [[nodiscard]] const std::string& link_message() const noexcept { return message_; }
+  [[nodiscard]] const SampleStats& stats() const noexcept { return stats_; }
+  /// Stats of the whole run (all connections), for the exit summary.
+  [[nodiscard]] std::uint64_t samples_total() const noexcept { return total_received_ + stats_.received; }
+  [[nodiscard]] bool has_sample() const noexcept { return stats_.received > 0; }
+  [[nodiscard]] const ToolSample& latest() const noexcept { return latest_; }
+  [[nodiscard]] const TissuePatch& patch() const noexcept { return *patch_; }
+  [[nodiscard]] std::uint64_t patches_published() const noexcept { return patches_published_; }
+  [[nodiscard]] const std::optional<RtStatus>& rt_status() const noexcept { return rt_status_; }
+  [[nodiscard]] std::uint32_t connections() const noexcept { return connections_; }
+  [[nodiscard]] std::uint32_t rt_losses() const noexcept { return rt_losses_; }
+
+ private:
+  void try_attach(std::int64_t now_ns);
+  void detach(const std::string& why);
+
+  VizSessionParams params_;
+  std::optional<SharedChannel> channel_;
+  Link link_ = Link::kWaiting;
+  std::string message_;
+  std::int64_t next_attempt_ns_ = 0;
+  std::uint64_t frame_ = 0;
+  SampleStats stats_{};
+  std::uint64_t total_received_ = 0;
+  ToolSample latest_{};
+  std::vector<ToolSample> batch_;
+  std::unique_ptr<TissuePatch> patch_;
+  hybrid::PatchExportScratch scratch_;
+  std::uint64_t patches_published_ = 0;
+  std::optional<RtStatus> rt_status_;
+  std::uint64_t command_seq_ = 0;
+  std::uint64_t target_seq_ = 0;
+  std::uint32_t connections_ = 0;
+  std::uint32_t rt_losses_ = 0;
+};
+
+}  // namespace lancet::viz

@@ -1,0 +1,31 @@
+#pragma once
+// Overlay: the on-screen status panel (Dear ImGui, drawn into the scene's framebuffer so that
+// screenshots show it too).
+
+#include <string>
+#include <vector>
+
+struct GLFWwindow;
+
+namespace lancet::render {
+
+struct OverlayLine {
+  std::string text;
+  bool alert = false;  ///< drawn in red
+};
+
+class Overlay {
+ public:
+  /// Needs the window's GL context current. install_callbacks: let ImGui see mouse/keyboard.
+  Overlay(GLFWwindow* window, bool install_callbacks);
+  ~Overlay();
+  Overlay(const Overlay&) = delete;
+  Overlay& operator=(const Overlay&) = delete;
+
+  /// Draws a titled panel with the lines into the currently bound framebuffer (w×h pixels).
+  void draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
+  /// True while ImGui wants the mouse (the scene should ignore it).
+  [[nodiscard]] bool wants_mouse() const;
+};
+
+}  // namespace lancet::render

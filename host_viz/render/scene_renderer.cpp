@@ -1,0 +1,258 @@
+#include "render/scene_renderer.hpp"
+
+#include <cmath>
+#include <glm/gtc/matrix_transform.hpp>
+#include <glm/gtc/type_ptr.hpp>
+#include <numbers>
+#include <stdexcept>
+
+namespace lancet::render {
+namespace {
+
+constexpr const char* kVertex = R"(#version 450 core
+layout(location = 0) in vec3 a_pos;
+layout(location = 1) in vec3 a_nrm;
+layout(location = 2) in float a_mat;
+uniform mat4 u_mvp;
+uniform mat4 u_model;
+out vec3 v_nrm;
+flat out int v_mat;
+void main() {
+  v_nrm = mat3(u_model) * a_nrm;
+  v_mat = int(a_mat + 0.5);
+  gl_Position = u_mvp * vec4(a_pos, 1.0);
+}
+)";
+
+constexpr const char* kFragment = R"(#version 450 core
+in vec3 v_nrm;
+flat in int v_mat;
+uniform vec3 u_color;
+uniform int u_mode;      // 0: lit by material id, 1: lit u_color, 2: flat u_color
+uniform vec3 u_light;
+out vec4 o_color;
+void main() {
+  vec3 base = u_color;
+  if (u_mode == 0) base = v_mat == 2 ? vec3(0.72, 0.22, 0.26) : vec3(0.93, 0.73, 0.63);
+  if (u_mode == 2) { o_color = vec4(base, 1.0); return; }
+  vec3 n = normalize(v_nrm);
+  float diffuse = abs(dot(n, normalize(u_light)));   // two-sided
+  o_color = vec4(base * (0.25 + 0.75 * diffuse), 1.0);
+}
+)";
+
+// Appends one vertex (position, normal, material) to an interleaved float buffer.
+void push_vertex(std::vector<float>& out, glm::vec3 p, glm::vec3 n, float mat) {
+  out.insert(out.end(), {p.x, p.y, p.z, n.x, n.y, n.z, mat});
+}
+
+std::vector<float> unit_sphere(int slices, int stacks) {
+  std::vector<float> v;
+  const auto point = [](float th, float ph) {
+    return glm::vec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
+  };
+  const float pi = std::numbers::pi_v<float>;
+  for (int i = 0; i < stacks; ++i) {
+    const float t0 = pi * static_cast<float>(i) / static_cast<float>(stacks);
+    const float t1 = pi * static_cast<float>(i + 1) / static_cast<float>(stacks);
+    for (int j = 0; j < slices; ++j) {
+      const float p0 = 2 * pi * static_cast<float>(j) / static_cast<float>(slices);
+      const float p1 = 2 * pi * static_cast<float>(j + 1) / static_cast<float>(slices);
+      const glm::vec3 a = point(t0, p0), b = point(t1, p0), c = point(t1, p1), d = point(t0, p1);
+      for (glm::vec3 q : {a, b, c, a, c, d}) push_vertex(v, q, q, 0);
+    }
+  }
+  return v;
+}
+
+// Unit cylinder of radius 1 from z = 0 to z = 1.
+std::vector<float> unit_cylinder(int slices) {
+  std::vector<float> v;
+  const float pi = std::numbers::pi_v<float>;
+  for (int j = 0; j < slices; ++j) {
+    const float p0 = 2 * pi * static_cast<float>(j) / static_cast<float>(slices);
+    const float p1 = 2 * pi * static_cast<float>(j + 1) / static_cast<float>(slices);
+    const glm::vec3 n0(std::cos(p0), std::sin(p0), 0), n1(std::cos(p1), std::sin(p1), 0);
+    const glm::vec3 a = n0, b = n1, c = n1 + glm::vec3(0, 0, 1), d = n0 + glm::vec3(0, 0, 1);
+    push_vertex(v, a, n0, 0), push_vertex(v, b, n1, 0), push_vertex(v, c, n1, 0);
+    push_vertex(v, a, n0, 0), push_vertex(v, c, n1, 0), push_vertex(v, d, n0, 0);
+  }
+  return v;
+}
+
+glm::vec3 gv(Vec3 v) { return {static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z)}; }
+glm::vec3 gv(Vec3f v) { return {v.x, v.y, v.z}; }
+
+}  // namespace
+
+SceneRenderer::SceneRenderer(int width, int height) : width_(0), height_(0) {
+  program_ = make_program(kVertex, kFragment);
+  sphere_ = upload(unit_sphere(24, 16));
+  cylinder_ = upload(unit_cylinder(20));
+  lines_ = upload({});  // a streamed buffer, refilled every frame
+  resize(width, height);
+}
+
+SceneRenderer::GpuMesh SceneRenderer::upload(const std::vector<float>& data) {
+  GpuMesh m;
+  GLuint vao = 0, vbo = 0;
+  glCreateVertexArrays(1, &vao);
+  glCreateBuffers(1, &vbo);
+  m.vao = VertexArray(vao);
+  m.vbo = Buffer(vbo);
+  glNamedBufferData(vbo, static_cast<GLsizeiptr>(data.size() * sizeof(float)), data.data(), GL_STATIC_DRAW);
+  glBindVertexArray(vao);
+  glBindBuffer(GL_ARRAY_BUFFER, vbo);
+  constexpr GLsizei stride = 7 * sizeof(float);
+  glEnableVertexAttribArray(0);
+  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, stride, nullptr);
+  glEnableVertexAttribArray(1);
+  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, stride, reinterpret_cast<const void*>(3 * sizeof(float)));
+  glEnableVertexAttribArray(2);
+  glVertexAttribPointer(2, 1, GL_FLOAT, GL_FALSE, stride, reinterpret_cast<const void*>(6 * sizeof(float)));
+  glBindVertexArray(0);
+  m.count = static_cast<GLsizei>(data.size() / 7);
+  return m;
+}
+
+void SceneRenderer::set_mesh(const surface::TriangleMesh& mesh) {
+  std::vector<float> v;
+  v.reserve(mesh.triangles.size() * 21);
+  for (std::size_t f = 0; f < mesh.triangles.size(); ++f) {
+    for (auto i : mesh.triangles[f]) push_vertex(v, gv(mesh.vertices[i]), gv(mesh.normals[i]), mesh.material[f]);
+  }
+  surface_ = upload(v);
+}
+
+void SceneRenderer::resize(int width, int height) {
+  if (width == width_ && height == height_) return;
+  width_ = width;
+  height_ = height;
+  GLuint fbo = 0, rb[2] = {0, 0};
+  glCreateFramebuffers(1, &fbo);
+  glCreateRenderbuffers(2, rb);
+  fbo_ = Framebuffer(fbo);
+  color_ = Renderbuffer(rb[0]);
+  depth_ = Renderbuffer(rb[1]);
+  glNamedRenderbufferStorage(rb[0], GL_RGBA8, width, height);
+  glNamedRenderbufferStorage(rb[1], GL_DEPTH_COMPONENT24, width, height);
+  glNamedFramebufferRenderbuffer(fbo, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, rb[0]);
+  glNamedFramebufferRenderbuffer(fbo, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, rb[1]);
+  if (glCheckNamedFramebufferStatus(fbo, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
+    throw std::runtime_error("offscreen framebuffer " + std::to_string(width) + "x" + std::to_string(height) +
+                             " is incomplete");
+  }
+}
+
+void SceneRenderer::draw(const GpuMesh& m, GLenum primitive, GLint first, GLsizei count, const glm::mat4& model,
+                         glm::vec3 color, int mode) const {
+  if (count <= 0) return;
+  const glm::mat4 mvp = proj_ * view_ * model;
+  const GLuint p = program_.get();
+  glUniformMatrix4fv(glGetUniformLocation(p, "u_mvp"), 1, GL_FALSE, glm::value_ptr(mvp));
+  glUniformMatrix4fv(glGetUniformLocation(p, "u_model"), 1, GL_FALSE, glm::value_ptr(model));
+  glUniform3fv(glGetUniformLocation(p, "u_color"), 1, glm::value_ptr(color));
+  glUniform1i(glGetUniformLocation(p, "u_mode"), mode);
+  glBindVertexArray(m.vao.get());
+  glDrawArrays(primitive, first, count);
+}
+
+void SceneRenderer::render(const SceneInput& in) {
+  const glm::vec3 target(0.0f, 0.0f, 0.0f);
+  const glm::vec3 eye = target + in.camera_distance * glm::vec3(std::cos(in.camera_pitch) * std::sin(in.camera_yaw),
+                                                                -std::cos(in.camera_pitch) * std::cos(in.camera_yaw),
+                                                                std::sin(in.camera_pitch));
+  view_ = glm::lookAt(eye, target, glm::vec3(0, 0, 1));
+  proj_ = glm::perspective(glm::radians(40.0f), static_cast<float>(width_) / static_cast<float>(height_), 0.005f, 3.0f);
+
+  glBindFramebuffer(GL_FRAMEBUFFER, fbo_.get());
+  glViewport(0, 0, width_, height_);
+  glClearColor(0.11f, 0.13f, 0.16f, 1.0f);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  glEnable(GL_DEPTH_TEST);
+  glUseProgram(program_.get());
+  glUniform3f(glGetUniformLocation(program_.get(), "u_light"), eye.x, eye.y, eye.z + 0.2f);
+
+  draw(surface_, GL_TRIANGLES, 0, surface_.count, glm::mat4(1.0f), glm::vec3(1), 0);
+
+  // Lines: the patch wireframe (lifted 0.2 mm so it is not hidden by the surface) and the force.
+  std::vector<float> lines;
+  if (in.patch != nullptr) {
+    const glm::vec3 lift(0, 0, 0.0002f);
+    const std::uint32_t n = std::min(in.patch->n_triangles, kPatchCapacity);
+    for (std::uint32_t i = 0; i < n; ++i) {
+      const auto& t = in.patch->triangles[i];
+      for (int e = 0; e < 3; ++e) {
+        push_vertex(lines, gv(t.v[e]) + lift, glm::vec3(0), 0);
+        push_vertex(lines, gv(t.v[(e + 1) % 3]) + lift, glm::vec3(0), 0);
+      }
+    }
+  }
+  const std::size_t patch_floats = lines.size();
+  if (in.has_tool && norm(in.force) > 1e-6) {
+    push_vertex(lines, gv(in.tool), glm::vec3(0), 0);
+    push_vertex(lines, gv(in.tool + 0.01 * in.force), glm::vec3(0), 0);  // 1 cm per newton
+  }
+  if (!lines.empty()) {
+    glNamedBufferData(lines_.vbo.get(), static_cast<GLsizeiptr>(lines.size() * sizeof(float)), lines.data(),
+                      GL_STREAM_DRAW);
+    const auto patch_vertices = static_cast<GLsizei>(patch_floats / 7);
+    const auto force_vertices = static_cast<GLsizei>((lines.size() - patch_floats) / 7);
+    draw(lines_, GL_LINES, 0, patch_vertices, glm::mat4(1.0f), glm::vec3(0.2f, 0.85f, 0.95f), 2);
+    draw(lines_, GL_LINES, patch_vertices, force_vertices, glm::mat4(1.0f), glm::vec3(1.0f, 0.85f, 0.1f), 2);
+  }
+
+  if (in.has_tool) {
+    const glm::vec3 tip = gv(in.tool);
+    draw(sphere_, GL_TRIANGLES, 0, sphere_.count, glm::scale(glm::translate(glm::mat4(1), tip), glm::vec3(0.0015f)),
+         glm::vec3(0.75f, 0.78f, 0.82f), 1);
+    draw(cylinder_, GL_TRIANGLES, 0, cylinder_.count, glm::scale(glm::translate(glm::mat4(1), tip), glm::vec3(0.0009f, 0.0009f, 0.07f)),
+         glm::vec3(0.55f, 0.58f, 0.62f), 1);
+    if (norm(in.proxy - in.tool) > 1e-5) {
+      draw(sphere_, GL_TRIANGLES, 0, sphere_.count, glm::scale(glm::translate(glm::mat4(1), gv(in.proxy)), glm::vec3(0.001f)),
+           glm::vec3(0.2f, 0.9f, 0.3f), 1);
+    }
+  }
+  glBindVertexArray(0);
+  glUseProgram(0);
+}
+
+void SceneRenderer::present(int window_width, int window_height) const {
+  glBlitNamedFramebuffer(fbo_.get(), 0, 0, 0, width_, height_, 0, 0, window_width, window_height, GL_COLOR_BUFFER_BIT,
+                         GL_LINEAR);
+}
+
+Image SceneRenderer::read_back() const {
+  Image img;
+  img.width = width_;
+  img.height = height_;
+  img.rgba.resize(static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_) * 4);
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, fbo_.get());
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glReadPixels(0, 0, width_, height_, GL_RGBA, GL_UNSIGNED_BYTE, img.rgba.data());
+  // GL's first row is the bottom one: flip so the image reads top-down.
+  const std::size_t row = static_cast<std::size_t>(width_) * 4;
+  for (int y = 0; y < height_ / 2; ++y) {
+    std::swap_ranges(img.rgba.begin() + static_cast<std::ptrdiff_t>(y * row),
+                     img.rgba.begin() + static_cast<std::ptrdiff_t>((y + 1) * row),
+                     img.rgba.begin() + static_cast<std::ptrdiff_t>((height_ - 1 - y) * row));
+  }
+  return img;
+}
+
+bool SceneRenderer::pick_plane(double x, double y, int ww, int wh, Vec3& out) const {
+  if (ww <= 0 || wh <= 0) return false;
+  const glm::vec4 viewport(0, 0, static_cast<float>(ww), static_cast<float>(wh));
+  const glm::vec3 win_near(static_cast<float>(x), static_cast<float>(wh - y), 0.0f);
+  const glm::vec3 win_far(static_cast<float>(x), static_cast<float>(wh - y), 1.0f);
+  const glm::vec3 a = glm::unProject(win_near, view_, proj_, viewport);
+  const glm::vec3 b = glm::unProject(win_far, view_, proj_, viewport);
+  if (std::abs(b.z - a.z) < 1e-9f) return false;
+  const float s = -a.z / (b.z - a.z);
+  if (s < 0) return false;
+  const glm::vec3 p = a + s * (b - a);
+  out = Vec3{p.x, p.y, 0.0};
+  return true;
+}
+
+}  // namespace lancet::render

@@ -1,0 +1,66 @@
+#pragma once
+// SceneRenderer: draws the tissue surface, the TissuePatch sent to lancet-rt (wireframe), the tool
+// (shaft and tip), the proxy and the force arrow into an offscreen framebuffer, which is then
+// shown in the window or read back for a screenshot. Needs a current GL 4.5 core context.
+
+#include <glm/glm.hpp>
+
+#include "lancet/shared_model/messages.hpp"
+#include "render/gl_objects.hpp"
+#include "render/image.hpp"
+#include "surface/placeholder_mesh.hpp"
+
+namespace lancet::render {
+
+struct SceneInput {
+  Vec3 tool{};                 ///< tool tip (m)
+  Vec3 proxy{};                ///< proxy (m)
+  Vec3 force{};                ///< force on the hand (N)
+  bool has_tool = false;
+  const TissuePatch* patch = nullptr;  ///< drawn as a wireframe when non-null
+  float camera_yaw = 0.6f;     ///< rad, about +z
+  float camera_pitch = 0.55f;  ///< rad above the surface plane
+  float camera_distance = 0.26f;  ///< m
+};
+
+class SceneRenderer {
+ public:
+  /// Compiles shaders and allocates a width×height offscreen target. Throws std::runtime_error
+  /// (configure time) when GL refuses.
+  SceneRenderer(int width, int height);
+
+  /// Replaces the surface mesh on the GPU.
+  void set_mesh(const surface::TriangleMesh& mesh);
+  /// Resizes the offscreen target.
+  void resize(int width, int height);
+  /// Draws the scene into the offscreen target; leaves it bound for an overlay to draw on.
+  void render(const SceneInput& in);
+  /// Copies the offscreen target to the window's framebuffer (w×h pixels).
+  void present(int window_width, int window_height) const;
+  /// Reads the offscreen target back (top row first).
+  [[nodiscard]] Image read_back() const;
+  /// Projects the window pixel (x, y) onto the plane z = 0 through the current camera.
+  [[nodiscard]] bool pick_plane(double x, double y, int window_width, int window_height, Vec3& out) const;
+  [[nodiscard]] int width() const noexcept { return width_; }
+  [[nodiscard]] int height() const noexcept { return height_; }
+
+ private:
+  struct GpuMesh {
+    VertexArray vao;
+    Buffer vbo;
+    GLsizei count = 0;
+  };
+  static GpuMesh upload(const std::vector<float>& interleaved);
+  void draw(const GpuMesh& m, GLenum primitive, GLint first, GLsizei count, const glm::mat4& model, glm::vec3 color,
+            int mode) const;
+
+  int width_, height_;
+  Program program_;
+  Framebuffer fbo_;
+  Renderbuffer color_, depth_;
+  GpuMesh surface_, sphere_, cylinder_;
+  GpuMesh lines_;
+  glm::mat4 view_{1.0f}, proj_{1.0f};
+};
+
+}  // namespace lancet::render
