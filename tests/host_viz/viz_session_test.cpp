@@ -1,0 +1,109 @@
+#include "app/viz_session.hpp"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <string>
+
+namespace lancet::viz {
+namespace {
+
+std::string unique_name(const char* tag) {
+  static int n = 0;
+  return "/lancet-vs-" + std::string(tag) + "-" + std::to_string(getpid()) + "-" + std::to_string(++n);
+}
+
+ToolSample sample(std::uint64_t seq, Vec3 p) {
+  ToolSample s{};
+  s.seq = seq;
+  s.tool.position = p;
+  return s;
+}
+
+TEST(SampleStats, CountsLossAndDisorder) {
+  SampleStats st;
+  const ToolSample a[] = {sample(5, {}), sample(6, {}), sample(9, {}), sample(9, {}), sample(8, {}), sample(10, {})};
+  st.ingest(a, 6);
+  EXPECT_EQ(st.received, 4u);
+  EXPECT_EQ(st.first_seq, 5u);
+  EXPECT_EQ(st.last_seq, 10u);
+  EXPECT_EQ(st.lost, 2u);  // 7 and 8 were skipped when 9 arrived
+  EXPECT_EQ(st.out_of_order, 2u);
+  EXPECT_EQ(st.max_batch, 6u);
+}
+
+TEST(VizSession, WaitsWithoutAPeerAndSaysSo) {
+  VizSessionParams p;
+  p.shm_name = unique_name("absent");
+  VizSession s(p);
+  const auto mesh = surface::make_tissue_block({});
+  s.frame(1'000'000'000, mesh);
+  EXPECT_EQ(s.link(), Link::kWaiting);
+  EXPECT_NE(s.link_message().find("does not exist"), std::string::npos) << s.link_message();
+}
+
+TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
+  const std::string name = unique_name("live");
+  auto rt = std::make_optional(SharedChannel::create(name, {}).value());
+  SharedState& shared = rt->state();
+  // Backlog from before the viz attached is discarded.
+  for (std::uint64_t i = 1; i <= 10; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {})));
+  std::int64_t now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+
+  VizSessionParams p;
+  p.shm_name = name;
+  VizSession s(p);
+  const auto mesh = surface::make_tissue_block({});
+  s.frame(now, mesh);
+  ASSERT_EQ(s.link(), Link::kConnected) << s.link_message();
+  EXPECT_EQ(s.stats().discarded, 10u);
+  EXPECT_EQ(s.stats().received, 0u);
+
+  for (std::uint64_t i = 11; i <= 600; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.0, 0.0, -0.001})));
+  now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  s.frame(now, mesh);
+  EXPECT_EQ(s.stats().received, 590u);
+  EXPECT_EQ(s.stats().lost, 0u);
+  EXPECT_EQ(s.latest().seq, 600u);
+  EXPECT_TRUE(shared.viz_heartbeat.fresh(now, 1'000'000));
+
+  // The patch around the tool reached shared memory.
+  auto patch = std::make_unique<TissuePatch>();
+  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  EXPECT_GT(patch->n_triangles, 0u);
+  EXPECT_EQ(patch->centre, (Vec3{0.0, 0.0, -0.001}));
+
+  // Stylus target and commands travel the other way.
+  s.set_stylus_target(true, {0.01, 0.02, -0.003}, now);
+  StylusTarget t{};
+  ASSERT_EQ(shared.stylus_target.try_read(t), ReadStatus::kOk);
+  EXPECT_EQ(t.active, 1u);
+  EXPECT_EQ(t.target.position, (Vec3{0.01, 0.02, -0.003}));
+  Command c{};
+  c.kind = CommandKind::kReset;
+  EXPECT_TRUE(s.send(c, now));
+  Command got{};
+  ASSERT_TRUE(shared.commands.try_pop(got));
+  EXPECT_EQ(got.kind, CommandKind::kReset);
+  EXPECT_EQ(got.seq, 1u);
+
+  // lancet-rt exits cleanly: the viz notices at its next frame and keeps running.
+  shared.rt_heartbeat.stop();
+  rt.reset();
+  s.frame(monotonic_ns(), mesh);
+  EXPECT_EQ(s.link(), Link::kLost);
+  EXPECT_NE(s.link_message().find("lancet-rt is not running"), std::string::npos) << s.link_message();
+  EXPECT_EQ(s.rt_losses(), 1u);
+
+  // A new lancet-rt appears under the same name: the viz attaches again.
+  rt.emplace(SharedChannel::create(name, {}).value());
+  rt->state().rt_heartbeat.beat(monotonic_ns(), getpid());
+  s.frame(monotonic_ns() + 2'000'000'000, mesh);  // past the retry interval
+  EXPECT_EQ(s.link(), Link::kConnected) << s.link_message();
+  EXPECT_EQ(s.connections(), 2u);
+}
+
+}  // namespace
+}  // namespace lancet::viz
