@@ -120,7 +120,9 @@ class SpscRing {
   alignas(kCacheLine) std::atomic<std::uint64_t> tail_{0};
   // Consumer-private line: its cached copy of the producer's index.
   alignas(kCacheLine) std::uint64_t head_cache_{0};
-  alignas(kCacheLine) T slots_[N];
+  // Value-initialised: a default-constructed ring is fully defined (construction happens once, at
+  // configure time), and GCC does not warn about reads of slots it cannot prove were written.
+  alignas(kCacheLine) T slots_[N]{};
 };
 
 }  // namespace lancet
