@@ -56,28 +56,42 @@ bool peek_header(const std::string& name, SegmentHeader& out, std::uint64_t& siz
 
 }  // namespace
 
-std::uint64_t process_start_ticks(std::int32_t pid) {
+namespace {
+
+// State letter (field 3) and start time (field 22) of /proc/<pid>/stat; false when unreadable.
+bool read_proc_stat(std::int32_t pid, char& state, std::uint64_t& start_ticks) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
   std::string line;
-  if (!std::getline(in, line)) return 0;
+  if (!std::getline(in, line)) return false;
   // The command name (field 2) is in parentheses and may contain spaces: parse after the last ')'.
   const auto close = line.rfind(')');
-  if (close == std::string::npos) return 0;
+  if (close == std::string::npos) return false;
   std::istringstream rest(line.substr(close + 1));
   std::string field;
-  // Fields after ')' start at field 3 (state); starttime is field 22.
   for (int i = 3; i <= 22; ++i) {
-    if (!(rest >> field)) return 0;
+    if (!(rest >> field)) return false;
+    if (i == 3) state = field.empty() ? '?' : field[0];
   }
-  return std::strtoull(field.c_str(), nullptr, 10);
+  start_ticks = std::strtoull(field.c_str(), nullptr, 10);
+  return true;
+}
+
+}  // namespace
+
+std::uint64_t process_start_ticks(std::int32_t pid) {
+  char state = '?';
+  std::uint64_t ticks = 0;
+  return read_proc_stat(pid, state, ticks) ? ticks : 0;
 }
 
 bool process_alive(std::int32_t pid, std::uint64_t start_ticks) {
   if (pid <= 0) return false;
   if (::kill(pid, 0) != 0 && errno == ESRCH) return false;
-  if (start_ticks == 0) return true;
-  const std::uint64_t now = process_start_ticks(pid);
-  return now == 0 || now == start_ticks;  // unreadable /proc: trust kill()
+  char state = '?';
+  std::uint64_t now = 0;
+  if (!read_proc_stat(pid, state, now)) return true;  // no /proc: trust kill()
+  if (state == 'Z' || state == 'X') return false;     // exited, not yet reaped by its parent
+  return start_ticks == 0 || now == start_ticks;      // a reused pid is another process
 }
 
 Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t payload_size,
@@ -97,7 +111,13 @@ Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t paylo
     }
     SegmentHeader old{};
     std::uint64_t old_size = 0;
-    const bool readable = peek_header(name, old, old_size);
+    // An object without a valid header may belong to a creator that has just made it with O_EXCL
+    // and not yet sized and stamped it: give it up to 200 ms before judging it garbage.
+    bool readable = peek_header(name, old, old_size);
+    for (int wait = 0; wait < 20 && !(readable && old.magic == kSegmentMagic); ++wait) {
+      ::usleep(10'000);
+      readable = peek_header(name, old, old_size);
+    }
     if (readable && old.magic == kSegmentMagic && process_alive(old.creator_pid, old.creator_start_ticks)) {
       return Error{ErrorCode::kInUse, "shared memory segment " + name + " is in use by " +
                                           std::string(old.creator_name) + " (pid " +
@@ -108,7 +128,8 @@ Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t paylo
       return Error{ErrorCode::kStale, "shared memory segment " + name +
                                           " exists but its creator is gone; remove /dev/shm" + name};
     }
-    if (shm_unlink(name.c_str()) != 0 && errno != ENOENT) {
+    if (shm_unlink(name.c_str()) != 0) {
+      if (errno == ENOENT) continue;  // its owner removed it meanwhile: just try again
       return Error{ErrorCode::kSystem, "cannot remove stale segment " + name + ": " + errno_text(errno)};
     }
     seg.notes_.push_back(readable && old.magic == kSegmentMagic

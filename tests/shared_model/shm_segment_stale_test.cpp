@@ -6,12 +6,18 @@
 // These tests also run under ThreadSanitizer: they fork from a process that has no other thread
 // and the children start none, which TSan supports (it is fork() after threads that it does not).
 
+#include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstdint>
+#include <cstdio>
+#include <fstream>
+#include <thread>
 #include <string>
 #include <utility>
 
@@ -147,6 +153,75 @@ TEST_F(ShmSegmentStale, OpenerSeesALiveCreatorDie) {
   EXPECT_EQ(peer.header().state.load(), static_cast<std::uint32_t>(SegmentState::kReady))
       << "it died without cleanup: only the pid check can tell";
   EXPECT_FALSE(peer.replaced()) << "nobody has replaced the name yet";
+}
+
+}  // namespace
+}  // namespace lancet
+
+namespace lancet {
+namespace {
+
+TEST_F(ShmSegmentStale, ACreatorThatExitedButIsNotReapedCountsAsDead) {
+  const pid_t child = test::fork_child([&] {
+    ShmSegment::CreateOptions o;
+    o.lock_memory = false;
+    auto r = ShmSegment::create(name_, kPayload, kHash, o);
+    if (!r.ok()) return 2;
+    r.value().mark_ready();
+    ::_exit(0);
+  });
+  ASSERT_GT(child, 0);
+  // Wait until the child is a zombie (exited, not reaped): kill(pid, 0) still succeeds then.
+  char state = '?';
+  for (int i = 0; i < 500 && state != 'Z'; ++i) {
+    ::usleep(2000);
+    std::ifstream in("/proc/" + std::to_string(child) + "/stat");
+    std::string line;
+    if (std::getline(in, line) && line.rfind(')') != std::string::npos) state = line[line.rfind(')') + 2];
+  }
+  ASSERT_EQ(state, 'Z');
+  EXPECT_FALSE(process_alive(child, 0));
+  auto r = ShmSegment::open(name_, kPayload, kHash);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, ErrorCode::kStale) << r.error().message;
+  EXPECT_EQ(test::wait_exit_status(child), 0);
+}
+
+TEST_F(ShmSegmentStale, AnEmptyLeftoverObjectIsReplaced) {
+  // What a creator that died between shm_open(O_EXCL) and ftruncate leaves behind.
+  const int fd = ::shm_open(name_.c_str(), O_CREAT | O_EXCL | O_RDWR, 0600);
+  ASSERT_GE(fd, 0);
+  ::close(fd);
+  auto r = ShmSegment::create(name_, kPayload, kHash, {});
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  bool noted = false;
+  for (const auto& n : r.value().notes()) noted |= n.find("not a Lancet segment") != std::string::npos;
+  EXPECT_TRUE(noted);
+}
+
+TEST_F(ShmSegmentStale, AnObjectStillBeingCreatedIsNotStolen) {
+  // Another creator has made the object with O_EXCL and stamps its header 50 ms later.
+  const int fd = ::shm_open(name_.c_str(), O_CREAT | O_EXCL | O_RDWR, 0600);
+  ASSERT_GE(fd, 0);
+  std::thread other([fd] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (::ftruncate(fd, static_cast<off_t>(kSegmentPayloadOffset + kPayload)) != 0) return;
+    void* p = ::mmap(nullptr, sizeof(SegmentHeader), PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    if (p == MAP_FAILED) return;
+    auto* h = static_cast<SegmentHeader*>(p);
+    h->header_version = kSegmentHeaderVersion;
+    h->creator_pid = static_cast<std::int32_t>(::getpid());
+    h->creator_start_ticks = process_start_ticks(h->creator_pid);
+    std::snprintf(h->creator_name, sizeof h->creator_name, "%s", "slow-creator");
+    h->magic = kSegmentMagic;
+    ::munmap(p, sizeof(SegmentHeader));
+  });
+  auto r = ShmSegment::create(name_, kPayload, kHash, {});
+  other.join();
+  ::close(fd);
+  ASSERT_FALSE(r.ok()) << "the second creator stole a segment that was still being created";
+  EXPECT_EQ(r.error().code, ErrorCode::kInUse) << r.error().message;
+  EXPECT_NE(r.error().message.find("slow-creator"), std::string::npos) << r.error().message;
 }
 
 }  // namespace
