@@ -23,7 +23,9 @@ namespace lancet::test {
 /// A child process; killed (SIGKILL) on destruction if still running.
 class Child {
  public:
-  Child(const std::vector<std::string>& argv, const std::string& output_path) {
+  /// Starts argv[0] with the environment plus `extra_env` ("NAME=value" entries, which win).
+  Child(const std::vector<std::string>& argv, const std::string& output_path,
+        const std::vector<std::string>& extra_env = {}) {
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
     posix_spawn_file_actions_addopen(&fa, 1, output_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
@@ -31,7 +33,11 @@ class Child {
     std::vector<char*> args;
     for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
     args.push_back(nullptr);
-    if (posix_spawn(&pid_, args[0], &fa, nullptr, args.data(), environ) != 0) pid_ = -1;
+    std::vector<char*> env;
+    for (const auto& e : extra_env) env.push_back(const_cast<char*>(e.c_str()));
+    for (char** e = environ; *e != nullptr; ++e) env.push_back(*e);  // first match wins in getenv
+    env.push_back(nullptr);
+    if (posix_spawn(&pid_, args[0], &fa, nullptr, args.data(), env.data()) != 0) pid_ = -1;
     posix_spawn_file_actions_destroy(&fa);
   }
   ~Child() {
