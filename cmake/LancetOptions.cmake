@@ -30,3 +30,14 @@ if(LANCET_SANITIZE MATCHES "thread")
 else()
   set(LANCET_TSAN OFF)
 endif()
+
+# lancet_add_library(<module> SOURCES a.cpp ... [PUBLIC deps...] [PRIVATE deps...])
+# One library per module: target lancet_<module>, alias lancet::<module>, headers found from the
+# module's process folder (e.g. #include "haptics/penalty_contact.hpp"), Lancet's warnings.
+function(lancet_add_library module)
+  cmake_parse_arguments(L "" "" "SOURCES;PUBLIC;PRIVATE" ${ARGN})
+  add_library(lancet_${module} ${L_SOURCES})
+  add_library(lancet::${module} ALIAS lancet_${module})
+  target_include_directories(lancet_${module} PUBLIC ${CMAKE_CURRENT_SOURCE_DIR})
+  target_link_libraries(lancet_${module} PUBLIC ${L_PUBLIC} PRIVATE ${L_PRIVATE} lancet::warnings)
+endfunction()

@@ -6,6 +6,17 @@
 namespace lancet::render {
 namespace {
 
+// The info log of a shader or program (get_iv/get_log: glGetShaderiv/glGetShaderInfoLog or the
+// program pair).
+template <class GetIv, class GetLog>
+std::string info_log(GLuint id, GetIv get_iv, GetLog get_log) {
+  GLint len = 0;
+  get_iv(id, GL_INFO_LOG_LENGTH, &len);
+  std::vector<char> log(static_cast<std::size_t>(len) + 1);
+  get_log(id, len, nullptr, log.data());
+  return log.data();
+}
+
 GLuint compile(GLenum kind, const std::string& src) {
   const GLuint s = glCreateShader(kind);
   const char* text = src.c_str();
@@ -14,13 +25,10 @@ GLuint compile(GLenum kind, const std::string& src) {
   GLint ok = 0;
   glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
   if (!ok) {
-    GLint len = 0;
-    glGetShaderiv(s, GL_INFO_LOG_LENGTH, &len);
-    std::vector<char> log(static_cast<std::size_t>(len) + 1);
-    glGetShaderInfoLog(s, len, nullptr, log.data());
+    const std::string log = info_log(s, glGetShaderiv, glGetShaderInfoLog);
     glDeleteShader(s);
     throw std::runtime_error(std::string(kind == GL_VERTEX_SHADER ? "vertex" : "fragment") +
-                             " shader failed to compile: " + log.data());
+                             " shader failed to compile: " + log);
   }
   return s;
 }
@@ -39,12 +47,9 @@ Program make_program(const std::string& vertex_src, const std::string& fragment_
   GLint ok = 0;
   glGetProgramiv(p, GL_LINK_STATUS, &ok);
   if (!ok) {
-    GLint len = 0;
-    glGetProgramiv(p, GL_INFO_LOG_LENGTH, &len);
-    std::vector<char> log(static_cast<std::size_t>(len) + 1);
-    glGetProgramInfoLog(p, len, nullptr, log.data());
+    const std::string log = info_log(p, glGetProgramiv, glGetProgramInfoLog);
     glDeleteProgram(p);
-    throw std::runtime_error(std::string("program failed to link: ") + log.data());
+    throw std::runtime_error("program failed to link: " + log);
   }
   return Program(p);
 }
