@@ -86,17 +86,8 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
 
-  const auto setup = lancet::rt::apply_rt_setup({!no_rt, priority});
-  for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
-
-  const std::int64_t start = lancet::monotonic_ns();
-  lancet::app::RtServo servo(model, shared, start);
-  lancet::rt::PeriodicTimer timer(model.period_ns, start);
-  const std::int64_t end = duration > 0 ? start + lancet::seconds_to_ns(duration) : INT64_MAX;
-  std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d)%s\n", 1e9 / static_cast<double>(model.period_ns),
-               shm.c_str(), static_cast<int>(getpid()), setup.fifo ? ", SCHED_FIFO" : "");
-
-  // Status printing happens here, off the servo thread, from the RtStatus seqlock.
+  // Status printing happens here, off the servo thread, from the RtStatus seqlock. It starts
+  // before the real-time setup so that it does not inherit SCHED_FIFO.
   std::thread reporter;
   if (!quiet) {
     reporter = std::thread([&shared] {
@@ -113,6 +104,15 @@ int main(int argc, char** argv) {
       }
     });
   }
+
+  const auto setup = lancet::rt::apply_rt_setup({!no_rt, priority});
+  for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
+  const std::int64_t start = lancet::monotonic_ns();
+  lancet::app::RtServo servo(model, shared, start);  // allocated after mlockall: locked too
+  lancet::rt::PeriodicTimer timer(model.period_ns, start);
+  const std::int64_t end = duration > 0 ? start + lancet::seconds_to_ns(duration) : INT64_MAX;
+  std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d)%s\n", 1e9 / static_cast<double>(model.period_ns),
+               shm.c_str(), static_cast<int>(getpid()), setup.fifo ? ", SCHED_FIFO" : "");
 
   while (!g_stop.load(std::memory_order_relaxed)) {
     const lancet::rt::Wake w = timer.wait();

@@ -170,7 +170,7 @@ int main(int argc, char** argv) {
     const auto start = std::chrono::steady_clock::now();
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
-    bool mode_key_down[5] = {false, false, false, false, false};
+    bool key_down[6] = {false, false, false, false, false, false};
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
@@ -189,13 +189,17 @@ int main(int argc, char** argv) {
         GLFWwindow* h = win.handle();
         if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
         // Edge-triggered keys: M toggles mouse drive, 1-4 pick the tool, R resets.
-        const int keys[5] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4};
-        for (int k = 0; k < 5; ++k) {
+        const int keys[6] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R};
+        for (int k = 0; k < 6; ++k) {
           const bool down = glfwGetKey(h, keys[k]) == GLFW_PRESS;
-          if (down && !mode_key_down[k]) {
+          if (down && !key_down[k]) {
             if (k == 0) {
               ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
               if (!ui.mouse_drives_stylus) session.set_stylus_target(false, {}, now);
+            } else if (k == 5) {
+              lancet::Command c{};
+              c.kind = lancet::CommandKind::kReset;
+              (void)session.send(c, now);
             } else {
               lancet::Command c{};
               c.kind = lancet::CommandKind::kSetToolMode;
@@ -203,12 +207,7 @@ int main(int argc, char** argv) {
               (void)session.send(c, now);
             }
           }
-          mode_key_down[k] = down;
-        }
-        if (glfwGetKey(h, GLFW_KEY_R) == GLFW_PRESS) {
-          lancet::Command c{};
-          c.kind = lancet::CommandKind::kReset;
-          (void)session.send(c, now);
+          key_down[k] = down;
         }
         double mx = 0, my = 0;
         glfwGetCursorPos(h, &mx, &my);
