@@ -11,7 +11,8 @@
 #include <thread>
 
 #include "app/rt_servo.hpp"
-#include "rt/periodic_timer.hpp"
+#include "app/rt_cli.hpp"
+#include "rt/rt_loop.hpp"
 #include "rt/rt_setup.hpp"
 
 namespace {
@@ -21,17 +22,24 @@ static_assert(std::atomic<bool>::is_always_lock_free, "the stop flag is set from
 
 extern "C" void on_signal(int) { g_stop.store(true, std::memory_order_relaxed); }
 
-bool write_stats(const std::string& path, const lancet::app::RtServo& servo, const lancet::SharedState& shared) {
+bool write_stats(const std::string& path, const lancet::app::RtServo& servo, const lancet::rt::RtLoop& loop,
+                 const lancet::SharedState& shared) {
   const lancet::app::RtData& d = servo.data();
+  const lancet::rt::LoopStats& ls = loop.stats();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return false;
   std::fprintf(f,
-               "{\n  \"ticks\": %llu,\n  \"overruns\": %llu,\n  \"max_wake_latency_us\": %.1f,\n"
+               "{\n  \"ticks\": %llu,\n  \"overruns\": %llu,\n  \"missed\": %llu,\n"
+               "  \"wake_p50_us\": %.1f,\n  \"wake_p99_us\": %.1f,\n  \"wake_max_us\": %.1f,\n"
+               "  \"compute_p99_us\": %.1f,\n  \"longest_stall_us\": %.1f,\n  \"watchdog_trips\": %llu,\n"
                "  \"samples_pushed\": %llu,\n  \"samples_dropped\": %llu,\n  \"patches_received\": %llu,\n"
                "  \"contact_ticks\": %llu,\n  \"max_force_n\": %.6f,\n  \"nan_guards\": %llu,\n  \"clamps\": %llu,\n"
                "  \"commands_applied\": %llu,\n  \"viz_lost_at_beat_ns\": %lld,\n  \"force_zero_ns\": %lld\n}\n",
-               static_cast<unsigned long long>(d.tick), static_cast<unsigned long long>(d.overruns),
-               static_cast<double>(d.max_wake_latency_ns) / 1e3,
+               static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.overruns),
+               static_cast<unsigned long long>(ls.missed), static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
+               static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
+               static_cast<double>(ls.wake_latency.max_ns()) / 1e3, static_cast<double>(ls.compute.percentile_ns(99)) / 1e3,
+               static_cast<double>(ls.longest_stall_ns) / 1e3, static_cast<unsigned long long>(loop.watchdog().trips()),
                static_cast<unsigned long long>(shared.samples.pushed_count()),
                static_cast<unsigned long long>(shared.samples.overflow_count()),
                static_cast<unsigned long long>(d.patches_received), static_cast<unsigned long long>(d.contact_ticks),
@@ -47,18 +55,14 @@ int main(int argc, char** argv) {
   CLI::App cli{"lancet-rt: 1 kHz haptic servo process (simulated stylus)"};
   std::string shm = lancet::kDefaultShmName;
   double duration = 0;
-  double period_us = 1000;
-  bool no_rt = false;
   bool quiet = false;
-  int priority = 80;
+  lancet::app::RtCliOptions rt_opts;
   std::string stats_path;
   lancet::app::RtModel model;
   double timeout_ms = 150, fade_ms = 100;
   cli.add_option("--shm", shm, "shared-memory segment name")->capture_default_str();
   cli.add_option("--duration", duration, "seconds to run; 0 runs until SIGINT/SIGTERM")->check(CLI::NonNegativeNumber);
-  cli.add_option("--period-us", period_us, "servo period in microseconds")->check(CLI::Range(100.0, 100000.0))->capture_default_str();
-  cli.add_option("--priority", priority, "SCHED_FIFO priority")->check(CLI::Range(1, 98))->capture_default_str();
-  cli.add_flag("--no-rt", no_rt, "do not try mlockall/SCHED_FIFO");
+  lancet::app::add_rt_options(cli, rt_opts);
   cli.add_flag("-q,--quiet", quiet, "no once-a-second status line");
   cli.add_option("--stiffness", model.contact.stiffness, "contact stiffness (N/m)")->check(CLI::Range(0.0, 5000.0))->capture_default_str();
   cli.add_option("--max-force", model.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
@@ -69,7 +73,9 @@ int main(int argc, char** argv) {
   cli.add_option("--stats", stats_path, "write a JSON summary here on exit");
   CLI11_PARSE(cli, argc, argv);
 
-  model.period_ns = static_cast<std::int64_t>(period_us * 1e3);
+  lancet::rt::LoopParams loop_params = rt_opts.loop();
+  loop_params.duration_ns = lancet::seconds_to_ns(duration);
+  model.period_ns = loop_params.period_ns;
   model.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
   model.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
 
@@ -86,8 +92,7 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
 
-  // Status printing happens here, off the servo thread, from the RtStatus seqlock. It starts
-  // before the real-time setup so that it does not inherit SCHED_FIFO.
+  // Status printing happens here, off the servo thread, from the RtStatus seqlock.
   std::thread reporter;
   if (!quiet) {
     reporter = std::thread([&shared] {
@@ -97,37 +102,47 @@ int main(int argc, char** argv) {
           std::this_thread::sleep_for(std::chrono::milliseconds(100));
         }
         if (shared.rt_status.try_read(st) != lancet::ReadStatus::kOk) continue;
-        std::fprintf(stderr, "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  overruns %llu  dropped %llu\n",
+        std::fprintf(stderr,
+                     "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
+                     "missed %llu  dropped %llu%s\n",
                      static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
                      st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
-                     static_cast<unsigned long long>(st.overruns), static_cast<unsigned long long>(st.samples_dropped));
+                     static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
+                     static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
+                     st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
       }
     });
   }
 
-  const auto setup = lancet::rt::apply_rt_setup({!no_rt, priority});
+  // Real time: process-wide setup first, then the loop on its own SCHED_FIFO thread.
+  const lancet::rt::RtSetupOptions setup_opts = rt_opts.setup();
+  lancet::rt::RtSetupReport setup;
+  lancet::rt::RtEnvironment environment(setup_opts, setup);
+  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns());  // allocated after mlockall: locked too
+  lancet::rt::RtLoop loop(loop_params);
+  lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
+    servo.set_fifo(lancet::rt::current_thread_is_fifo());
+    loop.run([&servo](const lancet::rt::TickContext& ctx) { servo.tick(ctx); }, g_stop);
+  });
+  for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
-  const std::int64_t start = lancet::monotonic_ns();
-  lancet::app::RtServo servo(model, shared, start);  // allocated after mlockall: locked too
-  lancet::rt::PeriodicTimer timer(model.period_ns, start);
-  const std::int64_t end = duration > 0 ? start + lancet::seconds_to_ns(duration) : INT64_MAX;
-  std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d)%s\n", 1e9 / static_cast<double>(model.period_ns),
-               shm.c_str(), static_cast<int>(getpid()), setup.fifo ? ", SCHED_FIFO" : "");
-
-  while (!g_stop.load(std::memory_order_relaxed)) {
-    const lancet::rt::Wake w = timer.wait();
-    if (w.deadline_ns >= end) break;
-    servo.tick(w.deadline_ns, w.woke_ns, timer.overruns());
-  }
+  std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
+               1e9 / static_cast<double>(model.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
+  thread.join();
   g_stop.store(true);
   if (reporter.joinable()) reporter.join();
   shared.rt_heartbeat.stop();
 
-  const auto& d = servo.data();
-  std::fprintf(stderr, "lancet-rt: stopped after %llu ticks, %llu overruns, %llu samples dropped, max force %.2f N\n",
-               static_cast<unsigned long long>(d.tick), static_cast<unsigned long long>(d.overruns),
-               static_cast<unsigned long long>(shared.samples.overflow_count()), d.max_force_seen);
-  if (!stats_path.empty() && !write_stats(stats_path, servo, shared)) {
+  const auto& ls = loop.stats();
+  std::fprintf(stderr,
+               "lancet-rt: stopped after %llu ticks: %llu missed deadlines, wake-up p50 %.1f us p99 %.1f us max %.1f us, "
+               "%llu samples dropped, max force %.2f N\n",
+               static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.missed),
+               static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
+               static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
+               static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
+               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().max_force_seen);
+  if (!stats_path.empty() && !write_stats(stats_path, servo, loop, shared)) {
     std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", stats_path.c_str());
     return 1;
   }

@@ -15,7 +15,7 @@ RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_n
   data_->stylus.position = device::scripted_target(0.0, model_.script_depth);
 }
 
-void RtServo::apply(const Command& c) noexcept {
+void RtServo::apply(const Command& c, rt::Watchdog& watchdog) noexcept {
   RtData& d = *data_;
   ++d.commands_applied;
   switch (c.kind) {
@@ -24,23 +24,24 @@ void RtServo::apply(const Command& c) noexcept {
       d.mode = ToolMode::kProbe;
       d.nan_guards = 0;
       break;
+    case CommandKind::kRearm: watchdog.rearm(); break;
     case CommandKind::kSetMaterial:  // materials arrive with the haptic core; the penalty model ignores them
     case CommandKind::kNone: break;
   }
 }
 
-void RtServo::tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t overruns) noexcept {
+void RtServo::tick(const rt::TickContext& ctx) noexcept {
   RtData& d = *data_;
+  const std::int64_t deadline_ns = ctx.deadline_ns;
+  const std::int64_t now_ns = ctx.woke_ns;
   const double dt = static_cast<double>(model_.period_ns) * 1e-9;
   const double t = static_cast<double>(deadline_ns - d.start_ns) * 1e-9;
   ++d.tick;
-  d.overruns = overruns;
-  d.max_wake_latency_ns = std::max(d.max_wake_latency_ns, now_ns - deadline_ns);
 
   // Commands from the viz.
   for (;;) {
     const std::size_t n = shared_.commands.try_pop_n(d.command_batch.data(), d.command_batch.size());
-    for (std::size_t i = 0; i < n; ++i) apply(d.command_batch[i]);
+    for (std::size_t i = 0; i < n; ++i) apply(d.command_batch[i], ctx.watchdog);
     if (n < d.command_batch.size()) break;
   }
 
@@ -78,8 +79,13 @@ void RtServo::tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t 
   const double scale = d.fade.update(alive, model_.period_ns, model_.fade);
   if (scale < 1.0) events |= event::kForceFaded;
 
-  // Safety: NaN guard, then clamp the magnitude.
+  // Safety: watchdog, NaN guard, then clamp the magnitude.
   Vec3 f = scale * c.force;
+  if (ctx.watchdog.tripped()) {
+    f = Vec3{};
+    ++d.watchdog_faulted_ticks;
+    events |= event::kFault;
+  }
   if (!is_finite(f)) {
     f = Vec3{};
     ++d.nan_guards;
@@ -120,8 +126,15 @@ void RtServo::tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t 
   st.tick = d.tick;
   st.t_ns = deadline_ns;
   st.period_ns = model_.period_ns;
-  st.overruns = d.overruns;
-  st.max_wake_latency_ns = d.max_wake_latency_ns;
+  st.overruns = ctx.live.overruns;
+  st.missed = ctx.live.missed;
+  st.wake_p50_ns = ctx.live.wake_p50_ns;
+  st.wake_p99_ns = ctx.live.wake_p99_ns;
+  st.wake_max_ns = ctx.live.wake_max_ns;
+  st.compute_p99_ns = ctx.live.compute_p99_ns;
+  st.longest_stall_ns = ctx.live.longest_stall_ns;
+  st.watchdog_tripped = ctx.watchdog.tripped() ? 1u : 0u;
+  st.fifo = d.fifo ? 1u : 0u;
   st.force = f;
   st.force_scale = scale;
   st.patch_version = d.patch_version;

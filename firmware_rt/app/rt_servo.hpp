@@ -14,6 +14,7 @@
 #include "haptics/force_fade.hpp"
 #include "haptics/penalty_contact.hpp"
 #include "lancet/shared_model/shared_state.hpp"
+#include "rt/rt_loop.hpp"
 
 namespace lancet::app {
 
@@ -54,8 +55,8 @@ struct RtData {
   std::int64_t viz_last_beat_ns = 0;
   std::int64_t viz_lost_at_beat_ns = 0;  ///< last beat seen before the viz was judged lost
   std::int64_t force_zero_ns = 0;        ///< first tick at zero force after the loss
-  std::int64_t max_wake_latency_ns = 0;
-  std::uint64_t overruns = 0;
+  std::uint64_t watchdog_faulted_ticks = 0;  ///< ticks rendered at zero force by the watchdog
+  bool fifo = false;                         ///< reported in RtStatus
   ToolSample sample{};
   RtStatus status{};
   std::array<Command, 16> command_batch{};
@@ -66,15 +67,18 @@ class RtServo {
   /// shared must outlive the servo. Not real-time safe (it is the configure step).
   RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns);
 
-  /// One servo tick for the deadline `deadline_ns`, running at `now_ns`; `overruns` is the
-  /// timer's running count. Real-time safe.
-  void tick(std::int64_t deadline_ns, std::int64_t now_ns, std::uint64_t overruns) noexcept;
+  /// One servo tick (called by RtLoop). A tripped watchdog holds the force at zero until a
+  /// kRearm command re-arms it. Real-time safe.
+  void tick(const rt::TickContext& ctx) noexcept;
+
+  /// Whether the loop thread runs SCHED_FIFO (reported in RtStatus).
+  void set_fifo(bool fifo) noexcept { data_->fifo = fifo; }
 
   [[nodiscard]] const RtData& data() const noexcept { return *data_; }
   [[nodiscard]] const RtModel& model() const noexcept { return model_; }
 
  private:
-  void apply(const Command& c) noexcept;
+  void apply(const Command& c, rt::Watchdog& watchdog) noexcept;
 
   const RtModel model_;
   SharedState& shared_;

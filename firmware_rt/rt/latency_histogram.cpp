@@ -21,7 +21,8 @@ std::int64_t LatencyHistogram::percentile_ns(double p) const noexcept {
   std::uint64_t cumulative = 0;
   for (std::size_t i = 0; i < kBuckets; ++i) {
     cumulative += buckets_[i];
-    if (cumulative >= rank) return std::clamp(bucket_lower_ns(i), min_, max_);
+    // In the unbounded overflow bucket the value is only known to lie in [1 s, max]: report max.
+    if (cumulative >= rank) return i == kOverflowBucket ? max_ : std::clamp(bucket_lower_ns(i), min_, max_);
   }
   return max_;
 }

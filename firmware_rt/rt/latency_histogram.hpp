@@ -35,7 +35,8 @@ class LatencyHistogram {
   [[nodiscard]] std::int64_t max_ns() const noexcept { return max_; }
   [[nodiscard]] double mean_ns() const noexcept { return count_ ? sum_ / static_cast<double>(count_) : 0.0; }
   /// Nearest-rank percentile (p in [0, 100]): the lower edge of the bucket holding the value of
-  /// rank ceil(p/100·count), clamped to [min, max]. Exact to within that bucket's width. O(kBuckets).
+  /// rank ceil(p/100·count), clamped to [min, max]; exact to within that bucket's width. A rank in
+  /// the overflow bucket (≥ 1 s) returns max, an upper bound. O(kBuckets).
   [[nodiscard]] std::int64_t percentile_ns(double p) const noexcept;
 
   [[nodiscard]] std::uint64_t bucket_count(std::size_t i) const noexcept { return buckets_[i]; }

@@ -93,10 +93,12 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   lines.push_back({s.link_message(), s.link() != lancet::viz::Link::kConnected});
   char buf[256];
   if (const auto& st = s.rt_status(); st && s.link() == lancet::viz::Link::kConnected) {
-    std::snprintf(buf, sizeof buf, "servo: tick %llu at %.0f Hz, overruns %llu, worst wake %.0f us",
+    std::snprintf(buf, sizeof buf, "servo: tick %llu at %.0f Hz%s, missed %llu, wake p99 %.0f us, max %.0f us",
                   static_cast<unsigned long long>(st->tick), 1e9 / static_cast<double>(st->period_ns),
-                  static_cast<unsigned long long>(st->overruns), static_cast<double>(st->max_wake_latency_ns) / 1e3);
+                  st->fifo ? " (SCHED_FIFO)" : " (not real-time)", static_cast<unsigned long long>(st->missed),
+                  static_cast<double>(st->wake_p99_ns) / 1e3, static_cast<double>(st->wake_max_ns) / 1e3);
     lines.push_back({buf});
+    if (st->watchdog_tripped) lines.push_back({"WATCHDOG TRIPPED: force held at zero; press W to re-arm", true});
     std::snprintf(buf, sizeof buf, "force %.2f N (scale %.2f)%s", lancet::norm(st->force), st->force_scale,
                   st->contact ? "  in contact" : "");
     lines.push_back({buf});
@@ -115,7 +117,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
-    lines.push_back({"1-4: probe / scalpel / retractor / drill   R: reset   Esc: quit"});
+    lines.push_back({"1-4: probe / scalpel / retractor / drill   R: reset   W: re-arm watchdog   Esc: quit"});
   }
   return lines;
 }
@@ -170,7 +172,7 @@ int main(int argc, char** argv) {
     const auto start = std::chrono::steady_clock::now();
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
-    bool key_down[6] = {false, false, false, false, false, false};
+    bool key_down[7] = {};
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
@@ -189,16 +191,16 @@ int main(int argc, char** argv) {
         GLFWwindow* h = win.handle();
         if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
         // Edge-triggered keys: M toggles mouse drive, 1-4 pick the tool, R resets.
-        const int keys[6] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R};
-        for (int k = 0; k < 6; ++k) {
+        const int keys[7] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R, GLFW_KEY_W};
+        for (int k = 0; k < 7; ++k) {
           const bool down = glfwGetKey(h, keys[k]) == GLFW_PRESS;
           if (down && !key_down[k]) {
             if (k == 0) {
               ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
               if (!ui.mouse_drives_stylus) session.set_stylus_target(false, {}, now);
-            } else if (k == 5) {
+            } else if (k >= 5) {
               lancet::Command c{};
-              c.kind = lancet::CommandKind::kReset;
+              c.kind = k == 5 ? lancet::CommandKind::kReset : lancet::CommandKind::kRearm;
               (void)session.send(c, now);
             } else {
               lancet::Command c{};

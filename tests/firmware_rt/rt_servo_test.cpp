@@ -7,7 +7,6 @@
 #include <memory>
 
 #include "malloc_guard.hpp"
-#include "rt/periodic_timer.hpp"
 
 namespace lancet::app {
 namespace {
@@ -21,6 +20,9 @@ struct Rig {
   std::unique_ptr<RtServo> servo;
   std::unique_ptr<TissuePatch> scratch = std::make_unique<TissuePatch>();  // the "viz" side's buffer
   std::int64_t t = 1'000'000'000;
+  rt::Watchdog watchdog;
+  rt::LoopLive live;
+  std::uint64_t n = 0;
 
   explicit Rig(RtModel m = {}) : model(m) { servo = std::make_unique<RtServo>(model, *shared, t); }
 
@@ -35,7 +37,7 @@ struct Rig {
   void tick(bool viz_beats) {
     t += model.period_ns;
     if (viz_beats) shared->viz_heartbeat.beat(t, 1);
-    servo->tick(t, t, 0);
+    servo->tick(rt::TickContext{t, t, ++n, watchdog, live});
   }
   void drain() {
     ToolSample s;
@@ -147,33 +149,32 @@ TEST(RtServo, MallocGuardCanFail) {
   EXPECT_GT(guard.count(), 0u);
 }
 
-TEST(PeriodicTimer, DeadlinesAdvanceByExactlyOnePeriod) {
-  const std::int64_t period = 200'000;  // 200 µs keeps the test short
-  rt::PeriodicTimer timer(period, lancet::monotonic_ns());
-  rt::Wake prev = timer.wait();
-  for (int i = 0; i < 50; ++i) {
-    const rt::Wake w = timer.wait();
-    EXPECT_EQ((w.deadline_ns - prev.deadline_ns) % period, 0);
-    EXPECT_GE(w.woke_ns, w.deadline_ns);
-    prev = w;
+TEST(RtServo, ATrippedWatchdogHoldsZeroForceUntilReArmed) {
+  Rig rig;
+  rig.publish_plane();
+  for (int i = 0; i < 2000; ++i) rig.tick(true), rig.drain();
+  ASSERT_GT(norm(rig.servo->data().force), 0.5);
+  rt::WatchdogParams wp;
+  wp.tick_budget_ns = 1;
+  ASSERT_TRUE(rig.watchdog.observe(wp, false, 10));  // one slow tick
+  for (int i = 0; i < 500; ++i) {
+    rig.tick(true);
+    ASSERT_EQ(rig.servo->data().force, Vec3{}) << "tick " << i;
   }
-}
-
-TEST(PeriodicTimer, AStallSkipsMissedDeadlinesInsteadOfBursting) {
-  const std::int64_t period = 1'000'000;
-  rt::PeriodicTimer timer(period, lancet::monotonic_ns());
-  (void)timer.wait();
-  // Stall for more than 5 periods.
-  const std::int64_t until = lancet::monotonic_ns() + 5'500'000;
-  while (lancet::monotonic_ns() < until) {
+  ToolSample s{};
+  while (rig.shared->samples.try_pop(s)) {
   }
-  const rt::Wake w = timer.wait();
-  EXPECT_GE(w.skipped, 4u);
-  EXPECT_GE(timer.overruns(), 4u);
-  // The next deadline is the first one after the wake-up: no burst of catch-up ticks.
-  const rt::Wake next = timer.wait();
-  EXPECT_EQ(next.deadline_ns - w.deadline_ns, period * (1 + static_cast<std::int64_t>(w.skipped)));
-  EXPECT_GT(next.deadline_ns, w.woke_ns);
+  EXPECT_NE(s.events & event::kFault, 0u);
+  RtStatus st{};
+  ASSERT_EQ(rig.shared->rt_status.try_read(st), ReadStatus::kOk);
+  EXPECT_EQ(st.watchdog_tripped, 1u);
+  // Only an explicit re-arm brings the force back.
+  Command c{};
+  c.kind = CommandKind::kRearm;
+  ASSERT_TRUE(rig.shared->commands.try_push(c));
+  rig.tick(true);
+  EXPECT_FALSE(rig.watchdog.tripped());
+  EXPECT_GT(norm(rig.servo->data().force), 0.5);
 }
 
 }  // namespace

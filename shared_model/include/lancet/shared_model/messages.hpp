@@ -82,6 +82,7 @@ enum class CommandKind : std::uint8_t {
   kSetToolMode = 1,  ///< use Command::mode from now on
   kSetMaterial = 2,  ///< replace material Command::material_id with Command::material
   kReset = 3,        ///< return to the free stage, clear faults that allow it
+  kRearm = 4,        ///< re-arm a tripped watchdog (force stays zero until this arrives)
 };
 
 /// Mechanical parameters of one tissue material (ALGORITHMS.md §1–2).
@@ -170,8 +171,15 @@ struct RtStatus {
   std::uint64_t tick;              ///< ticks run
   std::int64_t t_ns;               ///< deadline of the last tick (ns)
   std::int64_t period_ns;          ///< nominal period (ns)
-  std::uint64_t overruns;          ///< ticks that started after their deadline + period
-  std::int64_t max_wake_latency_ns;///< worst wake-up latency seen (ns)
+  std::uint64_t overruns;          ///< deadlines skipped because a tick ran past the next one
+  std::uint64_t missed;            ///< missed deadlines (late ticks plus skipped deadlines)
+  std::int64_t wake_p50_ns;        ///< wake-up latency percentiles so far (ns), refreshed every 100 ms
+  std::int64_t wake_p99_ns;
+  std::int64_t wake_max_ns;
+  std::int64_t compute_p99_ns;     ///< tick computation time p99 (ns)
+  std::int64_t longest_stall_ns;   ///< longest gap between two wake-ups (ns)
+  std::uint32_t watchdog_tripped;  ///< 1 while the watchdog holds the force at zero
+  std::uint32_t fifo;              ///< 1 when the loop runs SCHED_FIFO
   Vec3 force;                      ///< last commanded force (N)
   double force_scale;              ///< fade factor applied (1 = full, 0 = faded out)
   std::uint64_t patch_version;     ///< TissuePatch version in use (0: none)

@@ -72,7 +72,8 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(TissuePatch, brick), sizeof(PatchTriangle), offsetof(PatchTriangle, material),
            sizeof(CutState), offsetof(CutState, opening_width), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
   h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
-  h = fold(h, sizeof(RtStatus), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
+  h = fold(h, sizeof(RtStatus), offsetof(RtStatus, missed), offsetof(RtStatus, wake_p99_ns),
+           offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
            offsetof(RtStatus, force_zero_ns));
   h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),

@@ -1,0 +1,178 @@
+#pragma once
+// RtLoop: the periodic servo loop and its measurement.
+//
+// Timing: CLOCK_MONOTONIC absolute deadlines advanced by exactly one period. A tick that wakes
+// more than a period late skips the deadlines it missed (counted as overruns), never bursts to
+// catch up. Two wake strategies: kSleep (clock_nanosleep to the deadline) and kSleepThenSpin
+// (sleep to deadline − margin, then spin on the clock); the margin is at most half a period, so
+// the thread never spins a whole period (RT throttling would take ~50 ms a second from it).
+//
+// Measurement without allocation: per tick, wake-up latency (woke − deadline), compute time and
+// period error (|actual period − nominal|) go into LatencyHistograms in the preallocated
+// LoopStats; missed deadlines, the longest stall between wake-ups, page faults after warm-up and
+// the worst latency per time window are kept there too. Every 100 ms the loop refreshes LoopLive
+// (percentiles and counters) for the tick to publish.
+
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cstdint>
+#include <ctime>
+#include <memory>
+#include <vector>
+
+#include "lancet/shared_model/units.hpp"
+#include "rt/latency_histogram.hpp"
+#include "rt/watchdog.hpp"
+
+namespace lancet::rt {
+
+enum class WakeStrategy : std::uint8_t { kSleep = 0, kSleepThenSpin = 1 };
+
+struct LoopParams {
+  std::int64_t period_ns = 1'000'000;
+  WakeStrategy strategy = WakeStrategy::kSleep;
+  std::int64_t spin_margin_ns = 200'000;   ///< kSleepThenSpin: wake this early, then spin (≤ period/2)
+  std::int64_t duration_ns = 0;            ///< stop after this long (0: until the stop flag)
+  std::uint64_t warmup_ticks = 100;        ///< page faults are counted from the end of warm-up
+  WatchdogParams watchdog{};
+  std::int64_t window_ns = 100'000'000;    ///< time-series window for the worst latency
+  std::size_t max_windows = 0;             ///< windows to keep (preallocated; 0: none)
+};
+
+/// Live figures, refreshed every 100 ms of loop time.
+struct LoopLive {
+  std::uint64_t ticks = 0;
+  std::uint64_t overruns = 0;              ///< deadlines skipped
+  std::uint64_t missed = 0;                ///< ticks that finished after the next deadline, plus skipped ones
+  std::int64_t wake_p50_ns = 0, wake_p99_ns = 0, wake_p999_ns = 0, wake_max_ns = 0;
+  std::int64_t compute_p99_ns = 0, compute_max_ns = 0;
+  std::int64_t longest_stall_ns = 0;
+};
+
+/// Everything the loop measures, allocated once.
+struct LoopStats {
+  LatencyHistogram wake_latency;
+  LatencyHistogram compute;
+  LatencyHistogram period_error;
+  std::uint64_t ticks = 0;
+  std::uint64_t overruns = 0;
+  std::uint64_t missed = 0;
+  std::int64_t longest_stall_ns = 0;       ///< longest time between two consecutive wake-ups
+  long minor_faults = 0;                   ///< page faults of the loop thread after warm-up
+  long major_faults = 0;
+  std::vector<double> window_max_us;       ///< worst wake-up latency per window (reserved up front)
+  LoopLive live{};
+};
+
+/// What a tick sees.
+struct TickContext {
+  std::int64_t deadline_ns;
+  std::int64_t woke_ns;
+  std::uint64_t tick;          ///< 1-based
+  Watchdog& watchdog;          ///< tripped(): command zero force; rearm() on an explicit request
+  const LoopLive& live;
+};
+
+class RtLoop {
+ public:
+  explicit RtLoop(const LoopParams& params);
+
+  /// Runs the loop in the calling thread until `stop` is set or the duration has passed, calling
+  /// tick(const TickContext&) once per period. Real-time safe: no allocation, no lock; the only
+  /// system calls are the sleep, clock reads (vDSO) and two getrusage calls (end of warm-up, end).
+  template <class Tick>
+  void run(Tick&& tick, const std::atomic<bool>& stop);
+
+  [[nodiscard]] const LoopStats& stats() const noexcept { return *stats_; }
+  [[nodiscard]] const Watchdog& watchdog() const noexcept { return watchdog_; }
+  [[nodiscard]] const LoopParams& params() const noexcept { return params_; }
+
+ private:
+  void sleep_until(std::int64_t t_ns) const noexcept;
+  void refresh_live() noexcept;
+  static void thread_faults(long& minor, long& major) noexcept;
+
+  LoopParams params_;
+  std::unique_ptr<LoopStats> stats_;
+  Watchdog watchdog_;
+};
+
+template <class Tick>
+void RtLoop::run(Tick&& tick, const std::atomic<bool>& stop) {
+  LoopStats& s = *stats_;
+  const std::int64_t period = params_.period_ns;
+  const std::int64_t margin =
+      params_.strategy == WakeStrategy::kSleepThenSpin ? std::min(params_.spin_margin_ns, period / 2) : 0;
+  const std::int64_t start = monotonic_ns();
+  const std::int64_t end = params_.duration_ns > 0 ? start + params_.duration_ns : INT64_MAX;
+  std::int64_t deadline = start + period;
+  std::int64_t prev_woke = 0;
+  std::int64_t window_end = start + params_.window_ns;
+  double window_max = 0;
+  long minor0 = 0, major0 = 0;
+  std::int64_t next_live = start + 100'000'000;
+
+  while (!stop.load(std::memory_order_relaxed) && deadline < end) {
+    // Wake up.
+    if (margin > 0) {
+      sleep_until(deadline - margin);
+      while (monotonic_ns() < deadline) {
+      }
+    } else {
+      sleep_until(deadline);
+    }
+    const std::int64_t woke = monotonic_ns();
+    const std::int64_t latency = woke - deadline;
+    s.wake_latency.record(latency);
+    if (prev_woke != 0) {
+      const std::int64_t gap = woke - prev_woke;
+      s.period_error.record(gap > period ? gap - period : period - gap);
+      s.longest_stall_ns = std::max(s.longest_stall_ns, gap);
+    }
+    prev_woke = woke;
+    ++s.ticks;
+
+    tick(TickContext{deadline, woke, s.ticks, watchdog_, s.live});
+
+    const std::int64_t done = monotonic_ns();
+    const std::int64_t compute = done - woke;
+    s.compute.record(compute);
+    const bool missed = done > deadline + period;
+    if (missed) ++s.missed;
+    (void)watchdog_.observe(params_.watchdog, missed, compute);
+
+    // Worst latency per window, for the plot over time.
+    window_max = std::max(window_max, static_cast<double>(latency) / 1e3);
+    if (woke >= window_end) {
+      if (s.window_max_us.size() < params_.max_windows) s.window_max_us.push_back(window_max);  // reserved
+      window_max = 0;
+      window_end += params_.window_ns;
+    }
+    if (s.ticks == params_.warmup_ticks) thread_faults(minor0, major0);
+    if (woke >= next_live) {
+      refresh_live();
+      next_live += 100'000'000;
+    }
+
+    // Next deadline; skip the ones already missed instead of bursting.
+    deadline += period;
+    if (done >= deadline) {
+      const std::int64_t behind = (done - deadline) / period + 1;
+      deadline += behind * period;
+      s.overruns += static_cast<std::uint64_t>(behind);
+      s.missed += static_cast<std::uint64_t>(behind);
+    }
+  }
+  if (s.ticks >= params_.warmup_ticks) {
+    long minor1 = 0, major1 = 0;
+    thread_faults(minor1, major1);
+    s.minor_faults = minor1 - minor0;
+    s.major_faults = major1 - major0;
+  }
+  refresh_live();
+}
+
+}  // namespace lancet::rt
