@@ -7,8 +7,7 @@ namespace lancet::rt {
 
 double Distribution::percentile_us(double p) const {
   if (count == 0) return 0;
-  p = std::clamp(p, 0.0, 100.0);
-  const auto rank = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(p / 100.0 * static_cast<double>(count))));
+  const std::uint64_t rank = nearest_rank(p, count);
   std::uint64_t cumulative = 0;
   for (const auto& [edge, n] : buckets) {
     cumulative += n;

@@ -5,6 +5,11 @@
 
 namespace lancet::rt {
 
+std::uint64_t nearest_rank(double p, std::uint64_t count) noexcept {
+  const double x = std::clamp(p, 0.0, 100.0) / 100.0 * static_cast<double>(count);
+  return std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(x - 1e-9 * std::max(1.0, x))));
+}
+
 void LatencyHistogram::merge(const LatencyHistogram& o) noexcept {
   if (o.count_ == 0) return;
   for (std::size_t i = 0; i < kBuckets; ++i) buckets_[i] += o.buckets_[i];
@@ -16,8 +21,7 @@ void LatencyHistogram::merge(const LatencyHistogram& o) noexcept {
 
 std::int64_t LatencyHistogram::percentile_ns(double p) const noexcept {
   if (count_ == 0) return 0;
-  p = std::clamp(p, 0.0, 100.0);
-  const auto rank = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(p / 100.0 * static_cast<double>(count_))));
+  const std::uint64_t rank = nearest_rank(p, count_);
   std::uint64_t cumulative = 0;
   for (std::size_t i = 0; i < kBuckets; ++i) {
     cumulative += buckets_[i];

@@ -12,6 +12,11 @@
 
 namespace lancet::rt {
 
+/// Nearest rank (1-based) of percentile p (0..100) among count samples: ceil(p/100·count), at
+/// least 1. A tolerance keeps 96.7 % of 2000 at rank 1934 although the product rounds to
+/// 1934.0000000000002 in floating point.
+std::uint64_t nearest_rank(double p, std::uint64_t count) noexcept;
+
 class LatencyHistogram {
  public:
   static constexpr std::size_t kBuckets = 1000 + 900 + 900 + 900 + 1;

@@ -67,6 +67,15 @@ TEST(LatencyHistogram, PercentilesMatchASortedArray) {
   check_against_sorted({5});
 }
 
+TEST(LatencyHistogram, NearestRankIsExactAtBoundaries) {
+  EXPECT_EQ(nearest_rank(96.7, 2000), 1934u);  // 96.7/100*2000 is 1934.0000000000002 in doubles
+  EXPECT_EQ(nearest_rank(50, 2), 1u);
+  EXPECT_EQ(nearest_rank(50.1, 2), 2u);
+  EXPECT_EQ(nearest_rank(0, 10), 1u);
+  EXPECT_EQ(nearest_rank(100, 10), 10u);
+  EXPECT_EQ(nearest_rank(99.99, 10000), 9999u);
+}
+
 TEST(LatencyHistogram, BucketEdgesAreContiguous) {
   for (std::size_t i = 0; i + 1 < LatencyHistogram::kOverflowBucket; ++i) {
     ASSERT_EQ(LatencyHistogram::bucket_lower_ns(i) + LatencyHistogram::bucket_width_ns(i),

@@ -12,7 +12,7 @@
 #include <string>
 
 #include "lancet/shared_model/shared_state.hpp"
-#include "process.hpp"
+#include "process.hpp"  // tests/support
 
 namespace lancet {
 namespace {

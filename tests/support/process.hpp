@@ -2,6 +2,7 @@
 // Small helpers for tests that start Lancet's processes: spawn with output to a file, wait with a
 // timeout, read a JSON summary's numbers.
 
+#include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>

@@ -1,0 +1,293 @@
+#include "tools/jitter.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <sstream>
+
+#include "app/rt_servo.hpp"
+#include "rt/rt_loop.hpp"
+#include "tools/cyclictest_runner.hpp"
+
+namespace lancet::tools {
+namespace {
+
+// A 1024-triangle tessellated plane at z = 0 (32 × 16 cells over 4 cm × 4 cm): the largest patch
+// the servo handles, so every tick pays the full contact search.
+void fill_workload_patch(TissuePatch& p) {
+  constexpr int nx = 32, ny = 16;
+  constexpr float w = 0.04f, h = 0.04f;
+  std::uint32_t n = 0;
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      const float x0 = -w / 2 + w * static_cast<float>(i) / nx, x1 = -w / 2 + w * static_cast<float>(i + 1) / nx;
+      const float y0 = -h / 2 + h * static_cast<float>(j) / ny, y1 = -h / 2 + h * static_cast<float>(j + 1) / ny;
+      p.triangles[n++] = {{{x0, y0, 0}, {x1, y0, 0}, {x1, y1, 0}}, 1, 0};
+      p.triangles[n++] = {{{x0, y0, 0}, {x1, y1, 0}, {x0, y1, 0}}, 1, 0};
+    }
+  }
+  p.n_triangles = n;
+  p.radius = 0.03;
+}
+
+// Adds b's samples to a (both histograms with whole-microsecond bucket edges).
+void merge_into(rt::Distribution& a, const rt::Distribution& b) {
+  std::vector<std::pair<double, std::uint64_t>> merged;
+  auto i = a.buckets.cbegin();
+  auto j = b.buckets.cbegin();
+  while (i != a.buckets.cend() || j != b.buckets.cend()) {
+    if (j == b.buckets.cend() || (i != a.buckets.cend() && i->first < j->first)) {
+      merged.push_back(*i++);
+    } else if (i == a.buckets.cend() || j->first < i->first) {
+      merged.push_back(*j++);
+    } else {
+      merged.emplace_back(i->first, i->second + j->second);
+      ++i, ++j;
+    }
+  }
+  const double total = static_cast<double>(a.count + b.count);
+  if (total > 0) {
+    a.avg_us = (a.avg_us * static_cast<double>(a.count) + b.avg_us * static_cast<double>(b.count)) / total;
+  }
+  a.min_us = a.count ? std::min(a.min_us, b.min_us) : b.min_us;
+  a.max_us = std::max(a.max_us, b.max_us);
+  a.count += b.count;
+  a.overflows += b.overflows;
+  a.overflow_above_us = b.overflow_above_us;
+  a.buckets = std::move(merged);
+}
+
+std::string fixed1(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.1f", v);
+  return b;
+}
+
+std::string json_escape(const std::string& s) {
+  std::string o;
+  for (char c : s) {
+    if (c == '"' || c == '\\') {
+      o += '\\';
+      o += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      o += ' ';
+    } else {
+      o += c;
+    }
+  }
+  return o;
+}
+
+std::string percentile_name(double p) {
+  std::ostringstream s;
+  s << "p" << p;
+  return s.str();
+}
+
+void json_distribution(std::ostringstream& o, const rt::Distribution& d) {
+  o << "{\"count\": " << d.count << ", \"min_us\": " << fixed1(d.min_us) << ", \"avg_us\": " << fixed1(d.avg_us)
+    << ", \"max_us\": " << fixed1(d.max_us);
+  for (double p : rt::kReportPercentiles) o << ", \"" << percentile_name(p) << "_us\": " << fixed1(d.percentile_us(p));
+  o << ", \"overflows\": " << d.overflows << "}";
+}
+
+}  // namespace
+
+bool JitterResult::pass() const {
+  return std::all_of(bounds.begin(), bounds.end(), [](const Bound& b) { return b.pass; });
+}
+
+JitterResult run_jitter(const JitterOptions& o) {
+  JitterResult r;
+  const rt::RtSetupOptions setup_opts = o.rt.setup();
+  r.cpu = setup_opts.cpu;
+  rt::RtEnvironment environment(setup_opts, r.setup);
+
+  // The workload: the servo with the simulated arm pressing into a full patch, viz "alive".
+  auto shared = std::make_unique<SharedState>();
+  auto patch = std::make_unique<TissuePatch>();
+  fill_workload_patch(*patch);
+  shared->patch.write(*patch);
+  app::RtModel model;
+  model.period_ns = o.rt.loop().period_ns;
+  app::RtServo servo(model, *shared, monotonic_ns());
+
+  const int rounds = std::max(1, o.rounds);
+  // cyclictest runs whole seconds (-D): when comparing, both sides run rounds of that length.
+  const double round_s = o.compare_cyclictest ? std::max(1.0, std::ceil(o.duration_s / rounds)) : o.duration_s / rounds;
+  rt::Distribution cyc;
+  cyc.name = "cyclictest";
+  bool cyc_ok = o.compare_cyclictest;
+  for (int round = 0; round < rounds; ++round) {
+    rt::LoopParams lp = o.rt.loop();
+    lp.duration_ns = seconds_to_ns(round_s);
+    lp.max_windows = static_cast<std::size_t>(round_s / 0.1) + 2;
+    rt::RtLoop loop(lp);
+    std::atomic<bool> stop{false};
+    ToolSample drained{};
+    rt::RtSetupReport later_rounds;  // the first round's report is the one shown
+    rt::RtThread t = rt::start_rt_thread(setup_opts, round == 0 ? r.setup : later_rounds, [&] {
+      servo.set_fifo(rt::current_thread_is_fifo());
+      loop.run(
+          [&](const rt::TickContext& c) {
+            shared->viz_heartbeat.beat(c.woke_ns, 0);
+            servo.tick(c);
+            while (shared->samples.try_pop(drained)) {
+            }
+          },
+          stop);
+    });
+    t.join();
+    const rt::LoopStats& s = loop.stats();
+    r.wake.merge(s.wake_latency);
+    r.compute.merge(s.compute);
+    r.period_error.merge(s.period_error);
+    r.ticks += s.ticks;
+    r.overruns += s.overruns;
+    r.missed += s.missed;
+    r.watchdog_trips += loop.watchdog().trips();
+    r.longest_stall_ns = std::max(r.longest_stall_ns, s.longest_stall_ns);
+    r.minor_faults += s.minor_faults;
+    r.major_faults += s.major_faults;
+    r.window_max_us.insert(r.window_max_us.end(), s.window_max_us.begin(), s.window_max_us.end());
+
+    if (cyc_ok) {
+      CyclictestOptions co;
+      co.interval_us = static_cast<int>(std::lround(o.rt.period_us));
+      co.priority = o.rt.priority;
+      co.cpu = setup_opts.cpu;
+      co.duration_s = round_s;
+      co.executable = o.cyclictest;
+      auto d = run_cyclictest(co);
+      if (d) {
+        merge_into(cyc, d.value());
+      } else {
+        r.cyclictest_error = d.error().message;
+        cyc_ok = false;
+      }
+    }
+  }
+  if (cyc_ok) r.cyclictest = std::move(cyc);
+
+  const double p99 = static_cast<double>(r.wake.percentile_ns(99)) / 1e3;
+  const double mx = static_cast<double>(r.wake.max_ns()) / 1e3;
+  if (o.max_p99_us) r.bounds.push_back({"wake-up p99 (us)", *o.max_p99_us, p99, p99 <= *o.max_p99_us});
+  if (o.max_us) r.bounds.push_back({"wake-up max (us)", *o.max_us, mx, mx <= *o.max_us});
+  if (o.max_missed) {
+    r.bounds.push_back({"missed deadlines", static_cast<double>(*o.max_missed), static_cast<double>(r.missed),
+                        r.missed <= *o.max_missed});
+  }
+  return r;
+}
+
+std::string format_jitter_text(const JitterOptions& o, const JitterResult& r) {
+  std::ostringstream s;
+  const rt::Distribution ours = rt::to_distribution(r.wake, "lancet");
+  s << "# lancetctl jitter: " << o.duration_s << " s in " << std::max(1, o.rounds) << " round(s), interval "
+    << o.rt.period_us << " us, strategy " << o.rt.strategy
+    << (o.rt.strategy == "spin" ? " (margin " + fixed1(o.rt.spin_margin_us) + " us)" : std::string()) << ", priority "
+    << o.rt.priority << (r.setup.fifo ? " SCHED_FIFO" : " (not SCHED_FIFO)") << ", cpu " << r.cpu << "\n";
+  s << "# kernel " << r.setup.kernel << (r.setup.preempt_rt ? " (PREEMPT_RT)" : " (not PREEMPT_RT)") << "\n";
+  for (const auto& l : r.setup.applied) s << "# ok: " << l << "\n";
+  for (const auto& l : r.setup.degraded) s << "# degraded: " << l << "\n";
+  // cyclictest's own summary line, for people who read those (Act: the worst of the last 100 ms).
+  char line[256];
+  std::snprintf(line, sizeof line, "T: 0 (%7d) P:%2d I:%.0f C:%8llu Min:%7.0f Act:%5.0f Avg:%5.0f Max:%8.0f  lancet\n",
+                static_cast<int>(getpid()), o.rt.priority, o.rt.period_us, static_cast<unsigned long long>(ours.count),
+                ours.min_us, r.window_max_us.empty() ? ours.max_us : r.window_max_us.back(), ours.avg_us, ours.max_us);
+  s << line;
+  const rt::Distribution* c = r.cyclictest ? &*r.cyclictest : nullptr;
+  if (c != nullptr) {
+    std::snprintf(line, sizeof line, "T: 0 (cyclict) P:%2d I:%.0f C:%8llu Min:%7.0f Act:%5s Avg:%5.0f Max:%8.0f  cyclictest\n",
+                  o.rt.priority, o.rt.period_us, static_cast<unsigned long long>(c->count), c->min_us, "-", c->avg_us,
+                  c->max_us);
+    s << line;
+  }
+  s << "\nwake-up latency (us)        lancet" << (c ? "   cyclictest   lancet/cyclictest" : "") << "\n";
+  const auto row = [&](const std::string& name, double a, double b) {
+    std::snprintf(line, sizeof line, "  %-10s %19.1f", name.c_str(), a);
+    s << line;
+    if (c != nullptr) {
+      std::snprintf(line, sizeof line, " %12.1f %19.2f", b, b > 0 ? a / b : 0.0);
+      s << line;
+    }
+    s << "\n";
+  };
+  row("min", ours.min_us, c ? c->min_us : 0);
+  row("avg", ours.avg_us, c ? c->avg_us : 0);
+  for (double p : rt::kReportPercentiles) row(percentile_name(p), ours.percentile_us(p), c ? c->percentile_us(p) : 0);
+  row("max", ours.max_us, c ? c->max_us : 0);
+  if (!r.cyclictest_error.empty()) s << "cyclictest: " << r.cyclictest_error << "\n";
+  std::snprintf(line, sizeof line,
+                "\nlancet loop: %llu ticks, %llu missed deadlines (%llu skipped), longest stall %.1f us,\n"
+                "  compute p50 %.1f us p99 %.1f us max %.1f us, period error p99 %.1f us,\n"
+                "  page faults after warm-up %ld, watchdog trips %llu\n",
+                static_cast<unsigned long long>(r.ticks), static_cast<unsigned long long>(r.missed),
+                static_cast<unsigned long long>(r.overruns), static_cast<double>(r.longest_stall_ns) / 1e3,
+                static_cast<double>(r.compute.percentile_ns(50)) / 1e3, static_cast<double>(r.compute.percentile_ns(99)) / 1e3,
+                static_cast<double>(r.compute.max_ns()) / 1e3, static_cast<double>(r.period_error.percentile_ns(99)) / 1e3,
+                r.minor_faults + r.major_faults, static_cast<unsigned long long>(r.watchdog_trips));
+  s << line;
+  for (const auto& b : r.bounds) {
+    std::snprintf(line, sizeof line, "bound: %-20s <= %10.1f : %10.1f  %s\n", b.what.c_str(), b.limit, b.value,
+                  b.pass ? "PASS" : "FAIL");
+    s << line;
+  }
+  if (!r.bounds.empty()) s << "result: " << (r.pass() ? "PASS" : "FAIL") << "\n";
+  return s.str();
+}
+
+std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
+  std::ostringstream s;
+  const rt::Distribution ours = rt::to_distribution(r.wake, "lancet");
+  const auto boolean = [](bool b) { return b ? "true" : "false"; };
+  s << "{\n  \"config\": {\"duration_s\": " << o.duration_s << ", \"rounds\": " << std::max(1, o.rounds)
+    << ", \"interval_us\": " << o.rt.period_us << ", \"strategy\": \"" << o.rt.strategy
+    << "\", \"spin_margin_us\": " << o.rt.spin_margin_us << ", \"priority\": " << o.rt.priority << ", \"cpu\": " << r.cpu
+    << "},\n";
+  s << "  \"setup\": {\"fifo\": " << boolean(r.setup.fifo) << ", \"memory_locked\": " << boolean(r.setup.memory_locked)
+    << ", \"dma_latency_held\": " << boolean(r.setup.dma_latency_held) << ", \"preempt_rt\": " << boolean(r.setup.preempt_rt)
+    << ", \"cpu_isolated\": " << boolean(r.setup.cpu_isolated) << ", \"kernel\": \"" << json_escape(r.setup.kernel)
+    << "\", \"degraded\": [";
+  for (std::size_t i = 0; i < r.setup.degraded.size(); ++i) {
+    s << (i ? ", " : "") << "\"" << json_escape(r.setup.degraded[i]) << "\"";
+  }
+  s << "]},\n  \"lancet\": {\"wake_latency\": ";
+  json_distribution(s, ours);
+  s << ",\n    \"compute\": ";
+  json_distribution(s, rt::to_distribution(r.compute, "compute"));
+  s << ",\n    \"period_error\": ";
+  json_distribution(s, rt::to_distribution(r.period_error, "period_error"));
+  s << ",\n    \"ticks\": " << r.ticks << ", \"missed\": " << r.missed << ", \"overruns\": " << r.overruns
+    << ", \"longest_stall_us\": " << fixed1(static_cast<double>(r.longest_stall_ns) / 1e3)
+    << ", \"page_faults\": " << (r.minor_faults + r.major_faults) << ", \"watchdog_trips\": " << r.watchdog_trips << "},\n";
+  s << "  \"cyclictest\": ";
+  if (r.cyclictest) {
+    json_distribution(s, *r.cyclictest);
+    s << ",\n  \"ratio\": {";
+    bool first = true;
+    for (double p : rt::kReportPercentiles) {
+      const double b = r.cyclictest->percentile_us(p);
+      s << (first ? "" : ", ") << "\"" << percentile_name(p) << "\": " << (b > 0 ? ours.percentile_us(p) / b : 0.0);
+      first = false;
+    }
+    s << "}";
+  } else {
+    s << "null";
+    if (!r.cyclictest_error.empty()) s << ",\n  \"cyclictest_error\": \"" << json_escape(r.cyclictest_error) << "\"";
+  }
+  s << ",\n  \"bounds\": [";
+  for (std::size_t i = 0; i < r.bounds.size(); ++i) {
+    const auto& b = r.bounds[i];
+    s << (i ? ", " : "") << "{\"what\": \"" << b.what << "\", \"limit\": " << b.limit << ", \"value\": " << b.value
+      << ", \"pass\": " << boolean(b.pass) << "}";
+  }
+  s << "],\n  \"pass\": " << boolean(r.pass()) << "\n}\n";
+  return s.str();
+}
+
+}  // namespace lancet::tools

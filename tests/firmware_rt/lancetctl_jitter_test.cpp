@@ -1,0 +1,101 @@
+// lancetctl jitter as a test rig runs it: the exit status follows the bounds, the JSON holds the
+// percentiles (of cyclictest too, when asked), errors are clear.
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+
+#include "process.hpp"
+
+namespace lancet {
+namespace {
+
+using namespace std::chrono_literals;
+using test::Child;
+using test::json_number;
+using test::read_file;
+
+const std::string kCtl = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancetctl";
+
+class LancetctlJitter : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("lancetctl-" + std::to_string(getpid()) + "-" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) std::filesystem::remove_all(dir_);
+  }
+  std::string path(const std::string& f) const { return (dir_ / f).string(); }
+  // Runs lancetctl with args; returns its exit status (-1 if it did not exit normally).
+  int run(std::vector<std::string> args) {
+    args.insert(args.begin(), kCtl);
+    Child c(args, path("out.txt"));
+    const auto st = c.wait_exit(120s);
+    if (!st || !WIFEXITED(*st)) return -1;
+    return WEXITSTATUS(*st);
+  }
+  std::filesystem::path dir_;
+};
+
+TEST_F(LancetctlJitter, ReportsPercentilesAndPassesWithoutBounds) {
+  ASSERT_EQ(run({"jitter", "--duration", "1", "--json", path("j.json"), "--plot", path("j.svg")}), 0)
+      << read_file(path("out.txt"));
+  const std::string out = read_file(path("out.txt"));
+  EXPECT_NE(out.find("T: 0 ("), std::string::npos) << out;  // the cyclictest-style line
+  EXPECT_NE(out.find("p99.99"), std::string::npos) << out;
+  const std::string j = read_file(path("j.json"));
+  EXPECT_GE(json_number(j, "ticks").value_or(0), 900) << j;
+  EXPECT_GT(json_number(j, "p99_us").value_or(-1), -1) << j;
+  EXPECT_NE(j.find("\"cyclictest\": null"), std::string::npos) << j;
+  EXPECT_EQ(json_number(j, "page_faults").value_or(-1), 0) << j;
+  const std::string svg = read_file(path("j.svg"));
+  EXPECT_NE(svg.find("<svg"), std::string::npos);
+  EXPECT_NE(svg.find("lancet"), std::string::npos);
+}
+
+TEST_F(LancetctlJitter, BoundsSetTheExitStatus) {
+  // Nothing wakes up within a nanosecond: the bound fails, exit 1, and the report says FAIL.
+  EXPECT_EQ(run({"jitter", "--duration", "0.5", "--max-us", "0.001", "--json", path("f.json")}), 1)
+      << read_file(path("out.txt"));
+  EXPECT_NE(read_file(path("out.txt")).find("result: FAIL"), std::string::npos);
+  EXPECT_NE(read_file(path("f.json")).find("\"pass\": false"), std::string::npos);
+  // Generous bounds hold: exit 0.
+  EXPECT_EQ(run({"jitter", "--duration", "0.5", "--max-us", "10000000", "--max-p99-us", "10000000", "--max-missed",
+                 "1000000"}),
+            0)
+      << read_file(path("out.txt"));
+  EXPECT_NE(read_file(path("out.txt")).find("result: PASS"), std::string::npos);
+}
+
+TEST_F(LancetctlJitter, ComparesWithCyclictestInTheSameRun) {
+  if (getuid() != 0) GTEST_SKIP() << "cyclictest needs root for SCHED_FIFO; CI runs as root";
+  ASSERT_EQ(run({"jitter", "--duration", "2", "--compare-cyclictest", "--json", path("c.json")}), 0)
+      << read_file(path("out.txt"));
+  const std::string out = read_file(path("out.txt"));
+  EXPECT_NE(out.find("lancet/cyclictest"), std::string::npos) << out;
+  const std::string j = read_file(path("c.json"));
+  const auto cyc = j.find("\"cyclictest\": {");
+  ASSERT_NE(cyc, std::string::npos) << j;
+  EXPECT_GE(json_number(j.substr(cyc), "count").value_or(0), 800) << j;
+  EXPECT_GT(json_number(j.substr(cyc), "p99_us").value_or(0), 0) << j;
+  EXPECT_NE(j.find("\"ratio\": {"), std::string::npos) << j;
+}
+
+TEST_F(LancetctlJitter, AMissingCyclictestIsAClearErrorNotACrash) {
+  EXPECT_EQ(run({"jitter", "--duration", "0.3", "--compare-cyclictest", "--cyclictest", "/nonexistent/cyclictest"}), 2);
+  EXPECT_NE(read_file(path("out.txt")).find("rt-tests"), std::string::npos) << read_file(path("out.txt"));
+}
+
+TEST_F(LancetctlJitter, BadArgumentsAreRefused) {
+  EXPECT_NE(run({"jitter", "--strategy", "nap"}), 0);
+  EXPECT_NE(run({"jitter", "--priority", "99"}), 0);
+  EXPECT_NE(run({"jitter", "--duration", "-1"}), 0);
+  EXPECT_NE(run({}), 0);
+}
+
+}  // namespace
+}  // namespace lancet
