@@ -134,6 +134,7 @@ JitterResult run_jitter(const JitterOptions& o) {
       servo.set_fifo(rt::current_thread_is_fifo());
       loop.run(
           [&](const rt::TickContext& c) {
+            if (!o.servo_workload) return;
             shared->viz_heartbeat.beat(c.woke_ns, 0);
             servo.tick(c);
             while (shared->samples.try_pop(drained)) {
@@ -190,7 +191,8 @@ std::string format_jitter_text(const JitterOptions& o, const JitterResult& r) {
   s << "# lancetctl jitter: " << o.duration_s << " s in " << std::max(1, o.rounds) << " round(s), interval "
     << o.rt.period_us << " us, strategy " << o.rt.strategy
     << (o.rt.strategy == "spin" ? " (margin " + fixed1(o.rt.spin_margin_us) + " us)" : std::string()) << ", priority "
-    << o.rt.priority << (r.setup.fifo ? " SCHED_FIFO" : " (not SCHED_FIFO)") << ", cpu " << r.cpu << "\n";
+    << o.rt.priority << (r.setup.fifo ? " SCHED_FIFO" : " (not SCHED_FIFO)") << ", cpu " << r.cpu << ", workload "
+    << (o.servo_workload ? "servo (1024-triangle patch)" : "none") << "\n";
   s << "# kernel " << r.setup.kernel << (r.setup.preempt_rt ? " (PREEMPT_RT)" : " (not PREEMPT_RT)") << "\n";
   for (const auto& l : r.setup.applied) s << "# ok: " << l << "\n";
   for (const auto& l : r.setup.degraded) s << "# degraded: " << l << "\n";
@@ -247,7 +249,7 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
   const auto boolean = [](bool b) { return b ? "true" : "false"; };
   s << "{\n  \"config\": {\"duration_s\": " << o.duration_s << ", \"rounds\": " << std::max(1, o.rounds)
     << ", \"interval_us\": " << o.rt.period_us << ", \"strategy\": \"" << o.rt.strategy
-    << "\", \"spin_margin_us\": " << o.rt.spin_margin_us << ", \"priority\": " << o.rt.priority << ", \"cpu\": " << r.cpu
+    << "\", \"workload\": \"" << (o.servo_workload ? "servo" : "none") << "\", \"spin_margin_us\": " << o.rt.spin_margin_us << ", \"priority\": " << o.rt.priority << ", \"cpu\": " << r.cpu
     << "},\n";
   s << "  \"setup\": {\"fifo\": " << boolean(r.setup.fifo) << ", \"memory_locked\": " << boolean(r.setup.memory_locked)
     << ", \"dma_latency_held\": " << boolean(r.setup.dma_latency_held) << ", \"preempt_rt\": " << boolean(r.setup.preempt_rt)

@@ -27,6 +27,7 @@ struct JitterOptions {
   std::string json_path;
   std::string plot_path;
   std::string cyclictest = "cyclictest";
+  bool servo_workload = true;           ///< false: an empty tick (the loop's own cost, for diagnosis)
 };
 
 struct JitterResult {

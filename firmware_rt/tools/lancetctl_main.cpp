@@ -67,10 +67,14 @@ int main(int argc, char** argv) {
   jitter->add_option("--max-p99-us", jo.max_p99_us, "fail when the wake-up latency p99 exceeds this (us)")->check(CLI::PositiveNumber);
   jitter->add_option("--max-us", jo.max_us, "fail when the worst wake-up latency exceeds this (us)")->check(CLI::PositiveNumber);
   jitter->add_option("--max-missed", jo.max_missed, "fail when more deadlines than this were missed");
+  std::string workload = "servo";
+  jitter->add_option("--workload", workload, "what each tick does: servo (the real haptic tick) or none (the bare loop)")
+      ->check(CLI::IsMember({"servo", "none"}))->capture_default_str();
   jitter->add_option("--json", jo.json_path, "write the results as JSON here");
   jitter->add_option("--plot", jo.plot_path, "write an SVG plot (histograms and latency over time) here");
 
   CLI11_PARSE(cli, argc, argv);
+  jo.servo_workload = workload == "servo";
   if (jitter->parsed()) return run_jitter_command(jo);
   return 2;
 }
