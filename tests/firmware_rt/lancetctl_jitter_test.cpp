@@ -51,7 +51,9 @@ TEST_F(LancetctlJitter, ReportsPercentilesAndPassesWithoutBounds) {
   EXPECT_GE(json_number(j, "ticks").value_or(0), 900) << j;
   EXPECT_GT(json_number(j, "p99_us").value_or(-1), -1) << j;
   EXPECT_NE(j.find("\"cyclictest\": null"), std::string::npos) << j;
+#if !defined(__SANITIZE_ADDRESS__)  // lancetctl is ASan-instrumented too: its shadow memory faults in lazily
   EXPECT_EQ(json_number(j, "page_faults").value_or(-1), 0) << j;
+#endif
   const std::string svg = read_file(path("j.svg"));
   EXPECT_NE(svg.find("<svg"), std::string::npos);
   EXPECT_NE(svg.find("lancet"), std::string::npos);

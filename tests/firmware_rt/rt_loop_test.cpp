@@ -141,8 +141,10 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   t.join();
   EXPECT_GE(loop.stats().ticks + loop.stats().overruns, 9'000u);
   EXPECT_EQ(allocations, 0u);
-  EXPECT_EQ(loop.stats().minor_faults, 0) << "page faults inside the loop after warm-up";
-  EXPECT_EQ(loop.stats().major_faults, 0);
+  if (!test::kAddressSanitizer) {  // ASan's shadow memory faults in lazily
+    EXPECT_EQ(loop.stats().minor_faults, 0) << "page faults inside the loop after warm-up";
+    EXPECT_EQ(loop.stats().major_faults, 0);
+  }
   EXPECT_GT(servo.data().contact_ticks, 0u);
 }
 
@@ -187,8 +189,10 @@ TEST(RtSetup, RefusedStepsAreReportedWithARemedy) {
   EXPECT_EQ(text.find("FIFO-GRANTED"), std::string::npos) << text;
   EXPECT_NE(text.find("SCHED_FIFO priority 80 refused"), std::string::npos) << text;
   EXPECT_NE(text.find("CAP_SYS_NICE"), std::string::npos) << text;
-  EXPECT_NE(text.find("mlockall refused"), std::string::npos) << text;
-  EXPECT_NE(text.find("ulimit -l"), std::string::npos) << text;
+  if (!test::kAddressSanitizer) {  // ASan intercepts mlockall and always reports success
+    EXPECT_NE(text.find("mlockall refused"), std::string::npos) << text;
+    EXPECT_NE(text.find("ulimit -l"), std::string::npos) << text;
+  }
 }
 
 TEST(RtSetup, ParsesCpuLists) {

@@ -25,6 +25,16 @@ class MallocGuard {
   std::size_t start_;
 };
 
+/// True in AddressSanitizer builds, where some checks mean nothing: ASan's shadow memory faults
+/// pages in lazily (so page-fault counts are not zero) and it intercepts mlockall, returning
+/// success without locking anything.
+constexpr bool kAddressSanitizer =
+#if defined(__SANITIZE_ADDRESS__)
+    true;
+#else
+    false;
+#endif
+
 /// True when plain malloc is counted too (false under ASan/TSan, which own malloc; operator new
 /// is counted in every build).
 bool malloc_is_counted() noexcept;
