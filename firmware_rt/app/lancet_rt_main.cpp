@@ -64,8 +64,10 @@ int main(int argc, char** argv) {
   cli.add_option("--duration", duration, "seconds to run; 0 runs until SIGINT/SIGTERM")->check(CLI::NonNegativeNumber);
   lancet::app::add_rt_options(cli, rt_opts);
   cli.add_flag("-q,--quiet", quiet, "no once-a-second status line");
-  cli.add_option("--stiffness", model.contact.stiffness, "contact stiffness (N/m)")->check(CLI::Range(0.0, 5000.0))->capture_default_str();
-  cli.add_option("--max-force", model.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
+  double stiffness = 0;
+  cli.add_option("--stiffness", stiffness, "contact stiffness of every material (N/m); default: per material")
+      ->check(CLI::Range(1.0, 5000.0));
+  cli.add_option("--max-force", model.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
   cli.add_option("--viz-timeout-ms", timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
   cli.add_option("--fade-ms", fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
@@ -76,6 +78,9 @@ int main(int argc, char** argv) {
   lancet::rt::LoopParams loop_params = rt_opts.loop();
   loop_params.duration_ns = lancet::seconds_to_ns(duration);
   model.period_ns = loop_params.period_ns;
+  if (stiffness > 0) {
+    for (auto& mat : model.haptic.materials) mat.stiffness = stiffness;
+  }
   model.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
   model.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
 

@@ -8,8 +8,16 @@
 
 namespace lancet::app {
 
+namespace {
+// The haptic model's time step is the servo period.
+RtModel with_period(RtModel m) {
+  m.haptic.dt = static_cast<double>(m.period_ns) * 1e-9;
+  return m;
+}
+}  // namespace
+
 RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns)
-    : model_(model), shared_(shared), data_(std::make_unique<RtData>()) {
+    : model_(with_period(model)), shared_(shared), data_(std::make_unique<RtData>()) {
   data_->start_ns = start_ns;
   data_->pid = static_cast<std::int32_t>(getpid());
   data_->stylus.position = device::scripted_target(0.0, model_.script_depth);
@@ -58,14 +66,19 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   }
   const TissuePatch& patch = d.patches[static_cast<std::size_t>(d.front)];
 
-  // Contact force against the patch.
-  const haptics::ContactResult c = d.patch_version != 0
-                                       ? haptics::penalty_contact(model_.contact, patch, d.stylus.position, d.stylus.velocity)
-                                       : haptics::ContactResult{};
-  std::uint32_t events = 0;
-  if (c.contact != d.contact) events |= c.contact ? event::kContactBegin : event::kContactEnd;
-  d.contact = c.contact;
-  if (c.contact) ++d.contact_ticks;
+  // The haptic step: proxy against the patch, stage machine, cut friction, force safety.
+  haptics::HapticInput in;
+  in.device = d.stylus.position;
+  in.velocity = d.stylus.velocity;
+  in.orientation = Quat{};  // the simulated stylus does not rotate: the blade points along +x
+  in.mode = d.mode;
+  in.patch = d.patch_version != 0 ? &patch : nullptr;
+  in.patch_age_ns = d.patch_version != 0 ? now_ns - patch.t_ns : -1;
+  haptics::HapticOutput& h = d.haptic_out;
+  haptics::haptic_step(model_.haptic, d.haptic, in, h);
+  std::uint32_t events = h.events;
+  d.contact = h.contact;
+  if (h.contact) ++d.contact_ticks;
 
   // The viz owns the tissue: without its heartbeat the patch is stale, so fade the force out.
   const std::int64_t beat = shared_.viz_heartbeat.last_ns();
@@ -79,8 +92,8 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   const double scale = d.fade.update(alive, model_.period_ns, model_.fade);
   if (scale < 1.0) events |= event::kForceFaded;
 
-  // Safety: watchdog, NaN guard, then clamp the magnitude.
-  Vec3 f = scale * c.force;
+  // Last guards: watchdog, NaN, clamp (the haptic step's safety layer ran already).
+  Vec3 f = scale * h.force;
   if (ctx.watchdog.tripped()) {
     f = Vec3{};
     ++d.watchdog_faulted_ticks;
@@ -92,8 +105,8 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
     events |= event::kFault;
   }
   const double mag = norm(f);
-  if (mag > model_.max_force) {
-    f = (model_.max_force / mag) * f;
+  if (mag > model_.haptic.safety.max_force) {
+    f = (model_.haptic.safety.max_force / mag) * f;
     ++d.clamps;
     events |= event::kForceClamped;
   }
@@ -110,16 +123,16 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   s.t_ns = deadline_ns;
   s.n_joints = 3;  // the sim stylus is a Cartesian 3-DOF point: q = position
   s.mode = d.mode;
-  s.stage = c.contact ? Stage::kDeform : Stage::kFree;
+  s.stage = h.stage;
   s.q[0] = d.stylus.position.x, s.q[1] = d.stylus.position.y, s.q[2] = d.stylus.position.z;
   s.qd[0] = d.stylus.velocity.x, s.qd[1] = d.stylus.velocity.y, s.qd[2] = d.stylus.velocity.z;
   s.tau[0] = f.x, s.tau[1] = f.y, s.tau[2] = f.z;
   s.tool = Pose{d.stylus.position, Quat{}};
-  s.proxy = Pose{c.contact ? c.closest : d.stylus.position, Quat{}};
+  s.proxy = Pose{h.proxy, Quat{}};
   s.force = f;
   s.patch_version = d.patch_version;
   s.events = events;
-  s.payload = EventPayload{c.closest, c.normal, Vec3{}, -c.signed_distance};
+  s.payload = h.payload;
   (void)shared_.samples.try_push(s);  // a full ring is counted by the ring itself
 
   RtStatus& st = d.status;
@@ -139,7 +152,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   st.force_scale = scale;
   st.patch_version = d.patch_version;
   st.viz_alive = alive ? 1u : 0u;
-  st.contact = c.contact ? 1u : 0u;
+  st.contact = h.contact ? 1u : 0u;
   st.samples_pushed = shared_.samples.pushed_count();
   st.samples_dropped = shared_.samples.overflow_count();
   st.viz_last_beat_ns = alive ? d.viz_last_beat_ns : d.viz_lost_at_beat_ns;

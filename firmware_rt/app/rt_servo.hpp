@@ -3,8 +3,8 @@
 // and RtServo::tick(), which never allocates, locks, blocks, throws or logs.
 //
 // One tick: drain commands → stylus target (viz or script) → read the simulated device → take the
-// newest TissuePatch (seqlock, never waits) → penalty contact → fade by viz liveness → safety
-// (NaN guard, clamp) → write the device → push one ToolSample → publish RtStatus and heartbeat.
+// newest TissuePatch (seqlock, never waits) → haptic step (proxy, stages, cut friction, force
+// safety) → fade by viz liveness → watchdog → write the device → push one ToolSample → publish RtStatus and heartbeat.
 
 #include <array>
 #include <cstdint>
@@ -12,7 +12,7 @@
 
 #include "device/sim_stylus.hpp"
 #include "haptics/force_fade.hpp"
-#include "haptics/penalty_contact.hpp"
+#include "haptics/haptic_step.hpp"
 #include "lancet/shared_model/shared_state.hpp"
 #include "rt/rt_loop.hpp"
 
@@ -21,8 +21,7 @@ namespace lancet::app {
 /// Immutable configuration of the servo (built once at start-up).
 struct RtModel {
   std::int64_t period_ns = 1'000'000;            ///< 1 kHz
-  haptics::PenaltyParams contact{};
-  double max_force = 8.0;                        ///< N, clamp on the rendered force
+  haptics::HapticModel haptic = haptics::HapticModel::defaults();  ///< materials, proxy, safety
   haptics::ForceFadeParams fade{};
   device::SimStylusParams stylus{};
   double script_depth = 0.004;                   ///< m below z = 0 the script presses to
@@ -43,6 +42,8 @@ struct RtData {
   std::uint64_t patch_version = 0;
   std::uint64_t patches_received = 0;
   haptics::ForceFade fade{};
+  haptics::HapticData haptic{};
+  haptics::HapticOutput haptic_out{};
   bool viz_alive = false;
   bool contact = false;
   ToolMode mode = ToolMode::kProbe;

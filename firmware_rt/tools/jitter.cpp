@@ -136,6 +136,11 @@ JitterResult run_jitter(const JitterOptions& o) {
           [&](const rt::TickContext& c) {
             if (!o.servo_workload) return;
             shared->viz_heartbeat.beat(c.woke_ns, 0);
+            if (c.tick % 16 == 0) {  // a fresh patch at about 60 Hz, as the viz publishes
+              patch->t_ns = c.woke_ns;
+              ++patch->seq;
+              shared->patch.write(*patch);
+            }
             servo.tick(c);
             while (shared->samples.try_pop(drained)) {
             }

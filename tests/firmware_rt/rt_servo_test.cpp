@@ -23,6 +23,7 @@ struct Rig {
   rt::Watchdog watchdog;
   rt::LoopLive live;
   std::uint64_t n = 0;
+  bool published = false;
 
   explicit Rig(RtModel m = {}) : model(m) { servo = std::make_unique<RtServo>(model, *shared, t); }
 
@@ -32,11 +33,18 @@ struct Rig {
     p->n_triangles = 2;
     p->triangles[0] = {{{-s, -s, h}, {s, -s, h}, {s, s, h}}, 1, 0};
     p->triangles[1] = {{{-s, -s, h}, {s, s, h}, {-s, s, h}}, 1, 0};
+    p->t_ns = t;
     shared->patch.write(*p);
+    published = true;
   }
   void tick(bool viz_beats) {
     t += model.period_ns;
     if (viz_beats) shared->viz_heartbeat.beat(t, 1);
+    // A live viz republishes the patch every frame (about 16 ms); a stale one fades the force.
+    if (viz_beats && published && n % 16 == 0) {
+      scratch->t_ns = t;
+      shared->patch.write(*scratch);
+    }
     servo->tick(rt::TickContext{t, t, ++n, watchdog, live});
   }
   void drain() {
@@ -57,7 +65,7 @@ TEST(RtServo, ScriptedToolPressesIntoThePatchAndFeelsAForce) {
   EXPECT_GT(d.patches_received, 0u);
   EXPECT_GT(d.contact_ticks, 500u);
   EXPECT_GT(d.force.z, 0.5);               // pushed up, out of the tissue
-  EXPECT_LE(norm(d.force), rig.model.max_force);
+  EXPECT_LE(norm(d.force), rig.model.haptic.safety.max_force);
   EXPECT_EQ(rig.shared->samples.overflow_count(), 0u);
 }
 
@@ -100,8 +108,8 @@ TEST(RtServo, ForceFadesToZeroWhenTheVizHeartbeatStops) {
 
 TEST(RtServo, ForceIsClampedAndNeverNaN) {
   RtModel m;
-  m.contact.stiffness = 1e6;  // absurdly stiff: the clamp must hold
-  m.max_force = 5.0;
+  for (auto& mat : m.haptic.materials) mat.stiffness = 1e6;  // absurdly stiff: the clamp must hold
+  m.haptic.safety.max_force = 5.0;
   Rig rig(m);
   rig.publish_plane();
   for (int i = 0; i < 3000; ++i) {
@@ -109,7 +117,7 @@ TEST(RtServo, ForceIsClampedAndNeverNaN) {
     rig.drain();
     const Vec3 f = rig.servo->data().force;
     ASSERT_TRUE(is_finite(f));
-    ASSERT_LE(norm(f), m.max_force * (1 + 1e-12));
+    ASSERT_LE(norm(f), m.haptic.safety.max_force * (1 + 1e-12));
   }
   EXPECT_GT(rig.servo->data().clamps, 0u);
 

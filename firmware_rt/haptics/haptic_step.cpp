@@ -1,0 +1,108 @@
+#include "haptics/haptic_step.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lancet::haptics {
+
+HapticModel HapticModel::defaults() {
+  HapticModel m;
+  //                     k      D    yield  mu_s  mu_d  along across density
+  const MaterialParams skin{600, 1.0, 3.0, 0.5, 0.3, 2.0, 20.0, 1100};
+  const MaterialParams vessel{300, 0.8, 1.5, 0.3, 0.2, 1.5, 15.0, 1060};
+  m.materials.fill(skin);
+  m.materials[2] = vessel;
+  return m;
+}
+
+namespace {
+
+const MaterialParams& material(const HapticModel& m, std::uint32_t id) {
+  return m.materials[std::min<std::size_t>(id, kMaxMaterials - 1)];
+}
+
+// Follow fraction per tick of a proxy pulled by spring k through viscous drag D, integrated
+// implicitly (D·v_proxy = k·(x_device − x_proxy,new)): k·dt/(D + k·dt), always in (0, 1], and
+// the steady force at device speed v is exactly D·v.
+double follow(double k, double drag, double dt) { return drag > 0 ? k * dt / (drag + k * dt) : 1.0; }
+
+}  // namespace
+
+void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept {
+  out = HapticOutput{};
+  const Vec3 prev_proxy = d.initialised ? d.proxy : in.device;
+  d.initialised = true;
+  Vec3 raw{};
+  const MaterialParams* mat = &material(m, 1);
+
+  if (d.stage == Stage::kRupture) d.stage = Stage::kCutting;  // rupture lasts one tick
+
+  if (d.stage == Stage::kCutting) {
+    mat = &material(m, d.cut_material);
+    const Vec3 blade = rotate(in.orientation, m.blade_axis);
+    // (1) cutting direction: the blade projected onto the surface.
+    Vec3 u = normalized(blade - dot(blade, d.cut_normal) * d.cut_normal);
+    if (u == Vec3{}) u = normalized(cross(d.cut_normal, Vec3{0, 0, 1}));
+    // (2)-(4): follow along the cut (never backward) with low drag, sideways with high drag.
+    const Vec3 mv = in.device - prev_proxy;
+    const double along = dot(mv, u);
+    const Vec3 side = mv - along * u;
+    d.proxy = prev_proxy + (along > 0 ? follow(mat->stiffness, mat->cut_drag_along, m.dt) * along : 0.0) * u +
+              follow(mat->stiffness, mat->cut_drag_across, m.dt) * side;
+    raw = mat->stiffness * (d.proxy - in.device);
+    out.contact = true;
+    if (norm(d.proxy - d.last_cut_event) > 0.0005) {  // every 0.5 mm of cut
+      out.events |= event::kCutProgress;
+      out.payload = EventPayload{d.proxy, d.cut_normal, u, 0};
+      d.last_cut_event = d.proxy;
+    }
+    // Exit: the device has come back out above the entry plane.
+    if (dot(in.device - d.cut_entry, d.cut_normal) > m.proxy_radius) {
+      d.stage = Stage::kFree;
+      d.proxy = in.device;
+      raw = Vec3{};
+      out.contact = false;
+      out.events |= event::kContactEnd;
+    }
+  } else if (in.patch != nullptr) {
+    const ProxyResult r = update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius, 0, 0, false, d.scratch);
+    std::uint32_t tri_material = 1;
+    if (r.n_active > 0) tri_material = in.patch->triangles[r.triangle].material;
+    mat = &material(m, tri_material);
+    // Friction with this material's coefficients (a second pass only when in contact).
+    const ProxyResult rf = r.n_active > 0 ? update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius,
+                                                         mat->friction_static, mat->friction_dynamic, d.sliding,
+                                                         d.scratch)
+                                          : r;
+    d.sliding = rf.n_active > 0 && !rf.stuck && norm(rf.position - r.position) > 0;
+    d.proxy = rf.position;
+    const Vec3 v_proxy = (1.0 / m.dt) * (d.proxy - prev_proxy);
+    out.contact = rf.n_active > 0 && dot(d.proxy - in.device, rf.normal) > 0;
+    raw = out.contact ? mat->stiffness * (d.proxy - in.device) - mat->damping * (in.velocity - v_proxy) : Vec3{};
+    d.stage = out.contact ? Stage::kDeform : Stage::kFree;
+    // Rupture: a scalpel pressing harder than the material yields starts a cut, exactly once.
+    if (out.contact && in.mode == ToolMode::kScalpel && norm(raw) > mat->yield_force) {
+      d.stage = Stage::kRupture;
+      d.cut_normal = rf.normal;
+      d.cut_entry = d.proxy;
+      d.cut_material = tri_material;
+      d.last_cut_event = d.proxy;
+      ++d.ruptures;
+      out.events |= event::kRupture;
+      const Vec3 blade = rotate(in.orientation, m.blade_axis);
+      out.payload = EventPayload{d.proxy, rf.normal, normalized(blade - dot(blade, rf.normal) * rf.normal), norm(raw)};
+    }
+  } else {
+    d.proxy = in.device;  // no tissue known: the proxy follows freely
+    d.stage = Stage::kFree;
+  }
+
+  if (out.contact != d.contact) out.events |= out.contact ? event::kContactBegin : event::kContactEnd;
+  d.contact = out.contact;
+  out.force = apply_safety(m.safety, d.safety, raw, in.device, in.velocity, in.patch ? in.patch_age_ns : -1, m.dt,
+                           out.events);
+  out.proxy = d.proxy;
+  out.stage = d.stage;
+}
+
+}  // namespace lancet::haptics

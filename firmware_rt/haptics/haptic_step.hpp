@@ -1,0 +1,71 @@
+#pragma once
+// The haptic step of one servo tick, in the model/data manner (STYLE.md): an immutable
+// HapticModel, a preallocated HapticData, and haptic_step(), which never allocates.
+//
+// Stages (ALGORITHMS.md §1–2): free → deform (proxy on the surface, Hooke force
+// f = −k (x_device − x_proxy) − D (v_device − v_proxy)) → rupture, once, when a scalpel's force
+// exceeds the material's yield force → cutting with directional friction → exit when the device
+// leaves the tissue. Cutting, per tick: (1) the cutting direction is the blade direction projected
+// onto the surface; (2) the proxy follows the device through viscous drag; (3) motion along the
+// cutting direction is followed with the low drag cut_drag_along and backward motion not at all;
+// (4) the sideways rest slips with the high drag cut_drag_across. So cutting along the blade is
+// easy, sideways hard, backward blocked, and the felt force depends on the blade angle.
+
+#include <array>
+#include <cstdint>
+
+#include "haptics/force_safety.hpp"
+#include "haptics/proxy.hpp"
+#include "lancet/shared_model/messages.hpp"
+
+namespace lancet::haptics {
+
+inline constexpr std::size_t kMaxMaterials = 16;
+
+struct HapticModel {
+  double proxy_radius = 0.001;             ///< m
+  double dt = 0.001;                       ///< s, the servo period
+  std::array<MaterialParams, kMaxMaterials> materials{};  ///< by material id (ids beyond: the last)
+  SafetyParams safety{};
+  Vec3 blade_axis{1, 0, 0};                ///< blade edge direction in the tool frame
+  /// Default materials: id 0 and 1 skin-like, 2 vessel (softer, weaker).
+  static HapticModel defaults();
+};
+
+struct HapticData {
+  Stage stage = Stage::kFree;
+  Vec3 proxy{};
+  bool initialised = false;
+  bool contact = false;
+  bool sliding = false;        ///< dynamic friction last tick
+  Vec3 cut_normal{};           ///< surface normal where the cut entered
+  Vec3 cut_entry{};
+  std::uint32_t cut_material = 1;
+  Vec3 last_cut_event{};       ///< where the last kCutProgress was sent
+  ProxyScratch scratch{};
+  SafetyData safety{};
+  std::uint64_t ruptures = 0;
+};
+
+struct HapticInput {
+  Vec3 device;                 ///< device (haptic interface point) position (m)
+  Vec3 velocity;               ///< its velocity (m/s)
+  Quat orientation;            ///< tool orientation (the blade is orientation · blade_axis)
+  ToolMode mode = ToolMode::kProbe;
+  const TissuePatch* patch = nullptr;  ///< null: no tissue known
+  std::int64_t patch_age_ns = -1;      ///< age of the patch (negative: none)
+};
+
+struct HapticOutput {
+  Vec3 force;                  ///< on the hand, after safety (N)
+  Vec3 proxy;
+  Stage stage = Stage::kFree;
+  bool contact = false;
+  std::uint32_t events = 0;
+  EventPayload payload{};
+};
+
+/// One tick. Real-time safe: O(patch triangles), no allocation, no exceptions.
+void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept;
+
+}  // namespace lancet::haptics

@@ -1,0 +1,184 @@
+#include "haptics/proxy.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lancet::haptics {
+namespace {
+
+constexpr double kEps = 1e-9;  // m: feasibility tolerance
+
+// Solves the equality projection x = goal + Σ λ_i n_i with n_i·x = d_i for the active planes.
+// Returns false when the planes are (nearly) dependent.
+bool project(const Plane* planes, const std::uint32_t* idx, std::uint32_t m, Vec3 goal, Vec3& x, double* lambda) {
+  double g[3][3], b[3];
+  for (std::uint32_t i = 0; i < m; ++i) {
+    const Plane& pi = planes[idx[i]];
+    b[i] = pi.d - dot(pi.n, goal);
+    for (std::uint32_t j = 0; j < m; ++j) g[i][j] = dot(pi.n, planes[idx[j]].n);
+  }
+  if (m == 1) {
+    lambda[0] = b[0] / g[0][0];
+  } else if (m == 2) {
+    const double det = g[0][0] * g[1][1] - g[0][1] * g[1][0];
+    if (std::abs(det) < 1e-10) return false;
+    lambda[0] = (b[0] * g[1][1] - g[0][1] * b[1]) / det;
+    lambda[1] = (g[0][0] * b[1] - b[0] * g[1][0]) / det;
+  } else {
+    const double det = g[0][0] * (g[1][1] * g[2][2] - g[1][2] * g[2][1]) -
+                       g[0][1] * (g[1][0] * g[2][2] - g[1][2] * g[2][0]) +
+                       g[0][2] * (g[1][0] * g[2][1] - g[1][1] * g[2][0]);
+    if (std::abs(det) < 1e-10) return false;
+    // Cramer's rule.
+    for (int k = 0; k < 3; ++k) {
+      double mk[3][3];
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) mk[r][c] = c == k ? b[r] : g[r][c];
+      lambda[k] = (mk[0][0] * (mk[1][1] * mk[2][2] - mk[1][2] * mk[2][1]) -
+                   mk[0][1] * (mk[1][0] * mk[2][2] - mk[1][2] * mk[2][0]) +
+                   mk[0][2] * (mk[1][0] * mk[2][1] - mk[1][1] * mk[2][0])) /
+                  det;
+    }
+  }
+  x = goal;
+  for (std::uint32_t i = 0; i < m; ++i) x += lambda[i] * planes[idx[i]].n;
+  return true;
+}
+
+bool feasible(const Plane* planes, std::size_t n, Vec3 x) {
+  for (std::size_t i = 0; i < n; ++i) {
+    if (dot(planes[i].n, x) < planes[i].d - kEps) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept {
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) return a;
+  const Vec3 bp = p - b;
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return b;
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + (d1 / (d1 - d3)) * ab;
+  const Vec3 cp = p - c;
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return c;
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + (d2 / (d2 - d6)) * ac;
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b);
+  const double denom = 1.0 / (va + vb + vc);
+  return a + (vb * denom) * ab + (vc * denom) * ac;
+}
+
+std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, double reach, ProxyScratch& s) noexcept {
+  s.n_planes = 0;
+  const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
+  const double reach2 = reach * reach;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const PatchTriangle& t = patch.triangles[i];
+    const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+    const Vec3 face = cross(b - a, c - a);
+    if (!is_finite(a) || !is_finite(b) || !is_finite(c) || dot(face, face) < 1e-24) continue;  // bad or degenerate
+    const Vec3 q = closest_point_on_triangle(p, a, b, c);
+    const Vec3 d = p - q;
+    const double dist2 = dot(d, d);
+    if (dist2 > reach2) continue;
+    // Tissue surfaces are one-sided (outward normals): a proxy behind a triangle (a device that
+    // started under the sheet, a patch that appeared around a pressed tool) is not held there,
+    // which would pull the hand back in with a force spike when it leaves.
+    if (dot(d, face) < 0) continue;
+    // The separating direction; when p lies on the triangle, its face normal.
+    const Vec3 nrm = dist2 > 1e-20 ? (1.0 / std::sqrt(dist2)) * d : normalized(face);
+    s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i};
+  }
+  return s.n_planes;
+}
+
+Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active,
+                       std::uint32_t& m) noexcept {
+  m = 0;
+  Vec3 x = goal;
+  double lambda[3];
+  for (int iter = 0; iter < 12; ++iter) {
+    // The most violated plane not yet active.
+    std::size_t worst = n;
+    double worst_violation = kEps;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = planes[i].d - dot(planes[i].n, x);
+      if (v > worst_violation && std::find(active.begin(), active.begin() + m, i) == active.begin() + m) {
+        worst = i;
+        worst_violation = v;
+      }
+    }
+    if (worst == n) return x;  // feasible
+    if (m == 3) break;
+    active[m++] = static_cast<std::uint32_t>(worst);
+    // Solve on the active set; drop planes that pull (negative multiplier) and solve again.
+    for (std::uint32_t tries = 0; tries < 3; ++tries) {
+      if (!project(planes, active.data(), m, goal, x, lambda)) {
+        m = 0;
+        return p;
+      }
+      std::uint32_t drop = m;
+      for (std::uint32_t i = 0; i < m; ++i) {
+        if (lambda[i] < 0 && (drop == m || lambda[i] < lambda[drop])) drop = i;
+      }
+      if (drop == m) break;
+      for (std::uint32_t i = drop; i + 1 < m; ++i) active[i] = active[i + 1];
+      --m;
+      if (m == 0) {
+        x = goal;
+        break;
+      }
+    }
+  }
+  if (feasible(planes, n, x)) return x;
+  m = 0;
+  return p;  // no feasible point found: stay (p satisfies every plane built from it)
+}
+
+ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, double mu_s, double mu_d,
+                         bool sliding, ProxyScratch& s) noexcept {
+  ProxyResult r;
+  const double reach = norm(device - p) + 2.0 * radius;
+  collect_planes(patch, p, radius, reach, s);
+  std::array<std::uint32_t, 3> active{};
+  std::uint32_t m = 0;
+  const Vec3 x = solve_constraints(s.planes.data(), s.n_planes, p, device, active, m);
+  r.position = x;
+  r.n_active = m;
+  if (m == 0) return r;
+  Vec3 nsum{};
+  for (std::uint32_t i = 0; i < m; ++i) nsum += s.planes[active[i]].n;
+  r.normal = normalized(nsum);
+  r.triangle = s.planes[active[0]].triangle;
+
+  // Coulomb friction on the spring: depth = how far the device is below the proxy along the
+  // normal; tangential offset of the previous proxy from the device decides stick or slide.
+  const double depth = dot(x - device, r.normal);
+  if (depth <= 0) return r;
+  const Vec3 off = p - device;
+  const Vec3 tang = off - dot(off, r.normal) * r.normal;
+  const double t = norm(tang);
+  if (t < 1e-12) return r;
+  Vec3 candidate;
+  if (t <= (sliding ? mu_d : mu_s) * depth) {
+    candidate = x + tang;  // stick: keep the old tangential place
+    r.stuck = true;
+  } else {
+    candidate = x + (std::min(t, mu_d * depth) / t) * tang;  // slide to the edge of the cone
+  }
+  // Friction never moves the proxy into the tissue: keep it only where every plane holds.
+  if (feasible(s.planes.data(), s.n_planes, candidate)) {
+    r.position = candidate;
+  } else {
+    r.stuck = false;
+  }
+  return r;
+}
+
+}  // namespace lancet::haptics
