@@ -36,8 +36,65 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
   const MaterialParams* mat = &material(m, 1);
 
   if (d.stage == Stage::kRupture) d.stage = Stage::kCutting;  // rupture lasts one tick
+  if (d.grabbed && in.mode != ToolMode::kRetractor) {  // changing tools lets go
+    d.grabbed = false;
+    d.stage = Stage::kFree;
+    out.events |= event::kRelease;
+  }
 
-  if (d.stage == Stage::kCutting) {
+  if (in.mode == ToolMode::kRetractor && (d.grabbed || in.patch != nullptr)) {
+    if (!d.grabbed) {
+      // Nearest surface point; grab it when close enough.
+      double best = m.snap_distance * m.snap_distance;
+      bool found = false;
+      const std::uint32_t n = std::min(in.patch->n_triangles, kPatchCapacity);
+      for (std::uint32_t i = 0; i < n; ++i) {
+        const PatchTriangle& t = in.patch->triangles[i];
+        const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+        if (!is_finite(a) || !is_finite(b) || !is_finite(c)) continue;
+        const Vec3 q = closest_point_on_triangle(in.device, a, b, c);
+        const double dist2 = dot(in.device - q, in.device - q);
+        if (dist2 <= best) {
+          best = dist2;
+          found = true;
+          d.control = q;
+          d.grab_normal = normalized(cross(b - a, c - a));
+          d.cut_material = t.material;
+        }
+      }
+      if (found) {
+        d.grabbed = true;
+        d.last_pull_event = in.device;
+        out.events |= event::kGrab;
+        out.payload = EventPayload{d.control, d.grab_normal, Vec3{}, 0};
+      }
+    }
+    if (d.grabbed) {
+      mat = &material(m, d.cut_material);
+      const Vec3 disp = in.device - d.control;
+      const double len = norm(disp);
+      if (len > m.elastic_limit * m.release_factor) {
+        d.grabbed = false;  // the grip slips
+        d.stage = Stage::kFree;
+        d.proxy = in.device;
+        out.events |= event::kRelease;
+        out.payload = EventPayload{d.control, d.grab_normal, normalized(disp), m.elastic_limit};
+      } else {
+        d.stage = Stage::kPulling;
+        d.proxy = d.control;  // the magnetic snap: the hand is drawn to the control point
+        raw = mat->stiffness * (d.control - in.device);
+        out.contact = true;
+        if (norm(in.device - d.last_pull_event) > 0.0005) {
+          out.events |= event::kPull;
+          out.payload = EventPayload{d.control, d.grab_normal, normalized(disp), std::min(len, m.elastic_limit)};
+          d.last_pull_event = in.device;
+        }
+      }
+    } else {
+      d.proxy = in.device;
+      d.stage = Stage::kFree;
+    }
+  } else if (d.stage == Stage::kCutting) {
     mat = &material(m, d.cut_material);
     const Vec3 blade = rotate(in.orientation, m.blade_axis);
     // (1) cutting direction: the blade projected onto the surface.
@@ -65,16 +122,13 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
       out.events |= event::kContactEnd;
     }
   } else if (in.patch != nullptr) {
-    const ProxyResult r = update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius, 0, 0, false, d.scratch);
+    ProxyResult rf = update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius, d.scratch);
+    const Vec3 frictionless = rf.position;
     std::uint32_t tri_material = 1;
-    if (r.n_active > 0) tri_material = in.patch->triangles[r.triangle].material;
+    if (rf.n_active > 0) tri_material = in.patch->triangles[rf.triangle].material;
     mat = &material(m, tri_material);
-    // Friction with this material's coefficients (a second pass only when in contact).
-    const ProxyResult rf = r.n_active > 0 ? update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius,
-                                                         mat->friction_static, mat->friction_dynamic, d.sliding,
-                                                         d.scratch)
-                                          : r;
-    d.sliding = rf.n_active > 0 && !rf.stuck && norm(rf.position - r.position) > 0;
+    apply_friction(rf, prev_proxy, in.device, mat->friction_static, mat->friction_dynamic, d.sliding, d.scratch);
+    d.sliding = rf.n_active > 0 && !rf.stuck && norm(rf.position - frictionless) > 0;
     d.proxy = rf.position;
     const Vec3 v_proxy = (1.0 / m.dt) * (d.proxy - prev_proxy);
     out.contact = rf.n_active > 0 && dot(d.proxy - in.device, rf.normal) > 0;

@@ -10,6 +10,11 @@
 // cutting direction is followed with the low drag cut_drag_along and backward motion not at all;
 // (4) the sideways rest slips with the high drag cut_drag_across. So cutting along the blade is
 // easy, sideways hard, backward blocked, and the felt force depends on the blade angle.
+// Retractor (ALGORITHMS.md §2, thesis 4.2.4): within snap_distance of the surface the tool snaps
+// to the closest point (magnetic effect: the hand is pulled onto it) and grabs it; that point is
+// the control point of the opening. Pulling stretches the tissue up to elastic_limit (events
+// report the displacement, clamped there) with a spring pulling back; pulled much further, the
+// grip slips and the tissue is released.
 
 #include <array>
 #include <cstdint>
@@ -28,6 +33,9 @@ struct HapticModel {
   std::array<MaterialParams, kMaxMaterials> materials{};  ///< by material id (ids beyond: the last)
   SafetyParams safety{};
   Vec3 blade_axis{1, 0, 0};                ///< blade edge direction in the tool frame
+  double snap_distance = 0.003;            ///< m: a retractor this close to the surface grabs it
+  double elastic_limit = 0.015;            ///< m: how far the grabbed tissue stretches
+  double release_factor = 1.5;             ///< pulled beyond elastic_limit × this, the grip slips
   /// Default materials: id 0 and 1 skin-like, 2 vessel (softer, weaker).
   static HapticModel defaults();
 };
@@ -45,6 +53,10 @@ struct HapticData {
   ProxyScratch scratch{};
   SafetyData safety{};
   std::uint64_t ruptures = 0;
+  bool grabbed = false;        ///< retractor holding the tissue
+  Vec3 control{};              ///< where it grabbed (m)
+  Vec3 grab_normal{};
+  Vec3 last_pull_event{};
 };
 
 struct HapticInput {

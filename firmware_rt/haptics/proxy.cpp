@@ -141,44 +141,47 @@ Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, st
   return p;  // no feasible point found: stay (p satisfies every plane built from it)
 }
 
-ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, double mu_s, double mu_d,
-                         bool sliding, ProxyScratch& s) noexcept {
+ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, ProxyScratch& s) noexcept {
   ProxyResult r;
   const double reach = norm(device - p) + 2.0 * radius;
   collect_planes(patch, p, radius, reach, s);
   std::array<std::uint32_t, 3> active{};
   std::uint32_t m = 0;
-  const Vec3 x = solve_constraints(s.planes.data(), s.n_planes, p, device, active, m);
-  r.position = x;
+  r.position = solve_constraints(s.planes.data(), s.n_planes, p, device, active, m);
   r.n_active = m;
   if (m == 0) return r;
   Vec3 nsum{};
   for (std::uint32_t i = 0; i < m; ++i) nsum += s.planes[active[i]].n;
   r.normal = normalized(nsum);
   r.triangle = s.planes[active[0]].triangle;
+  return r;
+}
 
-  // Coulomb friction on the spring: depth = how far the device is below the proxy along the
-  // normal; tangential offset of the previous proxy from the device decides stick or slide.
+void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_d, bool sliding,
+                    const ProxyScratch& s) noexcept {
+  if (r.n_active == 0) return;
+  // depth: how far the device is below the proxy along the normal; the tangential offset of the
+  // previous proxy from the device decides stick or slide.
+  const Vec3 x = r.position;
   const double depth = dot(x - device, r.normal);
-  if (depth <= 0) return r;
+  if (depth <= 0) return;
   const Vec3 off = p - device;
   const Vec3 tang = off - dot(off, r.normal) * r.normal;
   const double t = norm(tang);
-  if (t < 1e-12) return r;
+  if (t < 1e-12) return;
   Vec3 candidate;
+  bool stuck = false;
   if (t <= (sliding ? mu_d : mu_s) * depth) {
     candidate = x + tang;  // stick: keep the old tangential place
-    r.stuck = true;
+    stuck = true;
   } else {
     candidate = x + (std::min(t, mu_d * depth) / t) * tang;  // slide to the edge of the cone
   }
   // Friction never moves the proxy into the tissue: keep it only where every plane holds.
   if (feasible(s.planes.data(), s.n_planes, candidate)) {
     r.position = candidate;
-  } else {
-    r.stuck = false;
+    r.stuck = stuck;
   }
-  return r;
 }
 
 }  // namespace lancet::haptics

@@ -53,11 +53,15 @@ std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, doub
 Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active_out,
                        std::uint32_t& n_active) noexcept;
 
-/// One proxy update: from the previous centre p toward the device, with static and dynamic
-/// friction coefficients mu_s, mu_d (tangential/normal spring displacement). A proxy that was
-/// sliding last tick (`sliding`) keeps sliding unless it falls inside the dynamic cone, so the
-/// friction force does not saw-tooth between the two coefficients.
-ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, double mu_s, double mu_d,
-                         bool sliding, ProxyScratch& scratch) noexcept;
+/// One proxy update without friction: from the previous centre p toward the device. Leaves the
+/// planes it used in scratch for apply_friction.
+ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, ProxyScratch& scratch) noexcept;
+
+/// Coulomb friction on a proxy in contact (r from update_proxy with the same p, device and
+/// scratch), with static and dynamic coefficients mu_s, mu_d (tangential/normal spring
+/// displacement). A proxy that was sliding last tick (`sliding`) keeps sliding unless it falls
+/// inside the dynamic cone, so the force does not saw-tooth between the two coefficients.
+void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_d, bool sliding,
+                    const ProxyScratch& scratch) noexcept;
 
 }  // namespace lancet::haptics

@@ -286,6 +286,56 @@ TEST(CutFriction, CutProgressEventsAndExit) {
   EXPECT_EQ(rig.out.force, Vec3{});
 }
 
+TEST(Retractor, SnapsWithinSnapDistanceAndNotBeyond) {
+  const auto p = plane();
+  const HapticModel m = test_model(500);
+  {
+    Rig rig(m);
+    const HapticOutput& o = rig.step(p.get(), {0.004, 0, m.snap_distance * 0.95}, {}, ToolMode::kRetractor);
+    EXPECT_NE(o.events & event::kGrab, 0u);
+    EXPECT_EQ(o.stage, Stage::kPulling);
+    EXPECT_NEAR(o.payload.position.x, 0.004, 1e-6);  // the closest surface point
+    EXPECT_NEAR(o.payload.position.z, 0, 1e-6);
+    EXPECT_LT(o.force.z, 0) << "the hand is drawn to the surface";
+    EXPECT_NEAR(o.force.z, -500 * m.snap_distance * 0.95, 1e-6);
+  }
+  {
+    Rig rig(m);
+    const HapticOutput& o = rig.step(p.get(), {0.004, 0, m.snap_distance * 1.05}, {}, ToolMode::kRetractor);
+    EXPECT_EQ(o.events & event::kGrab, 0u);
+    EXPECT_EQ(o.force, Vec3{});
+    EXPECT_EQ(o.stage, Stage::kFree);
+  }
+}
+
+TEST(Retractor, PullReportsDisplacementUpToTheElasticLimitThenReleases) {
+  const auto p = plane();
+  const HapticModel m = test_model(500);
+  Rig rig(m);
+  rig.step(p.get(), {0, 0, 0.001}, {}, ToolMode::kRetractor);
+  ASSERT_TRUE(rig.d->grabbed);
+  double last_reported = 0;
+  int pulls = 0;
+  bool released = false;
+  for (int i = 1; i <= 400 && !released; ++i) {
+    const HapticOutput& o = rig.step(p.get(), {0.0001 * i, 0, 0.001}, {}, ToolMode::kRetractor);
+    if (o.events & event::kPull) {
+      ++pulls;
+      EXPECT_LE(o.payload.magnitude, m.elastic_limit + 1e-12);
+      EXPECT_GE(o.payload.magnitude, last_reported - 1e-12);
+      last_reported = o.payload.magnitude;
+      const double x = 0.0001 * i;  // displacement (x, 0, 1 mm) from the grab point
+      EXPECT_NEAR(o.payload.direction.x, x / std::hypot(x, 0.001), 1e-9);
+      EXPECT_LT(o.force.x, 0) << "the tissue pulls back";
+    }
+    released = (o.events & event::kRelease) != 0;
+  }
+  EXPECT_GT(pulls, 10);
+  EXPECT_NEAR(last_reported, m.elastic_limit, 1e-12);
+  EXPECT_TRUE(released) << "pulled past the limit, the grip slips";
+  EXPECT_EQ(rig.out.force, Vec3{});
+}
+
 TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
   // A 0.1 kg mass under gravity bounces on a 5 kN/m wall rendered at 1 kHz, the force sampled once
   // a tick and held (sample and hold), no damping. The arm moves continuously meanwhile (fine
