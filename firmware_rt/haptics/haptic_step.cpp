@@ -42,7 +42,35 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
     out.events |= event::kRelease;
   }
 
-  if (in.mode == ToolMode::kRetractor && (d.grabbed || in.patch != nullptr)) {
+  if (in.mode == ToolMode::kDrill && in.patch != nullptr && in.patch->brick.valid == 1) {
+    // The brick travels with each patch; keep our carved copy until the viz sends a newer one.
+    if (in.patch->seq != d.brick_seq) {
+      d.brick = in.patch->brick;
+      d.brick_seq = in.patch->seq;
+    }
+    const VolumeContact vc = volume_proxy_step(d.brick, m.drill_iso_hu, prev_proxy, in.device);
+    d.proxy = vc.position;
+    out.contact = vc.contact && dot(d.proxy - in.device, vc.normal) > 0;
+    d.stage = out.contact ? Stage::kDrilling : Stage::kFree;
+    raw = out.contact ? m.drill_stiffness * (d.proxy - in.device) : Vec3{};
+    const double f = norm(raw);
+    if (out.contact && f > m.drill_min_force) {
+      // Denser tissue resists: removal slows in proportion to the density in front of the burr.
+      // One removal takes about one voxel: the burr sphere, centred outside the contact, reaches
+      // a voxel's depth into the bone.
+      const double layer = std::min({d.brick.spacing.x, d.brick.spacing.y, d.brick.spacing.z});
+      const Vec3 front = d.proxy + (m.drill_burr_radius - layer) * vc.normal;
+      const double density = std::max(100.0, sample_hu(d.brick, d.proxy - layer * vc.normal) + 1000.0);  // ~kg/m³
+      d.drill_progress += m.drill_rate * (f - m.drill_min_force) * m.dt * (2000.0 / density);
+      if (d.drill_progress >= 1.0) {
+        d.drill_progress -= 1.0;
+        carve_sphere(d.brick, front, m.drill_burr_radius);
+        ++d.removals;
+        out.events |= event::kDrillRemove;
+        out.payload = EventPayload{front, vc.normal, Vec3{}, m.drill_burr_radius};
+      }
+    }
+  } else if (in.mode == ToolMode::kRetractor && (d.grabbed || in.patch != nullptr)) {
     if (!d.grabbed) {
       // Nearest surface point; grab it when close enough.
       double best = m.snap_distance * m.snap_distance;

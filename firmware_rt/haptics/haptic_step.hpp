@@ -15,12 +15,15 @@
 // the control point of the opening. Pulling stretches the tissue up to elastic_limit (events
 // report the displacement, clamped there) with a spring pulling back; pulled much further, the
 // grip slips and the tissue is released.
+// Drill: volume haptics on the patch's voxel brick (volume_haptics.hpp); pressing harder than
+// drill_min_force removes a burr sphere at a rate drill_rate·(|f| − min)·(1000 HU / density).
 
 #include <array>
 #include <cstdint>
 
 #include "haptics/force_safety.hpp"
 #include "haptics/proxy.hpp"
+#include "haptics/volume_haptics.hpp"
 #include "lancet/shared_model/messages.hpp"
 
 namespace lancet::haptics {
@@ -36,6 +39,11 @@ struct HapticModel {
   double snap_distance = 0.003;            ///< m: a retractor this close to the surface grabs it
   double elastic_limit = 0.015;            ///< m: how far the grabbed tissue stretches
   double release_factor = 1.5;             ///< pulled beyond elastic_limit × this, the grip slips
+  double drill_iso_hu = 300;               ///< HU at and above which the drill meets hard tissue
+  double drill_stiffness = 800;            ///< N/m, the felt stiffness of the volume surface
+  double drill_burr_radius = 0.0015;       ///< m
+  double drill_min_force = 1.0;            ///< N: pressing harder than this removes material
+  double drill_rate = 2.0;                 ///< removals per second per newton above the minimum, at 1000 HU
   /// Default materials: id 0 and 1 skin-like, 2 vessel (softer, weaker).
   static HapticModel defaults();
 };
@@ -57,6 +65,10 @@ struct HapticData {
   Vec3 control{};              ///< where it grabbed (m)
   Vec3 grab_normal{};
   Vec3 last_pull_event{};
+  VoxelBrick brick{};          ///< the drill's own copy of the patch's brick, carved as it drills
+  std::uint64_t brick_seq = 0; ///< patch seq the copy came from
+  double drill_progress = 0;   ///< accumulated removal (1 = remove one burr sphere)
+  std::uint64_t removals = 0;
 };
 
 struct HapticInput {

@@ -336,6 +336,88 @@ TEST(Retractor, PullReportsDisplacementUpToTheElasticLimitThenReleases) {
   EXPECT_EQ(rig.out.force, Vec3{});
 }
 
+// A brick of 1 mm voxels centred on the origin: `hu` below z = 0, air above.
+std::unique_ptr<TissuePatch> bone_patch(std::int16_t hu) {
+  auto p = plane(0, 0.05f, 1);  // a surface too, which the drill ignores
+  VoxelBrick& b = p->brick;
+  b.valid = 1;
+  b.dim = kBrickDim;
+  b.spacing = {0.001, 0.001, 0.001};
+  b.origin = {-0.0075, -0.0075, -0.0075};  // voxel centres at ±0.5, ±1.5, … mm
+  const int n = static_cast<int>(kBrickDim);
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) b.hu[static_cast<std::size_t>((k * n + j) * n + i)] = b.origin.z + k * 0.001 < 0 ? hu : kAirHu;
+  p->seq = 1;
+  return p;
+}
+
+TEST(VolumeHaptics, TrilinearSamplingIsExactOnALinearField) {
+  VoxelBrick b{};
+  b.valid = 1;
+  b.dim = kBrickDim;
+  b.spacing = {0.001, 0.002, 0.001};
+  const int n = static_cast<int>(kBrickDim);
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) b.hu[static_cast<std::size_t>((k * n + j) * n + i)] = static_cast<std::int16_t>(10 * i + 3 * j - 2 * k);
+  EXPECT_NEAR(sample_hu(b, {0.0042, 0.0051, 0.0033}), 10 * 4.2 + 3 * 2.55 - 2 * 3.3, 1e-9);
+  const Vec3 g = gradient_hu(b, {0.005, 0.01, 0.005});
+  EXPECT_NEAR(g.x, 10 / 0.001, 1e-6);
+  EXPECT_NEAR(g.y, 3 / 0.002, 1e-6);
+  EXPECT_NEAR(g.z, -2 / 0.001, 1e-6);
+  EXPECT_EQ(sample_hu(b, {1, 1, 1}), kAirHu);  // far outside
+  b.valid = 0;
+  EXPECT_EQ(sample_hu(b, {0.005, 0.005, 0.005}), kAirHu);
+}
+
+TEST(Drill, StopsAtTheBoneSurfaceAndSlidesAlongIt) {
+  const auto p = bone_patch(1000);
+  HapticModel m = test_model(500);
+  m.drill_min_force = 100;  // no removal in this test
+  Rig rig(m);
+  rig.step(p.get(), {0, 0, 0.004}, {}, ToolMode::kDrill);
+  for (int i = 0; i <= 60; ++i) rig.step(p.get(), {0, 0, 0.004 - 0.0001 * i}, {}, ToolMode::kDrill);  // to -2 mm
+  EXPECT_EQ(rig.out.stage, Stage::kDrilling);
+  // The iso surface (300 HU) of a step from 1000 to -1000 between z = -0.5 and +0.5 mm: z = -0.15 mm.
+  EXPECT_NEAR(rig.out.proxy.z, -0.00015, 0.0003);
+  EXPECT_NEAR(rig.out.force.z, m.drill_stiffness * (rig.out.proxy.z + 0.002), 1e-9);
+  EXPECT_GT(rig.out.force.z, 1.0);
+  // Sideways, the proxy slides along the bone.
+  for (int i = 0; i <= 30; ++i) rig.step(p.get(), {0.0001 * i, 0, -0.002}, {}, ToolMode::kDrill);
+  EXPECT_NEAR(rig.out.proxy.x, 0.003, 0.0003);
+  EXPECT_NEAR(rig.out.proxy.z, -0.00015, 0.0003);
+}
+
+// Presses the drill 6 mm into bone of `hu` for 0.5 s; returns how deep the proxy got (m).
+double drilled_depth(std::int16_t hu, std::uint64_t& removals) {
+  const auto p = bone_patch(hu);
+  Rig rig(test_model(500));
+  rig.step(p.get(), {0, 0, 0.004}, {}, ToolMode::kDrill);
+  for (int i = 0; i <= 100; ++i) rig.step(p.get(), {0, 0, 0.004 - 0.0001 * i}, {}, ToolMode::kDrill);
+  int events = 0;
+  for (int i = 0; i < 500; ++i) {
+    if (rig.step(p.get(), {0, 0, -0.006}, {}, ToolMode::kDrill).events & event::kDrillRemove) {
+      ++events;
+      EXPECT_NEAR(rig.out.payload.magnitude, rig.m.drill_burr_radius, 1e-12);
+    }
+  }
+  removals = rig.d->removals;
+  EXPECT_EQ(static_cast<std::uint64_t>(events), removals);
+  return -rig.out.proxy.z;
+}
+
+TEST(Drill, RemovesMaterialAndDenserBoneResistsMore) {
+  std::uint64_t soft_removals = 0, hard_removals = 0;
+  const double soft = drilled_depth(600, soft_removals);
+  const double hard = drilled_depth(1800, hard_removals);
+  EXPECT_GT(soft_removals, 0u);
+  EXPECT_GT(hard_removals, 0u);
+  EXPECT_GT(soft_removals, hard_removals) << "denser bone must be removed more slowly";
+  EXPECT_GT(soft, 0.0005) << "the burr advances into the bone as it removes it";
+  EXPECT_GE(soft, hard);
+}
+
 TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
   // A 0.1 kg mass under gravity bounces on a 5 kN/m wall rendered at 1 kHz, the force sampled once
   // a tick and held (sample and hold), no damping. The arm moves continuously meanwhile (fine
@@ -429,12 +511,15 @@ TEST(Safety, AMillionRandomTicksGiveFiniteForcesWithinTheClamp) {
 
 TEST(HapticStep, AllocatesNothing) {
   const auto p = plane(0, 0.05f, 16);  // 512 triangles
+  const auto bone = bone_patch(1000);
   Rig rig(HapticModel::defaults());
   rig.step(p.get(), {0, 0, 0.01});
   test::MallocGuard guard;
+  const ToolMode modes[] = {ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor, ToolMode::kDrill};
   for (int i = 0; i < 10'000; ++i) {
-    rig.step(p.get(), {0.01 * std::sin(i * 0.01), 0, 0.002 - 0.004 * std::cos(i * 0.003)}, {},
-             i % 2 ? ToolMode::kScalpel : ToolMode::kProbe);
+    const ToolMode mode = modes[(i / 2500) % 4];
+    rig.step(mode == ToolMode::kDrill ? bone.get() : p.get(),
+             {0.01 * std::sin(i * 0.01), 0, 0.002 - 0.004 * std::cos(i * 0.003)}, {}, mode);
   }
   EXPECT_EQ(guard.count(), 0u);
 }
