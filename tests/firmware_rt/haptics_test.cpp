@@ -160,6 +160,53 @@ TEST(Proxy, NoFallThroughOnARandomWalkOverATessellatedSphere) {
   }
 }
 
+TEST(Proxy, PressingIntoASphereMatchesTheAnalyticGodObject) {
+  // Analytic reference: pressing radially into a sphere of radius R with a proxy of radius r, the
+  // god-object rests at distance R + r from the centre along the device's direction, and the
+  // force is k·(R + r − |x_device|) radially out. On the tessellation, R is the distance to the
+  // face under the device, so the check is exact there and the direction is that face's normal.
+  const double rad = 0.03;
+  const auto s = sphere(rad);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0, 1);
+  int checked = 0;
+  for (int trial = 0; trial < 20; ++trial) {
+    const Vec3 dir = normalized(Vec3{g(rng), g(rng), g(rng)});
+    // The face the ray hits, and its plane distance from the centre along its own normal.
+    double face_dist = 0;
+    Vec3 face_n{};
+    for (std::uint32_t i = 0; i < s->n_triangles; ++i) {
+      const auto& t = s->triangles[i];
+      const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+      const Vec3 n = normalized(cross(b - a, c - a));
+      const double dn = dot(dir, n);
+      if (dn <= 0) continue;
+      const double tr = dot(a, n) / dn;  // ray from the centre hits the plane at tr·dir
+      const Vec3 q = tr * dir;
+      if (norm(closest_point_on_triangle(q, a, b, c) - q) < 1e-9) {
+        face_dist = dot(a, n);
+        face_n = n;
+        break;
+      }
+    }
+    ASSERT_GT(face_dist, 0) << "no face under the ray, trial " << trial;
+    HapticModel m = test_model(700);
+    for (auto& mat : m.materials) mat.friction_static = mat.friction_dynamic = 0;  // the reference is frictionless
+    Rig rig(m);
+    const Vec3 start = (rad + 0.01) * dir;
+    rig.step(s.get(), start);
+    const double depth = 0.002;
+    const Vec3 goal = (face_dist + kR - depth) / dot(dir, face_n) * dir;  // 2 mm past the face, along the ray
+    for (int i = 1; i <= 40; ++i) rig.step(s.get(), start + (i / 40.0) * (goal - start));
+    const double along_n = dot(rig.out.proxy, face_n) - face_dist;
+    if (std::abs(along_n - kR) > 1e-7) continue;  // rests on an edge or vertex: not the face case
+    ++checked;
+    EXPECT_NEAR(norm(rig.out.force), 700 * depth, 700 * depth * 0.01) << "trial " << trial;
+    EXPECT_NEAR(dot(normalized(rig.out.force), face_n), 1.0, 1e-6) << "trial " << trial;
+  }
+  EXPECT_GE(checked, 12) << "most random presses land inside a face";
+}
+
 TEST(Proxy, EdgesCornersAndCreasesHoldTheProxy) {
   // A concave V crease: two planes meeting at x = 0 along y.
   auto v = std::make_unique<TissuePatch>();
