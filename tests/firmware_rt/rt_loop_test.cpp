@@ -124,7 +124,12 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   shared->patch.write(*patch);
   RtLoop loop(p);
   std::size_t allocations = 1;
-  std::thread t([&] {
+  // On a thread made as lancet-rt makes its servo thread (prefaulted stack; SCHED_FIFO when
+  // permitted): a plain std::thread's stack can fault in a page the first time a deeper call runs.
+  RtSetupOptions o;
+  o.cpu = -1;
+  RtSetupReport report;
+  RtThread t = start_rt_thread(o, report, [&] {
     std::atomic<bool> stop{false};
     ToolSample drained{};
     test::MallocGuard guard;
