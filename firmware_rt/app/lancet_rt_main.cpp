@@ -43,8 +43,8 @@ bool write_stats(const std::string& path, const lancet::app::RtServo& servo, con
                static_cast<unsigned long long>(shared.samples.pushed_count()),
                static_cast<unsigned long long>(shared.samples.overflow_count()),
                static_cast<unsigned long long>(d.patches_received), static_cast<unsigned long long>(d.contact_ticks),
-               d.max_force_seen, static_cast<unsigned long long>(d.nan_guards),
-               static_cast<unsigned long long>(d.clamps), static_cast<unsigned long long>(d.commands_applied),
+               d.max_force_seen, static_cast<unsigned long long>(d.haptic.safety.nan_guards),
+               static_cast<unsigned long long>(d.haptic.safety.clamps), static_cast<unsigned long long>(d.commands_applied),
                static_cast<long long>(d.viz_lost_at_beat_ns), static_cast<long long>(d.force_zero_ns));
   return std::fclose(f) == 0;
 }

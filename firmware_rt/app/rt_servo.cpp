@@ -28,10 +28,7 @@ void RtServo::apply(const Command& c, rt::Watchdog& watchdog) noexcept {
   ++d.commands_applied;
   switch (c.kind) {
     case CommandKind::kSetToolMode: d.mode = c.mode; break;
-    case CommandKind::kReset:
-      d.mode = ToolMode::kProbe;
-      d.nan_guards = 0;
-      break;
+    case CommandKind::kReset: d.mode = ToolMode::kProbe; break;
     case CommandKind::kRearm: watchdog.rearm(); break;
     case CommandKind::kSetMaterial:  // materials arrive with the haptic core; the penalty model ignores them
     case CommandKind::kNone: break;
@@ -92,23 +89,12 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   const double scale = d.fade.update(alive, model_.period_ns, model_.fade);
   if (scale < 1.0) events |= event::kForceFaded;
 
-  // Last guards: watchdog, NaN, clamp (the haptic step's safety layer ran already).
+  // The viz fade and the watchdog only ever shrink the force that the safety layer made safe.
   Vec3 f = scale * h.force;
   if (ctx.watchdog.tripped()) {
     f = Vec3{};
     ++d.watchdog_faulted_ticks;
     events |= event::kFault;
-  }
-  if (!is_finite(f)) {
-    f = Vec3{};
-    ++d.nan_guards;
-    events |= event::kFault;
-  }
-  const double mag = norm(f);
-  if (mag > model_.haptic.safety.max_force) {
-    f = (model_.haptic.safety.max_force / mag) * f;
-    ++d.clamps;
-    events |= event::kForceClamped;
   }
   d.force = f;
   d.max_force_seen = std::max(d.max_force_seen, norm(f));

@@ -49,8 +49,6 @@ struct RtData {
   ToolMode mode = ToolMode::kProbe;
   Vec3 force{};
   double max_force_seen = 0;
-  std::uint64_t nan_guards = 0;
-  std::uint64_t clamps = 0;
   std::uint64_t contact_ticks = 0;
   std::uint64_t commands_applied = 0;
   std::int64_t viz_last_beat_ns = 0;

@@ -119,7 +119,7 @@ TEST(RtServo, ForceIsClampedAndNeverNaN) {
     ASSERT_TRUE(is_finite(f));
     ASSERT_LE(norm(f), m.haptic.safety.max_force * (1 + 1e-12));
   }
-  EXPECT_GT(rig.servo->data().clamps, 0u);
+  EXPECT_GT(rig.servo->data().haptic.safety.clamps, 0u);
 
   // A patch with NaN vertices: forces stay finite.
   auto bad = std::make_unique<TissuePatch>();
