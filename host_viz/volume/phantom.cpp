@@ -1,0 +1,83 @@
+#include "volume/phantom.hpp"
+
+#include <cmath>
+#include <numbers>
+
+namespace lancet::volume {
+namespace {
+
+// splitmix64: a fast, well-mixed hash of a 64-bit key.
+std::uint64_t mix(std::uint64_t x) noexcept {
+  x += 0x9e3779b97f4a7c15ull;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
+// A standard normal sample from (seed, index) by Box–Muller on two hashed uniforms.
+double gaussian(std::uint64_t seed, std::uint64_t index) noexcept {
+  const std::uint64_t a = mix(seed ^ mix(index * 2 + 1)), b = mix(seed ^ mix(index * 2 + 2));
+  const double u1 = (static_cast<double>(a >> 11) + 1.0) * 0x1.0p-53;  // (0, 1]
+  const double u2 = static_cast<double>(b >> 11) * 0x1.0p-53;
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * std::numbers::pi * u2);
+}
+
+}  // namespace
+
+float phantom_hu(PhantomMaterial m) noexcept {
+  switch (m) {
+    case kAir: return -1000.0f;
+    case kSkin: return 40.0f;
+    case kFat: return -100.0f;
+    case kMuscle: return 50.0f;
+    case kCorticalBone: return 1200.0f;
+    case kMarrow: return 300.0f;
+    case kVessel: return 250.0f;  // contrast-enhanced blood
+  }
+  return -1000.0f;
+}
+
+Phantom make_phantom(const PhantomParams& p) {
+  Phantom ph;
+  Volume& v = ph.volume;
+  v.dims = p.dims;
+  v.spacing = {p.spacing, p.spacing, p.spacing};
+  v.origin = {-0.5 * (p.dims[0] - 1) * p.spacing, -0.5 * (p.dims[1] - 1) * p.spacing, -0.5 * (p.dims[2] - 1) * p.spacing};
+  v.source_type = VoxelType::kF32;
+  v.value_unit = "HU";
+  v.data.resize(v.voxel_count());
+  ph.material.resize(v.voxel_count());
+  const double half_len = 0.5 * (p.dims[2] - 1) * p.spacing;
+  for (int k = 0; k < p.dims[2]; ++k) {
+    const Vec3 c = v.position(0, 0, k);
+    const double zn = half_len > 0 ? c.z / half_len : 0;  // −1 … 1 along the limb
+    // Cross-section: slightly elliptical, tapering toward +z.
+    const double outer = p.limb_radius * (1.0 - 0.075 * zn);
+    const double ey = 0.85;  // the limb is flatter front to back
+    // The bone sits off centre; two vessels wind beside it.
+    const Vec3 bone{0.006, -0.004, 0};
+    const Vec3 artery{-0.012 + 0.003 * std::sin(3.0 * zn), 0.012 + 0.002 * std::cos(2.0 * zn), 0};
+    const Vec3 vein{0.018 + 0.002 * std::cos(2.5 * zn), 0.014, 0};
+    for (int j = 0; j < p.dims[1]; ++j) {
+      for (int i = 0; i < p.dims[0]; ++i) {
+        const Vec3 w = v.position(i, j, k);
+        const double r = std::hypot(w.x, w.y / ey);
+        PhantomMaterial m = kAir;
+        if (r <= outer) {
+          m = r > outer - p.skin ? kSkin : r > outer - p.skin - p.fat ? kFat : kMuscle;
+          const double rb = std::hypot(w.x - bone.x, w.y - bone.y);
+          if (rb <= p.bone_radius) m = rb > p.bone_radius - p.cortex ? kCorticalBone : kMarrow;
+          if (std::hypot(w.x - artery.x, w.y - artery.y) <= 0.003 || std::hypot(w.x - vein.x, w.y - vein.y) <= 0.0022) {
+            m = kVessel;
+          }
+        }
+        const std::size_t idx = v.index(i, j, k);
+        ph.material[idx] = m;
+        v.data[idx] = phantom_hu(m) + static_cast<float>(p.noise_hu * gaussian(p.seed, idx));
+      }
+    }
+  }
+  return ph;
+}
+
+}  // namespace lancet::volume

@@ -1,0 +1,43 @@
+#pragma once
+// The built-in phantom: the demo's default tissue, so the demo needs no data. A limb-like volume
+// along z: skin, subcutaneous fat, muscle, a bone (cortex and marrow) off centre, and two
+// contrast-filled vessels winding beside it, in Hounsfield units with CT-like noise. Deterministic
+// from the seed: every voxel's noise comes from a hash of (seed, voxel index), so it is the same on
+// every machine and independent of fill order. Allocating; configure time only.
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "volume/volume.hpp"
+
+namespace lancet::volume {
+
+/// Material ids of the phantom's voxels (and of TissuePatch triangles cut from it).
+enum PhantomMaterial : std::uint8_t {
+  kAir = 0, kSkin = 1, kFat = 2, kMuscle = 3, kCorticalBone = 4, kMarrow = 5, kVessel = 6,
+};
+
+struct PhantomParams {
+  std::array<int, 3> dims{128, 128, 160};
+  double spacing = 0.001;          ///< m, isotropic
+  double limb_radius = 0.045;      ///< m, outer skin radius at mid length (the limb tapers by 15 %)
+  double skin = 0.002;             ///< m thick
+  double fat = 0.008;              ///< m thick
+  double bone_radius = 0.013;      ///< m, outer cortex
+  double cortex = 0.004;           ///< m thick
+  double noise_hu = 12;            ///< HU, standard deviation of the CT noise
+  std::uint64_t seed = 1;
+};
+
+/// Nominal HU of each material (before noise).
+float phantom_hu(PhantomMaterial m) noexcept;
+
+struct Phantom {
+  Volume volume;                      ///< HU, origin so that the volume is centred on (0, 0, 0)
+  std::vector<std::uint8_t> material; ///< PhantomMaterial per voxel, same layout as volume.data
+};
+
+Phantom make_phantom(const PhantomParams& params);
+
+}  // namespace lancet::volume
