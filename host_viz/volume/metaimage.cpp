@@ -1,0 +1,674 @@
+#include "volume/metaimage.hpp"
+
+#include <zlib.h>
+
+#include <algorithm>
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <optional>
+#include <string_view>
+#include <system_error>
+#include <utility>
+#include <vector>
+
+namespace lancet::volume {
+namespace {
+
+// The header is text and small; anything longer is not a MetaImage header.
+constexpr std::size_t kMaxHeaderBytes = 1 << 20;
+// Progress is reported once per chunk, so a large volume gives a few dozen calls.
+constexpr int kProgressSteps = 32;
+constexpr std::size_t kMinChunk = 1 << 20;
+
+enum class Elem : std::uint8_t { kU8, kI8, kI16, kU16, kI32, kU32, kF32, kF64 };
+
+struct ElemInfo {
+  const char* name;
+  Elem elem;
+  std::size_t bytes;
+  VoxelType nearest;
+};
+
+constexpr ElemInfo kElems[] = {
+    {"MET_UCHAR", Elem::kU8, 1, VoxelType::kU8},    {"MET_CHAR", Elem::kI8, 1, VoxelType::kI16},
+    {"MET_SHORT", Elem::kI16, 2, VoxelType::kI16},  {"MET_USHORT", Elem::kU16, 2, VoxelType::kU16},
+    {"MET_INT", Elem::kI32, 4, VoxelType::kF32},    {"MET_UINT", Elem::kU32, 4, VoxelType::kF32},
+    {"MET_FLOAT", Elem::kF32, 4, VoxelType::kF32},  {"MET_DOUBLE", Elem::kF64, 8, VoxelType::kF32},
+};
+
+Error invalid(std::string message) { return Error{ErrorCode::kInvalid, std::move(message)}; }
+
+void report(const Progress& progress, double fraction) {
+  if (progress) progress(std::clamp(fraction, 0.0, 1.0));
+}
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && (s.front() == ' ' || s.front() == '\t' || s.front() == '\r')) s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t' || s.back() == '\r')) s.remove_suffix(1);
+  return s;
+}
+
+std::string lower(std::string_view s) {
+  std::string out(s);
+  for (char& c : out) c = static_cast<char>((c >= 'A' && c <= 'Z') ? c - 'A' + 'a' : c);
+  return out;
+}
+
+// Shortens a found value for an error message (a fuzzed line may be huge or binary).
+std::string shown(std::string_view s) {
+  std::string out;
+  for (char c : s.substr(0, 80)) out += (c >= 32 && c < 127) ? c : '?';
+  if (s.size() > 80) out += "...";
+  return "'" + out + "'";
+}
+
+std::vector<std::string_view> split_words(std::string_view s) {
+  std::vector<std::string_view> words;
+  std::size_t i = 0;
+  while (i < s.size()) {
+    while (i < s.size() && (s[i] == ' ' || s[i] == '\t')) ++i;
+    const std::size_t start = i;
+    while (i < s.size() && s[i] != ' ' && s[i] != '\t') ++i;
+    if (i > start) words.push_back(s.substr(start, i - start));
+  }
+  return words;
+}
+
+std::optional<double> parse_double(std::string_view w) {
+  double v = 0;
+  if (!w.empty() && w.front() == '+') w.remove_prefix(1);
+  const auto [ptr, ec] = std::from_chars(w.data(), w.data() + w.size(), v);
+  if (ec != std::errc{} || ptr != w.data() + w.size()) return std::nullopt;
+  return v;
+}
+
+std::optional<std::int64_t> parse_int(std::string_view w) {
+  std::int64_t v = 0;
+  if (!w.empty() && w.front() == '+') w.remove_prefix(1);
+  const auto [ptr, ec] = std::from_chars(w.data(), w.data() + w.size(), v);
+  if (ec != std::errc{} || ptr != w.data() + w.size()) return std::nullopt;
+  return v;
+}
+
+// One header line "Key = value".
+struct Field {
+  std::string value;
+  int line = 0;
+};
+
+class Header {
+ public:
+  explicit Header(std::string path) : path_(std::move(path)) {}
+
+  const std::string& path() const { return path_; }
+  void set(std::string_view key, Field f) { fields_[lower(key)] = {std::string(key), std::move(f)}; }
+  bool has(std::string_view key) const { return fields_.count(lower(key)) != 0; }
+
+  // The first of several synonyms present (e.g. Offset / Position / Origin), or nullptr.
+  const std::pair<std::string, Field>* find(std::initializer_list<std::string_view> keys) const {
+    for (std::string_view k : keys) {
+      const auto it = fields_.find(lower(k));
+      if (it != fields_.end()) return &it->second;
+    }
+    return nullptr;
+  }
+
+  Error field_error(const std::pair<std::string, Field>& f, const std::string& expected) const {
+    return invalid(path_ + ":" + std::to_string(f.second.line) + ": " + f.first + ": expected " + expected +
+                   ", found " + shown(f.second.value));
+  }
+
+  Result<std::vector<double>> doubles(const std::pair<std::string, Field>& f, std::size_t n, bool positive) const {
+    const auto words = split_words(f.second.value);
+    const std::string expected = std::to_string(n) + (positive ? " positive finite numbers" : " finite numbers");
+    if (words.size() != n) return field_error(f, expected);
+    std::vector<double> out;
+    for (std::string_view w : words) {
+      const auto v = parse_double(w);
+      if (!v || !std::isfinite(*v) || (positive && !(*v > 0))) return field_error(f, expected);
+      out.push_back(*v);
+    }
+    return out;
+  }
+
+  Result<std::int64_t> integer(const std::pair<std::string, Field>& f, std::int64_t lo, std::int64_t hi) const {
+    const auto words = split_words(f.second.value);
+    const std::string expected = "an integer in " + std::to_string(lo) + ".." + std::to_string(hi);
+    if (words.size() != 1) return field_error(f, expected);
+    const auto v = parse_int(words[0]);
+    if (!v || *v < lo || *v > hi) return field_error(f, expected);
+    return *v;
+  }
+
+  Result<bool> boolean(const std::pair<std::string, Field>& f) const {
+    const std::string v = lower(trim(f.second.value));
+    if (v == "true" || v == "1" || v == "yes") return true;
+    if (v == "false" || v == "0" || v == "no") return false;
+    return field_error(f, "True or False");
+  }
+
+ private:
+  std::string path_;
+  std::map<std::string, std::pair<std::string, Field>> fields_;  // lower-case key → (key as written, field)
+};
+
+// Where and how the voxels are stored, once the header is understood.
+struct Layout {
+  std::array<int, 3> dims{};
+  ElemInfo elem = kElems[0];
+  bool big_endian = false;
+  bool compressed = false;
+  std::optional<std::uint64_t> compressed_size;
+  std::int64_t header_size = 0;  // bytes to skip before the data; -1: data at the end
+  std::string data_path;
+  std::uint64_t data_start = 0;  // offset in data_path where the data (or the HeaderSize skip) begins
+  bool attached = false;         // data_path is the header file itself (LOCAL)
+};
+
+std::uint64_t voxel_count(const std::array<int, 3>& d) {
+  return static_cast<std::uint64_t>(d[0]) * static_cast<std::uint64_t>(d[1]) * static_cast<std::uint64_t>(d[2]);
+}
+
+Result<std::uint64_t> file_size(const std::string& path) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (ec || !std::filesystem::exists(status)) {
+    return Error{ErrorCode::kNotFound, path + ": cannot open: file not found"};
+  }
+  if (!std::filesystem::is_regular_file(status)) {
+    return invalid(path + ": cannot read: not a regular file");
+  }
+  const auto size = std::filesystem::file_size(path, ec);
+  if (ec) return Error{ErrorCode::kSystem, path + ": cannot read its size: " + ec.message()};
+  return static_cast<std::uint64_t>(size);
+}
+
+// Reads `count` bytes at `offset`, reporting progress from p0 to p1. The caller has checked that
+// the file holds them, so the allocation is bounded by the file's real size.
+Result<std::vector<unsigned char>> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count,
+                                              const Progress& progress, double p0, double p1) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
+  in.seekg(static_cast<std::streamoff>(offset));
+  if (!in) return invalid(path + ": cannot seek to byte " + std::to_string(offset));
+  std::vector<unsigned char> out(static_cast<std::size_t>(count));
+  const std::uint64_t chunk = std::max<std::uint64_t>(kMinChunk, count / kProgressSteps + 1);
+  std::uint64_t done = 0;
+  while (done < count) {
+    const std::uint64_t n = std::min(chunk, count - done);
+    in.read(reinterpret_cast<char*>(out.data() + done), static_cast<std::streamsize>(n));
+    if (static_cast<std::uint64_t>(in.gcount()) != n) {
+      return invalid(path + ": truncated data: expected " + std::to_string(count) + " bytes from byte " +
+                     std::to_string(offset) + ", found " + std::to_string(done + static_cast<std::uint64_t>(in.gcount())));
+    }
+    done += n;
+    report(progress, p0 + (p1 - p0) * static_cast<double>(done) / static_cast<double>(count));
+  }
+  return out;
+}
+
+// Inflates a zlib (or gzip) stream into exactly `expected` bytes. The output grows only as data
+// really comes out, so a tiny file that claims a huge image cannot make us allocate it.
+Result<std::vector<unsigned char>> inflate_exact(const std::string& path, const std::vector<unsigned char>& in,
+                                                 std::uint64_t expected, const Progress& progress, double p0,
+                                                 double p1) {
+  z_stream zs{};
+  if (inflateInit2(&zs, 15 + 32) != Z_OK) return Error{ErrorCode::kSystem, path + ": zlib inflateInit failed"};
+  std::vector<unsigned char> out;
+  out.resize(static_cast<std::size_t>(std::min<std::uint64_t>(expected, kMinChunk)));
+  constexpr std::size_t kMaxStep = 1u << 30;  // zlib counts in 32-bit uInt
+  std::size_t in_pos = 0;
+  std::uint64_t produced = 0;
+  int rc = Z_OK;
+  int reported = 0;
+  const std::uint64_t report_every = std::max<std::uint64_t>(1, expected / kProgressSteps);
+  while (true) {
+    if (produced == out.size()) {
+      if (produced == expected) break;
+      out.resize(static_cast<std::size_t>(std::min<std::uint64_t>(expected, std::max<std::uint64_t>(2 * out.size(), kMinChunk))));
+    }
+    if (zs.avail_in == 0 && in_pos < in.size()) {
+      const std::size_t n = std::min(kMaxStep, in.size() - in_pos);
+      zs.next_in = const_cast<Bytef*>(in.data() + in_pos);  // zlib's API is not const; it only reads
+      zs.avail_in = static_cast<uInt>(n);
+      in_pos += n;
+    }
+    const std::size_t room = std::min<std::size_t>(kMaxStep, out.size() - static_cast<std::size_t>(produced));
+    zs.next_out = out.data() + produced;
+    zs.avail_out = static_cast<uInt>(room);
+    rc = inflate(&zs, Z_NO_FLUSH);
+    produced += room - zs.avail_out;
+    if (rc == Z_STREAM_END) break;
+    if (rc == Z_BUF_ERROR && zs.avail_in == 0 && in_pos >= in.size()) break;  // input ran out
+    if (rc != Z_OK && rc != Z_BUF_ERROR) break;
+    const int step = static_cast<int>(produced / report_every);
+    if (step > reported) {
+      reported = step;
+      report(progress, p0 + (p1 - p0) * static_cast<double>(produced) / static_cast<double>(expected));
+    }
+  }
+  // A stream that holds more than the image is as wrong as one that holds less.
+  bool more = false;
+  if (produced == expected && rc != Z_STREAM_END) {
+    unsigned char extra = 0;
+    zs.next_out = &extra;
+    zs.avail_out = 1;
+    if (zs.avail_in == 0 && in_pos < in.size()) {
+      const std::size_t n = std::min(kMaxStep, in.size() - in_pos);
+      zs.next_in = const_cast<Bytef*>(in.data() + in_pos);
+      zs.avail_in = static_cast<uInt>(n);
+      in_pos += n;
+    }
+    rc = inflate(&zs, Z_NO_FLUSH);
+    more = zs.avail_out == 0;
+  }
+  const std::string msg = zs.msg != nullptr ? zs.msg : "";
+  inflateEnd(&zs);
+  if (rc == Z_DATA_ERROR || rc == Z_NEED_DICT || rc == Z_MEM_ERROR || rc == Z_STREAM_ERROR) {
+    return invalid(path + ": CompressedData: corrupt zlib stream after " + std::to_string(produced) +
+                   " of " + std::to_string(expected) + " expected bytes" + (msg.empty() ? "" : " (" + msg + ")"));
+  }
+  if (more) {
+    return invalid(path + ": CompressedData: the zlib stream holds more than the expected " +
+                   std::to_string(expected) + " bytes (DimSize × element size)");
+  }
+  if (produced != expected) {
+    return invalid(path + ": CompressedData: truncated zlib stream: expected " + std::to_string(expected) +
+                   " bytes (DimSize × element size), found " + std::to_string(produced));
+  }
+  report(progress, p1);
+  return out;
+}
+
+template <class T>
+T load_elem(const unsigned char* p, bool swap) {
+  unsigned char b[sizeof(T)];
+  std::memcpy(b, p, sizeof(T));
+  if (swap) std::reverse(b, b + sizeof(T));
+  T v;
+  std::memcpy(&v, b, sizeof(T));
+  return v;
+}
+
+template <class T>
+void convert_range(const unsigned char* src, float* dst, std::size_t n, bool swap) {
+  for (std::size_t i = 0; i < n; ++i) dst[i] = static_cast<float>(load_elem<T>(src + i * sizeof(T), swap));
+}
+
+// Converts the file's elements to floats in chunks, reporting progress from p0 to p1.
+std::vector<float> convert(const std::vector<unsigned char>& bytes, const ElemInfo& elem, bool big_endian,
+                           std::size_t count, const Progress& progress, double p0, double p1) {
+  constexpr bool kHostLittle = std::endian::native == std::endian::little;
+  const bool swap = big_endian == kHostLittle && elem.bytes > 1;
+  std::vector<float> out(count);
+  const std::size_t chunk = std::max<std::size_t>(kMinChunk, count / kProgressSteps + 1);
+  for (std::size_t start = 0; start < count; start += chunk) {
+    const std::size_t n = std::min(chunk, count - start);
+    const unsigned char* s = bytes.data() + start * elem.bytes;
+    float* d = out.data() + start;
+    switch (elem.elem) {
+      case Elem::kU8: convert_range<std::uint8_t>(s, d, n, swap); break;
+      case Elem::kI8: convert_range<std::int8_t>(s, d, n, swap); break;
+      case Elem::kI16: convert_range<std::int16_t>(s, d, n, swap); break;
+      case Elem::kU16: convert_range<std::uint16_t>(s, d, n, swap); break;
+      case Elem::kI32: convert_range<std::int32_t>(s, d, n, swap); break;
+      case Elem::kU32: convert_range<std::uint32_t>(s, d, n, swap); break;
+      case Elem::kF32: convert_range<float>(s, d, n, swap); break;
+      case Elem::kF64: convert_range<double>(s, d, n, swap); break;
+    }
+    report(progress, p0 + (p1 - p0) * static_cast<double>(start + n) / static_cast<double>(count));
+  }
+  return out;
+}
+
+// Reads the voxel bytes described by `layout` (raw or compressed), checking every size against
+// the real file before allocating.
+Result<std::vector<unsigned char>> read_voxel_bytes(const std::string& header_path, const Layout& layout,
+                                                    const Progress& progress) {
+  const std::uint64_t expected = voxel_count(layout.dims) * layout.elem.bytes;
+  auto size_r = file_size(layout.data_path);
+  if (!size_r) {
+    Error e = size_r.error();
+    if (layout.data_path != header_path) e.message = header_path + ": ElementDataFile: " + e.message;
+    return e;
+  }
+  const std::uint64_t size = size_r.value();
+  if (layout.data_start > size) return invalid(layout.data_path + ": data offset beyond the end of the file");
+  const std::uint64_t after_header = size - layout.data_start;
+  const std::string where = layout.attached ? header_path + " (data after the header)" : layout.data_path;
+
+  if (!layout.compressed) {
+    std::uint64_t offset = 0;
+    if (layout.header_size == -1) {
+      if (after_header < expected) {
+        return invalid(where + ": truncated data: expected " + std::to_string(expected) +
+                       " bytes (DimSize × element size) at the end of the file, found " + std::to_string(after_header));
+      }
+      offset = size - expected;
+    } else {
+      const auto skip = static_cast<std::uint64_t>(layout.header_size);
+      if (skip > after_header) {
+        return invalid(where + ": HeaderSize: expected at most " + std::to_string(after_header) + " bytes to skip, found " +
+                       std::to_string(skip));
+      }
+      const std::uint64_t found = after_header - skip;
+      if (found != expected) {
+        return invalid(where + ": data size mismatch: expected " + std::to_string(expected) + " bytes (DimSize " +
+                       std::to_string(layout.dims[0]) + "×" + std::to_string(layout.dims[1]) + "×" +
+                       std::to_string(layout.dims[2]) + " × " + std::to_string(layout.elem.bytes) + " bytes of " +
+                       layout.elem.name + "), found " + std::to_string(found));
+      }
+      offset = layout.data_start + skip;
+    }
+    return read_bytes(layout.data_path, offset, expected, progress, 0.0, 0.5);
+  }
+
+  // Compressed: HeaderSize bytes (if any) come before the stream; -1 makes no sense here.
+  if (layout.header_size == -1) {
+    return invalid(header_path + ": HeaderSize: expected >= 0 with CompressedData = True, found -1");
+  }
+  const auto skip = static_cast<std::uint64_t>(layout.header_size);
+  if (skip > after_header) {
+    return invalid(where + ": HeaderSize: expected at most " + std::to_string(after_header) + " bytes to skip, found " +
+                   std::to_string(skip));
+  }
+  const std::uint64_t available = after_header - skip;
+  std::uint64_t csize = available;
+  if (layout.compressed_size) {
+    if (*layout.compressed_size > available) {
+      return invalid(where + ": CompressedDataSize: expected at most the " + std::to_string(available) +
+                     " bytes left in the file, found " + std::to_string(*layout.compressed_size));
+    }
+    csize = *layout.compressed_size;
+  }
+  if (csize == 0) return invalid(where + ": CompressedData: no compressed data in the file");
+  auto compressed = read_bytes(layout.data_path, layout.data_start + skip, csize, progress, 0.0, 0.1);
+  if (!compressed) return compressed.error();
+  return inflate_exact(where, compressed.value(), expected, progress, 0.1, 0.5);
+}
+
+Result<Layout> parse_header(Header& header, const std::string& text, std::size_t& data_start, bool& found_data_line) {
+  const std::string& path = header.path();
+  std::size_t pos = 0;
+  int line_no = 0;
+  found_data_line = false;
+  while (pos < text.size()) {
+    std::size_t end = text.find('\n', pos);
+    const bool last = end == std::string::npos;
+    if (last) end = text.size();
+    const std::string_view line(text.data() + pos, end - pos);
+    ++line_no;
+    pos = last ? end : end + 1;
+    const std::string_view t = trim(line);
+    if (t.empty()) continue;
+    const std::size_t eq = t.find('=');
+    if (eq == std::string_view::npos) {
+      return invalid(path + ":" + std::to_string(line_no) + ": expected a header line 'Key = value' (a header ends with 'ElementDataFile = ...'), found " +
+                     shown(t));
+    }
+    const std::string_view key = trim(t.substr(0, eq));
+    const std::string_view value = trim(t.substr(eq + 1));
+    if (key.empty()) {
+      return invalid(path + ":" + std::to_string(line_no) + ": expected a field name before '=', found " + shown(t));
+    }
+    header.set(key, Field{std::string(value), line_no});
+    if (lower(key) == "elementdatafile") {
+      found_data_line = true;
+      data_start = pos;
+      break;
+    }
+  }
+  return Layout{};
+}
+
+std::string header_dir(const std::string& path) {
+  const std::filesystem::path p(path);
+  return p.has_parent_path() ? p.parent_path().string() : std::string(".");
+}
+
+Result<std::array<int, 3>> check_dims(const std::string& what, std::array<int, 3> dims) {
+  for (int d : dims) {
+    if (d <= 0) {
+      return invalid(what + ": expected 3 positive sizes, found " + std::to_string(dims[0]) + " " +
+                     std::to_string(dims[1]) + " " + std::to_string(dims[2]));
+    }
+  }
+  if (voxel_count(dims) > kMaxVoxels) {
+    return invalid(what + ": expected at most " + std::to_string(kMaxVoxels) + " voxels, found " +
+                   std::to_string(voxel_count(dims)));
+  }
+  return dims;
+}
+
+Result<MetaImage> load(const std::string& path, const Progress& progress) {
+  auto size_r = file_size(path);
+  if (!size_r) return size_r.error();
+  const std::uint64_t size = size_r.value();
+
+  // Read at most kMaxHeaderBytes of header text.
+  std::string text;
+  {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
+    text.resize(static_cast<std::size_t>(std::min<std::uint64_t>(size, kMaxHeaderBytes)));
+    in.read(text.data(), static_cast<std::streamsize>(text.size()));
+    text.resize(static_cast<std::size_t>(std::max<std::streamsize>(0, in.gcount())));
+  }
+  Header h(path);
+  std::size_t data_start = 0;
+  bool found_data_line = false;
+  {
+    auto r = parse_header(h, text, data_start, found_data_line);
+    if (!r) return r.error();
+  }
+  if (!found_data_line) {
+    return invalid(path + ": ElementDataFile: expected a line 'ElementDataFile = LOCAL' or '= <file>' within the first " +
+                   std::to_string(kMaxHeaderBytes) + " bytes, found none");
+  }
+
+  if (const auto* f = h.find({"ObjectType"}); f && lower(trim(f->second.value)) != "image") {
+    return h.field_error(*f, "Image");
+  }
+  const auto* ndims_f = h.find({"NDims"});
+  if (!ndims_f) return invalid(path + ": NDims: expected a line 'NDims = 3', found none");
+  {
+    auto n = h.integer(*ndims_f, 1, 1000);
+    if (!n) return n.error();
+    if (n.value() != 3) {
+      return h.field_error(*ndims_f, "3 (only 3-D volumes are supported" +
+                                         std::string(n.value() == 2 ? "; a 2-D image is not a volume)" : ")"));
+    }
+  }
+  if (const auto* f = h.find({"ElementNumberOfChannels"})) {
+    auto n = h.integer(*f, 1, std::numeric_limits<int>::max());
+    if (!n) return n.error();
+    if (n.value() != 1) return h.field_error(*f, "1 (only single-channel scalar volumes are supported)");
+  }
+  if (const auto* f = h.find({"BinaryData"})) {
+    auto b = h.boolean(*f);
+    if (!b) return b.error();
+    if (!b.value()) return h.field_error(*f, "True (ASCII voxel data is not supported)");
+  }
+
+  Layout layout;
+  const auto* dim_f = h.find({"DimSize"});
+  if (!dim_f) return invalid(path + ": DimSize: expected a line 'DimSize = nx ny nz', found none");
+  {
+    const auto words = split_words(dim_f->second.value);
+    const std::string expected = "3 integers in 1.." + std::to_string(std::numeric_limits<int>::max()) +
+                                 " with a product of at most " + std::to_string(kMaxVoxels);
+    if (words.size() != 3) return h.field_error(*dim_f, expected);
+    for (std::size_t a = 0; a < 3; ++a) {
+      const auto v = parse_int(words[a]);
+      if (!v || *v < 1 || *v > std::numeric_limits<int>::max()) return h.field_error(*dim_f, expected);
+      layout.dims[a] = static_cast<int>(*v);
+    }
+    if (voxel_count(layout.dims) > kMaxVoxels) return h.field_error(*dim_f, expected);
+  }
+
+  const auto* type_f = h.find({"ElementType"});
+  if (!type_f) return invalid(path + ": ElementType: expected a line 'ElementType = MET_...', found none");
+  {
+    const std::string_view name = trim(type_f->second.value);
+    bool known = false;
+    for (const ElemInfo& e : kElems) {
+      if (name == e.name) {
+        layout.elem = e;
+        known = true;
+      }
+    }
+    if (!known) {
+      return h.field_error(*type_f, "one of MET_UCHAR, MET_CHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, MET_FLOAT, MET_DOUBLE");
+    }
+  }
+
+  // Byte order: either field may say big-endian; if both are present they must agree.
+  std::optional<bool> msb;
+  for (const char* key : {"ElementByteOrderMSB", "BinaryDataByteOrderMSB"}) {
+    if (const auto* f = h.find({key})) {
+      auto b = h.boolean(*f);
+      if (!b) return b.error();
+      if (msb && *msb != b.value()) {
+        return h.field_error(*f, std::string(*msb ? "True" : "False") + " (the other byte-order field says so)");
+      }
+      msb = b.value();
+    }
+  }
+  layout.big_endian = msb.value_or(false);
+
+  if (const auto* f = h.find({"CompressedData"})) {
+    auto b = h.boolean(*f);
+    if (!b) return b.error();
+    layout.compressed = b.value();
+  }
+  if (const auto* f = h.find({"CompressedDataSize"})) {
+    auto n = h.integer(*f, 1, std::numeric_limits<std::int64_t>::max());
+    if (!n) return n.error();
+    if (static_cast<std::uint64_t>(n.value()) > size) {
+      return h.field_error(*f, "at most the file size (" + std::to_string(size) + " bytes)");
+    }
+    layout.compressed_size = static_cast<std::uint64_t>(n.value());
+  }
+  if (const auto* f = h.find({"HeaderSize"})) {
+    auto n = h.integer(*f, -1, std::numeric_limits<std::int64_t>::max());
+    if (!n) return n.error();
+    layout.header_size = n.value();
+  }
+
+  MetaImage out;
+  Volume& v = out.volume;
+  v.dims = layout.dims;
+  v.source_type = layout.elem.nearest;
+  v.value_unit = "raw";
+
+  // Geometry: mm in the file, metres in the Volume.
+  constexpr double kMm = 1e-3;
+  if (const auto* f = h.find({"ElementSpacing", "ElementSize"})) {
+    auto s = h.doubles(*f, 3, true);
+    if (!s) return s.error();
+    v.spacing = Vec3{s.value()[0] * kMm, s.value()[1] * kMm, s.value()[2] * kMm};
+  } else {
+    v.spacing = Vec3{kMm, kMm, kMm};
+  }
+  if (const auto* f = h.find({"Offset", "Position", "Origin"})) {
+    auto o = h.doubles(*f, 3, false);
+    if (!o) return o.error();
+    v.origin = Vec3{o.value()[0] * kMm, o.value()[1] * kMm, o.value()[2] * kMm};
+  }
+  if (const auto* f = h.find({"TransformMatrix", "Orientation", "Rotation"})) {
+    auto m = h.doubles(*f, 9, false);
+    if (!m) return m.error();
+    const auto& t = m.value();
+    // File group k (numbers 3k..3k+2) is axis k's world direction = column k of Volume::direction.
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) v.direction[static_cast<std::size_t>(r * 3 + c)] = t[static_cast<std::size_t>(c * 3 + r)];
+    }
+    const auto& d = v.direction;
+    const double det = d[0] * (d[4] * d[8] - d[5] * d[7]) - d[1] * (d[3] * d[8] - d[5] * d[6]) +
+                       d[2] * (d[3] * d[7] - d[4] * d[6]);
+    if (!(std::abs(det) > 1e-6)) return h.field_error(*f, "an invertible 3×3 direction matrix");
+  }
+  if (const auto* f = h.find({"AnatomicalOrientation"})) out.anatomical_orientation = std::string(trim(f->second.value));
+
+  // Where the data is.
+  const auto* file_f = h.find({"ElementDataFile"});
+  const std::string data_file(trim(file_f->second.value));
+  if (data_file == "LOCAL" || data_file == "local") {
+    layout.data_path = path;
+    layout.data_start = data_start;
+    layout.attached = true;
+  } else if (data_file.empty()) {
+    return h.field_error(*file_f, "LOCAL or a file name");
+  } else if (lower(data_file).rfind("list", 0) == 0 || data_file.find('%') != std::string::npos) {
+    return h.field_error(*file_f, "LOCAL or a single data file (file lists and patterns are not supported)");
+  } else {
+    std::filesystem::path p(data_file);
+    if (p.is_relative()) p = std::filesystem::path(header_dir(path)) / p;
+    layout.data_path = p.string();
+    layout.data_start = 0;
+  }
+
+  auto bytes = read_voxel_bytes(path, layout, progress);
+  if (!bytes) return bytes.error();
+  v.data = convert(bytes.value(), layout.elem, layout.big_endian, v.voxel_count(), progress, 0.5, 1.0);
+  return out;
+}
+
+}  // namespace
+
+Result<MetaImage> load_metaimage_with_info(const std::string& path, const Progress& progress) {
+  try {
+    return load(path, progress);
+  } catch (const std::bad_alloc&) {
+    return Error{ErrorCode::kSystem, path + ": out of memory while loading the volume"};
+  } catch (const std::exception& e) {
+    return Error{ErrorCode::kSystem, path + ": " + e.what()};
+  }
+}
+
+Result<Volume> load_metaimage(const std::string& path, const Progress& progress) {
+  auto r = load_metaimage_with_info(path, progress);
+  if (!r) return r.error();
+  return std::move(r.value().volume);
+}
+
+Result<Volume> load_raw(const std::string& path, std::array<int, 3> dims, VoxelType type, Vec3 spacing_m,
+                        bool big_endian, const Progress& progress) {
+  try {
+    auto d = check_dims(path + ": dims", dims);
+    if (!d) return d.error();
+    if (!(spacing_m.x > 0 && spacing_m.y > 0 && spacing_m.z > 0) || !is_finite(spacing_m)) {
+      return invalid(path + ": spacing: expected 3 positive finite lengths (m), found " + std::to_string(spacing_m.x) +
+                     " " + std::to_string(spacing_m.y) + " " + std::to_string(spacing_m.z));
+    }
+    Layout layout;
+    layout.dims = dims;
+    switch (type) {
+      case VoxelType::kU8: layout.elem = kElems[0]; break;
+      case VoxelType::kI16: layout.elem = kElems[2]; break;
+      case VoxelType::kU16: layout.elem = kElems[3]; break;
+      case VoxelType::kF32: layout.elem = kElems[6]; break;
+    }
+    layout.big_endian = big_endian;
+    layout.data_path = path;
+    auto bytes = read_voxel_bytes(path, layout, progress);
+    if (!bytes) return bytes.error();
+    Volume v;
+    v.dims = dims;
+    v.spacing = spacing_m;
+    v.source_type = type;
+    v.value_unit = "raw";
+    v.data = convert(bytes.value(), layout.elem, big_endian, v.voxel_count(), progress, 0.5, 1.0);
+    return v;
+  } catch (const std::bad_alloc&) {
+    return Error{ErrorCode::kSystem, path + ": out of memory while loading the volume"};
+  }
+}
+
+}  // namespace lancet::volume
