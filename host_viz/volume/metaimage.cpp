@@ -1,4 +1,5 @@
 #include "volume/metaimage.hpp"
+#include "volume/detail/io.hpp"
 
 #include <zlib.h>
 
@@ -20,20 +21,11 @@
 namespace lancet::volume {
 namespace {
 
+using namespace detail;  // the helpers shared by the loaders
+
 // The header is text and small; anything longer is not a MetaImage header.
 constexpr std::size_t kMaxHeaderBytes = 1 << 20;
 // Progress is reported once per chunk, so a large volume gives a few dozen calls.
-constexpr int kProgressSteps = 32;
-constexpr std::size_t kMinChunk = 1 << 20;
-
-enum class Elem : std::uint8_t { kU8, kI8, kI16, kU16, kI32, kU32, kF32, kF64 };
-
-struct ElemInfo {
-  const char* name;
-  Elem elem;
-  std::size_t bytes;
-  VoxelType nearest;
-};
 
 constexpr ElemInfo kElems[] = {
     {"MET_UCHAR", Elem::kU8, 1, VoxelType::kU8},    {"MET_CHAR", Elem::kI8, 1, VoxelType::kI16},
@@ -41,60 +33,6 @@ constexpr ElemInfo kElems[] = {
     {"MET_INT", Elem::kI32, 4, VoxelType::kF32},    {"MET_UINT", Elem::kU32, 4, VoxelType::kF32},
     {"MET_FLOAT", Elem::kF32, 4, VoxelType::kF32},  {"MET_DOUBLE", Elem::kF64, 8, VoxelType::kF32},
 };
-
-Error invalid(std::string message) { return Error{ErrorCode::kInvalid, std::move(message)}; }
-
-void report(const Progress& progress, double fraction) {
-  if (progress) progress(std::clamp(fraction, 0.0, 1.0));
-}
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && (s.front() == ' ' || s.front() == '\t' || s.front() == '\r')) s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\t' || s.back() == '\r')) s.remove_suffix(1);
-  return s;
-}
-
-std::string lower(std::string_view s) {
-  std::string out(s);
-  for (char& c : out) c = static_cast<char>((c >= 'A' && c <= 'Z') ? c - 'A' + 'a' : c);
-  return out;
-}
-
-// Shortens a found value for an error message (a fuzzed line may be huge or binary).
-std::string shown(std::string_view s) {
-  std::string out;
-  for (char c : s.substr(0, 80)) out += (c >= 32 && c < 127) ? c : '?';
-  if (s.size() > 80) out += "...";
-  return "'" + out + "'";
-}
-
-std::vector<std::string_view> split_words(std::string_view s) {
-  std::vector<std::string_view> words;
-  std::size_t i = 0;
-  while (i < s.size()) {
-    while (i < s.size() && (s[i] == ' ' || s[i] == '\t')) ++i;
-    const std::size_t start = i;
-    while (i < s.size() && s[i] != ' ' && s[i] != '\t') ++i;
-    if (i > start) words.push_back(s.substr(start, i - start));
-  }
-  return words;
-}
-
-std::optional<double> parse_double(std::string_view w) {
-  double v = 0;
-  if (!w.empty() && w.front() == '+') w.remove_prefix(1);
-  const auto [ptr, ec] = std::from_chars(w.data(), w.data() + w.size(), v);
-  if (ec != std::errc{} || ptr != w.data() + w.size()) return std::nullopt;
-  return v;
-}
-
-std::optional<std::int64_t> parse_int(std::string_view w) {
-  std::int64_t v = 0;
-  if (!w.empty() && w.front() == '+') w.remove_prefix(1);
-  const auto [ptr, ec] = std::from_chars(w.data(), w.data() + w.size(), v);
-  if (ec != std::errc{} || ptr != w.data() + w.size()) return std::nullopt;
-  return v;
-}
 
 // One header line "Key = value".
 struct Field {
@@ -173,20 +111,6 @@ struct Layout {
 
 std::uint64_t voxel_count(const std::array<int, 3>& d) {
   return static_cast<std::uint64_t>(d[0]) * static_cast<std::uint64_t>(d[1]) * static_cast<std::uint64_t>(d[2]);
-}
-
-Result<std::uint64_t> file_size(const std::string& path) {
-  std::error_code ec;
-  const auto status = std::filesystem::status(path, ec);
-  if (ec || !std::filesystem::exists(status)) {
-    return Error{ErrorCode::kNotFound, path + ": cannot open: file not found"};
-  }
-  if (!std::filesystem::is_regular_file(status)) {
-    return invalid(path + ": cannot read: not a regular file");
-  }
-  const auto size = std::filesystem::file_size(path, ec);
-  if (ec) return Error{ErrorCode::kSystem, path + ": cannot read its size: " + ec.message()};
-  return static_cast<std::uint64_t>(size);
 }
 
 // Reads `count` bytes at `offset`, reporting progress from p0 to p1. The caller has checked that
@@ -283,47 +207,6 @@ Result<std::vector<unsigned char>> inflate_exact(const std::string& path, const 
                    " bytes (DimSize × element size), found " + std::to_string(produced));
   }
   report(progress, p1);
-  return out;
-}
-
-template <class T>
-T load_elem(const unsigned char* p, bool swap) {
-  unsigned char b[sizeof(T)];
-  std::memcpy(b, p, sizeof(T));
-  if (swap) std::reverse(b, b + sizeof(T));
-  T v;
-  std::memcpy(&v, b, sizeof(T));
-  return v;
-}
-
-template <class T>
-void convert_range(const unsigned char* src, float* dst, std::size_t n, bool swap) {
-  for (std::size_t i = 0; i < n; ++i) dst[i] = static_cast<float>(load_elem<T>(src + i * sizeof(T), swap));
-}
-
-// Converts the file's elements to floats in chunks, reporting progress from p0 to p1.
-std::vector<float> convert(const std::vector<unsigned char>& bytes, const ElemInfo& elem, bool big_endian,
-                           std::size_t count, const Progress& progress, double p0, double p1) {
-  constexpr bool kHostLittle = std::endian::native == std::endian::little;
-  const bool swap = big_endian == kHostLittle && elem.bytes > 1;
-  std::vector<float> out(count);
-  const std::size_t chunk = std::max<std::size_t>(kMinChunk, count / kProgressSteps + 1);
-  for (std::size_t start = 0; start < count; start += chunk) {
-    const std::size_t n = std::min(chunk, count - start);
-    const unsigned char* s = bytes.data() + start * elem.bytes;
-    float* d = out.data() + start;
-    switch (elem.elem) {
-      case Elem::kU8: convert_range<std::uint8_t>(s, d, n, swap); break;
-      case Elem::kI8: convert_range<std::int8_t>(s, d, n, swap); break;
-      case Elem::kI16: convert_range<std::int16_t>(s, d, n, swap); break;
-      case Elem::kU16: convert_range<std::uint16_t>(s, d, n, swap); break;
-      case Elem::kI32: convert_range<std::int32_t>(s, d, n, swap); break;
-      case Elem::kU32: convert_range<std::uint32_t>(s, d, n, swap); break;
-      case Elem::kF32: convert_range<float>(s, d, n, swap); break;
-      case Elem::kF64: convert_range<double>(s, d, n, swap); break;
-    }
-    report(progress, p0 + (p1 - p0) * static_cast<double>(start + n) / static_cast<double>(count));
-  }
   return out;
 }
 
@@ -623,13 +506,7 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
 }  // namespace
 
 Result<MetaImage> load_metaimage_with_info(const std::string& path, const Progress& progress) {
-  try {
-    return load(path, progress);
-  } catch (const std::bad_alloc&) {
-    return Error{ErrorCode::kSystem, path + ": out of memory while loading the volume"};
-  } catch (const std::exception& e) {
-    return Error{ErrorCode::kSystem, path + ": " + e.what()};
-  }
+  return detail::load_catching(path, [&] { return load(path, progress); });
 }
 
 Result<Volume> load_metaimage(const std::string& path, const Progress& progress) {
