@@ -12,8 +12,8 @@ PACKAGES=(
   libglfw3-dev libglm-dev libepoxy-dev libgl-dev libgl1-mesa-dri libimgui-dev libstb-dev libopenmesh-dev
   # configuration, command lines, logging
   libtomlplusplus-dev libcli11-dev libspdlog-dev
-  # volume files (compressed MetaImage, gzip NRRD)
-  zlib1g-dev
+  # volume files (compressed MetaImage, gzip NRRD, DICOM series)
+  zlib1g-dev libgdcm-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth rt-tests
 )
