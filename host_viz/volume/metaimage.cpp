@@ -334,15 +334,9 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
   if (!size_r) return size_r.error();
   const std::uint64_t size = size_r.value();
 
-  // Read at most kMaxHeaderBytes of header text.
-  std::string text;
-  {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
-    text.resize(static_cast<std::size_t>(std::min<std::uint64_t>(size, kMaxHeaderBytes)));
-    in.read(text.data(), static_cast<std::streamsize>(text.size()));
-    text.resize(static_cast<std::size_t>(std::max<std::streamsize>(0, in.gcount())));
-  }
+  auto header = read_header_text(path, size, kMaxHeaderBytes);
+  if (!header) return header.error();
+  std::string text = std::move(header).value();
   Header h(path);
   std::size_t data_start = 0;
   bool found_data_line = false;

@@ -309,14 +309,9 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
   auto size_r = file_size(path);
   if (!size_r) return size_r.error();
   const std::uint64_t size = size_r.value();
-  std::string text;
-  {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
-    text.resize(static_cast<std::size_t>(std::min<std::uint64_t>(size, kMaxHeaderBytes)));
-    in.read(text.data(), static_cast<std::streamsize>(text.size()));
-    text.resize(static_cast<std::size_t>(std::max<std::streamsize>(0, in.gcount())));
-  }
+  auto header = read_header_text(path, size, kMaxHeaderBytes);
+  if (!header) return header.error();
+  std::string text = std::move(header).value();
 
   // Magic.
   const std::size_t first_nl = text.find('\n');

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <exception>
 #include <filesystem>
+#include <fstream>
 #include <new>
 #include <optional>
 #include <string>
@@ -141,6 +142,17 @@ inline std::vector<float> convert(const std::vector<unsigned char>& bytes, const
     report(progress, p0 + (p1 - p0) * static_cast<double>(start + n) / static_cast<double>(count));
   }
   return out;
+}
+
+/// The first min(size, max_bytes) bytes of the file at path: a header to parse. kNotFound when it
+/// cannot be opened.
+inline Result<std::string> read_header_text(const std::string& path, std::uint64_t size, std::size_t max_bytes) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
+  std::string text(static_cast<std::size_t>(std::min<std::uint64_t>(size, max_bytes)), '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
+  text.resize(static_cast<std::size_t>(std::max<std::streamsize>(0, in.gcount())));
+  return text;
 }
 
 /// Runs a loader, turning an exception from deep inside it (allocation, filesystem) into an Error

@@ -7,6 +7,8 @@
 
 #include <gtest/gtest.h>
 
+#include "temp_files.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -83,38 +85,9 @@ TEST(NrrdReal, ToothAttachedEqualsTheMhd) {
 
 // ---- synthetic files ----------------------------------------------------------------------
 
-class NrrdFiles : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("lancet_nrrd_test_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  std::string write(const std::string& name, const std::string& bytes) const {
-    const std::string p = (dir_ / name).string();
-    std::ofstream(p, std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    return p;
-  }
-  fs::path dir_;
-};
+class NrrdFiles : public test::TempDirTest {};
 
-template <class T>
-std::string bytes_of(const std::vector<T>& values, bool big_endian) {
-  std::string out;
-  for (T v : values) {
-    char b[sizeof(T)];
-    std::memcpy(b, &v, sizeof(T));
-    if (big_endian) std::reverse(b, b + sizeof(T));
-    out.append(b, sizeof(T));
-  }
-  return out;
-}
+using test::bytes_of;
 
 std::string gzip_compress(const std::string& raw) {
   z_stream zs{};
