@@ -431,6 +431,12 @@ Result<IsoSurface> extract_isosurface(const Volume& volume, const IsoOptions& op
 
 IsoMesh to_openmesh(const IsoSurface& surface, std::size_t* refused) {
   IsoMesh mesh;
+  const std::size_t bad = fill_openmesh(surface, mesh);
+  if (refused != nullptr) *refused = bad;
+  return mesh;
+}
+
+std::size_t fill_openmesh(const IsoSurface& surface, IsoMesh& mesh) {
   mesh.reserve(surface.positions.size(), surface.positions.size() + surface.triangles.size(), surface.triangles.size());
   std::vector<IsoMesh::VertexHandle> vh(surface.positions.size());
   for (std::size_t v = 0; v < surface.positions.size(); ++v) {
@@ -450,8 +456,7 @@ IsoMesh to_openmesh(const IsoSurface& surface, std::size_t* refused) {
     }
     mesh.set_cube(fh, surface.triangle_cube[t]);
   }
-  if (refused != nullptr) *refused = bad;
-  return mesh;
+  return bad;
 }
 
 }  // namespace lancet::volume

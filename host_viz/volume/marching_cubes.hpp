@@ -84,6 +84,9 @@ struct IsoSurface {
 /// The IsoSurface as an OpenMesh mesh (vertex order kept). Returns the number of faces OpenMesh
 /// refused as non-manifold (zero for anything extract_isosurface produced) through refused.
 IsoMesh to_openmesh(const IsoSurface& surface, std::size_t* refused = nullptr);
+/// The same into an existing, empty mesh (OpenMesh meshes copy rather than move); returns the
+/// number of refused faces.
+std::size_t fill_openmesh(const IsoSurface& surface, IsoMesh& mesh);
 
 // ---- the case table, exposed for tests -------------------------------------------------------
 // Cube corner c sits at (c & 1, (c >> 1) & 1, (c >> 2) & 1). Edge e runs along axis e / 4 from

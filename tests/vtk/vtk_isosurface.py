@@ -23,19 +23,30 @@ vtkMarchingCubes is serial in VTK 9.1 regardless; vtkFlyingEdges3D uses vtkSMPTo
 
 Prints one JSON object on stdout. Lengths/areas/volumes are in the units of the
 .mhd ElementSpacing (mm for the Lancet test volumes): area in unit^2, volume in
-unit^3. The .mhd TransformMatrix (direction) and Offset are not applied to the
-geometry (vtkMetaImageReader ignores the direction); areas, volumes and counts do
-not depend on either.
+unit^3. vtkMetaImageReader applies the .mhd Offset as the image origin but ignores
+TransformMatrix (direction), so the chest volume's flips are not applied; areas,
+volumes (relative to the first sample) and counts do not depend on either.
+"origin" is the unpadded grid's first sample; "grid_first_sample" is the padded one.
 
 Per filter output:
   triangles, points          cell / point counts of the output vtkPolyData
-  area                       sum of triangle areas (double, math.fsum)
-  volume                     vtkMassProperties volume (only meaningful if closed)
-  boundary_edges             edges used by exactly one triangle (vtkFeatureEdges)
+  area                       sum of per-triangle areas (vtkCellSizeFilter, double),
+                             summed with math.fsum
+  volume                     signed divergence-theorem volume sum(p0.(p1 x p2))/6,
+                             coordinates relative to "origin"; the enclosed volume
+                             when the surface is closed, origin-dependent otherwise
+  volume_vtkmassproperties   vtkMassProperties volume (valid for closed surfaces only)
+  edges                      distinct edges (pairs of distinct point ids)
+  boundary_edges             edges used by exactly one triangle (0 = closed surface)
   nonmanifold_edges          edges used by more than two triangles
+                             (counted in Python: vtkFeatureEdges in VTK 9.1 makes an
+                             O(points^2) allocation and aborts on ~1.5M-point meshes)
   degenerate                 triangles whose area is exactly 0 in double precision
-                             (coincident vertices; includes repeated point ids)
-  seconds, voxels_per_second best Update() wall time; input voxels / seconds
+                             (coincident vertices; vtkFlyingEdges3D emits them when
+                             grid values equal the isovalue; vtkMarchingCubes merges
+                             points and drops triangles with repeated ids instead)
+  has_normals                whether point normals are present
+  seconds, voxels_per_second best Update() wall time; grid voxels (padded) / seconds
 
 Errors (missing/unreadable file, bad arguments) -> message on stderr, exit 2.
 """
