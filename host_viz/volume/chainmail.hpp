@@ -62,9 +62,8 @@
 // Threads and allocation: one thread (the viz thread); not real-time safe: a step allocates when
 // the deformed region grows (new bricks, a larger queue); a step inside already materialised bricks
 // whose queue fits the capacity of earlier steps does not allocate (reset() keeps both). Invalid
-// arguments throw std::invalid_argument naming the field and value (before any state changes, except
-// that a step with a duplicate sponsor is refused after materialising, which leaves elements at
-// rest); numerical trouble in a step is counted (conflicts), never thrown.
+// arguments throw std::invalid_argument naming the field and value, before any state changes;
+// numerical trouble in a step is counted (conflicts), never thrown. Deterministic.
 
 #include <array>
 #include <cstddef>
@@ -241,6 +240,9 @@ class ChainMail {
   std::size_t hash_count_ = 0;
 
   std::uint64_t gen_ = 0;  // 2g in step g
+  std::vector<std::uint32_t> step_refs_;      // scratch: the sponsors' elements
+  std::vector<std::uint64_t> step_linear_;    // scratch: duplicate check
+  std::vector<ChainMailSponsor> groove_sponsors_;  // scratch of open_groove()
   std::vector<QueueEntry> pool_;
   std::vector<std::uint32_t> head_, tail_;
   std::int64_t top_ = -1;

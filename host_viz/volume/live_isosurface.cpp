@@ -41,7 +41,11 @@ Result<std::unique_ptr<LiveIsosurface>> LiveIsosurface::create(const Volume& vol
     return Error{ErrorCode::kInvalid, e.what()};
   }
   live->refused_ = fill_openmesh(s, live->mesh_);
-  live->vertex_of_edge_.reserve(s.positions.size() * 2);
+  // Headroom, so that drilling does not regrow OpenMesh's arrays (a copy of the whole mesh) or
+  // rehash the edge map in the middle of an interaction.
+  const auto& m = live->mesh_;
+  live->mesh_.reserve(m.n_vertices() * 3 / 2 + 1024, m.n_edges() * 3 / 2 + 1024, m.n_faces() * 3 / 2 + 1024);
+  live->vertex_of_edge_.reserve(s.positions.size() * 3 / 2 + 1024);
   for (auto v : live->mesh_.vertices()) live->vertex_of_edge_.emplace(live->mesh_.edge_key(v), v);
   return live;
 }

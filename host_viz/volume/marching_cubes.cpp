@@ -1,6 +1,7 @@
 #include "volume/marching_cubes.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -9,6 +10,10 @@
 #include <thread>
 
 #include "volume/detail/mc_core.hpp"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace lancet::volume {
 
@@ -193,9 +198,59 @@ const std::array<McCase, 256>& mc_case_table() {
 }
 
 // ---- extraction ---------------------------------------------------------------------------------
+// Four passes, the first three over bits:
+//   0. classify: one bit per node (inside or not), rows of 64-bit words;
+//   1. count, per node plane, the crossing edges (popcounts of xor-ed rows) and, per slab, the
+//      triangles of its active cubes (a cube is active unless its 8 corner bits agree);
+//   2. prefix sums give every plane its first vertex index and every slab its first triangle;
+//   3. each slab numbers its planes' crossing edges, computes their vertices and emits the
+//      triangles of its active cubes; the plane a slab ends on is numbered by both neighbours in
+//      the same order, and only its owner writes the vertices.
 namespace {
 
 using detail::McField;
+
+struct NodeBits {
+  int nx = 0, ny = 0, nz = 0;
+  std::size_t words = 0;  ///< words holding a row's bits
+  std::size_t stride = 0; ///< words per row, one more than needed, zero: reads of word q + 1 are safe
+  std::vector<std::uint64_t> w;
+  std::vector<std::uint64_t> edge_mask;  ///< per word: bits of x-edges that exist (i < nx − 1)
+
+  [[nodiscard]] std::size_t row_start(int j, int k) const {
+    return (static_cast<std::size_t>(k) * static_cast<std::size_t>(ny) + static_cast<std::size_t>(j)) * stride;
+  }
+  const std::uint64_t* row(int j, int k) const { return w.data() + row_start(j, k); }
+  std::uint64_t* row(int j, int k) { return w.data() + row_start(j, k); }
+};
+
+inline std::uint64_t shr1(const std::uint64_t* r, std::size_t q) { return (r[q] >> 1) | (r[q + 1] << 63); }
+// The two bits i and i + 1 of a row.
+inline unsigned two_bits(const std::uint64_t* r, int i) {
+  const auto q = static_cast<std::size_t>(i) >> 6;
+  const unsigned s = static_cast<unsigned>(i) & 63u;
+  const std::uint64_t lo = r[q] >> s;
+  const std::uint64_t hi = s == 63 ? r[q + 1] << 1 : 0;
+  return static_cast<unsigned>((lo | hi) & 3u);
+}
+
+// The active cubes of cube row (j, k) in word q: cubes whose corners are not all alike.
+inline std::uint64_t active_cubes(const NodeBits& b, int j, int k, std::size_t q) {
+  const std::uint64_t* r0 = b.row(j, k);
+  const std::uint64_t* r1 = b.row(j + 1, k);
+  const std::uint64_t* r2 = b.row(j, k + 1);
+  const std::uint64_t* r3 = b.row(j + 1, k + 1);
+  const std::uint64_t any = r0[q] | r1[q] | r2[q] | r3[q];
+  const std::uint64_t any_next = (any >> 1) | ((r0[q + 1] | r1[q + 1] | r2[q + 1] | r3[q + 1]) << 63);
+  const std::uint64_t all = r0[q] & r1[q] & r2[q] & r3[q];
+  const std::uint64_t all_next = (all >> 1) | ((r0[q + 1] & r1[q + 1] & r2[q + 1] & r3[q + 1]) << 63);
+  return (any | any_next) & ~(all & all_next) & b.edge_mask[q];
+}
+
+inline unsigned cube_case_bits(const NodeBits& b, int i, int j, int k) {
+  return two_bits(b.row(j, k), i) | two_bits(b.row(j + 1, k), i) << 2 | two_bits(b.row(j, k + 1), i) << 4 |
+         two_bits(b.row(j + 1, k + 1), i) << 6;
+}
 
 // Edge-vertex indices of one node plane: x- and y-edges in the plane, z-edges up to the next.
 struct PlaneIndex {
@@ -210,28 +265,57 @@ struct PlaneIndex {
 struct Extraction {
   const McField& f;
   IsoSurface& out;
+  NodeBits bits;
   std::vector<std::uint64_t> plane_offset;  // first vertex index of each node plane
-  bool crosses(std::size_t a, std::size_t b) const { return (f.v[a] >= f.iso) != (f.v[b] >= f.iso); }
 
-  // Vertices owned by plane k (its x- and y-edges and its z-edges up to plane k + 1).
-  std::uint64_t count_plane(int k) const {
-    const int nx = f.n[0], ny = f.n[1], nz = f.n[2];
-    std::uint64_t c = 0;
-    for (int j = 0; j < ny; ++j)
-      for (int i = 0; i < nx; ++i) {
-        const std::size_t a = f.idx(i, j, k);
-        if (i + 1 < nx) c += crosses(a, a + 1);
-        if (j + 1 < ny) c += crosses(a, a + static_cast<std::size_t>(nx));
-        if (k + 1 < nz) c += crosses(a, a + static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny));
+  void classify_planes(int k0, int k1) {
+    const std::size_t nx = static_cast<std::size_t>(bits.nx);
+    for (int k = k0; k < k1; ++k)
+      for (int j = 0; j < bits.ny; ++j) {
+        std::uint64_t* r = bits.row(j, k);
+        const float* v = f.v + f.idx(0, j, k);
+        for (std::size_t q = 0; q < bits.words; ++q) {
+          const std::size_t begin = q * 64, end = std::min(nx, begin + 64);
+          std::uint64_t word = 0;
+          std::size_t i = begin;
+#if defined(__SSE2__)
+          // Four comparisons and one movemask per step: the classification is the only pass that
+          // reads every voxel, so it sets the pace on a mostly empty volume.
+          const __m128 iso4 = _mm_set1_ps(f.iso);
+          for (; i + 4 <= end; i += 4) {
+            const auto m = static_cast<unsigned>(_mm_movemask_ps(_mm_cmpge_ps(_mm_loadu_ps(v + i), iso4)));
+            word |= static_cast<std::uint64_t>(m) << (i - begin);
+          }
+#endif
+          for (; i < end; ++i) word |= static_cast<std::uint64_t>(v[i] >= f.iso) << (i - begin);
+          r[q] = word;
+        }
       }
+  }
+
+  // Vertices owned by plane k: crossing x- and y-edges in it and z-edges up to plane k + 1.
+  std::uint64_t count_plane(int k) const {
+    std::uint64_t c = 0;
+    for (int j = 0; j < bits.ny; ++j) {
+      const std::uint64_t* r = bits.row(j, k);
+      for (std::size_t q = 0; q < bits.words; ++q) {
+        c += static_cast<std::uint64_t>(std::popcount((r[q] ^ shr1(r, q)) & bits.edge_mask[q]));
+        if (j + 1 < bits.ny) c += static_cast<std::uint64_t>(std::popcount(r[q] ^ bits.row(j + 1, k)[q]));
+        if (k + 1 < bits.nz) c += static_cast<std::uint64_t>(std::popcount(r[q] ^ bits.row(j, k + 1)[q]));
+      }
+    }
     return c;
   }
 
   std::uint64_t count_layer_triangles(int k) const {
     const auto& table = mc_case_table();
     std::uint64_t c = 0;
-    for (int j = 0; j + 1 < f.n[1]; ++j)
-      for (int i = 0; i + 1 < f.n[0]; ++i) c += table[detail::cube_case(f, i, j, k)].n_triangles;
+    for (int j = 0; j + 1 < bits.ny; ++j)
+      for (std::size_t q = 0; q < bits.words; ++q)
+        for (std::uint64_t m = active_cubes(bits, j, k, q); m != 0; m &= m - 1) {
+          const int i = static_cast<int>(q * 64) + std::countr_zero(m);
+          c += table[cube_case_bits(bits, i, j, k)].n_triangles;
+        }
     return c;
   }
 
@@ -243,36 +327,51 @@ struct Extraction {
     out.edge_key[index] = out.grid.edge_key(i, j, k, axis);
   }
 
-  // Numbers plane k's crossing edges from plane_offset[k], in the one order every thread uses;
-  // writes the vertices when write is set. with_z: also the z-edges (needed for the plane a layer
-  // starts on, not for the one it ends on).
+  // Numbers plane k's crossing edges from plane_offset[k], row by row (x, then y, then z edges),
+  // the one order both slabs sharing a plane use; writes the vertices when write is set. with_z:
+  // also record the z-edges (needed on the plane a layer starts from, not the one it ends on).
   void index_plane(int k, PlaneIndex& p, bool write, bool with_z) {
-    const int nx = f.n[0], ny = f.n[1], nz = f.n[2];
+    const int nx = bits.nx, ny = bits.ny, nz = bits.nz;
     auto next = static_cast<std::uint32_t>(plane_offset[static_cast<std::size_t>(k)]);
-    const std::size_t sy = static_cast<std::size_t>(nx), sz = sy * static_cast<std::size_t>(ny);
-    for (int j = 0; j < ny; ++j)
-      for (int i = 0; i < nx; ++i) {
-        const std::size_t a = f.idx(i, j, k), l = static_cast<std::size_t>(j) * sy + static_cast<std::size_t>(i);
-        if (i + 1 < nx && crosses(a, a + 1)) {
+    const auto each = [&](std::uint64_t m, std::size_t q, auto&& fn) {
+      for (; m != 0; m &= m - 1) fn(static_cast<int>(q * 64) + std::countr_zero(m));
+    };
+    for (int j = 0; j < ny; ++j) {
+      const std::uint64_t* r = bits.row(j, k);
+      const std::size_t l0 = static_cast<std::size_t>(j) * static_cast<std::size_t>(nx);
+      for (std::size_t q = 0; q < bits.words; ++q)
+        each((r[q] ^ shr1(r, q)) & bits.edge_mask[q], q, [&](int i) {
           if (write) emit_vertex(next, i, j, k, 0);
-          p.x[l] = next++;
-        }
-        if (j + 1 < ny && crosses(a, a + sy)) {
-          if (write) emit_vertex(next, i, j, k, 1);
-          p.y[l] = next++;
-        }
-        if (k + 1 < nz && crosses(a, a + sz)) {
-          if (with_z && write) emit_vertex(next, i, j, k, 2);
-          if (with_z) p.z[l] = next;
-          ++next;  // counted either way, so the numbering matches count_plane
+          p.x[l0 + static_cast<std::size_t>(i)] = next++;
+        });
+      if (j + 1 < ny) {
+        const std::uint64_t* r1 = bits.row(j + 1, k);
+        for (std::size_t q = 0; q < bits.words; ++q)
+          each(r[q] ^ r1[q], q, [&](int i) {
+            if (write) emit_vertex(next, i, j, k, 1);
+            p.y[l0 + static_cast<std::size_t>(i)] = next++;
+          });
+      }
+      if (k + 1 < nz) {
+        const std::uint64_t* r1 = bits.row(j, k + 1);
+        for (std::size_t q = 0; q < bits.words; ++q) {
+          if (!with_z) {  // counted only, so the numbering matches count_plane
+            next += static_cast<std::uint32_t>(std::popcount(r[q] ^ r1[q]));
+            continue;
+          }
+          each(r[q] ^ r1[q], q, [&](int i) {
+            if (write) emit_vertex(next, i, j, k, 2);
+            p.z[l0 + static_cast<std::size_t>(i)] = next++;
+          });
         }
       }
+    }
   }
 
   // Slab [k0, k1) of cube layers; owns node planes k0 .. k1-1 (and the top plane if last).
   void run_slab(int k0, int k1, std::uint64_t tri_offset) {
-    const int nx = f.n[0], nz = f.n[2];
-    const std::size_t plane = static_cast<std::size_t>(nx) * static_cast<std::size_t>(f.n[1]);
+    const int nx = bits.nx, nz = bits.nz;
+    const std::size_t plane = static_cast<std::size_t>(nx) * static_cast<std::size_t>(bits.ny);
     PlaneIndex cur, nxt;
     cur.resize(plane);
     nxt.resize(plane);
@@ -282,29 +381,31 @@ struct Extraction {
     for (int k = k0; k < k1; ++k) {
       const bool owned = k + 1 < k1 || k + 1 == nz - 1;
       index_plane(k + 1, nxt, owned, owned);
-      for (int j = 0; j + 1 < f.n[1]; ++j)
-        for (int i = 0; i + 1 < nx; ++i) {
-          const unsigned cs = detail::cube_case(f, i, j, k);
-          const McCase& c = table[cs];
-          if (c.n_triangles == 0) continue;
-          const std::uint32_t cube = out.grid.cube(i, j, k);
-          std::uint32_t ev[12];
-          for (int e = 0; e < 12; ++e) {
-            // Only the edges this case uses are looked up (the others hold stale indices).
-            const auto ce = detail::cube_edge(e);
-            const PlaneIndex& p = ce.dk != 0 ? nxt : cur;
-            const std::size_t l = static_cast<std::size_t>(j + ce.dj) * static_cast<std::size_t>(nx) + static_cast<std::size_t>(i + ce.di);
-            ev[e] = ce.axis == 0 ? p.x[l] : ce.axis == 1 ? p.y[l] : cur.z[l];
-          }
-          for (int n = 0; n < c.n_triangles; ++n) {
-            const std::uint32_t a = ev[c.edges[static_cast<std::size_t>(3 * n)]];
-            const std::uint32_t b = ev[c.edges[static_cast<std::size_t>(3 * n + 1)]];
-            const std::uint32_t d = ev[c.edges[static_cast<std::size_t>(3 * n + 2)]];
-            out.triangles[t] = f.flip ? std::array<std::uint32_t, 3>{a, d, b} : std::array<std::uint32_t, 3>{a, b, d};
-            out.triangle_cube[t] = cube;
-            ++t;
-          }
+      for (int j = 0; j + 1 < bits.ny; ++j) {
+        // Per cube edge, where its vertex index sits for cube i of this row: edge_index[e][i].
+        const std::uint32_t* edge_index[12];
+        for (int e = 0; e < 12; ++e) {
+          const auto ce = detail::cube_edge(e);
+          const PlaneIndex& p = ce.dk != 0 ? nxt : cur;
+          const std::vector<std::uint32_t>& arr = ce.axis == 0 ? p.x : ce.axis == 1 ? p.y : cur.z;
+          edge_index[e] = arr.data() + static_cast<std::size_t>(j + ce.dj) * static_cast<std::size_t>(nx) + static_cast<std::size_t>(ce.di);
         }
+        for (std::size_t q = 0; q < bits.words; ++q)
+          for (std::uint64_t m = active_cubes(bits, j, k, q); m != 0; m &= m - 1) {
+            const int i = static_cast<int>(q * 64) + std::countr_zero(m);
+            const McCase& c = table[cube_case_bits(bits, i, j, k)];
+            const std::uint32_t cube = out.grid.cube(i, j, k);
+            const auto vertex = [&](std::uint8_t e) { return edge_index[e][i]; };
+            for (int n = 0; n < c.n_triangles; ++n) {
+              const std::uint32_t a = vertex(c.edges[static_cast<std::size_t>(3 * n)]);
+              const std::uint32_t b = vertex(c.edges[static_cast<std::size_t>(3 * n + 1)]);
+              const std::uint32_t d = vertex(c.edges[static_cast<std::size_t>(3 * n + 2)]);
+              out.triangles[t] = f.flip ? std::array<std::uint32_t, 3>{a, d, b} : std::array<std::uint32_t, 3>{a, b, d};
+              out.triangle_cube[t] = cube;
+              ++t;
+            }
+          }
+      }
       std::swap(cur, nxt);
     }
   }
@@ -316,28 +417,41 @@ namespace detail {
 
 void extract_field(const McField& f, IsoSurface& out, int thread_count) {
   const auto& g = out.grid.dims;
+  Extraction ex{f, out, {}, std::vector<std::uint64_t>(static_cast<std::size_t>(g[2]) + 1, 0)};
+  NodeBits& b = ex.bits;
+  b.nx = g[0];
+  b.ny = g[1];
+  b.nz = g[2];
+  b.words = (static_cast<std::size_t>(g[0]) + 63) / 64;
+  b.stride = b.words + 1;
+  b.w.assign(b.stride * static_cast<std::size_t>(g[1]) * static_cast<std::size_t>(g[2]), 0);
+  b.edge_mask.assign(b.stride, 0);
+  for (int i = 0; i + 1 < g[0]; ++i) b.edge_mask[static_cast<std::size_t>(i) >> 6] |= std::uint64_t{1} << (i & 63);
+
   // Slabs of cube layers, one per thread.
   const int layers = g[2] - 1;
   int threads = thread_count > 0 ? thread_count : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   threads = std::clamp(threads, 1, layers);
   std::vector<int> slab_start(static_cast<std::size_t>(threads) + 1);
   for (int s = 0; s <= threads; ++s) slab_start[static_cast<std::size_t>(s)] = static_cast<int>(static_cast<long>(layers) * s / threads);
-
-  Extraction ex{f, out, std::vector<std::uint64_t>(static_cast<std::size_t>(g[2]) + 1, 0)};
-  std::vector<std::uint64_t> slab_tris(static_cast<std::size_t>(threads), 0);
   const auto parallel = [&](auto&& body) {
     std::vector<std::thread> pool;
     for (int s = 1; s < threads; ++s) pool.emplace_back(body, s);
     body(0);
     for (auto& th : pool) th.join();
   };
+  // A slab's node planes: k0 .. k1-1, and the top plane for the last slab.
+  const auto plane_end = [&](int s) { return s + 1 == threads ? g[2] : slab_start[static_cast<std::size_t>(s) + 1]; };
+  // Pass 0: classify.
+  parallel([&](int s) { ex.classify_planes(slab_start[static_cast<std::size_t>(s)], plane_end(s)); });
   // Pass 1: count the vertices of each node plane and the triangles of each slab.
+  std::vector<std::uint64_t> slab_tris(static_cast<std::size_t>(threads), 0);
   parallel([&](int s) {
     const int k0 = slab_start[static_cast<std::size_t>(s)], k1 = slab_start[static_cast<std::size_t>(s) + 1];
-    const int plane_end = s + 1 == threads ? g[2] : k1;
-    for (int k = k0; k < plane_end; ++k) ex.plane_offset[static_cast<std::size_t>(k) + 1] = ex.count_plane(k);
+    for (int k = k0; k < plane_end(s); ++k) ex.plane_offset[static_cast<std::size_t>(k) + 1] = ex.count_plane(k);
     for (int k = k0; k < k1; ++k) slab_tris[static_cast<std::size_t>(s)] += ex.count_layer_triangles(k);
   });
+  // Pass 2: offsets.
   std::partial_sum(ex.plane_offset.begin(), ex.plane_offset.end(), ex.plane_offset.begin());
   const std::uint64_t n_vertices = ex.plane_offset.back();
   const std::uint64_t n_triangles = std::accumulate(slab_tris.begin(), slab_tris.end(), std::uint64_t{0});
@@ -349,9 +463,9 @@ void extract_field(const McField& f, IsoSurface& out, int thread_count) {
   out.edge_key.resize(n_vertices);
   out.triangles.resize(n_triangles);
   out.triangle_cube.resize(n_triangles);
-  // Pass 2: vertices and triangles, each slab into its own ranges.
   std::vector<std::uint64_t> tri_offset(static_cast<std::size_t>(threads), 0);
   std::exclusive_scan(slab_tris.begin(), slab_tris.end(), tri_offset.begin(), std::uint64_t{0});
+  // Pass 3: vertices and triangles, each slab into its own ranges.
   parallel([&](int s) {
     ex.run_slab(slab_start[static_cast<std::size_t>(s)], slab_start[static_cast<std::size_t>(s) + 1], tri_offset[static_cast<std::size_t>(s)]);
   });

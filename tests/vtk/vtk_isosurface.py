@@ -112,6 +112,8 @@ def parse_args(argv):
                    help="0 = VTK default, 1 = Sequential backend, N = Initialize(N)")
     p.add_argument("--repeat", type=int, default=3, help="timed repeats, best is reported")
     p.add_argument("--normals", choices=("on", "off"), default="on")
+    p.add_argument("--quick", action="store_true",
+                   help="counts, area and timing only (skip volume and edge topology, slow in Python)")
     a = p.parse_args(argv)
     if a.repeat < 1:
         fail("--repeat must be >= 1")
@@ -202,7 +204,7 @@ def _typed(arr):
     return mv
 
 
-def mesh_stats(poly, ref):
+def mesh_stats(poly, ref, full=True):
     """Counts, area, volume, edge topology of a triangle-only vtkPolyData.
 
     ref: reference point for the signed (divergence-theorem) volume; the volume of a
@@ -240,6 +242,8 @@ def mesh_stats(poly, ref):
     amv = _typed(areas)
     out["area"] = math.fsum(amv)
     out["degenerate"] = sum(1 for a in amv if a == 0.0) if areas.GetRange()[0] <= 0.0 else 0
+    if not full:
+        return out
 
     # Valid for closed triangle meshes only (its open-surface value depends on a
     # normal-weighting that counts degenerate triangles).
@@ -284,7 +288,7 @@ def mesh_stats(poly, ref):
     return out
 
 
-def run_filter(cls, img, iso, normals, repeat, voxels, ref):
+def run_filter(cls, img, iso, normals, repeat, voxels, ref, full):
     f = cls()
     f.SetInputData(img)
     f.SetNumberOfContours(1)
@@ -298,7 +302,7 @@ def run_filter(cls, img, iso, normals, repeat, voxels, ref):
         t0 = time.perf_counter()
         f.Update()
         best = min(best, time.perf_counter() - t0)
-    res = mesh_stats(f.GetOutput(), ref)
+    res = mesh_stats(f.GetOutput(), ref, full)
     res["has_normals"] = f.GetOutput().GetPointData().GetNormals() is not None
     res["seconds"] = best
     res["voxels_per_second"] = voxels / best if best > 0 else None
@@ -334,8 +338,8 @@ def main(argv):
         "smp_backend": backend,
         "smp_threads": nthreads,
         "voxels": voxels,
-        "marching_cubes": run_filter(vtkMarchingCubes, img, a.iso, normals, a.repeat, voxels, ref),
-        "flying_edges": run_filter(vtkFlyingEdges3D, img, a.iso, normals, a.repeat, voxels, ref),
+        "marching_cubes": run_filter(vtkMarchingCubes, img, a.iso, normals, a.repeat, voxels, ref, not a.quick),
+        "flying_edges": run_filter(vtkFlyingEdges3D, img, a.iso, normals, a.repeat, voxels, ref, not a.quick),
     }
     json.dump(result, sys.stdout)
     sys.stdout.write("\n")

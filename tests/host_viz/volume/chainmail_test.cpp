@@ -1,0 +1,529 @@
+// Enhanced ChainMail (host_viz/volume/chainmail.hpp): 1-D chains against their analytic result
+// (compression, stretch, shear, pushed at an end and in the middle), every link valid after every
+// step (checked here from positions and the material table, not by the module), anisotropy, each
+// element processed once per step, groove width and V profile, memory that follows the deformed
+// region (64³ = 512³ = 4096³ lattices), bounded large pushes, reset, air, and bad arguments.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "volume/chainmail.hpp"
+
+namespace lancet::volume {
+namespace {
+
+using Index = ChainMail::Index;
+constexpr double kS = 1e-3;      // m, lattice spacing of most tests
+constexpr double kTol = 1e-12;   // m
+
+ChainMailLattice lattice(int nx, int ny, int nz, Vec3 spacing = {kS, kS, kS}) {
+  return {{nx, ny, nz}, spacing, {-0.01, 0.02, -0.03}};
+}
+
+double axis_of(const Vec3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
+
+// The largest amount by which any link of the whole lattice breaks its limits (mean of both
+// materials' limits), computed from positions alone. `where` names the worst link.
+double worst_link(const ChainMail& cm, const std::vector<ChainMailMaterial>& mats, const std::vector<std::uint8_t>& ids,
+                  std::string* where = nullptr) {
+  const auto& d = cm.lattice().dims;
+  const auto mat = [&](const Index& e) -> const ChainMailMaterial& {
+    if (ids.empty()) return mats[0];
+    return mats[ids[static_cast<std::size_t>(e[0] + d[0] * (e[1] + d[1] * e[2]))]];
+  };
+  double worst = 0;
+  for (int k = 0; k < d[2]; ++k)
+    for (int j = 0; j < d[1]; ++j)
+      for (int i = 0; i < d[0]; ++i)
+        for (int a = 0; a < 3; ++a) {
+          const Index e{i, j, k};
+          if (!cm.linked(e, a)) continue;
+          Index n = e;
+          ++n[static_cast<std::size_t>(a)];
+          const ChainMailAxisLimits& A = mat(e).axis[static_cast<std::size_t>(a)];
+          const ChainMailAxisLimits& B = mat(n).axis[static_cast<std::size_t>(a)];
+          const double lo = 0.5 * (A.min_length + B.min_length), hi = 0.5 * (A.max_length + B.max_length);
+          const double shear = 0.5 * (A.max_shear + B.max_shear);
+          const Vec3 dv = cm.position(n) - cm.position(e);
+          double excess = std::max(lo - axis_of(dv, a), axis_of(dv, a) - hi);
+          for (int b = 0; b < 3; ++b)
+            if (b != a) excess = std::max(excess, std::abs(axis_of(dv, b)) - shear);
+          if (excess > worst) {
+            worst = excess;
+            if (where != nullptr)
+              *where = "link (" + std::to_string(i) + "," + std::to_string(j) + "," + std::to_string(k) + ") axis " + std::to_string(a);
+          }
+        }
+  return worst;
+}
+
+// ---------------------------------------------------------------------------------------------
+// 1-D chains: element n moves by max(0, P − n·allowance), allowance = spacing − min (compression),
+// max − spacing (stretch) or max_shear (shear).
+
+struct Chain {
+  std::vector<ChainMailMaterial> mats;
+  ChainMail cm;
+  explicit Chain(int n)
+      : mats{ChainMailMaterial{true, {{{0.8 * kS, 1.3 * kS, 0.1 * kS}, {0.5 * kS, 1.5 * kS, 0.5 * kS}, {0.5 * kS, 1.5 * kS, 0.5 * kS}}}}},
+        cm(lattice(n, 1, 1), mats) {}
+};
+
+TEST(ChainMail, ChainCompressionMatchesAnalytic) {
+  Chain c(40);
+  const double P = 2.5e-3, allowance = 0.2e-3;
+  const ChainMailStepResult r = c.cm.move({0, 0, 0}, c.cm.rest_position({0, 0, 0}) + Vec3{P, 0, 0});
+  int expected_moved = 0;
+  for (int n = 0; n < 40; ++n) {
+    const double expect = std::max(0.0, P - n * allowance);
+    if (expect > 0) ++expected_moved;
+    const Vec3 u = c.cm.displacement({n, 0, 0});
+    EXPECT_NEAR(u.x, expect, kTol) << "element " << n;
+    EXPECT_EQ(u.y, 0.0);
+    EXPECT_EQ(u.z, 0.0);
+  }
+  EXPECT_EQ(expected_moved, 13);
+  EXPECT_EQ(r.moved, 13u);
+  EXPECT_EQ(r.processed, 13u);  // each element once; the first at rest is checked, never queued
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(c.cm, c.mats, {}), kTol);
+}
+
+TEST(ChainMail, ChainStretchMatchesAnalytic) {
+  Chain c(40);
+  const double P = 2.5e-3, allowance = 0.3e-3;
+  const ChainMailStepResult r = c.cm.move({0, 0, 0}, c.cm.rest_position({0, 0, 0}) - Vec3{P, 0, 0});
+  for (int n = 0; n < 40; ++n) EXPECT_NEAR(c.cm.displacement({n, 0, 0}).x, -std::max(0.0, P - n * allowance), kTol) << n;
+  EXPECT_EQ(r.moved, 9u);  // 2.5 / 0.3 = 8.33: elements 0..8
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(c.cm, c.mats, {}), kTol);
+}
+
+TEST(ChainMail, ChainShearMatchesAnalytic) {
+  Chain c(40);
+  const double P = 1.05e-3, allowance = 0.1e-3;
+  c.cm.move({0, 0, 0}, c.cm.rest_position({0, 0, 0}) + Vec3{0, P, -P});
+  for (int n = 0; n < 40; ++n) {
+    const Vec3 u = c.cm.displacement({n, 0, 0});
+    EXPECT_NEAR(u.y, std::max(0.0, P - n * allowance), kTol) << n;
+    EXPECT_NEAR(u.z, -std::max(0.0, P - n * allowance), kTol) << n;
+    EXPECT_EQ(u.x, 0.0) << n;
+  }
+  EXPECT_LE(worst_link(c.cm, c.mats, {}), kTol);
+}
+
+TEST(ChainMail, ChainPushedInTheMiddleCompressesOneSideAndStretchesTheOther) {
+  Chain c(41);
+  const double P = 1.9e-3;
+  const ChainMailStepResult r = c.cm.move({20, 0, 0}, c.cm.rest_position({20, 0, 0}) + Vec3{P, 0, 0});
+  for (int n = 0; n < 41; ++n) {
+    const double expect = n >= 20 ? std::max(0.0, P - (n - 20) * 0.2e-3) : std::max(0.0, P - (20 - n) * 0.3e-3);
+    EXPECT_NEAR(c.cm.displacement({n, 0, 0}).x, expect, kTol) << n;
+  }
+  EXPECT_EQ(r.moved, 1u + 9u + 6u);
+  EXPECT_EQ(r.conflicts, 0u);
+}
+
+// A second step continues from the first (ChainMail is plastic): pulling back the end element
+// drags the chain by the stretch allowance.
+TEST(ChainMail, SecondStepStartsFromTheFirst) {
+  Chain c(40);
+  c.cm.move({0, 0, 0}, c.cm.rest_position({0, 0, 0}) + Vec3{2.5e-3, 0, 0});
+  c.cm.move({0, 0, 0}, c.cm.rest_position({0, 0, 0}));
+  for (int n = 0; n < 40; ++n) {
+    const double pushed = std::max(0.0, 2.5e-3 - n * 0.2e-3);
+    const double expect = std::min(pushed, n * 0.3e-3);  // at most n stretch allowances behind element 0
+    EXPECT_NEAR(c.cm.displacement({n, 0, 0}).x, expect, kTol) << n;
+  }
+  EXPECT_LE(worst_link(c.cm, c.mats, {}), kTol);
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3-D: validity, anisotropy, once per step, bounds.
+
+// Three materials in layers with a blob of the third, anisotropic, and an air pocket.
+struct Block {
+  std::vector<ChainMailMaterial> mats;
+  std::vector<std::uint8_t> ids;
+  ChainMail cm;
+  static std::vector<std::uint8_t> layout(int n) {
+    std::vector<std::uint8_t> v(static_cast<std::size_t>(n * n * n));
+    for (int k = 0; k < n; ++k)
+      for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+          std::uint8_t m = k > n - 4 ? 1 : 2;  // skin on top, muscle below
+          const int di = i - n / 3, dj = j - n / 2, dk = k - n / 3;
+          if (di * di + dj * dj + dk * dk < 16) m = 3;  // a stiff blob
+          if (i >= n - 3 && j < 3) m = 0;             // an air pocket at an edge
+          v[static_cast<std::size_t>(i + n * (j + n * k))] = m;
+        }
+    return v;
+  }
+  explicit Block(int n)
+      : mats{ChainMailMaterial::air(),
+             ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.4, 0.3),
+             ChainMailMaterial{true, {{{0.9 * kS, 1.1 * kS, 0.15 * kS}, {0.6 * kS, 1.5 * kS, 0.3 * kS}, {0.7 * kS, 1.2 * kS, 0.2 * kS}}}},
+             ChainMailMaterial::relative({kS, kS, kS}, 0.05, 0.05, 0.05)},
+        ids(layout(n)),
+        cm(lattice(n, n, n), mats, ids) {}
+};
+
+TEST(ChainMail, EveryLinkValidAfterEveryStep) {
+  Block b(24);
+  std::uint64_t state = 12345;
+  const auto next = [&]() {  // deterministic LCG in [0, 1)
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(state >> 11) * 0x1.0p-53;
+  };
+  int steps = 0;
+  for (int s = 0; s < 40; ++s) {
+    const Index e{1 + static_cast<int>(next() * 21), 1 + static_cast<int>(next() * 21), 1 + static_cast<int>(next() * 21)};
+    if (!b.cm.present(e)) continue;
+    const Vec3 d{(next() - 0.5) * 6e-3, (next() - 0.5) * 6e-3, (next() - 0.5) * 6e-3};
+    const ChainMailStepResult r = b.cm.move(e, b.cm.rest_position(e) + d);
+    std::string where;
+    const double worst = worst_link(b.cm, b.mats, b.ids, &where);
+    EXPECT_EQ(r.conflicts, 0u) << "step " << s;
+    EXPECT_LE(worst, kTol) << "step " << s << ": " << where;
+    EXPECT_GT(r.moved, 0u);
+    ++steps;
+  }
+  EXPECT_GT(steps, 30);
+  // Air never moves and is never linked.
+  EXPECT_FALSE(b.cm.present({23, 0, 5}));
+  EXPECT_EQ(b.cm.displacement({23, 0, 5}), Vec3{});
+  EXPECT_FALSE(b.cm.linked({20, 0, 5}, 0));
+}
+
+TEST(ChainMail, SeveralSponsorsInOneStep) {
+  Block b(24);
+  std::vector<ChainMailSponsor> s;
+  for (int i = 6; i < 18; ++i) s.push_back({{i, 12, 23}, b.cm.rest_position({i, 12, 23}) + Vec3{0, 0, -2e-3}});
+  const ChainMailStepResult r = b.cm.move(s);
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(b.cm, b.mats, b.ids), kTol);
+  for (const ChainMailSponsor& sp : s) EXPECT_EQ(b.cm.position(sp.element), sp.position);
+}
+
+TEST(ChainMail, AnisotropicMaterialPropagatesDifferentlyAlongXAndZ) {
+  // Compression allowance 0.1 s along x, 0.4 s along z; shear 0.5 s everywhere.
+  const std::vector<ChainMailMaterial> mats{
+      ChainMailMaterial{true, {{{0.9 * kS, 1.1 * kS, 0.5 * kS}, {0.9 * kS, 1.1 * kS, 0.5 * kS}, {0.6 * kS, 1.4 * kS, 0.5 * kS}}}}};
+  const double P = 2e-3;
+  const Index c{20, 20, 20};
+  ChainMail along_x(lattice(41, 41, 41), mats), along_z(lattice(41, 41, 41), mats);
+  const ChainMailStepResult rx = along_x.move(c, along_x.rest_position(c) + Vec3{P, 0, 0});
+  const ChainMailStepResult rz = along_z.move(c, along_z.rest_position(c) + Vec3{0, 0, P});
+  for (int n = 0; n <= 20; ++n) {
+    EXPECT_NEAR(along_x.displacement({20 + n, 20, 20}).x, std::max(0.0, P - n * 0.1e-3), kTol) << n;
+    EXPECT_NEAR(along_z.displacement({20, 20, 20 + n}).z, std::max(0.0, P - n * 0.4e-3), kTol) << n;
+  }
+  EXPECT_GT(along_x.displacement({39, 20, 20}).x, 0.0);  // reaches 19 elements along x
+  EXPECT_EQ(along_z.displacement({20, 20, 26}).z, 0.0);  // 5 along z
+  EXPECT_NE(rx.moved, rz.moved);
+  EXPECT_EQ(rx.conflicts + rz.conflicts, 0u);
+  EXPECT_LE(worst_link(along_x, mats, {}), kTol);
+  EXPECT_LE(worst_link(along_z, mats, {}), kTol);
+}
+
+TEST(ChainMail, EachElementIsProcessedOncePerStep) {
+  Block b(24);
+  const Index e{12, 12, 12};
+  const ChainMailStepResult r = b.cm.move(e, b.cm.rest_position(e) + Vec3{2e-3, -1.5e-3, 1e-3});
+  std::uint64_t displaced = 0;
+  b.cm.for_each_materialised([&](const Index&, const Vec3& u) { displaced += (u == Vec3{}) ? 0 : 1; });
+  EXPECT_EQ(r.moved, displaced);     // an element moved twice would be counted twice
+  EXPECT_EQ(r.processed, r.moved);   // from rest every queued element moves
+  EXPECT_GT(r.moved, 100u);
+  EXPECT_LT(r.processed, 24u * 24u * 24u);
+}
+
+TEST(ChainMail, LargePushStaysBounded) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.2, 0.2, 0.2)};
+  ChainMail cm(lattice(32, 32, 32), mats);
+  const Vec3 P{0.2, -0.15, 0.1};  // 200, 150, 100 spacings: the whole block follows
+  const Index e{16, 16, 31};
+  const ChainMailStepResult r = cm.move(e, cm.rest_position(e) + P);
+  EXPECT_EQ(r.conflicts, 0u);
+  double worst = 0;
+  cm.for_each_materialised([&](const Index&, const Vec3& u) {
+    worst = std::max({worst, u.x - P.x, -u.x, P.y - u.y, u.y, u.z - P.z, -u.z});
+    EXPECT_TRUE(is_finite(u));
+  });
+  EXPECT_LE(worst, kTol);
+  EXPECT_EQ(r.moved, 32u * 32u * 32u);
+  EXPECT_LE(worst_link(cm, mats, {}), 1e-11);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Cut and groove
+
+struct GrooveSetup {
+  std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.3, 0.25)};
+  ChainMail cm{lattice(48, 24, 24), mats};
+  // Along +x between rows j = 11 and 12: left (+y) is j = 12.
+  std::vector<Vec3> line() const {
+    const double y = cm.rest_position({0, 11, 0}).y + 0.5 * kS;
+    return {{cm.rest_position({4, 0, 0}).x + 0.5 * kS, y, 0}, {cm.rest_position({43, 0, 0}).x + 0.5 * kS, y, 0}};
+  }
+};
+
+TEST(ChainMail, CutUnlinksOnlyAcrossTheCut) {
+  GrooveSetup g;
+  const std::vector<Vec3> line = g.line();
+  const ChainMailCut cut = g.cm.cut(line, 10 * kS);
+  // Rows 11|12, elements i = 5..43, layers 13..23: 39 × 11 links.
+  EXPECT_EQ(cut.links_removed, 39u * 11u);
+  EXPECT_EQ(cut.faces.size(), 2u * 39u * 11u);
+  EXPECT_NEAR(cut.length, 39 * kS, 1e-12);
+  for (int k = 0; k < 24; ++k)
+    for (int i = 0; i < 47; ++i) {
+      const bool inside = i >= 5 && i <= 43 && k >= 13;
+      EXPECT_EQ(g.cm.linked({i, 11, k}, 1), !inside) << i << " " << k;
+      EXPECT_TRUE(g.cm.linked({i, 11, k}, 0));
+      EXPECT_TRUE(g.cm.linked({i, 11, k}, 2) || k == 23);
+    }
+  for (const ChainMailCutFace& f : cut.faces) {
+    EXPECT_EQ(f.side, f.element[1] == 12 ? 1 : -1);
+    EXPECT_NEAR(f.away.y, f.side, 1e-12);
+    EXPECT_NEAR(f.depth, (23 - f.element[2]) * kS, 1e-12);
+  }
+  EXPECT_EQ(g.cm.materialised_elements(), 6u * 1u * 2u * 512u);  // bricks: i 0..5, j 1 (rows 11 and 12), k 1..2
+}
+
+TEST(ChainMail, GrooveWidthEqualsWidthAndClosesWithDepth) {
+  GrooveSetup g;
+  const ChainMailCut cut = g.cm.cut(g.line(), 14 * kS);
+  const double D = 3e-3, shear = 0.25e-3;
+  // Held between 10 mm and 29 mm of arc: the groove can taper to closed before the cut's ends.
+  const ChainMailStepResult r = g.cm.open_groove(cut, D, {10 * kS, 29 * kS, 0});
+  EXPECT_EQ(r.conflicts, 0u);
+  std::string where;
+  EXPECT_LE(worst_link(g.cm, g.mats, {}, &where), kTol) << where;
+  int checked = 0;
+  for (int i = 15; i <= 33; ++i) {
+    const double arc = (i - 4.5) * kS;
+    if (arc < 10 * kS || arc > 29 * kS) continue;
+    for (int m = 0; m <= 8; ++m) {
+      const int k = 23 - m;
+      const double width = (g.cm.position({i, 12, k}) - g.cm.position({i, 11, k})).y - kS;  // face-to-face
+      EXPECT_NEAR(width, std::max(0.0, D - 2 * m * shear), 1e-12) << "i " << i << " level " << m;
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 19 * 9);
+  // Each side moved only away from the cut.
+  g.cm.for_each_materialised([&](const Index& e, const Vec3& u) {
+    if (e[1] >= 12) EXPECT_GE(u.y, 0.0);
+    if (e[1] <= 11) EXPECT_LE(u.y, 0.0);
+  });
+  // Widening re-places the held faces; still valid.
+  const ChainMailStepResult wider = g.cm.open_groove(cut, 4e-3, {10 * kS, 29 * kS, 0});
+  EXPECT_EQ(wider.conflicts, 0u);
+  EXPECT_NEAR((g.cm.position({20, 12, 23}) - g.cm.position({20, 11, 23})).y - kS, 4e-3, 1e-12);
+  EXPECT_LE(worst_link(g.cm, g.mats, {}), kTol);
+}
+
+TEST(ChainMail, GrooveHeldOverTheWholeDepthIsRectangular) {
+  // A stretchy, shear-tolerant material whose floor can open 2 mm: the retractor holds the faces
+  // over the whole depth, so the width is the same on every layer of the cut.
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.5, 1.0, 0.6)};
+  ChainMail cm(lattice(40, 20, 20), mats);
+  const double y = cm.rest_position({0, 9, 0}).y + 0.5 * kS;
+  const std::vector<Vec3> line{{cm.rest_position({3, 0, 0}).x + 0.5 * kS, y, 0}, {cm.rest_position({36, 0, 0}).x + 0.5 * kS, y, 0}};
+  const ChainMailCut cut = cm.cut(line, 6 * kS);
+  const double D = 2e-3;
+  const ChainMailStepResult r = cm.open_groove(cut, D, {6 * kS, cut.length - 6 * kS, 6 * kS});
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(cm, mats, {}), kTol);
+  for (int k = 13; k <= 19; ++k)
+    EXPECT_NEAR((cm.position({20, 10, k}) - cm.position({20, 9, k})).y - kS, D, 1e-12) << k;
+  // The floor (not cut) opens less.
+  EXPECT_LT((cm.position({20, 10, 12}) - cm.position({20, 9, 12})).y - kS, D);
+}
+
+TEST(ChainMail, DiagonalGrooveWidthEqualsWidthAcrossEveryHeldLink) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.3, 0.3)};
+  ChainMail cm(lattice(64, 64, 16), mats);
+  const Vec3 a = cm.rest_position({8, 10, 0}) + Vec3{0.3 * kS, 0.2 * kS, 0};
+  const Vec3 dir = normalized(Vec3{std::cos(0.5), std::sin(0.5), 0});
+  const Vec3 b = a + 50 * kS * dir;
+  const std::vector<Vec3> line{a, b};
+  const ChainMailCut cut = cm.cut(line, 8 * kS);
+  const double D = 2.5e-3;
+  const ChainMailStepResult r = cm.open_groove(cut, D, {12 * kS, 38 * kS, 0});
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(cm, mats, {}), kTol);
+  const Vec3 left{-dir.y, dir.x, 0};
+  int held_links = 0;
+  for (const ChainMailCutFace& f : cut.faces) {
+    if (f.side != 1 || f.element[2] != 15 || f.arc < 12 * kS || f.arc > 38 * kS) continue;
+    // The right side is toward +x and −y: its removed links go to (i + 1, j) and (i, j − 1).
+    for (int axis = 0; axis < 2; ++axis) {
+      Index o = f.element;
+      o[static_cast<std::size_t>(axis)] += axis == 0 ? 1 : -1;
+      if (axis == 0 ? cm.linked(f.element, 0) : cm.linked(o, 1)) continue;
+      const auto other = std::find_if(cut.faces.begin(), cut.faces.end(), [&](const ChainMailCutFace& x) { return x.element == o; });
+      ASSERT_NE(other, cut.faces.end());
+      if (other->arc < 12 * kS || other->arc > 38 * kS) continue;
+      const double opening = dot(cm.displacement(f.element) - cm.displacement(o), left);
+      EXPECT_NEAR(opening, D, 1e-12);
+      ++held_links;
+    }
+  }
+  EXPECT_GT(held_links, 20);
+}
+
+TEST(ChainMail, BentPolylineGrooveIsValid) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.3, 0.3)};
+  ChainMail cm(lattice(64, 64, 16), mats);
+  const Vec3 o = cm.rest_position({0, 0, 0});
+  const std::vector<Vec3> line{o + Vec3{8.5e-3, 20.5e-3, 0}, o + Vec3{30.5e-3, 24.3e-3, 0}, o + Vec3{52.5e-3, 40.1e-3, 0}};
+  const ChainMailCut cut = cm.cut(line, 9 * kS);
+  const ChainMailStepResult r = cm.open_groove(cut, 2e-3, {10 * kS, cut.length - 10 * kS, 0});
+  EXPECT_GT(r.moved, 100u);
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_LE(worst_link(cm, mats, {}), kTol);
+  // The faces at the bend get the miter of both normals (longer than 1).
+  bool mitred = false;
+  for (const ChainMailCutFace& f : cut.faces) mitred = mitred || norm(f.away) > 1.0 + 1e-9;
+  EXPECT_TRUE(mitred);
+}
+
+TEST(ChainMail, TooWideAGrooveReportsConflicts) {
+  GrooveSetup g;
+  const ChainMailCut cut = g.cm.cut(g.line(), 3 * kS);  // shallow: the floor must open too
+  const ChainMailStepResult r = g.cm.open_groove(cut, 6e-3);  // held to the very ends
+  EXPECT_GT(r.conflicts, 0u);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Memory
+
+struct MemoryRun {
+  std::size_t bytes;
+  std::uint64_t materialised, moved;
+};
+
+MemoryRun groove_in(int n, double length_mm) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.3, 0.25)};
+  ChainMail cm({{n, n, n}, {kS, kS, kS}, {}}, mats);
+  const double y = 20.5 * kS;
+  const std::vector<Vec3> line{{10.5 * kS, y, 0}, {(10.5 + length_mm) * kS, y, 0}};
+  const ChainMailCut cut = cm.cut(line, 12 * kS);
+  const ChainMailStepResult r = cm.open_groove(cut, 3e-3, {8 * kS, cut.length - 8 * kS, 0});
+  EXPECT_EQ(r.conflicts, 0u);
+  return {cm.bytes_used(), cm.materialised_elements(), r.moved};
+}
+
+TEST(ChainMail, MemoryFollowsTheDeformedRegionNotTheVolume) {
+  const MemoryRun small = groove_in(64, 40), large = groove_in(512, 40), huge = groove_in(4096, 40);
+  EXPECT_EQ(small.bytes, large.bytes);
+  EXPECT_EQ(small.bytes, huge.bytes);
+  EXPECT_EQ(small.materialised, huge.materialised);
+  EXPECT_EQ(small.moved, huge.moved);
+  // A dense 4096³ lattice would need 69 G elements; this one holds a few bricks.
+  EXPECT_LT(huge.bytes, std::size_t{8} << 20);
+  EXPECT_LE(huge.materialised, 4 * huge.moved + 32 * 512);
+  // Twice the cut, about twice the memory.
+  const MemoryRun longer = groove_in(512, 80);
+  const double ratio = static_cast<double>(longer.bytes) / static_cast<double>(large.bytes);
+  EXPECT_GT(ratio, 1.5);
+  EXPECT_LT(ratio, 2.5);
+}
+
+TEST(ChainMail, ResetRestoresRestAndReusesMemory) {
+  GrooveSetup g;
+  const ChainMailCut cut = g.cm.cut(g.line(), 14 * kS);
+  const ChainMailStepResult first = g.cm.open_groove(cut, 3e-3, {10 * kS, 29 * kS, 0});
+  const Vec3 probe = g.cm.displacement({20, 14, 21});
+  const std::size_t bytes = g.cm.bytes_used();
+  g.cm.reset();
+  EXPECT_TRUE(g.cm.linked({20, 11, 23}, 1));
+  g.cm.for_each_materialised([](const Index&, const Vec3& u) { EXPECT_EQ(u, Vec3{}); });
+  const ChainMailCut again = g.cm.cut(g.line(), 14 * kS);
+  const ChainMailStepResult second = g.cm.open_groove(again, 3e-3, {10 * kS, 29 * kS, 0});
+  EXPECT_EQ(second.moved, first.moved);
+  EXPECT_EQ(second.processed, first.processed);
+  EXPECT_EQ(second.materialised, 0u);
+  EXPECT_EQ(g.cm.displacement({20, 14, 21}), probe);
+  EXPECT_EQ(g.cm.bytes_used(), bytes);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bad arguments
+
+template <class F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const std::invalid_argument& e) {
+    return e.what();
+  }
+  return "(no std::invalid_argument)";
+}
+
+void expect_contains(const std::string& msg, const std::vector<std::string>& parts) {
+  for (const std::string& p : parts) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+}
+
+TEST(ChainMail, BadParametersThrowNamingTheFieldAndValue) {
+  const std::vector<ChainMailMaterial> ok{ChainMailMaterial::relative({kS, kS, kS}, 0.2, 0.2, 0.2)};
+  std::vector<ChainMailMaterial> min_gt_max = ok;
+  min_gt_max[0].axis[1] = {1.5e-3, 1.2e-3, 0};
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), min_gt_max); }),
+                  {"materials[0].axis[1] (y)", "min_length = 0.0015", "max_length = 0.0012"});
+  std::vector<ChainMailMaterial> rest_outside = ok;
+  rest_outside[0].axis[2] = {1.1e-3, 1.2e-3, 0};
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), rest_outside); }), {"axis[2] (z)", "rest spacing 0.001"});
+  std::vector<ChainMailMaterial> neg_shear = ok;
+  neg_shear[0].axis[0].max_shear = -1e-4;
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), neg_shear); }), {"max_shear = -0.0001"});
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4, {kS, -kS, kS}), ok); }), {"lattice.spacing.y = -0.001"});
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 0, 4), ok); }), {"lattice.dims[1] = 0"});
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), {}); }), {"materials has 0 entries"});
+  const std::vector<std::uint8_t> short_ids(10, 0), bad_ids(64, 3);
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), ok, short_ids); }), {"material_ids has 10 entries", "64"});
+  expect_contains(error_of([&] { ChainMail cm(lattice(4, 4, 4), ok, bad_ids); }), {"material_ids[0] = 3"});
+
+  ChainMail cm(lattice(8, 8, 8), ok);
+  const std::vector<Vec3> one{{0, 0, 0}}, two{{0, 0, 0}, {1e-3, 0, 0}}, same{{1e-3, 1e-3, 0}, {1e-3, 1e-3, 0}};
+  expect_contains(error_of([&] { (void)cm.cut(one, 1e-3); }), {"polyline has 1 point"});
+  expect_contains(error_of([&] { (void)cm.cut(same, 1e-3); }), {"zero length"});
+  expect_contains(error_of([&] { (void)cm.cut(two, -2e-3); }), {"depth = -0.002"});
+  const ChainMailCut cut = cm.cut(two, 2e-3);
+  expect_contains(error_of([&] { (void)cm.open_groove(cut, 0); }), {"width = 0"});
+  expect_contains(error_of([&] { (void)cm.open_groove(cut, -1e-3); }), {"width = -0.001"});
+  expect_contains(error_of([&] { (void)cm.open_groove(cut, 1e-3, {0, 1, -1}); }), {"retractor.depth = -1"});
+  expect_contains(error_of([&] { (void)cm.move({8, 0, 0}, Vec3{}); }), {"(8, 0, 0)", "outside the lattice"});
+  expect_contains(error_of([&] { (void)cm.move({1, 1, 1}, Vec3{std::nan(""), 0, 0}); }), {"not finite"});
+  const std::vector<ChainMailSponsor> dup{{{1, 2, 3}, {}}, {{1, 2, 3}, {}}};
+  expect_contains(error_of([&] { (void)cm.move(dup); }), {"(1, 2, 3)", "more than once"});
+  // Nothing moved by the refused calls.
+  cm.for_each_materialised([](const Index&, const Vec3& u) { EXPECT_EQ(u, Vec3{}); });
+}
+
+TEST(ChainMail, AirIsNotAnElement) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.2, 0.2, 0.2), ChainMailMaterial::air()};
+  std::vector<std::uint8_t> ids(10 * 10 * 10, 0);
+  for (int k = 5; k < 10; ++k)
+    for (int j = 0; j < 10; ++j)
+      for (int i = 0; i < 10; ++i) ids[static_cast<std::size_t>(i + 10 * (j + 10 * k))] = 1;  // air above k = 4
+  ChainMail cm(lattice(10, 10, 10), mats, ids);
+  EXPECT_FALSE(cm.present({5, 5, 5}));
+  EXPECT_FALSE(cm.linked({5, 5, 4}, 2));
+  expect_contains(error_of([&] { (void)cm.move({5, 5, 5}, Vec3{}); }), {"not present"});
+  cm.move({5, 5, 4}, cm.rest_position({5, 5, 4}) + Vec3{0, 0, 3e-3});  // pulled up into the air: nothing above follows
+  for (int k = 5; k < 10; ++k) EXPECT_EQ(cm.displacement({5, 5, k}), Vec3{});
+  EXPECT_GT(cm.displacement({5, 5, 3}).z, 0.0);
+  EXPECT_LE(worst_link(cm, mats, ids), kTol);
+}
+
+}  // namespace
+}  // namespace lancet::volume
