@@ -1,6 +1,7 @@
 #include "volume/chainmail.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -13,15 +14,17 @@ namespace {
 constexpr int kBrickShift = 3;                       // bricks of 8 × 8 × 8 elements
 constexpr int kBrickEdge = 1 << kBrickShift;
 constexpr std::uint32_t kBrickElements = 512;
-constexpr std::uint32_t kLocalBits = 9;              // ref = brick << 9 | local
-constexpr std::uint32_t kMaxBricks = 1u << (32 - kLocalBits);
-constexpr std::uint32_t kNone = 0xFFFFFFFFu;
-constexpr std::uint32_t kBuckets = 4096;
-constexpr double kBucketsPerSpacing = 32;
-constexpr std::uint16_t kSponsorBucket = 0xFFFF;     // above every real bucket: never re-queued
+constexpr std::uint32_t kLocalBits = 9;              // ref = brick << 11 | axis << 9 | local
+constexpr std::uint32_t kRefBrickShift = 11;
+constexpr std::uint32_t kMaxBricks = 1u << (32 - kRefBrickShift);
+// Mark: step << 8 | moved << 6 | 2 bits of state per axis (0 untouched, 1 queued, 2 final).
+constexpr int kTagShift = 8;
+constexpr std::uint64_t kMovedBit = 1u << 6;
+constexpr std::uint64_t kQueued = 1, kFinal = 2;
 constexpr std::uint64_t kEmptyKey = ~std::uint64_t{0};
 constexpr int kMaxDim = 1 << 24;
 constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr float kInfF = std::numeric_limits<float>::infinity();
 
 // Directions d = 2·axis + (1 for the negative side); the opposite of d is d ^ 1.
 constexpr int kAxisOf[6] = {0, 0, 1, 1, 2, 2};
@@ -55,14 +58,50 @@ std::size_t hash_slot(std::uint64_t key, std::size_t mask) noexcept {
 }  // namespace
 
 struct ChainMail::Brick {
-  std::array<Vec3, kBrickElements> u;                // m, displacement from rest
-  std::array<std::uint64_t, kBrickElements> mark;    // 2g queued in step g, 2g+1 final in step g
-  std::array<std::uint16_t, kBrickElements> bucket;  // bucket it is queued in (valid while queued)
-  std::array<std::uint8_t, kBrickElements> links;    // bit d: link in direction d is live
-  std::array<std::uint8_t, kBrickElements> mat;      // material index (0 outside the lattice)
-  std::array<std::int32_t, 6> nbr;                   // brick index in direction d, -1 none yet
-  std::array<std::int32_t, 3> coord;                 // brick coordinates
+  std::array<Vec3, kBrickElements> u;                 // m, displacement from rest
+  std::array<std::uint64_t, kBrickElements> mark;     // see kTagShift
+  std::array<std::array<float, 3>, kBrickElements> key;  // per axis: violation it is queued with, rounded down
+  std::array<std::uint8_t, kBrickElements> links;     // bit d: link in direction d is live
+  std::array<std::uint8_t, kBrickElements> mat;       // material index (0 outside the lattice)
+  std::array<std::int32_t, 6> nbr;                    // brick index in direction d, -1 none yet
+  std::array<std::int32_t, 3> coord;                  // brick coordinates
 };
+
+namespace {
+
+// State of axis a in a mark, for the step `step`.
+std::uint64_t axis_state(std::uint64_t mark, std::uint64_t step, int a) noexcept {
+  return (mark >> kTagShift) == step ? (mark >> (2 * a)) & 3u : 0;
+}
+// The mark with axis a's state set to s (a mark from an earlier step starts afresh).
+std::uint64_t with_state(std::uint64_t mark, std::uint64_t step, int a, std::uint64_t s) noexcept {
+  if ((mark >> kTagShift) != step) mark = step << kTagShift;
+  return (mark & ~(std::uint64_t{3} << (2 * a))) | (s << (2 * a));
+}
+// Heap key of a violation: larger violations give smaller keys (the bits of a positive double
+// order like its value).
+std::uint64_t heap_key(double violation) noexcept { return ~std::bit_cast<std::uint64_t>(violation); }
+// A float no larger than v (v >= 0).
+float round_down(double v) noexcept {
+  float f = static_cast<float>(v);
+  if (static_cast<double>(f) > v) f = std::nextafter(f, 0.0f);
+  return f;
+}
+
+template <int A>
+double& at(Vec3& v) noexcept {
+  if constexpr (A == 0) return v.x;
+  else if constexpr (A == 1) return v.y;
+  else return v.z;
+}
+template <int A>
+double at(const Vec3& v) noexcept {
+  if constexpr (A == 0) return v.x;
+  else if constexpr (A == 1) return v.y;
+  else return v.z;
+}
+
+}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Model
@@ -156,10 +195,6 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
     }
   const double smin = std::min({lattice_.spacing.x, lattice_.spacing.y, lattice_.spacing.z});
   eps_ = 1e-9 * smin;
-  inv_bucket_ = kBucketsPerSpacing / smin;
-  head_.assign(kBuckets, kNone);
-  tail_.assign(kBuckets, kNone);
-  top_ = 0;
 }
 
 ChainMail::~ChainMail() = default;
@@ -222,13 +257,13 @@ void fill_brick_links(std::array<std::uint8_t, kBrickElements>& links, std::arra
 
 std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std::int64_t bz) {
   if (const std::int32_t found = find_brick(bx, by, bz); found >= 0) return found;
-  if (bricks_.size() >= kMaxBricks) throw std::length_error("ChainMail: more than 2^23 bricks materialised");
+  if (bricks_.size() >= kMaxBricks) throw std::length_error("ChainMail: more than 2^21 bricks materialised");
   auto brick = std::make_unique<Brick>();
   Brick& B = *brick;
   B.coord = {static_cast<std::int32_t>(bx), static_cast<std::int32_t>(by), static_cast<std::int32_t>(bz)};
   B.nbr.fill(-1);
   B.mark.fill(0);
-  B.bucket.fill(0);
+  for (auto& k : B.key) k = {0, 0, 0};
   for (Vec3& u : B.u) u = {};
   fill_brick_links(
       B.links, B.mat, B.coord, lattice_.dims,
@@ -274,7 +309,7 @@ std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std:
 std::uint32_t ChainMail::materialise_element(const Index& e) {
   const std::int32_t b = materialise_brick(e[0] >> kBrickShift, e[1] >> kBrickShift, e[2] >> kBrickShift);
   const auto local = static_cast<std::uint32_t>((e[0] & 7) | ((e[1] & 7) << 3) | ((e[2] & 7) << 6));
-  return (static_cast<std::uint32_t>(b) << kLocalBits) | local;
+  return (static_cast<std::uint32_t>(b) << kRefBrickShift) | local;
 }
 
 bool ChainMail::present(const Index& e) const noexcept { return present_at(e[0], e[1], e[2]); }
@@ -312,151 +347,203 @@ void ChainMail::check_element(const Index& e, const char* what) const {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Queue: buckets of violation, largest first, FIFO within a bucket.
+// Queue: a radix heap (Ahuja et al. 1990) on heap_key(violation): exact largest-first, O(1)
+// push, amortised O(log of the key range) pop, valid because no push is larger than the last pop.
 
-void ChainMail::push(std::uint32_t ref, double violation) {
-  const double scaled = violation * inv_bucket_;
-  const std::uint32_t b = scaled >= static_cast<double>(kBuckets - 1) ? kBuckets - 1 : static_cast<std::uint32_t>(scaled);
-  const auto idx = static_cast<std::uint32_t>(pool_.size());
-  pool_.push_back({ref, kNone});
-  if (tail_[b] == kNone)
-    head_[b] = idx;
-  else
-    pool_[tail_[b]].next = idx;
-  tail_[b] = idx;
-  if (static_cast<std::int64_t>(b) > top_) top_ = b;
-  ++queued_;
+void ChainMail::push(std::uint64_t key, std::uint32_t ref) {
+  if (key < heap_last_) key = heap_last_;  // only after an invalid earlier state: taken next
+  const std::size_t b = key == heap_last_ ? 0 : static_cast<std::size_t>(64 - std::countl_zero(key ^ heap_last_));
+  heap_[b].push_back({key, ref});
+  ++heap_size_;
 }
 
-bool ChainMail::pop(std::uint32_t& ref) noexcept {
-  if (queued_ == 0) return false;
-  while (head_[static_cast<std::size_t>(top_)] == kNone) --top_;
-  const auto t = static_cast<std::size_t>(top_);
-  const std::uint32_t idx = head_[t];
-  ref = pool_[idx].ref;
-  head_[t] = pool_[idx].next;
-  if (head_[t] == kNone) tail_[t] = kNone;
-  --queued_;
+bool ChainMail::pop(std::uint32_t& ref) {
+  if (heap_size_ == 0) return false;
+  if (heap_[0].empty()) {
+    std::size_t i = 1;
+    while (heap_[i].empty()) ++i;
+    std::uint64_t least = heap_[i].front().key;
+    for (const HeapEntry& h : heap_[i]) least = std::min(least, h.key);
+    heap_last_ = least;
+    for (const HeapEntry& h : heap_[i]) {
+      const std::size_t b = h.key == heap_last_ ? 0 : static_cast<std::size_t>(64 - std::countl_zero(h.key ^ heap_last_));
+      heap_[b].push_back(h);
+    }
+    heap_[i].clear();
+  }
+  ref = heap_[0].back().ref;
+  heap_[0].pop_back();
+  --heap_size_;
   return true;
 }
 
 // ---------------------------------------------------------------------------------------------
 // The step
 
-template <bool kSponsor>
-void ChainMail::process(std::uint32_t ref, Vec3 sponsor_u, ChainMailStepResult& r) {
-  const std::uint32_t b = ref >> kLocalBits, l = ref & (kBrickElements - 1);
+namespace {
+// The neighbour of local element l of brick b in direction d: in the same brick or across a face
+// (brick index -1 when that brick is not materialised).
+inline void neighbour_of(const std::array<std::int32_t, 6>& nbr, std::uint32_t b, std::uint32_t l, int d, std::int32_t& nb,
+                         std::uint32_t& nl) noexcept {
+  const std::uint32_t lx = l & 7u, ly = (l >> 3) & 7u, lz = l >> 6;
+  nb = static_cast<std::int32_t>(b);
+  switch (d) {
+    case 0: if (lx != 7) { nl = l + 1; } else { nb = nbr[0]; nl = l - 7; } break;
+    case 1: if (lx != 0) { nl = l - 1; } else { nb = nbr[1]; nl = l + 7; } break;
+    case 2: if (ly != 7) { nl = l + 8; } else { nb = nbr[2]; nl = l - 56; } break;
+    case 3: if (ly != 0) { nl = l - 8; } else { nb = nbr[3]; nl = l + 56; } break;
+    case 4: if (lz != 7) { nl = l + 64; } else { nb = nbr[4]; nl = l - 448; } break;
+    default: if (lz != 0) { nl = l - 64; } else { nb = nbr[5]; nl = l + 448; } break;
+  }
+}
+}  // namespace
+
+std::uint8_t ChainMail::neighbour_material(const Brick& B, std::uint32_t l, int d) const noexcept {
+  std::int64_t c[3] = {std::int64_t{B.coord[0]} * kBrickEdge + (l & 7u), std::int64_t{B.coord[1]} * kBrickEdge + ((l >> 3) & 7u),
+                       std::int64_t{B.coord[2]} * kBrickEdge + (l >> 6)};
+  c[kAxisOf[d]] += kStep[d];
+  return material_at(c[0], c[1], c[2]);
+}
+
+// Queues coordinate A of a neighbour that lies outside the box [lo, hi] (its displacement on A
+// is un; brick nb, -1 when not materialised yet), or raises its priority.
+template <int A>
+void ChainMail::check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
+                                ChainMailStepResult& r) {
+  const double violation = std::max(lo - un, un - hi);
+  if (!(violation > eps_)) return;
+  if (nb < 0) {
+    const std::array<std::int32_t, 3> c0 = bricks_[static_cast<std::size_t>(from_brick)]->coord;
+    std::int64_t c[3] = {c0[0], c0[1], c0[2]};
+    c[kAxisOf[d]] += kStep[d];
+    nb = materialise_brick(c[0], c[1], c[2]);
+    r.materialised += kBrickElements;
+  }
+  Brick& N = *bricks_[static_cast<std::size_t>(nb)];
+  const std::uint64_t state = axis_state(N.mark[nl], step_, A);
+  if (state == kFinal) return;
+  if (state == kQueued && violation <= static_cast<double>(N.key[nl][A])) return;  // already queued at least this high
+  N.mark[nl] = with_state(N.mark[nl], step_, A, kQueued);
+  N.key[nl][A] = round_down(violation);
+  push(heap_key(violation), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl);
+}
+
+// Settles coordinate A of one element: to the nearest point of the intersection of the intervals
+// that its neighbours already final on A allow (the middle where they do not intersect: a
+// conflict); then checks its other neighbours on A.
+template <int A>
+void ChainMail::settle(std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
   Brick& B = *bricks_[b];
-  const std::uint64_t final_mark = gen_ + 1, queued_mark = gen_;
   const unsigned links = B.links[l];
   const std::size_t row = static_cast<std::size_t>(B.mat[l]) * n_materials_;
-
   struct Pending {
-    std::int32_t brick;   // -1: its brick is not materialised (it is at rest)
+    std::int32_t brick;
     std::uint32_t local;
     int d;
-    const Box* box;
-    Vec3 u;
+    double lo, hi, u;  // box on A relative to this element; the neighbour's displacement on A
   };
   std::array<Pending, 6> pending;
   int n_pending = 0;
-  double lo[3] = {-kInf, -kInf, -kInf}, hi[3] = {kInf, kInf, kInf};
-
-  const std::uint32_t lx = l & 7u, ly = (l >> 3) & 7u, lz = l >> 6;
+  double lo = -kInf, hi = kInf;
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
-    // The neighbour: in this brick, or in the neighbour brick across the face.
-    std::int32_t nb = static_cast<std::int32_t>(b);
+    std::int32_t nb;
     std::uint32_t nl = 0;
-    switch (d) {
-      case 0: if (lx != 7) nl = l + 1; else { nb = B.nbr[0]; nl = l - 7; } break;
-      case 1: if (lx != 0) nl = l - 1; else { nb = B.nbr[1]; nl = l + 7; } break;
-      case 2: if (ly != 7) nl = l + 8; else { nb = B.nbr[2]; nl = l - 56; } break;
-      case 3: if (ly != 0) nl = l - 8; else { nb = B.nbr[3]; nl = l + 56; } break;
-      case 4: if (lz != 7) nl = l + 64; else { nb = B.nbr[4]; nl = l - 448; } break;
-      default: if (lz != 0) nl = l - 64; else { nb = B.nbr[5]; nl = l + 448; } break;
-    }
-    Brick* N = nb >= 0 ? bricks_[static_cast<std::size_t>(nb)].get() : nullptr;
+    neighbour_of(B.nbr, b, l, d, nb, nl);
     std::uint8_t mn;
-    Vec3 un{};
-    std::uint64_t mk = 0;
-    if (N != nullptr) {
-      mn = N->mat[nl];
-      un = N->u[nl];
-      mk = N->mark[nl];
+    double un = 0;
+    std::uint64_t state = 0;
+    if (nb >= 0) {
+      const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
+      mn = N.mat[nl];
+      un = at<A>(N.u[nl]);
+      state = axis_state(N.mark[nl], step_, A);
     } else {
-      std::int64_t c[3] = {std::int64_t{B.coord[0]} * kBrickEdge + lx, std::int64_t{B.coord[1]} * kBrickEdge + ly,
-                           std::int64_t{B.coord[2]} * kBrickEdge + lz};
-      c[kAxisOf[d]] += kStep[d];
-      mn = material_at(c[0], c[1], c[2]);
+      mn = neighbour_material(B, l, d);
     }
     const Box& bx = boxes_[(row + mn) * 6 + static_cast<std::size_t>(d)];
-    if (mk == final_mark) {
-      // A final neighbour: this element must lie in the box it defines (u_n − hi, u_n − lo).
-      lo[0] = std::max(lo[0], un.x - bx.hi.x);
-      hi[0] = std::min(hi[0], un.x - bx.lo.x);
-      lo[1] = std::max(lo[1], un.y - bx.hi.y);
-      hi[1] = std::min(hi[1], un.y - bx.lo.y);
-      lo[2] = std::max(lo[2], un.z - bx.hi.z);
-      hi[2] = std::min(hi[2], un.z - bx.lo.z);
+    if (state == kFinal) {
+      lo = std::max(lo, un - at<A>(bx.hi));
+      hi = std::min(hi, un - at<A>(bx.lo));
     } else {
-      pending[static_cast<std::size_t>(n_pending++)] = {nb, nl, d, &bx, un};
+      pending[static_cast<std::size_t>(n_pending++)] = {nb, nl, d, at<A>(bx.lo), at<A>(bx.hi), un};
     }
   }
+  const double before = at<A>(B.u[l]);
+  double v = before;
+  if (lo > hi) {
+    if (lo - hi > eps_) ++r.conflicts;
+    v = 0.5 * (lo + hi);
+  } else if (v < lo) {
+    v = lo;
+  } else if (v > hi) {
+    v = hi;
+  }
+  std::uint64_t mark = with_state(B.mark[l], step_, A, kFinal);
+  if (v != before) {
+    at<A>(B.u[l]) = v;
+    if ((mark & kMovedBit) == 0) {
+      mark |= kMovedBit;
+      ++r.moved;
+    }
+  }
+  B.mark[l] = mark;
+  ++r.processed;
+  for (int p = 0; p < n_pending; ++p) {
+    const Pending& q = pending[static_cast<std::size_t>(p)];
+    check_neighbour<A>(q.brick, q.local, static_cast<std::int32_t>(b), q.d, v + q.lo, v + q.hi, q.u, r);
+  }
+}
 
-  // Place the element: a sponsor where asked; a candidate at the nearest point of the
-  // intersection of its final neighbours' boxes (the middle of the bounds on an axis where they
-  // do not intersect: a conflict).
-  Vec3 u;
+// Places a sponsor (all three coordinates, final), counts a conflict when a neighbour already
+// final disagrees, and checks its other neighbours on every axis.
+void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMailStepResult& r) {
+  Brick& B = *bricks_[b];
+  const unsigned links = B.links[l];
+  const std::size_t row = static_cast<std::size_t>(B.mat[l]) * n_materials_;
   bool conflict = false;
-  if constexpr (kSponsor) {
-    u = sponsor_u;
-    for (int a = 0; a < 3; ++a) {
-      const double v = comp(u, a);
-      if (v < lo[a] - eps_ || v > hi[a] + eps_) conflict = true;
-    }
-  } else {
-    u = B.u[l];
-    for (int a = 0; a < 3; ++a) {
-      double& v = comp(u, a);
-      if (lo[a] > hi[a]) {
-        if (lo[a] - hi[a] > eps_) conflict = true;
-        v = 0.5 * (lo[a] + hi[a]);
-      } else if (v < lo[a]) {
-        v = lo[a];
-      } else if (v > hi[a]) {
-        v = hi[a];
-      }
-    }
+  for (int d = 0; d < 6; ++d) {
+    if (((links >> d) & 1u) == 0) continue;
+    std::int32_t nb;
+    std::uint32_t nl = 0;
+    neighbour_of(B.nbr, b, l, d, nb, nl);
+    if (nb < 0) continue;  // at rest, not final
+    const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
+    const Box& bx = boxes_[(row + N.mat[nl]) * 6 + static_cast<std::size_t>(d)];
+    const Vec3 rel = N.u[nl] - u;  // must lie in the box on every axis where N is final
+    if (axis_state(N.mark[nl], step_, 0) == kFinal && (rel.x < bx.lo.x - eps_ || rel.x > bx.hi.x + eps_)) conflict = true;
+    if (axis_state(N.mark[nl], step_, 1) == kFinal && (rel.y < bx.lo.y - eps_ || rel.y > bx.hi.y + eps_)) conflict = true;
+    if (axis_state(N.mark[nl], step_, 2) == kFinal && (rel.z < bx.lo.z - eps_ || rel.z > bx.hi.z + eps_)) conflict = true;
   }
   if (conflict) ++r.conflicts;
+  std::uint64_t mark = step_ << kTagShift | kFinal | kFinal << 2 | kFinal << 4;
   if (!(u == B.u[l])) {
+    mark |= kMovedBit;
     ++r.moved;
     B.u[l] = u;
   }
-  B.mark[l] = final_mark;
+  B.mark[l] = mark;
   ++r.processed;
-
-  // Check the neighbours that are not final against the box this element defines for them.
-  for (int p = 0; p < n_pending; ++p) {
-    Pending& q = pending[static_cast<std::size_t>(p)];
-    const Box& bx = *q.box;
-    const double violation = std::max({u.x + bx.lo.x - q.u.x, q.u.x - (u.x + bx.hi.x), u.y + bx.lo.y - q.u.y,
-                                       q.u.y - (u.y + bx.hi.y), u.z + bx.lo.z - q.u.z, q.u.z - (u.z + bx.hi.z)});
-    if (!(violation > eps_)) continue;
-    if (q.brick < 0) {
-      std::int64_t c[3] = {B.coord[0], B.coord[1], B.coord[2]};
-      c[kAxisOf[q.d]] += kStep[q.d];
-      q.brick = materialise_brick(c[0], c[1], c[2]);
-      r.materialised += kBrickElements;
+  for (int d = 0; d < 6; ++d) {
+    if (((links >> d) & 1u) == 0) continue;
+    std::int32_t nb;
+    std::uint32_t nl = 0;
+    neighbour_of(B.nbr, b, l, d, nb, nl);
+    Vec3 un{};
+    std::uint8_t mn;
+    if (nb >= 0) {
+      un = bricks_[static_cast<std::size_t>(nb)]->u[nl];
+      mn = bricks_[static_cast<std::size_t>(nb)]->mat[nl];
+    } else {
+      mn = neighbour_material(B, l, d);
     }
-    Brick& N = *bricks_[static_cast<std::size_t>(q.brick)];
-    const double scaled = violation * inv_bucket_;
-    const auto bucket = static_cast<std::uint16_t>(scaled >= static_cast<double>(kBuckets - 1) ? kBuckets - 1 : static_cast<std::uint32_t>(scaled));
-    if (N.mark[q.local] == queued_mark && N.bucket[q.local] >= bucket) continue;  // already queued at least this high
-    N.mark[q.local] = queued_mark;
-    N.bucket[q.local] = bucket;
-    push((static_cast<std::uint32_t>(q.brick) << kLocalBits) | q.local, violation);
+    const Box bx = boxes_[(row + mn) * 6 + static_cast<std::size_t>(d)];
+    // check_neighbour may materialise nb's brick; re-resolve for each axis.
+    check_neighbour<0>(nb, nl, static_cast<std::int32_t>(b), d, u.x + bx.lo.x, u.x + bx.hi.x, un.x, r);
+    neighbour_of(B.nbr, b, l, d, nb, nl);
+    check_neighbour<1>(nb, nl, static_cast<std::int32_t>(b), d, u.y + bx.lo.y, u.y + bx.hi.y, un.y, r);
+    neighbour_of(B.nbr, b, l, d, nb, nl);
+    check_neighbour<2>(nb, nl, static_cast<std::int32_t>(b), d, u.z + bx.lo.z, u.z + bx.hi.z, un.z, r);
   }
 }
 
@@ -485,34 +572,38 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   }
 
   ChainMailStepResult r;
-  gen_ += 2;
-  if (queued_ != 0) {  // a previous step ended by an exception (allocation failure)
-    std::fill(head_.begin(), head_.end(), kNone);
-    std::fill(tail_.begin(), tail_.end(), kNone);
-    queued_ = 0;
-  }
-  pool_.clear();
-  top_ = 0;
+  ++step_;
+  for (auto& bucket : heap_) bucket.clear();  // empty unless an earlier step ended by an exception
+  heap_size_ = 0;
+  heap_last_ = 0;
 
-  // Sponsors: materialised and marked queued first, so that none is taken as a candidate.
+  // Sponsors: materialised and marked first, so that none is queued as a candidate.
   step_refs_.clear();
   const std::size_t bricks_before = bricks_.size();
   for (const ChainMailSponsor& s : sponsors) {
     const std::uint32_t ref = materialise_element(s.element);
-    Brick& B = *bricks_[ref >> kLocalBits];
-    B.mark[ref & (kBrickElements - 1)] = gen_;
-    B.bucket[ref & (kBrickElements - 1)] = kSponsorBucket;
+    Brick& B = *bricks_[ref >> kRefBrickShift];
+    B.mark[ref & (kBrickElements - 1)] = step_ << kTagShift | kQueued | kQueued << 2 | kQueued << 4;
+    B.key[ref & (kBrickElements - 1)] = {kInfF, kInfF, kInfF};
     step_refs_.push_back(ref);
   }
   r.materialised += (bricks_.size() - bricks_before) * kBrickElements;
   for (std::size_t s = 0; s < sponsors.size(); ++s)
-    process<true>(step_refs_[s], sponsors[s].position - rest_position(sponsors[s].element), r);
+    place_sponsor(step_refs_[s] >> kRefBrickShift, step_refs_[s] & (kBrickElements - 1),
+                  sponsors[s].position - rest_position(sponsors[s].element), r);
 
-  // Candidates, largest violation first; stale entries (re-queued higher, already final) skipped.
+  // Candidates (element, axis), largest violation first; stale entries (re-queued higher,
+  // already final) are skipped.
   std::uint32_t ref = 0;
   while (pop(ref)) {
-    if (bricks_[ref >> kLocalBits]->mark[ref & (kBrickElements - 1)] == gen_ + 1) continue;
-    process<false>(ref, Vec3{}, r);
+    const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
+    const int a = static_cast<int>((ref >> kLocalBits) & 3u);
+    if (axis_state(bricks_[b]->mark[l], step_, a) == kFinal) continue;
+    switch (a) {
+      case 0: settle<0>(b, l, r); break;
+      case 1: settle<1>(b, l, r); break;
+      default: settle<2>(b, l, r); break;
+    }
   }
   return r;
 }
@@ -594,8 +685,8 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
             const Index e{i, j, k}, n{in, jn, k};
             if (!linked(e, axis)) continue;
             const std::uint32_t re = materialise_element(e), rn = materialise_element(n);
-            bricks_[re >> kLocalBits]->links[re & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis)));
-            bricks_[rn >> kLocalBits]->links[rn & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis + 1)));
+            bricks_[re >> kRefBrickShift]->links[re & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis)));
+            bricks_[rn >> kRefBrickShift]->links[rn & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis + 1)));
             ++out.links_removed;
             const double arc = g.arc0 + u * g.len;
             hits.push_back({linear_of(i, j, k), static_cast<std::uint32_t>(si), ca >= 0 ? 1 : -1, arc});
@@ -696,6 +787,12 @@ void ChainMail::for_each_materialised(const std::function<void(const Index&, con
   }
 }
 
+std::size_t ChainMail::heap_capacity_bytes() const noexcept {
+  std::size_t n = 0;
+  for (const auto& bucket : heap_) n += bucket.capacity() * sizeof(HeapEntry);
+  return n;
+}
+
 std::uint64_t ChainMail::materialised_elements() const noexcept { return std::uint64_t{bricks_.size()} * kBrickElements; }
 
 std::size_t ChainMail::bytes_used() const noexcept {
@@ -703,8 +800,7 @@ std::size_t ChainMail::bytes_used() const noexcept {
          bricks_.capacity() * sizeof(std::unique_ptr<Brick>) + bricks_.size() * sizeof(Brick) +
          hash_keys_.capacity() * sizeof(std::uint64_t) + hash_vals_.capacity() * sizeof(std::int32_t) +
          step_refs_.capacity() * sizeof(std::uint32_t) + step_linear_.capacity() * sizeof(std::uint64_t) +
-         groove_sponsors_.capacity() * sizeof(ChainMailSponsor) + pool_.capacity() * sizeof(QueueEntry) +
-         (head_.capacity() + tail_.capacity()) * sizeof(std::uint32_t);
+         groove_sponsors_.capacity() * sizeof(ChainMailSponsor) + heap_capacity_bytes();
 }
 
 }  // namespace lancet::volume

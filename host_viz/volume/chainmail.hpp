@@ -210,21 +210,27 @@ class ChainMail {
   struct Box {
     Vec3 lo, hi;  // neighbour's displacement minus the element's, per axis
   };
-  struct QueueEntry {
-    std::uint32_t ref;   // brick << 9 | local
-    std::uint32_t next;  // next entry in the bucket, kNone at the tail
+  struct HeapEntry {
+    std::uint64_t key;  // ~bits(violation)
+    std::uint32_t ref;  // brick << 11 | axis << 9 | local
   };
 
   [[nodiscard]] std::uint8_t material_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
   [[nodiscard]] bool present_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
+  [[nodiscard]] std::uint8_t neighbour_material(const Brick& b, std::uint32_t local, int direction) const noexcept;
   [[nodiscard]] std::int32_t find_brick(std::int64_t bx, std::int64_t by, std::int64_t bz) const noexcept;
   std::int32_t materialise_brick(std::int64_t bx, std::int64_t by, std::int64_t bz);
   std::uint32_t materialise_element(const Index& e);
   void check_element(const Index& e, const char* what) const;
-  void push(std::uint32_t ref, double violation);
-  bool pop(std::uint32_t& ref) noexcept;
-  template <bool kSponsor>
-  void process(std::uint32_t ref, Vec3 sponsor_u, ChainMailStepResult& r);
+  void push(std::uint64_t key, std::uint32_t ref);
+  bool pop(std::uint32_t& ref);
+  [[nodiscard]] std::size_t heap_capacity_bytes() const noexcept;
+  template <int A>
+  void check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
+                       ChainMailStepResult& r);
+  template <int A>
+  void settle(std::uint32_t brick, std::uint32_t local, ChainMailStepResult& r);
+  void place_sponsor(std::uint32_t brick, std::uint32_t local, Vec3 u, ChainMailStepResult& r);
 
   ChainMailLattice lattice_;
   std::vector<ChainMailMaterial> materials_;
@@ -232,21 +238,19 @@ class ChainMail {
   std::size_t n_materials_ = 0;
   std::vector<Box> boxes_;  // (m1 · n + m2) · 6 + direction
   double eps_ = 0;          // m, tolerance for violations and conflicts
-  double inv_bucket_ = 0;   // 1 / bucket width (1/m)
 
   std::vector<std::unique_ptr<Brick>> bricks_;
-  std::vector<std::uint64_t> hash_keys_;  // open addressing, kEmptyKey = empty
+  std::vector<std::uint64_t> hash_keys_;  // open addressing, all ones = empty
   std::vector<std::int32_t> hash_vals_;
   std::size_t hash_count_ = 0;
 
-  std::uint64_t gen_ = 0;  // 2g in step g
-  std::vector<std::uint32_t> step_refs_;      // scratch: the sponsors' elements
-  std::vector<std::uint64_t> step_linear_;    // scratch: duplicate check
+  std::uint64_t step_ = 0;                         // steps so far (the high bits of every mark)
+  std::vector<std::uint32_t> step_refs_;           // scratch: the sponsors' elements
+  std::vector<std::uint64_t> step_linear_;         // scratch: duplicate check
   std::vector<ChainMailSponsor> groove_sponsors_;  // scratch of open_groove()
-  std::vector<QueueEntry> pool_;
-  std::vector<std::uint32_t> head_, tail_;
-  std::int64_t top_ = -1;
-  std::size_t queued_ = 0;
+  std::array<std::vector<HeapEntry>, 65> heap_;    // radix heap buckets
+  std::uint64_t heap_last_ = 0;
+  std::size_t heap_size_ = 0;
 };
 
 }  // namespace lancet::volume

@@ -237,7 +237,7 @@ TEST(ChainMail, EachElementIsProcessedOncePerStep) {
   const Index e{12, 12, 12};
   const ChainMailStepResult r = b.cm.move(e, b.cm.rest_position(e) + Vec3{2e-3, -1.5e-3, 1e-3});
   std::uint64_t displaced = 0;
-  b.cm.for_each_materialised([&](const Index&, const Vec3& u) { displaced += (u == Vec3{}) ? 0 : 1; });
+  b.cm.for_each_materialised([&](const Index&, const Vec3& u) { if (!(u == Vec3{})) ++displaced; });
   EXPECT_EQ(r.moved, displaced);     // an element moved twice would be counted twice
   EXPECT_EQ(r.processed, r.moved);   // from rest every queued element moves
   EXPECT_GT(r.moved, 100u);
@@ -320,8 +320,11 @@ TEST(ChainMail, GrooveWidthEqualsWidthAndClosesWithDepth) {
   EXPECT_EQ(checked, 19 * 9);
   // Each side moved only away from the cut.
   g.cm.for_each_materialised([&](const Index& e, const Vec3& u) {
-    if (e[1] >= 12) EXPECT_GE(u.y, 0.0);
-    if (e[1] <= 11) EXPECT_LE(u.y, 0.0);
+    if (e[1] >= 12) {
+      EXPECT_GE(u.y, 0.0);
+    } else {
+      EXPECT_LE(u.y, 0.0);
+    }
   });
   // Widening re-places the held faces; still valid.
   const ChainMailStepResult wider = g.cm.open_groove(cut, 4e-3, {10 * kS, 29 * kS, 0});
