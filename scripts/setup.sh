@@ -14,8 +14,9 @@ PACKAGES=(
   libtomlplusplus-dev libcli11-dev libspdlog-dev
   # volume files (compressed MetaImage, gzip NRRD, DICOM series)
   zlib1g-dev libgdcm-dev
-  # tests and benchmarks
-  libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth rt-tests
+  # tests and benchmarks (python3-vtk9: the marching-cubes cross-check against VTK, run by
+  # Debian's /usr/bin/python3)
+  libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth rt-tests python3-vtk9
 )
 
 missing=()
