@@ -21,10 +21,11 @@ constexpr std::uint32_t kMaxBricks = 1u << (32 - kRefBrickShift);
 constexpr int kTagShift = 8;
 constexpr std::uint64_t kMovedBit = 1u << 6;
 constexpr std::uint64_t kQueued = 1, kFinal = 2;
+constexpr std::uint8_t kNoKey = 3, kSponsorKey = 4;  // Element::key_axis besides 0..2
 constexpr std::uint64_t kEmptyKey = ~std::uint64_t{0};
 constexpr int kMaxDim = 1 << 24;
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr float kInfF = std::numeric_limits<float>::infinity();
+constexpr std::uint64_t kPosInfBits = std::bit_cast<std::uint64_t>(kInf), kNegInfBits = std::bit_cast<std::uint64_t>(-kInf);
 
 // Directions d = 2·axis + (1 for the negative side); the opposite of d is d ^ 1.
 constexpr int kAxisOf[6] = {0, 0, 1, 1, 2, 2};
@@ -55,16 +56,23 @@ std::size_t hash_slot(std::uint64_t key, std::size_t mask) noexcept {
   return static_cast<std::size_t>(key ^ (key >> 29)) & mask;
 }
 
+// One element, 48 bytes: everything a step reads about it in one cache line (usually).
+struct Element {
+  Vec3 u;                    // m, displacement from rest
+  std::uint64_t mark;        // step << 8 | moved << 6 | 2 bits of state per axis
+  double key;                // m, the violation it is queued with on axis key_axis
+  std::uint8_t links;        // bit d: link in direction d is live
+  std::uint8_t mat;          // material index (0 outside the lattice)
+  std::uint8_t key_axis;     // axis of key, kNoKey or kSponsorKey
+};
+static_assert(sizeof(Element) == 48);
 }  // namespace
 
 struct ChainMail::Brick {
-  std::array<Vec3, kBrickElements> u;                 // m, displacement from rest
-  std::array<std::uint64_t, kBrickElements> mark;     // see kTagShift
-  std::array<std::array<float, 3>, kBrickElements> key;  // per axis: violation it is queued with, rounded down
-  std::array<std::uint8_t, kBrickElements> links;     // bit d: link in direction d is live
-  std::array<std::uint8_t, kBrickElements> mat;       // material index (0 outside the lattice)
-  std::array<std::int32_t, 6> nbr;                    // brick index in direction d, -1 none yet
-  std::array<std::int32_t, 3> coord;                  // brick coordinates
+  std::array<Element, kBrickElements> e;
+  std::array<std::int32_t, 6> nbr;    // brick index in direction d, -1 none yet
+  std::array<Brick*, 6> nbrp;         // the same bricks (stable: each brick is its own allocation)
+  std::array<std::int32_t, 3> coord;  // brick coordinates
 };
 
 namespace {
@@ -78,14 +86,36 @@ std::uint64_t with_state(std::uint64_t mark, std::uint64_t step, int a, std::uin
   if ((mark >> kTagShift) != step) mark = step << kTagShift;
   return (mark & ~(std::uint64_t{3} << (2 * a))) | (s << (2 * a));
 }
-// Heap key of a violation: larger violations give smaller keys (the bits of a positive double
-// order like its value).
-std::uint64_t heap_key(double violation) noexcept { return ~std::bit_cast<std::uint64_t>(violation); }
-// A float no larger than v (v >= 0).
-float round_down(double v) noexcept {
-  float f = static_cast<float>(v);
-  if (static_cast<double>(f) > v) f = std::nextafter(f, 0.0f);
-  return f;
+// Heap key of a violation: larger violations give smaller keys. Violations are counted in
+// quanta (a quarter of the tolerance), so that equal violations reached along different paths
+// (equal but for rounding) tie, and ties are taken in the order that keeps the step local.
+std::uint64_t heap_key(double violation, double inv_quantum) noexcept {
+  const double q = std::min(violation * inv_quantum, 0x1p62);
+  return ~static_cast<std::uint64_t>(q);
+}
+// Whether coordinate A of element x must be (re-)queued with `violation` in step `step`; if so,
+// marks it queued and records the violation. An element keeps one key: while another axis of it
+// holds it, re-queueing is not filtered (a stale duplicate costs one skipped pop). Sponsors
+// (key_axis == kSponsorKey in their step) are never queued.
+template <int A>
+[[gnu::always_inline]] inline bool queue_state(Element& x, std::uint64_t step, double violation) noexcept {
+  const std::uint64_t mark = x.mark;
+  if ((mark >> kTagShift) != step) {  // untouched in this step
+    x.mark = (step << kTagShift) | (kQueued << (2 * A));
+    x.key = violation;
+    x.key_axis = A;
+    return true;
+  }
+  if (x.key_axis == kSponsorKey) return false;
+  const std::uint64_t state = (mark >> (2 * A)) & 3u;
+  if (state == kFinal) return false;
+  if (state == kQueued && x.key_axis == A && violation <= x.key) return false;  // already queued at least this high
+  if (x.key_axis >= 3 || x.key_axis == A || ((mark >> (2 * x.key_axis)) & 3u) != kQueued) {
+    x.key = violation;
+    x.key_axis = A;
+  }
+  x.mark = (mark & ~(std::uint64_t{3} << (2 * A))) | (kQueued << (2 * A));
+  return true;
 }
 
 template <int A>
@@ -159,10 +189,11 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
              num(L.max_length) + "] m, so the rest state would be invalid");
     }
   }
-  const std::size_t voxels = static_cast<std::size_t>(lattice_.dims[0]) * static_cast<std::size_t>(lattice_.dims[1]) *
-                             static_cast<std::size_t>(lattice_.dims[2]);
   if (!ids_.empty()) {
-    if (ids_.size() != voxels)
+    std::size_t voxels = 0;
+    const bool overflow = __builtin_mul_overflow(static_cast<std::size_t>(lattice_.dims[0]), static_cast<std::size_t>(lattice_.dims[1]), &voxels) ||
+                          __builtin_mul_overflow(voxels, static_cast<std::size_t>(lattice_.dims[2]), &voxels);
+    if (overflow || ids_.size() != voxels)
       fail(std::string(kWho) + "material_ids has " + std::to_string(ids_.size()) + " entries, expected nx*ny*nz = " +
            std::to_string(voxels) + " (or none)");
     const auto it = std::find_if(ids_.begin(), ids_.end(), [&](std::uint8_t v) { return v >= materials_.size(); });
@@ -195,6 +226,7 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
     }
   const double smin = std::min({lattice_.spacing.x, lattice_.spacing.y, lattice_.spacing.z});
   eps_ = 1e-9 * smin;
+  inv_quantum_ = 4 / eps_;
 }
 
 ChainMail::~ChainMail() = default;
@@ -229,7 +261,7 @@ namespace {
 // Fills links and materials of a brick from the lattice: bit d set when the element and its
 // neighbour in direction d are both present (presence read once into a 10³ halo).
 template <class PresentAt, class MaterialAt>
-void fill_brick_links(std::array<std::uint8_t, kBrickElements>& links, std::array<std::uint8_t, kBrickElements>& mat,
+void fill_brick_links(std::array<Element, kBrickElements>& elements,
                       const std::array<std::int32_t, 3>& coord, const std::array<int, 3>& dims, PresentAt present_at,
                       MaterialAt material_at) {
   std::array<bool, 1000> pres{};
@@ -244,13 +276,13 @@ void fill_brick_links(std::array<std::uint8_t, kBrickElements>& links, std::arra
     const int lx = static_cast<int>(l & 7u), ly = static_cast<int>((l >> 3) & 7u), lz = static_cast<int>(l >> 6);
     const std::int64_t i = i0 + lx, j = j0 + ly, k = k0 + lz;
     const bool inside = i < dims[0] && j < dims[1] && k < dims[2];
-    mat[l] = inside ? material_at(i, j, k) : std::uint8_t{0};
+    elements[l].mat = inside ? material_at(i, j, k) : std::uint8_t{0};
     const int h = (lx + 1) + 10 * ((ly + 1) + 10 * (lz + 1));
     unsigned bits = 0;
     if (pres[static_cast<std::size_t>(h)])
       for (int d = 0; d < 6; ++d)
         if (pres[static_cast<std::size_t>(h + kHaloStep[d])]) bits |= 1u << d;
-    links[l] = static_cast<std::uint8_t>(bits);
+    elements[l].links = static_cast<std::uint8_t>(bits);
   }
 }
 }  // namespace
@@ -262,11 +294,10 @@ std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std:
   Brick& B = *brick;
   B.coord = {static_cast<std::int32_t>(bx), static_cast<std::int32_t>(by), static_cast<std::int32_t>(bz)};
   B.nbr.fill(-1);
-  B.mark.fill(0);
-  for (auto& k : B.key) k = {0, 0, 0};
-  for (Vec3& u : B.u) u = {};
+  B.nbrp.fill(nullptr);
+  for (Element& x : B.e) x = Element{{}, 0, 0, 0, 0, kNoKey};
   fill_brick_links(
-      B.links, B.mat, B.coord, lattice_.dims,
+      B.e, B.coord, lattice_.dims,
       [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
       [this](std::int64_t i, std::int64_t j, std::int64_t k) { return material_at(i, j, k); });
   const auto index = static_cast<std::int32_t>(bricks_.size());
@@ -300,8 +331,11 @@ std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std:
     c[kAxisOf[d]] += kStep[d];
     const std::int32_t other = find_brick(c[0], c[1], c[2]);
     if (other < 0) continue;
+    Brick& O = *bricks_[static_cast<std::size_t>(other)];
     B.nbr[static_cast<std::size_t>(d)] = other;
-    bricks_[static_cast<std::size_t>(other)]->nbr[static_cast<std::size_t>(d ^ 1)] = index;
+    B.nbrp[static_cast<std::size_t>(d)] = &O;
+    O.nbr[static_cast<std::size_t>(d ^ 1)] = index;
+    O.nbrp[static_cast<std::size_t>(d ^ 1)] = &B;
   }
   return index;
 }
@@ -322,7 +356,7 @@ bool ChainMail::linked(const Index& e, int axis) const noexcept {
   const std::int32_t b = find_brick(e[0] >> kBrickShift, e[1] >> kBrickShift, e[2] >> kBrickShift);
   if (b < 0) return true;  // cut links always live in materialised bricks
   const auto local = static_cast<std::uint32_t>((e[0] & 7) | ((e[1] & 7) << 3) | ((e[2] & 7) << 6));
-  return (bricks_[static_cast<std::size_t>(b)]->links[local] >> (2 * axis)) & 1u;
+  return ((static_cast<unsigned>(bricks_[static_cast<std::size_t>(b)]->e[local].links) >> (2 * axis)) & 1u) != 0;
 }
 
 Vec3 ChainMail::rest_position(const Index& e) const noexcept {
@@ -335,7 +369,7 @@ Vec3 ChainMail::displacement(const Index& e) const noexcept {
   const std::int32_t b = find_brick(e[0] >> kBrickShift, e[1] >> kBrickShift, e[2] >> kBrickShift);
   if (b < 0) return {};
   const auto local = static_cast<std::uint32_t>((e[0] & 7) | ((e[1] & 7) << 3) | ((e[2] & 7) << 6));
-  return bricks_[static_cast<std::size_t>(b)]->u[local];
+  return bricks_[static_cast<std::size_t>(b)]->e[local].u;
 }
 
 void ChainMail::check_element(const Index& e, const char* what) const {
@@ -350,7 +384,7 @@ void ChainMail::check_element(const Index& e, const char* what) const {
 // Queue: a radix heap (Ahuja et al. 1990) on heap_key(violation): exact largest-first, O(1)
 // push, amortised O(log of the key range) pop, valid because no push is larger than the last pop.
 
-void ChainMail::push(std::uint64_t key, std::uint32_t ref) {
+[[gnu::always_inline]] inline void ChainMail::push(std::uint64_t key, std::uint32_t ref) {
   if (key < heap_last_) key = heap_last_;  // only after an invalid earlier state: taken next
   const std::size_t b = key == heap_last_ ? 0 : static_cast<std::size_t>(64 - std::countl_zero(key ^ heap_last_));
   heap_[b].push_back({key, ref});
@@ -359,7 +393,10 @@ void ChainMail::push(std::uint64_t key, std::uint32_t ref) {
 
 bool ChainMail::pop(std::uint32_t& ref) {
   if (heap_size_ == 0) return false;
-  if (heap_[0].empty()) {
+  std::vector<HeapEntry>& ties = heap_[0];  // FIFO from heap_head_: the order of a wavefront
+  if (heap_head_ == ties.size()) {
+    ties.clear();
+    heap_head_ = 0;
     std::size_t i = 1;
     while (heap_[i].empty()) ++i;
     std::uint64_t least = heap_[i].front().key;
@@ -371,8 +408,7 @@ bool ChainMail::pop(std::uint32_t& ref) {
     }
     heap_[i].clear();
   }
-  ref = heap_[0].back().ref;
-  heap_[0].pop_back();
+  ref = ties[heap_head_++].ref;
   --heap_size_;
   return true;
 }
@@ -381,20 +417,36 @@ bool ChainMail::pop(std::uint32_t& ref) {
 // The step
 
 namespace {
+// For each local element and direction: the neighbour's local index, and whether it lies in the
+// neighbour brick across a face (bit d of cross).
+struct NeighbourTable {
+  std::array<std::array<std::uint16_t, 6>, kBrickElements> local{};
+  std::array<std::uint8_t, kBrickElements> cross{};
+};
+constexpr NeighbourTable make_neighbour_table() {
+  NeighbourTable t;
+  for (std::uint32_t l = 0; l < kBrickElements; ++l) {
+    const int c[3] = {static_cast<int>(l & 7u), static_cast<int>((l >> 3) & 7u), static_cast<int>(l >> 6)};
+    for (int d = 0; d < 6; ++d) {
+      int n[3] = {c[0], c[1], c[2]};
+      n[kAxisOf[d]] += kStep[d];
+      if (n[kAxisOf[d]] < 0 || n[kAxisOf[d]] >= kBrickEdge) {
+        t.cross[l] = static_cast<std::uint8_t>(t.cross[l] | (1u << d));
+        n[kAxisOf[d]] = (n[kAxisOf[d]] + kBrickEdge) % kBrickEdge;
+      }
+      t.local[l][static_cast<std::size_t>(d)] = static_cast<std::uint16_t>(n[0] | (n[1] << 3) | (n[2] << 6));
+    }
+  }
+  return t;
+}
+constexpr NeighbourTable kNeighbours = make_neighbour_table();
+
 // The neighbour of local element l of brick b in direction d: in the same brick or across a face
 // (brick index -1 when that brick is not materialised).
 inline void neighbour_of(const std::array<std::int32_t, 6>& nbr, std::uint32_t b, std::uint32_t l, int d, std::int32_t& nb,
                          std::uint32_t& nl) noexcept {
-  const std::uint32_t lx = l & 7u, ly = (l >> 3) & 7u, lz = l >> 6;
-  nb = static_cast<std::int32_t>(b);
-  switch (d) {
-    case 0: if (lx != 7) { nl = l + 1; } else { nb = nbr[0]; nl = l - 7; } break;
-    case 1: if (lx != 0) { nl = l - 1; } else { nb = nbr[1]; nl = l + 7; } break;
-    case 2: if (ly != 7) { nl = l + 8; } else { nb = nbr[2]; nl = l - 56; } break;
-    case 3: if (ly != 0) { nl = l - 8; } else { nb = nbr[3]; nl = l + 56; } break;
-    case 4: if (lz != 7) { nl = l + 64; } else { nb = nbr[4]; nl = l - 448; } break;
-    default: if (lz != 0) { nl = l - 64; } else { nb = nbr[5]; nl = l + 448; } break;
-  }
+  nl = kNeighbours.local[l][static_cast<std::size_t>(d)];
+  nb = ((static_cast<unsigned>(kNeighbours.cross[l]) >> d) & 1u) != 0 ? nbr[static_cast<std::size_t>(d)] : static_cast<std::int32_t>(b);
 }
 }  // namespace
 
@@ -419,79 +471,88 @@ void ChainMail::check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t 
     nb = materialise_brick(c[0], c[1], c[2]);
     r.materialised += kBrickElements;
   }
-  Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-  const std::uint64_t state = axis_state(N.mark[nl], step_, A);
-  if (state == kFinal) return;
-  if (state == kQueued && violation <= static_cast<double>(N.key[nl][A])) return;  // already queued at least this high
-  N.mark[nl] = with_state(N.mark[nl], step_, A, kQueued);
-  N.key[nl][A] = round_down(violation);
-  push(heap_key(violation), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl);
+  if (!queue_state<A>(bricks_[static_cast<std::size_t>(nb)]->e[nl], step_, violation)) return;
+  push(heap_key(violation, inv_quantum_), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl);
 }
 
 // Settles coordinate A of one element: to the nearest point of the intersection of the intervals
 // that its neighbours already final on A allow (the middle where they do not intersect: a
-// conflict); then checks its other neighbours on A.
+// conflict); then checks its other neighbours on A. The hot loop of a step.
 template <int A>
 void ChainMail::settle(std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
   Brick& B = *bricks_[b];
-  const unsigned links = B.links[l];
-  const std::size_t row = static_cast<std::size_t>(B.mat[l]) * n_materials_;
-  struct Pending {
-    std::int32_t brick;
-    std::uint32_t local;
-    int d;
-    double lo, hi, u;  // box on A relative to this element; the neighbour's displacement on A
-  };
-  std::array<Pending, 6> pending;
-  int n_pending = 0;
+  Element& E = B.e[l];
+  const unsigned links = E.links;
+  const Box* row = boxes_.data() + static_cast<std::size_t>(E.mat) * n_materials_ * 6;
+  const unsigned cross = kNeighbours.cross[l];
+  const std::array<std::uint16_t, 6>& nls = kNeighbours.local[l];
+  // Pass 1: the bounds of the final neighbours, and what the others need in pass 2. Selects
+  // instead of branches: whether a neighbour is final does not predict well.
+  std::array<Element*, 6> np{};
+  std::array<double, 6> blo{}, bhi{}, un{};
+  unsigned open = 0;  // bit d: a linked neighbour that is not final on A
   double lo = -kInf, hi = kInf;
+  // Final on A in this step: the step bits and A's state bits match.
+  const std::uint64_t final_mask = ~std::uint64_t{0xFF} | (std::uint64_t{3} << (2 * A));
+  const std::uint64_t final_value = (step_ << kTagShift) | (kFinal << (2 * A));
+#pragma GCC unroll 6
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
-    std::int32_t nb;
-    std::uint32_t nl = 0;
-    neighbour_of(B.nbr, b, l, d, nb, nl);
-    std::uint8_t mn;
-    double un = 0;
-    std::uint64_t state = 0;
-    if (nb >= 0) {
-      const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-      mn = N.mat[nl];
-      un = at<A>(N.u[nl]);
-      state = axis_state(N.mark[nl], step_, A);
-    } else {
-      mn = neighbour_material(B, l, d);
+    const auto di = static_cast<std::size_t>(d);
+    Brick* NB = ((cross >> d) & 1u) != 0 ? B.nbrp[di] : &B;
+    if (NB == nullptr) [[unlikely]] {  // its brick is not materialised: at rest, not final
+      const Box& bx = row[static_cast<std::size_t>(neighbour_material(B, l, d)) * 6 + di];
+      np[di] = nullptr;
+      blo[di] = at<A>(bx.lo);
+      bhi[di] = at<A>(bx.hi);
+      un[di] = 0;
+      open |= 1u << d;
+      continue;
     }
-    const Box& bx = boxes_[(row + mn) * 6 + static_cast<std::size_t>(d)];
-    if (state == kFinal) {
-      lo = std::max(lo, un - at<A>(bx.hi));
-      hi = std::min(hi, un - at<A>(bx.lo));
-    } else {
-      pending[static_cast<std::size_t>(n_pending++)] = {nb, nl, d, at<A>(bx.lo), at<A>(bx.hi), un};
-    }
+    Element& N = NB->e[nls[di]];
+    const Box& bx = row[static_cast<std::size_t>(N.mat) * 6 + di];
+    const bool fin = (N.mark & final_mask) == final_value;
+    const double u = at<A>(N.u), lo_d = at<A>(bx.lo), hi_d = at<A>(bx.hi);
+    // The bounds of a final neighbour; ±inf (no bound) for the others, selected by bit masks.
+    const std::uint64_t keep = std::uint64_t{0} - static_cast<std::uint64_t>(fin);
+    lo = std::max(lo, std::bit_cast<double>((std::bit_cast<std::uint64_t>(u - hi_d) & keep) | (kNegInfBits & ~keep)));
+    hi = std::min(hi, std::bit_cast<double>((std::bit_cast<std::uint64_t>(u - lo_d) & keep) | (kPosInfBits & ~keep)));
+    np[di] = &N;
+    blo[di] = lo_d;
+    bhi[di] = hi_d;
+    un[di] = u;
+    open |= static_cast<unsigned>(!fin) << d;
   }
-  const double before = at<A>(B.u[l]);
-  double v = before;
-  if (lo > hi) {
+  // Place the coordinate.
+  const double before = at<A>(E.u);
+  double v;
+  if (lo > hi) [[unlikely]] {
     if (lo - hi > eps_) ++r.conflicts;
     v = 0.5 * (lo + hi);
-  } else if (v < lo) {
-    v = lo;
-  } else if (v > hi) {
-    v = hi;
+  } else {
+    v = std::min(std::max(before, lo), hi);
   }
-  std::uint64_t mark = with_state(B.mark[l], step_, A, kFinal);
+  std::uint64_t mark = with_state(E.mark, step_, A, kFinal);
   if (v != before) {
-    at<A>(B.u[l]) = v;
-    if ((mark & kMovedBit) == 0) {
-      mark |= kMovedBit;
-      ++r.moved;
-    }
+    at<A>(E.u) = v;
+    r.moved += (mark & kMovedBit) == 0 ? 1u : 0u;
+    mark |= kMovedBit;
   }
-  B.mark[l] = mark;
+  E.mark = mark;
   ++r.processed;
-  for (int p = 0; p < n_pending; ++p) {
-    const Pending& q = pending[static_cast<std::size_t>(p)];
-    check_neighbour<A>(q.brick, q.local, static_cast<std::int32_t>(b), q.d, v + q.lo, v + q.hi, q.u, r);
+  // Pass 2: queue the neighbours that are outside the interval this coordinate now allows them.
+  for (unsigned m = open; m != 0; m &= m - 1) {
+    const int d = std::countr_zero(m);
+    const auto di = static_cast<std::size_t>(d);
+    const double violation = std::max(v + blo[di] - un[di], un[di] - (v + bhi[di]));
+    if (!(violation > eps_)) continue;
+    if (np[di] == nullptr) [[unlikely]] {
+      check_neighbour<A>(-1, nls[di], static_cast<std::int32_t>(b), d, v + blo[di], v + bhi[di], un[di], r);
+      continue;
+    }
+    if (!queue_state<A>(*np[di], step_, violation)) continue;
+    const std::uint32_t nb = ((cross >> d) & 1u) != 0 ? static_cast<std::uint32_t>(B.nbr[di]) : b;
+    push(heap_key(violation, inv_quantum_), (nb << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nls[di]);
   }
 }
 
@@ -499,8 +560,8 @@ void ChainMail::settle(std::uint32_t b, std::uint32_t l, ChainMailStepResult& r)
 // final disagrees, and checks its other neighbours on every axis.
 void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMailStepResult& r) {
   Brick& B = *bricks_[b];
-  const unsigned links = B.links[l];
-  const std::size_t row = static_cast<std::size_t>(B.mat[l]) * n_materials_;
+  const unsigned links = B.e[l].links;
+  const std::size_t row = static_cast<std::size_t>(B.e[l].mat) * n_materials_;
   bool conflict = false;
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
@@ -509,20 +570,20 @@ void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMai
     neighbour_of(B.nbr, b, l, d, nb, nl);
     if (nb < 0) continue;  // at rest, not final
     const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-    const Box& bx = boxes_[(row + N.mat[nl]) * 6 + static_cast<std::size_t>(d)];
-    const Vec3 rel = N.u[nl] - u;  // must lie in the box on every axis where N is final
-    if (axis_state(N.mark[nl], step_, 0) == kFinal && (rel.x < bx.lo.x - eps_ || rel.x > bx.hi.x + eps_)) conflict = true;
-    if (axis_state(N.mark[nl], step_, 1) == kFinal && (rel.y < bx.lo.y - eps_ || rel.y > bx.hi.y + eps_)) conflict = true;
-    if (axis_state(N.mark[nl], step_, 2) == kFinal && (rel.z < bx.lo.z - eps_ || rel.z > bx.hi.z + eps_)) conflict = true;
+    const Box& bx = boxes_[(row + N.e[nl].mat) * 6 + static_cast<std::size_t>(d)];
+    const Vec3 rel = N.e[nl].u - u;  // must lie in the box on every axis where N is final
+    if (axis_state(N.e[nl].mark, step_, 0) == kFinal && (rel.x < bx.lo.x - eps_ || rel.x > bx.hi.x + eps_)) conflict = true;
+    if (axis_state(N.e[nl].mark, step_, 1) == kFinal && (rel.y < bx.lo.y - eps_ || rel.y > bx.hi.y + eps_)) conflict = true;
+    if (axis_state(N.e[nl].mark, step_, 2) == kFinal && (rel.z < bx.lo.z - eps_ || rel.z > bx.hi.z + eps_)) conflict = true;
   }
   if (conflict) ++r.conflicts;
   std::uint64_t mark = step_ << kTagShift | kFinal | kFinal << 2 | kFinal << 4;
-  if (!(u == B.u[l])) {
+  if (!(u == B.e[l].u)) {
     mark |= kMovedBit;
     ++r.moved;
-    B.u[l] = u;
+    B.e[l].u = u;
   }
-  B.mark[l] = mark;
+  B.e[l].mark = mark;
   ++r.processed;
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
@@ -532,8 +593,8 @@ void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMai
     Vec3 un{};
     std::uint8_t mn;
     if (nb >= 0) {
-      un = bricks_[static_cast<std::size_t>(nb)]->u[nl];
-      mn = bricks_[static_cast<std::size_t>(nb)]->mat[nl];
+      un = bricks_[static_cast<std::size_t>(nb)]->e[nl].u;
+      mn = bricks_[static_cast<std::size_t>(nb)]->e[nl].mat;
     } else {
       mn = neighbour_material(B, l, d);
     }
@@ -556,10 +617,10 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   // Check everything before touching any state.
   step_linear_.clear();
   for (std::size_t s = 0; s < sponsors.size(); ++s) {
-    const std::string what = "ChainMail::move: sponsors[" + std::to_string(s) + "]";
-    check_element(sponsors[s].element, what.c_str());
+    const auto what = [s] { return "ChainMail::move: sponsors[" + std::to_string(s) + "]"; };  // only on failure: no allocation
+    if (!present(sponsors[s].element)) check_element(sponsors[s].element, what().c_str());
     if (!is_finite(sponsors[s].position))
-      fail(what + ".position = (" + num(sponsors[s].position.x) + ", " + num(sponsors[s].position.y) + ", " +
+      fail(what() + ".position = (" + num(sponsors[s].position.x) + ", " + num(sponsors[s].position.y) + ", " +
            num(sponsors[s].position.z) + ") m is not finite");
     const Index& e = sponsors[s].element;
     step_linear_.push_back(static_cast<std::uint64_t>(e[0]) |
@@ -576,6 +637,7 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   for (auto& bucket : heap_) bucket.clear();  // empty unless an earlier step ended by an exception
   heap_size_ = 0;
   heap_last_ = 0;
+  heap_head_ = 0;
 
   // Sponsors: materialised and marked first, so that none is queued as a candidate.
   step_refs_.clear();
@@ -583,8 +645,8 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   for (const ChainMailSponsor& s : sponsors) {
     const std::uint32_t ref = materialise_element(s.element);
     Brick& B = *bricks_[ref >> kRefBrickShift];
-    B.mark[ref & (kBrickElements - 1)] = step_ << kTagShift | kQueued | kQueued << 2 | kQueued << 4;
-    B.key[ref & (kBrickElements - 1)] = {kInfF, kInfF, kInfF};
+    B.e[ref & (kBrickElements - 1)].mark = step_ << kTagShift | kQueued | kQueued << 2 | kQueued << 4;
+    B.e[ref & (kBrickElements - 1)].key_axis = kSponsorKey;
     step_refs_.push_back(ref);
   }
   r.materialised += (bricks_.size() - bricks_before) * kBrickElements;
@@ -598,7 +660,7 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   while (pop(ref)) {
     const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
     const int a = static_cast<int>((ref >> kLocalBits) & 3u);
-    if (axis_state(bricks_[b]->mark[l], step_, a) == kFinal) continue;
+    if (axis_state(bricks_[b]->e[l].mark, step_, a) == kFinal) continue;
     switch (a) {
       case 0: settle<0>(b, l, r); break;
       case 1: settle<1>(b, l, r); break;
@@ -685,8 +747,8 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
             const Index e{i, j, k}, n{in, jn, k};
             if (!linked(e, axis)) continue;
             const std::uint32_t re = materialise_element(e), rn = materialise_element(n);
-            bricks_[re >> kRefBrickShift]->links[re & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis)));
-            bricks_[rn >> kRefBrickShift]->links[rn & (kBrickElements - 1)] &= static_cast<std::uint8_t>(~(1u << (2 * axis + 1)));
+            bricks_[re >> kRefBrickShift]->e[re & (kBrickElements - 1)].links &= static_cast<std::uint8_t>(~(1u << (2 * axis)));
+            bricks_[rn >> kRefBrickShift]->e[rn & (kBrickElements - 1)].links &= static_cast<std::uint8_t>(~(1u << (2 * axis + 1)));
             ++out.links_removed;
             const double arc = g.arc0 + u * g.len;
             hits.push_back({linear_of(i, j, k), static_cast<std::uint32_t>(si), ca >= 0 ? 1 : -1, arc});
@@ -694,39 +756,61 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
           }
   }
 
-  // One face per element: the miter of the (distinct) segments it faces, so that its displacement
-  // along each of their away normals is exactly one (|away| <= 2 at sharp corners).
+  // Away direction along the polyline: the segment's left normal, blended near each interior
+  // vertex toward the miter of the two normals (reached at the vertex, over half the shorter
+  // adjacent segment). A blend of n and the miter m keeps dot(·, n) = 1 (m·n = 1), so the opening
+  // across every removed link, measured along its own segment's normal, is exactly the width, and
+  // the sponsors' displacements change smoothly around the corner instead of jumping.
+  const auto miter = [](double ax, double ay, double bx, double by) {
+    const double c = std::max(1.0 + ax * bx + ay * by, 0.5);  // a turn over 120° is not exact
+    return std::pair<double, double>{(ax + bx) / c, (ay + by) / c};
+  };
+  const auto left_normal = [&](std::size_t i) {
+    return std::pair<double, double>{-segments[i].ty / segments[i].len, segments[i].tx / segments[i].len};
+  };
+  const auto away_at = [&](std::size_t i, double arc) {
+    auto [ax, ay] = left_normal(i);
+    const Segment& g = segments[i];
+    if (i > 0) {
+      const double t = 0.5 * std::min(segments[i - 1].len, g.len);
+      const double into = arc - g.arc0;
+      if (into < t) {
+        const auto [px, py] = left_normal(i - 1);
+        const auto [mx, my] = miter(px, py, ax, ay);
+        const double w = std::clamp(into / t, 0.0, 1.0);
+        return std::pair<double, double>{mx + (ax - mx) * w, my + (ay - my) * w};
+      }
+    }
+    if (i + 1 < segments.size()) {
+      const double t = 0.5 * std::min(segments[i + 1].len, g.len);
+      const double left_over = g.arc0 + g.len - arc;
+      if (left_over < t) {
+        const auto [qx, qy] = left_normal(i + 1);
+        const auto [mx, my] = miter(ax, ay, qx, qy);
+        const double w = std::clamp(left_over / t, 0.0, 1.0);
+        return std::pair<double, double>{mx + (ax - mx) * w, my + (ay - my) * w};
+      }
+    }
+    return std::pair<double, double>{ax, ay};
+  };
+
+  // One face per element: the side and segment of its first removed link, the mean arc length of
+  // its removed links.
   std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) {
     return a.linear != b.linear ? a.linear < b.linear : (a.segment != b.segment ? a.segment < b.segment : a.arc < b.arc);
   });
   const auto nx = static_cast<std::uint64_t>(dims[0]), ny = static_cast<std::uint64_t>(dims[1]);
-  std::vector<std::pair<double, double>> normals;  // away normals of one element's segments
   for (std::size_t h = 0; h < hits.size();) {
     std::size_t end = h;
-    while (end < hits.size() && hits[end].linear == hits[h].linear) ++end;
+    double arc = 0;
+    for (; end < hits.size() && hits[end].linear == hits[h].linear; ++end) arc += hits[end].arc;
     ChainMailCutFace f;
     const std::uint64_t lin = hits[h].linear;
     f.element = {static_cast<int>(lin % nx), static_cast<int>((lin / nx) % ny), static_cast<int>(lin / (nx * ny))};
     f.side = hits[h].side;
-    double sx = 0, sy = 0, arc = 0;
-    normals.clear();
-    for (std::size_t q = h; q < end; ++q) {
-      arc += hits[q].arc;
-      if (q > h && hits[q].segment == hits[q - 1].segment) continue;
-      const Segment& g = segments[hits[q].segment];
-      const double ax = hits[q].side * -g.ty / g.len, ay = hits[q].side * g.tx / g.len;  // away from the cut
-      normals.emplace_back(ax, ay);
-      sx += ax;
-      sy += ay;
-    }
     f.arc = arc / static_cast<double>(end - h);
-    const double s = std::hypot(sx, sy);
-    if (s > 1e-9) {
-      double c = 1;
-      for (const auto& [ax, ay] : normals) c = std::min(c, (sx * ax + sy * ay) / s);
-      c = std::max(c, 0.5);
-      f.away = {sx / (s * c), sy / (s * c), 0};
-    }
+    const auto [ax, ay] = away_at(hits[h].segment, f.arc);
+    f.away = {f.side * ax, f.side * ay, 0};
     out.faces.push_back(f);
     h = end;
   }
@@ -768,9 +852,9 @@ ChainMailStepResult ChainMail::open_groove(const ChainMailCut& cut, double width
 void ChainMail::reset() noexcept {
   for (auto& brick : bricks_) {
     Brick& B = *brick;
-    for (Vec3& u : B.u) u = {};
+    for (Element& x : B.e) x.u = {};
     fill_brick_links(
-        B.links, B.mat, B.coord, lattice_.dims,
+        B.e, B.coord, lattice_.dims,
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return material_at(i, j, k); });
   }
@@ -782,7 +866,7 @@ void ChainMail::for_each_materialised(const std::function<void(const Index&, con
     for (std::uint32_t l = 0; l < kBrickElements; ++l) {
       const Index e{B.coord[0] * kBrickEdge + static_cast<int>(l & 7u), B.coord[1] * kBrickEdge + static_cast<int>((l >> 3) & 7u),
                     B.coord[2] * kBrickEdge + static_cast<int>(l >> 6)};
-      if (present(e)) fn(e, B.u[l]);
+      if (present(e)) fn(e, B.e[l].u);
     }
   }
 }

@@ -1,0 +1,694 @@
+#include "surface/surface_model.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <string>
+
+namespace lancet::surface {
+
+namespace {
+
+using P = OpenMesh::Vec3f;
+using VH = SurfaceMesh::VertexHandle;
+using FH = SurfaceMesh::FaceHandle;
+using HH = SurfaceMesh::HalfedgeHandle;
+
+Vec3 v3(const P& p) { return {p[0], p[1], p[2]}; }
+P pf(Vec3 v) { return P(static_cast<float>(v.x), static_cast<float>(v.y), static_cast<float>(v.z)); }
+VH vh(std::uint32_t v) { return VH(static_cast<int>(v)); }
+std::uint32_t idx(VH v) { return static_cast<std::uint32_t>(v.idx()); }
+
+constexpr double kMinArea = 1e-14;  // m²: below this a face counts as degenerate
+constexpr int kMaxWalkSteps = 4096;
+
+}  // namespace
+
+Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f> positions,
+                                                           std::span<const std::array<std::uint32_t, 3>> triangles,
+                                                           std::span<const std::uint16_t> face_material, const SurfaceParams& params) {
+  if (!face_material.empty() && face_material.size() != triangles.size())
+    return Error{ErrorCode::kInvalid, "surface: face_material has " + std::to_string(face_material.size()) + " entries, expected " +
+                                          std::to_string(triangles.size()) + " (one per triangle)"};
+  for (std::size_t i = 0; i < positions.size(); ++i)
+    if (!is_finite(to_vec3(positions[i]))) return Error{ErrorCode::kInvalid, "surface: vertex " + std::to_string(i) + " is not finite"};
+  if (!(params.deform_sigma > 0) || !(params.relax_tau > 0) || !(params.snap_limit > 0 && params.snap_limit <= 0.5) ||
+      !(params.open_limit >= 0) || !(params.wrinkle_tau > 0) || !(params.wrinkle_decay > 0) || !(params.wrinkle_wavelength > 0))
+    return Error{ErrorCode::kInvalid, "surface: parameters out of range (sigma, taus, decay, wavelength > 0; 0 < snap_limit <= 0.5; open_limit >= 0)"};
+  std::unique_ptr<SurfaceModel> m(new SurfaceModel());
+  m->params_ = params;
+  SurfaceMesh& mesh = m->mesh_;
+  mesh.add_property(m->rest_);
+  mesh.add_property(m->stable_);
+  mesh.reserve(positions.size() * 5 / 4, triangles.size() * 2, triangles.size() * 5 / 4);
+  for (const Vec3f& p : positions) {
+    const VH v = mesh.add_vertex(P(p.x, p.y, p.z));
+    mesh.property(m->rest_, v) = P(p.x, p.y, p.z);
+  }
+  m->faces_.assign(triangles.begin(), triangles.end());
+  m->material_.assign(triangles.size(), 0);
+  if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
+  m->handle_.resize(triangles.size());
+  for (std::size_t f = 0; f < triangles.size(); ++f) {
+    const auto& t = triangles[f];
+    if (t[0] >= positions.size() || t[1] >= positions.size() || t[2] >= positions.size())
+      return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " names a vertex past the " + std::to_string(positions.size()) +
+                                            " given"};
+    const FH fh = mesh.add_face(vh(t[0]), vh(t[1]), vh(t[2]));
+    if (!fh.is_valid())
+      return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " (" + std::to_string(t[0]) + ", " + std::to_string(t[1]) + ", " +
+                                            std::to_string(t[2]) + ") makes the mesh non-manifold (or repeats a vertex)"};
+    mesh.property(m->stable_, fh) = static_cast<std::uint32_t>(f);
+    m->handle_[f] = fh;
+  }
+  const std::size_t nv = mesh.n_vertices();
+  m->deform_.assign(nv, P(0, 0, 0));
+  m->open_.assign(nv, P(0, 0, 0));
+  m->wrinkle_.assign(nv, P(0, 0, 0));
+  m->in_deformed_.assign(nv, 0);
+  m->mark_.assign(std::max(nv, triangles.size()), 0);
+  // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
+  // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)
+  P lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());
+  for (auto v : mesh.vertices()) {
+    lo.minimize(mesh.point(v));
+    hi.maximize(mesh.point(v));
+  }
+  const P ext = hi - lo;
+  int thin = 0;
+  for (int a = 1; a < 3; ++a)
+    if (ext[a] < ext[thin]) thin = a;
+  const int ua = (thin + 1) % 3, va = (thin + 2) % 3;
+  for (auto v : mesh.vertices()) {
+    const P& p = mesh.point(v);
+    mesh.set_texcoord2D(v, OpenMesh::Vec2f(ext[ua] > 0 ? (p[ua] - lo[ua]) / ext[ua] : 0.f, ext[va] > 0 ? (p[va] - lo[va]) / ext[va] : 0.f));
+  }
+  // Normals, rest face normals, the BVH.
+  m->rest_normal_.resize(triangles.size());
+  for (std::size_t f = 0; f < triangles.size(); ++f) {
+    const auto& t = triangles[f];
+    const P a = mesh.point(vh(t[0])), b = mesh.point(vh(t[1])), c = mesh.point(vh(t[2]));
+    m->rest_normal_[f] = OpenMesh::cross(b - a, c - a);
+  }
+  for (auto v : mesh.vertices()) {
+    P n(0, 0, 0);
+    for (auto f : mesh.vf_range(v)) n += m->rest_normal_[mesh.property(m->stable_, f)];
+    const float len = n.norm();
+    mesh.set_normal(v, len > 0 ? n / len : P(0, 0, 1));
+  }
+  for (auto& n : m->rest_normal_) {
+    const float len = n.norm();
+    n = len > 0 ? n / len : P(0, 0, 0);
+  }
+  m->bvh_.build(m->view());
+  return m;
+}
+
+Vec3 SurfaceModel::position(std::uint32_t v) const noexcept { return v3(mesh_.point(vh(v))); }
+Vec3 SurfaceModel::rest_position(std::uint32_t v) const noexcept { return v3(mesh_.property(rest_, vh(v))); }
+
+MeshView SurfaceModel::view() const noexcept {
+  return MeshView{mesh_.n_vertices() > 0 ? mesh_.points()[0].data() : nullptr, mesh_.n_vertices(), faces_};
+}
+
+std::uint32_t SurfaceModel::stable_of(FH fh) const { return mesh_.property(stable_, fh); }
+
+void SurfaceModel::set_current(std::uint32_t v) {
+  const VH h = vh(v);
+  mesh_.set_point(h, mesh_.property(rest_, h) + deform_[v] + open_[v] + wrinkle_[v]);
+}
+
+// After vertices moved or faces were reconnected: refit their faces in the BVH and renormalise
+// the vertices of those faces.
+void SurfaceModel::refresh(std::span<const std::uint32_t> vertices) {
+  scratch_faces_.clear();
+  for (std::uint32_t v : vertices)
+    for (auto f : mesh_.vf_range(vh(v))) {
+      const std::uint32_t s = stable_of(f);
+      if (mark_[s] == 0) {
+        mark_[s] = 1;
+        scratch_faces_.push_back(s);
+      }
+    }
+  for (std::uint32_t s : scratch_faces_) mark_[s] = 0;
+  if (scratch_faces_.empty()) return;
+  bvh_.refit_faces(view(), scratch_faces_);
+  scratch_vertices_.clear();
+  for (std::uint32_t s : scratch_faces_)
+    for (std::uint32_t v : faces_[s])
+      if (mark_[v] == 0) {
+        mark_[v] = 1;
+        scratch_vertices_.push_back(v);
+      }
+  for (std::uint32_t v : scratch_vertices_) {
+    mark_[v] = 0;
+    P n(0, 0, 0);
+    for (auto f : mesh_.vf_range(vh(v))) {
+      const auto& t = faces_[stable_of(f)];
+      const P a = mesh_.point(vh(t[0])), b = mesh_.point(vh(t[1])), c = mesh_.point(vh(t[2]));
+      n += OpenMesh::cross(b - a, c - a);
+    }
+    const float len = n.norm();
+    if (len > 0) mesh_.set_normal(vh(v), n / len);
+  }
+}
+
+std::optional<std::uint32_t> SurfaceModel::locate(Vec3 p, double max_distance, Vec3* on_surface) const {
+  const auto hit = bvh_.closest_point(view(), to_vec3f(p), static_cast<float>(max_distance));
+  if (!hit) return std::nullopt;
+  if (on_surface != nullptr) *on_surface = to_vec3(hit->point);
+  return hit->face;
+}
+
+// ---- deformation --------------------------------------------------------------------------------
+
+void SurfaceModel::update_contact(const std::optional<Contact>& contact, double dt) {
+  const float keep = static_cast<float>(std::exp(-std::max(dt, 0.0) / params_.relax_tau));
+  scratch_touched_.clear();
+  if (contact && is_finite(contact->point) && is_finite(contact->direction) && contact->depth > 0) {
+    const double sigma = params_.deform_sigma, reach = 3 * sigma;
+    const double depth = std::min(contact->depth, params_.deform_max_depth);
+    const Vec3 dir = normalized(contact->direction);
+    std::vector<std::uint32_t>& near = scratch_faces_;
+    bvh_.faces_within(view(), to_vec3f(contact->point), static_cast<float>(reach + depth), near);
+    for (std::uint32_t f : near)
+      for (std::uint32_t v : faces_[f]) {
+        if (mark_[v] != 0) continue;
+        mark_[v] = 1;
+        scratch_touched_.push_back(v);
+      }
+    for (std::uint32_t v : scratch_touched_) {
+      mark_[v] = 0;
+      // Distance measured without this dent, so the dent does not feed on itself.
+      const Vec3 base = v3(mesh_.property(rest_, vh(v)) + open_[v] + wrinkle_[v]);
+      const double r2 = dot(base - contact->point, base - contact->point);
+      // The Gaussian, shifted and rescaled to reach zero at 3σ, so the dent has no step at its rim.
+      const double rim = std::exp(-4.5);
+      const double g = r2 < reach * reach ? (std::exp(-r2 / (2 * sigma * sigma)) - rim) / (1 - rim) : 0.0;
+      deform_[v] = pf(dir * (depth * g));
+      if (in_deformed_[v] == 0) {
+        in_deformed_[v] = 1;
+        deformed_.push_back(v);
+      }
+      in_deformed_[v] = 2;  // held by the contact this step
+    }
+  }
+  // Everything else relaxes towards rest; vertices back at rest leave the working set.
+  std::size_t out = 0;
+  for (std::uint32_t v : deformed_) {
+    if (in_deformed_[v] == 2) {
+      in_deformed_[v] = 1;
+      deformed_[out++] = v;
+      continue;
+    }
+    deform_[v] *= keep;
+    if (deform_[v].sqrnorm() < 1e-14f) {
+      deform_[v] = P(0, 0, 0);
+      in_deformed_[v] = 0;
+    } else {
+      deformed_[out++] = v;
+    }
+    scratch_touched_.push_back(v);
+  }
+  deformed_.resize(out);
+  for (std::uint32_t v : scratch_touched_) set_current(v);
+  refresh(scratch_touched_);  // refresh uses the other scratch vectors
+}
+
+// ---- cutting ------------------------------------------------------------------------------------
+
+bool SurfaceModel::snap(std::uint32_t v, Vec3 target, CutStepResult& r) {
+  const VH h = vh(v);
+  const P from = mesh_.point(h);
+  const P to = pf(target);
+  // The largest share of the move (1, ½, ¼, ⅛) that keeps every face around v from flipping or
+  // collapsing; none at all if even ⅛ fails.
+  for (float share = 1.0f; share >= 0.125f; share *= 0.5f) {
+    const P p = from + (to - from) * share;
+    bool ok = true;
+    for (auto f : mesh_.vf_range(h)) {
+      const auto& t = faces_[stable_of(f)];
+      P c[3];
+      for (int i = 0; i < 3; ++i) c[i] = t[static_cast<std::size_t>(i)] == v ? p : mesh_.point(vh(t[static_cast<std::size_t>(i)]));
+      P o[3];
+      for (int i = 0; i < 3; ++i) o[i] = mesh_.point(vh(t[static_cast<std::size_t>(i)]));
+      const P n_new = OpenMesh::cross(c[1] - c[0], c[2] - c[0]);
+      const P n_old = OpenMesh::cross(o[1] - o[0], o[2] - o[0]);
+      if (0.5 * static_cast<double>(n_new.norm()) <= 1e-3 * 0.5 * static_cast<double>(n_old.norm()) || OpenMesh::dot(n_new, n_old) <= 0) {
+        ok = false;
+        break;
+      }
+    }
+    if (!ok) continue;
+    if (share < 1.0f) ++r.snaps_limited;
+    const P delta = p - from;
+    mesh_.property(rest_, h) += delta;
+    set_current(v);
+    const std::uint32_t one[1] = {v};
+    refresh(one);
+    for (auto f : mesh_.vf_range(h)) {
+      const auto& t = faces_[stable_of(f)];
+      const P a = mesh_.property(rest_, vh(t[0])), b = mesh_.property(rest_, vh(t[1])), c = mesh_.property(rest_, vh(t[2]));
+      P n = OpenMesh::cross(b - a, c - a);
+      const float len = n.norm();
+      if (len > 0) rest_normal_[stable_of(f)] = n / len;
+    }
+    ++r.snapped;
+    return true;
+  }
+  ++r.snaps_limited;
+  return false;
+}
+
+bool SurfaceModel::duplicate(Cut& cut, std::size_t k, CutStepResult& r) {
+  const std::uint32_t v = cut.chain[k], u = cut.chain[k - 1], w = cut.chain[k + 1];
+  const VH hv = vh(v);
+  const HH start = mesh_.find_halfedge(hv, vh(w));
+  if (!start.is_valid()) return false;
+  // Left of the path u → v → w: the faces swept counter-clockwise from v→w until v→u (or a
+  // boundary). Everything else around v is on the right and moves to the copy.
+  scratch_faces_.clear();
+  HH cur = start;
+  for (int guard = 0; guard < 256; ++guard) {
+    const FH f = mesh_.face_handle(cur);
+    if (!f.is_valid()) break;
+    scratch_faces_.push_back(stable_of(f));
+    cur = mesh_.ccw_rotated_halfedge_handle(cur);
+    if (mesh_.to_vertex_handle(cur) == vh(u) || cur == start) break;
+  }
+  std::vector<std::uint32_t> right;
+  for (auto f : mesh_.vf_range(hv)) {
+    const std::uint32_t s = stable_of(f);
+    if (std::find(scratch_faces_.begin(), scratch_faces_.end(), s) == scratch_faces_.end()) right.push_back(s);
+  }
+  if (right.empty() || scratch_faces_.empty()) return false;  // nothing to split here
+  // The opening direction, from the path and the vertex normal.
+  const Vec3 v_tool = normalized(position(w) - position(u));
+  const Vec3 v_sn = v3(mesh_.normal(hv));
+  const Vec3 v_co = normalized(cross(v_tool, v_sn));
+  const std::uint32_t c = new_copy(v);
+  if (!reattach(right, v, c)) {
+    ++r.refused;
+    mesh_.delete_vertex(vh(c), false);
+    return false;
+  }
+  r.faces_reconnected += right.size();
+  ++r.duplicated;
+  cut.pairs.push_back(Cut::Pair{v, c, rest_position(v), rest_position(c), v_co});
+  // The cut opens by its current width at once (±D/2 · V_co, no taper while it grows).
+  const P off = pf(v_co * (cut.opening / 2));
+  open_[v] = open_[v] - off;
+  open_[c] = open_[c] + off;
+  set_current(v);
+  set_current(c);
+  const std::uint32_t both[2] = {v, c};
+  refresh(both);
+  // Where the path meets an earlier cut or the border, a vertex can be left with two separate
+  // fans (joined only at the vertex): each fan then gets its own vertex, so the mesh stays
+  // manifold and the cuts join.
+  for (std::uint32_t x : {u, v, c, w}) r.duplicated += split_fans(x);
+  return true;
+}
+
+std::uint32_t SurfaceModel::new_copy(std::uint32_t v) {
+  const VH hv = vh(v);
+  const VH copy = mesh_.add_vertex(mesh_.point(hv));
+  const std::uint32_t c = idx(copy);
+  mesh_.property(rest_, copy) = mesh_.property(rest_, hv);
+  mesh_.set_texcoord2D(copy, mesh_.texcoord2D(hv));
+  mesh_.set_normal(copy, mesh_.normal(hv));
+  deform_.push_back(deform_[v]);
+  open_.push_back(open_[v]);
+  wrinkle_.push_back(wrinkle_[v]);
+  in_deformed_.push_back(0);
+  if (mark_.size() < mesh_.n_vertices()) mark_.resize(mesh_.n_vertices() * 2, 0);
+  if (in_deformed_[v] != 0) {
+    in_deformed_[c] = 1;
+    deformed_.push_back(c);
+  }
+  return c;
+}
+
+// Moves faces (stable ids) from vertex `from` to vertex `to`: delete them all, then add them back
+// with `to`. On a refusal everything is put back and false returned.
+bool SurfaceModel::reattach(const std::vector<std::uint32_t>& faces, std::uint32_t from, std::uint32_t to) {
+  std::vector<std::array<std::uint32_t, 3>> old_tris;
+  old_tris.reserve(faces.size());
+  for (std::uint32_t s : faces) {
+    old_tris.push_back(faces_[s]);
+    mesh_.delete_face(handle_[s], false);
+  }
+  std::size_t added = 0;
+  for (; added < faces.size(); ++added) {
+    auto t = old_tris[added];
+    for (auto& x : t)
+      if (x == from) x = to;
+    const FH fh = mesh_.add_face(vh(t[0]), vh(t[1]), vh(t[2]));
+    if (!fh.is_valid()) break;
+    mesh_.property(stable_, fh) = faces[added];
+    handle_[faces[added]] = fh;
+    faces_[faces[added]] = t;
+  }
+  if (added == faces.size()) return true;
+  for (std::size_t i = 0; i < added; ++i) mesh_.delete_face(handle_[faces[i]], false);
+  for (std::size_t i = 0; i < faces.size(); ++i) {
+    const auto& t = old_tris[i];
+    const FH fh = mesh_.add_face(vh(t[0]), vh(t[1]), vh(t[2]));
+    mesh_.property(stable_, fh) = faces[i];
+    handle_[faces[i]] = fh;
+    faces_[faces[i]] = t;
+  }
+  return false;
+}
+
+std::size_t SurfaceModel::split_fans(std::uint32_t v) {
+  std::size_t made = 0;
+  for (int guard = 0; guard < 16; ++guard) {
+    // Outgoing boundary halfedges of v: one per fan of a boundary vertex.
+    HH first, second;
+    for (auto h : mesh_.voh_range(vh(v)))
+      if (mesh_.is_boundary(h)) {
+        if (!first.is_valid()) first = h;
+        else if (!second.is_valid()) second = h;
+      }
+    if (!second.is_valid()) return made;  // one fan (or none): manifold
+    // The fan that begins at the second boundary halfedge moves to a new vertex.
+    std::vector<std::uint32_t> fan;
+    HH cur = second;
+    for (int n = 0; n < 256; ++n) {
+      const HH o = mesh_.opposite_halfedge_handle(cur);
+      const FH f = mesh_.face_handle(o);
+      if (!f.is_valid()) break;
+      fan.push_back(stable_of(f));
+      cur = mesh_.next_halfedge_handle(o);
+      if (cur == second) break;
+    }
+    if (fan.empty()) return made;
+    const std::uint32_t c = new_copy(v);
+    if (!reattach(fan, v, c)) {
+      mesh_.delete_vertex(vh(c), false);
+      return made;
+    }
+    const std::uint32_t both[2] = {v, c};
+    refresh(both);
+    ++made;
+  }
+  return made;
+}
+
+bool SurfaceModel::begin_cut(Vec3 p, double max_distance) {
+  if (cutting()) end_cut();
+  Vec3 q;
+  const auto f = locate(p, max_distance, &q);
+  if (!f) return false;
+  // The face's vertex nearest the entry point starts the chain, snapped onto it.
+  std::uint32_t best = faces_[*f][0];
+  for (std::uint32_t v : faces_[*f])
+    if (norm(position(v) - q) < norm(position(best) - q)) best = v;
+  CutStepResult r;
+  snap(best, q, r);
+  Cut cut;
+  cut.chain.push_back(best);
+  cut.path.push_back(q);
+  cut.opening = params_.open_rest;
+  cut.active = true;
+  cuts_.push_back(std::move(cut));
+  return true;
+}
+
+void SurfaceModel::end_cut() {
+  if (!cutting()) return;
+  cuts_.back().active = false;
+  (void)split_fans(cuts_.back().chain.back());
+}
+
+CutStepResult SurfaceModel::cut_to(Vec3 target) {
+  CutStepResult r;
+  if (!cutting() || !is_finite(target)) return r;
+  Cut& cut = cuts_.back();
+  cut.path.push_back(target);
+
+  // A crossing of edge (a, b) at share s from a: the nearer endpoint (else the other) joins the
+  // chain, snapped onto the crossing, if it is adjacent to the tip and not in the chain yet.
+  const auto on_crossing = [&](std::uint32_t a, std::uint32_t b, double s, Vec3 x) -> bool {
+    ++r.crossings;
+    const std::uint32_t tip = cut.chain.back();
+    const std::uint32_t order[2] = {s < 0.5 ? a : b, s < 0.5 ? b : a};
+    for (std::uint32_t cand : order) {
+      if (cand == tip) return false;
+      if (std::find(cut.chain.begin(), cut.chain.end(), cand) != cut.chain.end()) continue;
+      if (!mesh_.find_halfedge(vh(tip), vh(cand)).is_valid()) continue;
+      snap(cand, x, r);
+      cut.chain.push_back(cand);
+      if (cut.chain.size() >= 3) duplicate(cut, cut.chain.size() - 2, r);
+      return true;
+    }
+    return false;
+  };
+
+  // Walk the surface from the tip towards the target, face by face, in each face's plane.
+  enum class At { kVertex, kFace };
+  At at = At::kVertex;
+  std::uint32_t at_vertex = cut.chain.back();
+  FH face;
+  std::uint32_t entry_a = 0, entry_b = 0;  // the edge the walk entered face through
+  Vec3 x = position(at_vertex);
+  for (int step = 0; step < kMaxWalkSteps; ++step) {
+    if (at == At::kVertex) {
+      x = position(at_vertex);
+      // The face around the vertex whose wedge holds the direction to the target.
+      FH best;
+      double best_margin = -1;
+      for (auto f : mesh_.vf_range(vh(at_vertex))) {
+        const auto& t = faces_[stable_of(f)];
+        int i = 0;
+        while (t[static_cast<std::size_t>(i)] != at_vertex) ++i;
+        const Vec3 a = position(t[static_cast<std::size_t>((i + 1) % 3)]) - x, b = position(t[static_cast<std::size_t>((i + 2) % 3)]) - x;
+        const Vec3 n = normalized(cross(a, b));
+        Vec3 d = target - x;
+        d = d - n * dot(d, n);
+        if (norm(d) < 1e-9) return r;  // at the target
+        const double m1 = dot(cross(a, d), n) / (norm(a) * norm(d)), m2 = dot(cross(d, b), n) / (norm(b) * norm(d));
+        const double margin = std::min(m1, m2);
+        if (margin > best_margin) {
+          best_margin = margin;
+          best = f;
+        }
+      }
+      if (!best.is_valid() || best_margin < -1e-6) {  // the direction leaves the mesh here
+        r.hit_boundary = true;
+        return r;
+      }
+      const auto& t = faces_[stable_of(best)];
+      int i = 0;
+      while (t[static_cast<std::size_t>(i)] != at_vertex) ++i;
+      face = best;
+      entry_a = t[static_cast<std::size_t>((i + 2) % 3)];  // "entered" through the two edges at the vertex:
+      entry_b = at_vertex;                                 // exits are sought on the opposite edge only
+    }
+    // In face: exit through an edge other than the entry, unless the target comes first.
+    const auto& t = faces_[stable_of(face)];
+    const Vec3 c0 = position(t[0]), c1 = position(t[1]), c2 = position(t[2]);
+    const Vec3 n = normalized(cross(c1 - c0, c2 - c0));
+    Vec3 d = target - x;
+    d = d - n * dot(d, n);
+    if (norm(d) < 1e-9) return r;
+    double best_s = std::numeric_limits<double>::infinity(), best_u = 0;
+    std::uint32_t ea = 0, eb = 0;
+    for (int e = 0; e < 3; ++e) {
+      const std::uint32_t a = t[static_cast<std::size_t>(e)], b = t[static_cast<std::size_t>((e + 1) % 3)];
+      if (at == At::kVertex ? (a == at_vertex || b == at_vertex) : ((a == entry_a && b == entry_b) || (a == entry_b && b == entry_a))) continue;
+      const Vec3 pa = position(a), edge = position(b) - pa;
+      const double den = dot(cross(d, edge), n);
+      if (std::abs(den) < 1e-18) continue;
+      const double s = dot(cross(pa - x, edge), n) / den;
+      const double u = dot(cross(pa - x, d), n) / den;
+      if (s > 1e-9 && u >= -1e-9 && u <= 1 + 1e-9 && s < best_s) {
+        best_s = s;
+        best_u = std::clamp(u, 0.0, 1.0);
+        ea = a;
+        eb = b;
+      }
+    }
+    if (!std::isfinite(best_s) || best_s >= 1.0) return r;  // the target lies in this face
+    const Vec3 cross_point = position(ea) + (position(eb) - position(ea)) * best_u;
+    const HH across = mesh_.find_halfedge(vh(eb), vh(ea));  // the neighbour's halfedge of this edge
+    if (on_crossing(ea, eb, best_u, cross_point)) {
+      at = At::kVertex;
+      at_vertex = cut.chain.back();
+      continue;
+    }
+    if (!across.is_valid() || !mesh_.face_handle(across).is_valid()) {
+      r.hit_boundary = true;
+      return r;
+    }
+    at = At::kFace;
+    face = mesh_.face_handle(across);
+    entry_a = ea;
+    entry_b = eb;
+    x = cross_point;
+  }
+  return r;
+}
+
+// ---- opening and wrinkle ------------------------------------------------------------------------
+
+void SurfaceModel::apply_opening(Cut& cut) {
+  const std::size_t n = cut.pairs.size();
+  scratch_touched_.clear();
+  // The skin beside the cut follows its edge, less with distance (a quadratic falloff over
+  // open_spread), so that opening wider than a triangle does not fold the triangles next to it.
+  for (std::uint32_t v : cut.spread) {
+    open_[v] = P(0, 0, 0);
+    scratch_touched_.push_back(v);
+  }
+  cut.spread.clear();
+  const double spread = params_.open_spread;
+  for (const auto& pr : cut.pairs) mark_[pr.left] = mark_[pr.right] = 2;  // the pairs themselves: full offset below
+  if (cut.opening > 0 && spread > 0)
+    for (const auto& pr : cut.pairs) {
+      bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(spread + cut.opening), scratch_faces_);
+      for (std::uint32_t f : scratch_faces_)
+        for (std::uint32_t v : faces_[f])
+          if (mark_[v] == 0) {
+            mark_[v] = 1;
+            cut.spread.push_back(v);
+          }
+    }
+  const auto taper = [n](std::size_t i) {  // a lens: widest in the middle, closed at S and E
+    return std::sin(std::numbers::pi * static_cast<double>(i + 1) / static_cast<double>(n + 1));
+  };
+  for (std::uint32_t v : cut.spread) {
+    mark_[v] = 0;
+    const Vec3 p = rest_position(v);
+    std::size_t best = 0;
+    double d2 = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < n; ++i) {
+      const double e = dot(p - cut.pairs[i].rest_left, p - cut.pairs[i].rest_left);
+      if (e < d2) {
+        d2 = e;
+        best = i;
+      }
+    }
+    const double d = std::sqrt(d2);
+    const auto& pr = cut.pairs[best];
+    const double side = dot(p - pr.rest_left, pr.v_co) >= 0 ? 1.0 : -1.0;
+    const double fall = d < spread ? (1 - d / spread) * (1 - d / spread) : 0.0;
+    open_[v] = pf(pr.v_co * (side * cut.opening / 2 * taper(best) * fall));
+    scratch_touched_.push_back(v);
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& pr = cut.pairs[i];
+    mark_[pr.left] = mark_[pr.right] = 0;
+    const P off = pf(pr.v_co * (cut.opening / 2 * taper(i)));
+    open_[pr.left] = -off;
+    open_[pr.right] = off;
+    scratch_touched_.push_back(pr.left);
+    scratch_touched_.push_back(pr.right);
+  }
+  for (std::uint32_t v : scratch_touched_) set_current(v);
+  refresh(scratch_touched_);
+}
+
+double SurfaceModel::set_opening(std::size_t c, double width) {
+  if (c >= cuts_.size() || !std::isfinite(width)) return 0;
+  cuts_[c].opening = std::clamp(width, 0.0, params_.open_limit);
+  apply_opening(cuts_[c]);
+  return cuts_[c].opening;
+}
+
+double SurfaceModel::pull(std::size_t c, double displacement) {
+  if (c >= cuts_.size() || !std::isfinite(displacement)) return 0;
+  const double width = set_opening(c, displacement);
+  // The wrinkle: skin beside the cut buckles along its normal, oscillating with distance from
+  // the cut and decaying away from it.
+  const Cut& cut = cuts_[c];
+  for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0);
+  wrinkled_.clear();
+  wrinkle_amp_.clear();
+  scratch_touched_.clear();
+  for (const auto& pr : cut.pairs) {
+    bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(params_.wrinkle_reach), scratch_faces_);
+    for (std::uint32_t f : scratch_faces_)
+      for (std::uint32_t v : faces_[f])
+        if (mark_[v] == 0) {
+          mark_[v] = 1;
+          scratch_touched_.push_back(v);
+        }
+  }
+  for (std::uint32_t v : scratch_touched_) {
+    mark_[v] = 0;
+    double dmin = std::numeric_limits<double>::infinity();
+    for (std::uint32_t cv : cut.chain) dmin = std::min(dmin, norm(rest_position(v) - rest_position(cv)));
+    for (const auto& pr : cut.pairs) dmin = std::min(dmin, norm(rest_position(v) - pr.rest_right));
+    if (dmin > params_.wrinkle_reach) continue;
+    const double profile = std::exp(-dmin / params_.wrinkle_decay) * std::sin(2 * std::numbers::pi * dmin / params_.wrinkle_wavelength);
+    wrinkled_.push_back(v);
+    wrinkle_amp_.push_back(static_cast<float>(profile));
+  }
+  wrinkle_level_ = 0.25 * width;
+  relax(0);
+  return width;
+}
+
+void SurfaceModel::relax(double dt) {
+  if (wrinkled_.empty()) return;
+  wrinkle_level_ *= std::exp(-std::max(dt, 0.0) / params_.wrinkle_tau);
+  const bool gone = wrinkle_level_ < 1e-7;
+  if (gone) wrinkle_level_ = 0;
+  for (std::size_t i = 0; i < wrinkled_.size(); ++i) {
+    const std::uint32_t v = wrinkled_[i];
+    wrinkle_[v] = mesh_.normal(vh(v)) * static_cast<float>(wrinkle_level_ * wrinkle_amp_[i]);
+    set_current(v);
+  }
+  refresh(wrinkled_);
+  if (gone) {
+    wrinkled_.clear();
+    wrinkle_amp_.clear();
+  }
+}
+
+// ---- checks -------------------------------------------------------------------------------------
+
+SurfaceStats SurfaceModel::stats() const {
+  SurfaceStats s;
+  s.faces = faces_.size();
+  for (auto v : mesh_.vertices()) {
+    if (mesh_.is_isolated(v)) continue;
+    ++s.vertices;
+    if (!mesh_.is_manifold(v)) ++s.non_manifold_vertices;
+  }
+  for (auto e : mesh_.edges())
+    if (mesh_.is_boundary(e)) ++s.boundary_edges;
+  for (std::size_t f = 0; f < faces_.size(); ++f) {
+    const auto& t = faces_[f];
+    const P a = mesh_.point(vh(t[0])), b = mesh_.point(vh(t[1])), c = mesh_.point(vh(t[2]));
+    const P n = OpenMesh::cross(b - a, c - a);
+    const double area = 0.5 * static_cast<double>(n.norm());
+    s.area += area;
+    const P ra = mesh_.property(rest_, vh(t[0])), rb = mesh_.property(rest_, vh(t[1])), rc = mesh_.property(rest_, vh(t[2]));
+    s.rest_area += 0.5 * static_cast<double>(OpenMesh::cross(rb - ra, rc - ra).norm());
+    if (!(area > kMinArea) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++s.degenerate_faces;
+    if (OpenMesh::dot(n, rest_normal_[f]) <= 0) ++s.flipped_faces;
+  }
+  // Boundary loops: follow next_halfedge from each unvisited boundary halfedge.
+  std::vector<std::uint8_t> seen(mesh_.n_halfedges(), 0);
+  for (auto h : mesh_.halfedges()) {
+    if (!mesh_.is_boundary(h) || seen[static_cast<std::size_t>(h.idx())] != 0) continue;
+    ++s.boundary_loops;
+    HH cur = h;
+    std::size_t guard = 0;
+    do {
+      seen[static_cast<std::size_t>(cur.idx())] = 1;
+      cur = mesh_.next_halfedge_handle(cur);
+      if (++guard > mesh_.n_halfedges() || !mesh_.is_boundary(cur)) {
+        s.boundary_loops_closed = false;
+        break;
+      }
+    } while (cur != h);
+  }
+  return s;
+}
+
+}  // namespace lancet::surface
