@@ -10,6 +10,7 @@
 #include <set>
 
 #include "surface/placeholder_mesh.hpp"
+#include "volume/marching_cubes.hpp"
 
 namespace lancet::surface {
 namespace {
@@ -21,7 +22,13 @@ std::unique_ptr<SurfaceModel> sheet(int cells, double h = 0.03, SurfaceParams pa
   p.cells = cells;
   p.wave_amplitude = 0.002;
   p.wave_length = 0.02;
-  const TriangleMesh m = make_tissue_block(p);
+  TriangleMesh m = make_tissue_block(p);
+  // Two materials meeting at x = 3 mm, so that cuts cross a material boundary.
+  for (std::size_t f = 0; f < m.triangles.size(); ++f) {
+    const auto& t = m.triangles[f];
+    const double cx = (m.vertices[t[0]].x + m.vertices[t[1]].x + m.vertices[t[2]].x) / 3;
+    m.material[f] = cx < 0.003 ? 1 : 3;
+  }
   auto r = SurfaceModel::create(m.vertices, m.triangles, m.material, params);
   EXPECT_TRUE(r.ok()) << (r.ok() ? "" : r.error().message);
   return std::move(r).value();
@@ -140,7 +147,7 @@ TEST(SurfaceModel, StraightCutSplitsTheMeshAlongThePath) {
 }
 
 TEST(SurfaceModel, RandomCutsKeepTheInvariantsAfterEveryStep) {
-  for (std::uint32_t seed : {1u, 2u, 3u, 4u}) {
+  for (std::uint32_t seed : {1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u}) {
     auto s = sheet(36);
     const std::size_t faces = s->n_faces();
     const double area0 = s->stats().rest_area;
@@ -162,6 +169,7 @@ TEST(SurfaceModel, RandomCutsKeepTheInvariantsAfterEveryStep) {
         if (HasFailure()) return;
       }
       s->end_cut();
+      EXPECT_GE(s->cuts().back().chain.size(), 3u) << "seed " << seed << " cut " << c;
     }
     for (std::uint32_t f = 0; f < faces; ++f) ASSERT_EQ(s->face_material(f), mat0[f]) << "materials stay with their faces";
   }
@@ -216,6 +224,137 @@ TEST(SurfaceModel, WrinkleBesideACutDecays) {
     const auto i = static_cast<std::uint32_t>(v.idx());
     EXPECT_LT(norm(s->position(i) - opened[i]), 1e-6);
   }
+  EXPECT_EQ(s->stats().flipped_faces, 0u);
+}
+
+// On a closed, curved marching-cubes surface (a 20 mm sphere): random cuts over the top.
+TEST(SurfaceModel, RandomCutsOnAMarchingCubesSphere) {
+  volume::Volume v;
+  const int n = 48;
+  v.dims = {n, n, n};
+  v.spacing = {0.001, 0.001, 0.001};
+  v.origin = {-0.0235, -0.0235, -0.0235};
+  v.data.resize(v.voxel_count());
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) v.data[v.index(i, j, k)] = static_cast<float>(0.02 - norm(v.position(i, j, k)));
+  volume::IsoOptions o;
+  o.iso = 0;
+  auto iso = volume::extract_isosurface(v, o);
+  ASSERT_TRUE(iso.ok());
+  auto made = SurfaceModel::create(iso.value().positions, iso.value().triangles);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  auto& s = *made.value();
+  const std::size_t faces = s.n_faces();
+  const double area0 = s.stats().rest_area;
+  EXPECT_EQ(s.stats().boundary_edges, 0u);
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> turn(-0.7, 0.7), len(0.0005, 0.002);
+  const auto on_sphere = [](double az, double el) {
+    return Vec3{0.02 * std::cos(el) * std::cos(az), 0.02 * std::cos(el) * std::sin(az), 0.02 * std::sin(el)};
+  };
+  for (int c = 0; c < 3; ++c) {
+    double az = std::uniform_real_distribution<double>(0, 6.28)(rng), el = std::uniform_real_distribution<double>(0.3, 1.2)(rng);
+    double heading = std::uniform_real_distribution<double>(0, 6.28)(rng);
+    ASSERT_TRUE(s.begin_cut(on_sphere(az, el)));
+    for (int step = 0; step < 16; ++step) {
+      heading += turn(rng);
+      const double l = len(rng) / 0.02;
+      az += l * std::cos(heading);
+      el = std::clamp(el + l * std::sin(heading), 0.2, 1.4);
+      EXPECT_EQ(s.cut_to(on_sphere(az, el)).refused, 0u);
+      expect_invariants(s, faces, area0, false, "sphere cut " + std::to_string(c) + " step " + std::to_string(step));
+      if (HasFailure()) return;
+    }
+    s.end_cut();
+    EXPECT_GE(s.cuts().back().pairs.size(), 3u) << "cut " << c;
+  }
+  EXPECT_GT(s.stats().boundary_edges, 0u) << "the cuts opened boundaries in the closed surface";
+}
+
+TEST(SurfaceModel, CrossingCutsJoinAndKeepTheInvariants) {
+  auto s = sheet(40);
+  const std::size_t faces = s->n_faces();
+  const double area0 = s->stats().rest_area;
+  ASSERT_TRUE(s->begin_cut(on_sheet(-0.015, 0.0007)));
+  for (int i = 1; i <= 30; ++i) (void)s->cut_to(on_sheet(-0.015 + 0.001 * i, 0.0007));
+  s->end_cut();
+  ASSERT_TRUE(s->begin_cut(on_sheet(0.0013, -0.012)));
+  for (int i = 1; i <= 24; ++i) {
+    const auto r = s->cut_to(on_sheet(0.0013, -0.012 + 0.001 * i));
+    EXPECT_EQ(r.refused, 0u);
+    expect_invariants(*s, faces, area0, false, "crossing step " + std::to_string(i));
+  }
+  s->end_cut();
+  expect_invariants(*s, faces, area0, false, "after both cuts");
+  EXPECT_EQ(s->cuts().size(), 2u);
+}
+
+TEST(SurfaceModel, CutsThatOpenAsTheyGoKeepTheInvariants) {
+  SurfaceParams params;
+  params.open_rest = 0.0003;  // the blade leaves a 0.3 mm gap
+  for (std::uint32_t seed : {11u, 12u}) {
+    auto s = sheet(36, 0.03, params);
+    const std::size_t faces = s->n_faces();
+    const double area0 = s->stats().rest_area;
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> pos(-0.02, 0.02), turn(-0.6, 0.6), len(0.0005, 0.003);
+    for (int c = 0; c < 2; ++c) {
+      double x = pos(rng), y = pos(rng), heading = std::uniform_real_distribution<double>(0, 6.28)(rng);
+      ASSERT_TRUE(s->begin_cut(on_sheet(x, y)));
+      for (int step = 0; step < 16; ++step) {
+        heading += turn(rng);
+        const double l = len(rng);
+        x = std::clamp(x + l * std::cos(heading), -0.028, 0.028);
+        y = std::clamp(y + l * std::sin(heading), -0.028, 0.028);
+        EXPECT_EQ(s->cut_to(on_sheet(x, y)).refused, 0u);
+        expect_invariants(*s, faces, area0, true, "seed " + std::to_string(seed) + " cut " + std::to_string(c) + " step " + std::to_string(step));
+        if (HasFailure()) return;
+      }
+      s->end_cut();
+      EXPECT_GT(s->set_opening(s->cuts().size() - 1, 0.003), 0.0);
+      expect_invariants(*s, faces, area0, true, "opened");
+    }
+  }
+}
+
+TEST(SurfaceModel, ToolSamplesDriveDentCutAndPull) {
+  auto s = sheet(40);
+  ToolSample t{};
+  const Vec3 start = on_sheet(-0.008, 0.0009);
+  // Pressing: the dent follows.
+  t.stage = Stage::kDeform;
+  t.proxy.position = start;
+  t.tool.position = start + Vec3{0, 0, -0.003};
+  s->apply(t, 0.001);
+  EXPECT_GT(s->deformed_vertices(), 0u);
+  // Rupture, then cutting along +x.
+  t.stage = Stage::kRupture;
+  t.events = event::kRupture;
+  t.payload.position = start;
+  s->apply(t, 0.001);
+  ASSERT_TRUE(s->cutting());
+  t.events = 0;
+  t.stage = Stage::kCutting;
+  for (int i = 1; i <= 12; ++i) {
+    t.proxy.position = on_sheet(-0.008 + 0.001 * i, 0.0009);
+    s->apply(t, 0.001);
+  }
+  EXPECT_GE(s->cuts().back().pairs.size(), 5u);
+  // Lifting out ends the cut; a pull opens it.
+  t.stage = Stage::kFree;
+  s->apply(t, 0.001);
+  EXPECT_FALSE(s->cutting());
+  t.stage = Stage::kPulling;
+  t.events = event::kPull;
+  t.payload.magnitude = 0.002;
+  s->apply(t, 0.001);
+  EXPECT_DOUBLE_EQ(s->cuts().back().opening, 0.002);
+  // Released for a while: the dent is gone.
+  t.stage = Stage::kFree;
+  t.events = 0;
+  for (int i = 0; i < 300; ++i) s->apply(t, 0.01);
+  EXPECT_EQ(s->deformed_vertices(), 0u);
   EXPECT_EQ(s->stats().flipped_faces, 0u);
 }
 
