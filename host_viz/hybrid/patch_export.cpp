@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "surface/bvh.hpp"
+
 namespace lancet::hybrid {
 
 std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const PatchExportParams& params,
@@ -31,6 +33,57 @@ std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const P
   out.n_triangles = static_cast<std::uint32_t>(keep);
   out.centre = centre;
   out.radius = params.radius;
+  return cand.size();
+}
+
+std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,
+                         PatchExportScratch& scratch, TissuePatch& out, const BrickSource& brick) {
+  const surface::MeshView view = model.view();
+  const auto& mesh = model.mesh();
+  auto& near = scratch.faces;
+  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(params.radius), near);
+  auto& cand = scratch.candidates;
+  cand.clear();
+  const auto corner = [&](std::uint32_t v) { return Vec3f{view.xyz[3 * v], view.xyz[3 * v + 1], view.xyz[3 * v + 2]}; };
+  for (std::uint32_t f : near) {
+    const auto& t = view.faces[f];
+    cand.emplace_back(surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2])), f);
+  }
+  const std::size_t keep = std::min<std::size_t>(cand.size(), kPatchCapacity);
+  std::partial_sort(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(keep), cand.end());
+  for (std::size_t i = 0; i < keep; ++i) {
+    const std::uint32_t f = cand[i].second;
+    const auto& t = view.faces[f];
+    PatchTriangle& pt = out.triangles[i];
+    for (int k = 0; k < 3; ++k) pt.v[k] = corner(t[static_cast<std::size_t>(k)]);
+    pt.material = model.face_material(f);
+    pt.flags = 0;
+    for (auto h : mesh.fh_range(model.face_handle(f)))
+      if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
+  }
+  out.n_triangles = static_cast<std::uint32_t>(keep);
+  out.centre = centre;
+  out.radius = params.radius;
+  // The newest cut's state and the blade frame along its path.
+  out.cut = CutState{};
+  out.cut.n_cuts = static_cast<std::uint32_t>(model.cuts().size());
+  if (!model.cuts().empty()) {
+    const surface::Cut& c = model.cuts().back();
+    out.cut.active = c.active ? 1u : 0u;
+    out.cut.entry = c.path.front();
+    out.cut.last = c.path.back();
+    out.cut.opening_width = c.opening;
+    if (c.active && c.path.size() >= 2) {
+      const Vec3 dir = normalized(c.path.back() - c.path[c.path.size() - 2]);
+      const auto n = mesh.normal(surface::SurfaceMesh::VertexHandle(static_cast<int>(c.chain.back())));
+      const Vec3 surface_normal{n[0], n[1], n[2]};
+      out.blade.origin = c.path.back();
+      out.blade.direction = dir;
+      out.blade.normal = normalized(cross(dir, surface_normal));  // the blade plane holds the path and the normal
+    }
+  }
+  out.brick.valid = 0;
+  if (brick) brick(centre, out.brick);
   return cand.size();
 }
 

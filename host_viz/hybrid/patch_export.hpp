@@ -9,6 +9,9 @@
 
 #include "lancet/shared_model/messages.hpp"
 #include "surface/placeholder_mesh.hpp"
+#include "surface/surface_model.hpp"
+
+#include <functional>
 
 namespace lancet::hybrid {
 
@@ -19,6 +22,7 @@ struct PatchExportParams {
 /// Scratch reused across frames so export allocates only while it grows.
 struct PatchExportScratch {
   std::vector<std::pair<double, std::uint32_t>> candidates;  ///< (distance², triangle index)
+  std::vector<std::uint32_t> faces;                          ///< BVH query result
 };
 
 /// Fills out.triangles / n_triangles / centre / radius from mesh around centre; leaves seq, t_ns,
@@ -26,5 +30,16 @@ struct PatchExportScratch {
 /// (may exceed kPatchCapacity; only the nearest kPatchCapacity are exported).
 std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const PatchExportParams& params,
                          PatchExportScratch& scratch, TissuePatch& out);
+
+/// Fills out.brick for the patch centre (the volume issue's CT brick); empty: brick.valid = 0.
+using BrickSource = std::function<void(Vec3 centre, VoxelBrick& brick)>;
+
+/// The same from the surface model, through its BVH (cost follows the triangles near the tool,
+/// not the mesh): triangles within params.radius of centre by exact point–triangle distance,
+/// nearest first up to kPatchCapacity, current positions, material ids, kTriangleOnCutEdge on
+/// triangles with an open edge; also the cut state and the blade frame of the newest cut, and
+/// the brick from `brick` when given. Leaves seq and t_ns to the caller.
+std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,
+                         PatchExportScratch& scratch, TissuePatch& out, const BrickSource& brick = {});
 
 }  // namespace lancet::hybrid

@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <memory>
+#include <vector>
 
 namespace lancet::hybrid {
 namespace {
@@ -74,6 +76,73 @@ TEST(PatchExport, NothingNearGivesAnEmptyPatch) {
   PatchExportScratch scratch;
   EXPECT_EQ(export_patch(mesh, {0, 0, 0.5}, PatchExportParams{0.01}, scratch, *patch), 0u);
   EXPECT_EQ(patch->n_triangles, 0u);
+}
+
+std::unique_ptr<surface::SurfaceModel> model(int cells) {
+  surface::TissueBlockParams p;
+  p.cells = cells;
+  p.half_extent = 0.03;
+  const auto m = surface::make_tissue_block(p);
+  return std::move(surface::SurfaceModel::create(m.vertices, m.triangles, m.material).value());
+}
+
+TEST(SurfacePatchExport, EqualsABruteForceNearestFirstSelection) {
+  auto s = model(60);
+  auto patch = std::make_unique<TissuePatch>();
+  PatchExportScratch scratch;
+  for (const Vec3 centre : {Vec3{0.001, -0.002, 0.001}, Vec3{0.02, 0.02, -0.004}, Vec3{-0.029, 0.0, 0.002}}) {
+    const std::size_t found = export_patch(*s, centre, PatchExportParams{0.006}, scratch, *patch);
+    // Brute force: every face by exact distance.
+    std::vector<std::pair<double, std::uint32_t>> all;
+    const auto view = s->view();
+    const auto corner = [&](std::uint32_t v) { return Vec3f{view.xyz[3 * v], view.xyz[3 * v + 1], view.xyz[3 * v + 2]}; };
+    for (std::uint32_t f = 0; f < s->n_faces(); ++f) {
+      const auto& t = s->faces()[f];
+      const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
+      if (d2 <= 0.006 * 0.006) all.emplace_back(d2, f);
+    }
+    std::sort(all.begin(), all.end());
+    ASSERT_EQ(found, all.size());
+    ASSERT_EQ(patch->n_triangles, std::min<std::size_t>(all.size(), kPatchCapacity));
+    for (std::size_t i = 0; i < patch->n_triangles; ++i) {
+      const auto& t = s->faces()[all[i].second];
+      EXPECT_EQ(patch->triangles[i].v[0], corner(t[0])) << i;
+      EXPECT_EQ(patch->triangles[i].material, s->face_material(all[i].second));
+    }
+  }
+}
+
+TEST(SurfacePatchExport, CarriesTheCutStateBladeFrameAndBrick) {
+  auto s = model(40);
+  const auto h = [](double x, double y) {
+    surface::TissueBlockParams p;
+    return surface::tissue_block_height(p, x, y);
+  };
+  ASSERT_TRUE(s->begin_cut({-0.01, 0.0012, h(-0.01, 0.0012)}));
+  for (int i = 1; i <= 10; ++i) (void)s->cut_to({-0.01 + 0.001 * i, 0.0012, h(-0.01 + 0.001 * i, 0.0012)});
+  auto patch = std::make_unique<TissuePatch>();
+  PatchExportScratch scratch;
+  int brick_calls = 0;
+  const Vec3 tip{0.0, 0.0012, h(0.0, 0.0012)};
+  export_patch(*s, tip, PatchExportParams{0.005}, scratch, *patch, [&](Vec3 c, VoxelBrick& b) {
+    ++brick_calls;
+    b.valid = 1;
+    b.origin = c;
+  });
+  EXPECT_EQ(brick_calls, 1);
+  EXPECT_EQ(patch->brick.valid, 1u);
+  EXPECT_EQ(patch->cut.active, 1u);
+  EXPECT_EQ(patch->cut.n_cuts, 1u);
+  EXPECT_NEAR(patch->cut.entry.x, -0.01, 1e-6);  // the surface point nearest the entry
+  EXPECT_GT(patch->blade.direction.x, 0.99);                 // cutting along +x
+  EXPECT_GT(std::abs(patch->blade.normal.y), 0.9);          // the blade plane stands across y
+  std::size_t on_cut = 0;
+  for (std::size_t i = 0; i < patch->n_triangles; ++i) on_cut += (patch->triangles[i].flags & kTriangleOnCutEdge) != 0;
+  EXPECT_GT(on_cut, 0u) << "triangles along the open cut are flagged";
+  s->end_cut();
+  export_patch(*s, tip, PatchExportParams{0.005}, scratch, *patch);
+  EXPECT_EQ(patch->cut.active, 0u);
+  EXPECT_EQ(patch->brick.valid, 0u);
 }
 
 }  // namespace
