@@ -63,11 +63,14 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     m->handle_[f] = fh;
   }
   const std::size_t nv = mesh.n_vertices();
+  // Headroom for the copies cuts add, so a cut step never regrows a whole per-vertex array.
+  for (auto* a : {&m->deform_, &m->open_, &m->wrinkle_}) a->reserve(nv * 5 / 4 + 64);
+  m->in_deformed_.reserve(nv * 5 / 4 + 64);
   m->deform_.assign(nv, P(0, 0, 0));
   m->open_.assign(nv, P(0, 0, 0));
   m->wrinkle_.assign(nv, P(0, 0, 0));
   m->in_deformed_.assign(nv, 0);
-  m->mark_.assign(std::max(nv, triangles.size()), 0);
+  m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
   // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
   // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)
   P lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());
