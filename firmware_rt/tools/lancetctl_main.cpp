@@ -2,6 +2,8 @@
 //   lancetctl jitter   run the servo loop (and cyclictest) and report wake-up latency
 
 #include <CLI/CLI.hpp>
+
+#include "tools/validate_cmd.hpp"
 #include <cstdio>
 #include <fstream>
 #include <stdexcept>
@@ -73,8 +75,15 @@ int main(int argc, char** argv) {
   jitter->add_option("--json", jo.json_path, "write the results as JSON here");
   jitter->add_option("--plot", jo.plot_path, "write an SVG plot (histograms and latency over time) here");
 
+  std::string config_path;
+  CLI::App* validate = cli.add_subcommand(
+      "validate", "check an arm configuration (hw_configs/*.toml): print every error with file:line:column and the field; "
+                  "exit 0 when valid, 1 when not, 2 when unreadable");
+  validate->add_option("config", config_path, "the arm's TOML file")->required();
+
   CLI11_PARSE(cli, argc, argv);
   jo.servo_workload = workload == "servo";
   if (jitter->parsed()) return run_jitter_command(jo);
+  if (validate->parsed()) return lancet::tools::run_validate(config_path, stdout);
   return 2;
 }

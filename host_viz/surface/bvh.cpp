@@ -230,6 +230,7 @@ struct Segment {
       if (a.y != b.y) return a.y < b.y;
       return a.z < b.z;
     };
+    if (p.key == q.key) return 0;  // (x·y − y·x need not be 0 when fused)
     if (less(q.key, p.key)) return -(q.x * p.y - q.y * p.x);
     return p.x * q.y - p.y * q.x;
   }
@@ -237,6 +238,10 @@ struct Segment {
   // Crossing with triangle (a, b, c) at t in [0, t_max]: fills t, u, v (weights of b and c).
   bool triangle(Vec3f a, Vec3f b, Vec3f c, double t_max, double& t, double& u, double& v) const {
     if (!valid) return false;
+    // Zero area. For float corners of similar magnitude this cross product is exact in double
+    // (so are the differences and their products): it is 0 exactly when the corners are collinear.
+    const Vec3 n = cross(to_vec3(b) - to_vec3(a), to_vec3(c) - to_vec3(a));
+    if (n.x == 0 && n.y == 0 && n.z == 0) return false;
     const Projected A = project(a), B = project(b), C = project(c);
     const double eu = edge(B, C), ev = edge(C, A), ew = edge(A, B);
     if ((eu < 0 || ev < 0 || ew < 0) && (eu > 0 || ev > 0 || ew > 0)) return false;
@@ -290,13 +295,17 @@ void TriangleBvh::build(const MeshView& m) {
   leaf_of_.assign(n, kNone);
   if (n == 0) return;
 
-  std::vector<Box> boxes(n);
-  std::vector<Vec3f> centroids(n);
+  // Faces are sorted in place as references carrying their box and centroid, so that every pass
+  // of the build reads memory in order; order_ is read off the leaves.
+  struct Ref {
+    Box box;
+    Vec3f centroid;
+    std::uint32_t face;
+  };
+  std::vector<Ref> refs(n);
   for (std::uint32_t f = 0; f < n; ++f) {
-    boxes[f] = face_box(m, f);
-    const Box& b = boxes[f];
-    centroids[f] = {0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)};
-    order_[f] = f;
+    const Box b = face_box(m, f);
+    refs[f] = {b, {0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)}, f};
   }
 
   struct Task {
@@ -318,10 +327,11 @@ void TriangleBvh::build(const MeshView& m) {
     const Task task = tasks.back();
     tasks.pop_back();
     depth_ = std::max(depth_, task.depth);
+    const auto first = refs.begin() + task.begin, last = refs.begin() + task.end;
     Box box, cbox;
-    for (std::uint32_t i = task.begin; i < task.end; ++i) {
-      box.grow(boxes[order_[i]]);
-      cbox.grow(centroids[order_[i]]);
+    for (auto it = first; it != last; ++it) {
+      box.grow(it->box);
+      cbox.grow(it->centroid);
     }
     nodes_[task.node].lo = box.lo;
     nodes_[task.node].hi = box.hi;
@@ -329,59 +339,64 @@ void TriangleBvh::build(const MeshView& m) {
     if (count <= kMaxLeafFaces) {
       nodes_[task.node].first = task.begin;
       nodes_[task.node].count = count;
-      for (std::uint32_t i = task.begin; i < task.end; ++i) leaf_of_[order_[i]] = task.node;
+      for (std::uint32_t i = task.begin; i < task.end; ++i) {
+        order_[i] = refs[i].face;
+        leaf_of_[refs[i].face] = task.node;
+      }
       continue;
     }
 
     // Choose the split: the binned SAH over all three axes, or the median deep in the tree or
     // when every centroid coincides.
-    const auto first = order_.begin() + task.begin, last = order_.begin() + task.end;
     std::uint32_t mid = task.begin + count / 2;
     int best_axis = -1;
     if (task.depth < kMedianDepth) {
-      double best_cost = std::numeric_limits<double>::infinity();
-      int best_bin = 0;
-      for (int axis = 0; axis < 3; ++axis) {
-        const double lo = at(cbox.lo, axis), extent = double{at(cbox.hi, axis)} - lo;
-        if (!(extent > 0)) continue;
-        const double scale = kBins * (1 - 1e-9) / extent;
-        const auto bin_of = [&](std::uint32_t f) {
-          return std::clamp(static_cast<int>((at(centroids[f], axis) - lo) * scale), 0, kBins - 1);
-        };
-        Bin bins[kBins];
-        for (auto it = first; it != last; ++it) {
-          Bin& b = bins[bin_of(*it)];
-          b.box.grow(boxes[*it]);
+      double lo[3], scale[3];
+      bool live[3];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = at(cbox.lo, a);
+        const double extent = double{at(cbox.hi, a)} - lo[a];
+        live[a] = extent > 0;
+        scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
+      }
+      const auto bin_of = [&](const Ref& r, int a) {
+        return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
+      };
+      Bin bins[3][kBins];
+      for (auto it = first; it != last; ++it)
+        for (int a = 0; a < 3; ++a) {
+          Bin& b = bins[a][bin_of(*it, a)];
+          b.box.grow(it->box);
           ++b.count;
         }
+      double best_cost = std::numeric_limits<double>::infinity();
+      int best_bin = 0;
+      for (int a = 0; a < 3; ++a) {
+        if (!live[a]) continue;
         // Sweep: right-hand areas and counts, then left to right.
         double right_area[kBins];
         std::uint32_t right_count[kBins];
         Box acc;
         std::uint32_t cnt = 0;
         for (int i = kBins - 1; i > 0; --i) {
-          acc.grow(bins[i].box);
-          cnt += bins[i].count;
+          acc.grow(bins[a][i].box);
+          cnt += bins[a][i].count;
           right_area[i] = acc.half_area();
           right_count[i] = cnt;
         }
         acc = Box{};
         cnt = 0;
         for (int i = 0; i < kBins - 1; ++i) {
-          acc.grow(bins[i].box);
-          cnt += bins[i].count;
+          acc.grow(bins[a][i].box);
+          cnt += bins[a][i].count;
           if (cnt == 0 || right_count[i + 1] == 0) continue;
           const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
-          if (cost < best_cost) best_cost = cost, best_axis = axis, best_bin = i;
+          if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
         }
       }
       if (best_axis >= 0) {
-        const double lo = at(cbox.lo, best_axis), extent = double{at(cbox.hi, best_axis)} - lo;
-        const double scale = kBins * (1 - 1e-9) / extent;
-        const auto split = std::partition(first, last, [&](std::uint32_t f) {
-          return std::clamp(static_cast<int>((at(centroids[f], best_axis) - lo) * scale), 0, kBins - 1) <= best_bin;
-        });
-        mid = static_cast<std::uint32_t>(split - order_.begin());
+        const auto split = std::partition(first, last, [&](const Ref& r) { return bin_of(r, best_axis) <= best_bin; });
+        mid = static_cast<std::uint32_t>(split - refs.begin());
         if (mid == task.begin || mid == task.end) best_axis = -1, mid = task.begin + count / 2;  // cannot happen
       }
     }
@@ -390,9 +405,8 @@ void TriangleBvh::build(const MeshView& m) {
       const double ex = double{cbox.hi.x} - cbox.lo.x, ey = double{cbox.hi.y} - cbox.lo.y,
                    ez = double{cbox.hi.z} - cbox.lo.z;
       const int axis = ex >= ey ? (ex >= ez ? 0 : 2) : (ey >= ez ? 1 : 2);
-      std::nth_element(first, order_.begin() + mid, last, [&](std::uint32_t a, std::uint32_t b) {
-        return at(centroids[a], axis) < at(centroids[b], axis);
-      });
+      std::nth_element(first, refs.begin() + mid, last,
+                       [&](const Ref& a, const Ref& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
     }
 
     const auto child = static_cast<std::uint32_t>(nodes_.size());

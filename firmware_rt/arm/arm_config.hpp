@@ -1,0 +1,273 @@
+#pragma once
+// ArmConfig: one haptic arm as data, loaded from a TOML file in hw_configs/ (schema:
+// hw_configs/README.md). The file states its units in its key names (length_mm, offset_deg,
+// watchdog_period_ms, ...); everything here is SI: m, rad, N, N·m, A, s.
+//
+// Loading validates the whole file and reports every problem at once (file:line:column, the dotted
+// field path, expected vs found): unknown keys, missing required keys, wrong types, values out of
+// range, joint counts that disagree between sections, a bus section that does not match the
+// backend. Configure time only: nothing here is for the real-time path except the two small
+// conversion helpers at the end.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "arm/kinematics.hpp"
+#include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/result.hpp"
+
+namespace lancet::arm {
+
+// ---------------------------------------------------------------------------------------------
+// The config
+
+enum class Backend : std::uint8_t { kSim, kUsb, kModbus, kCanopen };
+
+struct KinematicsConfig {
+  KinematicModel model = KinematicModel::kPhantom;
+  Vec3 base_offset{};           ///< m, model origin in the device frame
+  // model = phantom
+  double l1 = 0;                ///< m, upper arm
+  double l2 = 0;                ///< m, forearm
+  // model = dh
+  std::vector<DhLink> links;    ///< one per joint (m, rad)
+  Vec3 tool_offset{};           ///< m, tool point in the last link frame
+
+  /// Joints of the model: 3 for phantom, links.size() for dh.
+  [[nodiscard]] int joint_count() const noexcept {
+    return model == KinematicModel::kPhantom ? 3 : static_cast<int>(links.size());
+  }
+};
+
+/// One joint's sensing. Joint position from a raw encoder count c:
+///   revolute:  q = direction · 2π · c / (counts_per_rev · gear_ratio) + offset        (rad)
+///   prismatic: q = direction · lead · c / (counts_per_rev · gear_ratio) + offset      (m)
+struct JointConfig {
+  std::string name;
+  JointType type = JointType::kRevolute;  ///< from the kinematic model
+  std::int64_t counts_per_rev = 0;        ///< encoder counts per motor revolution (after quadrature), > 0
+  double gear_ratio = 1;                  ///< motor revolutions per joint output revolution, > 0
+  int direction = 1;                      ///< +1 or −1: sign from motor to joint (counts and torque)
+  double offset = 0;                      ///< rad (m for prismatic): joint position at count 0
+  double min = 0, max = 0;                ///< rad (m for prismatic): soft limits, min < max
+  double lead = 0;                        ///< m of travel per output revolution (prismatic only)
+};
+
+/// One joint's motor.
+struct ActuatorConfig {
+  std::string name;                 ///< optional label
+  double torque_constant = 0;       ///< N·m/A, > 0
+  double peak_current = 0;          ///< A, >= continuous_current
+  double continuous_current = 0;    ///< A, > 0
+  [[nodiscard]] double peak_torque() const noexcept { return torque_constant * peak_current; }              ///< N·m, motor shaft
+  [[nodiscard]] double continuous_torque() const noexcept { return torque_constant * continuous_current; }  ///< N·m, motor shaft
+};
+
+/// Binary field types of USB reports and Modbus registers.
+enum class FieldType : std::uint8_t { kU8, kI8, kU16, kI16, kU32, kI32 };
+/// Size of one value of the type in bytes.
+[[nodiscard]] int field_size(FieldType t) noexcept;
+
+struct SimBusConfig {
+  double stylus_mass = 0.15;       ///< kg
+  double hand_stiffness = 1500;    ///< N/m
+  double hand_damping = 21;        ///< N·s/m
+  std::int64_t encoder_noise_counts = 0;  ///< ± counts of uniform noise on every encoder
+};
+
+enum class ByteOrder : std::uint8_t { kLittle, kBig };
+
+/// A field of a USB report: byte offset into the report (the report ID byte, when there is one,
+/// is byte 0). Per-joint fields hold joint_count consecutive values.
+struct ReportField {
+  std::uint32_t offset = 0;
+  FieldType type = FieldType::kU8;
+  double lsb = 1;  ///< physical units per count where the field carries a quantity (A for currents)
+};
+
+struct UsbBusConfig {
+  std::uint16_t vid = 0, pid = 0;
+  int interface_number = 0;          ///< 0..255
+  std::uint8_t endpoint_in = 0x81;   ///< interrupt IN, 0x81..0x8F
+  std::uint8_t endpoint_out = 0x01;  ///< interrupt OUT, 0x01..0x0F
+  ByteOrder byte_order = ByteOrder::kLittle;
+  double timeout = 0.002;            ///< s, per transfer
+  // device → host
+  std::uint32_t in_size = 0;                 ///< bytes
+  std::optional<std::uint8_t> in_report_id;  ///< byte 0 when present
+  ReportField encoder_counts;                ///< per joint, integer type
+  std::optional<ReportField> buttons, status;
+  // host → device
+  std::uint32_t out_size = 0;
+  std::optional<std::uint8_t> out_report_id;
+  ReportField current_command;               ///< per joint, signed type, lsb in A
+  std::optional<ReportField> control;        ///< bit 0: enable
+};
+
+enum class ModbusTransport : std::uint8_t { kTcp, kRtu };
+enum class RegisterTable : std::uint8_t { kInput, kHolding };
+enum class Parity : std::uint8_t { kNone, kEven, kOdd };
+
+/// A value in the Modbus register space: 16-bit types take one register, 32-bit types two.
+/// Per-joint entries hold joint_count consecutive values.
+struct RegisterField {
+  RegisterTable table = RegisterTable::kInput;
+  std::uint16_t address = 0;
+  FieldType type = FieldType::kU16;  ///< u16, i16, u32, i32
+  double lsb = 1;                    ///< physical units per count (A for current_command)
+};
+
+struct ModbusRegisterMap {
+  bool high_word_first = true;              ///< word order of 32-bit values
+  RegisterField encoder_counts;             ///< per joint, read
+  RegisterField current_command;            ///< per joint, holding, written
+  std::optional<RegisterField> status;      ///< read
+  std::optional<RegisterField> buttons;     ///< read
+  std::optional<RegisterField> control;     ///< holding, written; bit 0: enable
+  std::optional<RegisterField> heartbeat;   ///< holding, written every tick (device watchdog)
+};
+
+struct ModbusBusConfig {
+  ModbusTransport transport = ModbusTransport::kTcp;
+  std::string host;               ///< tcp
+  int port = 502;                 ///< tcp, 1..65535
+  std::string device;             ///< rtu, e.g. /dev/ttyUSB0
+  int baud = 115200;              ///< rtu
+  Parity parity = Parity::kNone;  ///< rtu
+  int data_bits = 8;              ///< rtu, 7 or 8
+  int stop_bits = 1;              ///< rtu, 1 or 2
+  int unit_id = 1;                ///< 1..247
+  double response_timeout = 0.005;  ///< s
+  ModbusRegisterMap registers;
+};
+
+enum class Cia402Mode : std::uint8_t {
+  kCyclicSyncTorque,  ///< "cst", mode of operation 10
+  kProfileTorque,     ///< "tq", mode of operation 4
+};
+
+/// One object mapped into a PDO.
+struct PdoEntry {
+  std::uint16_t index = 0;
+  std::uint8_t subindex = 0;
+  std::uint8_t bits = 0;  ///< 8, 16 or 32
+};
+
+/// A PDO, the same on every node; COB-ID from the predefined connection set (TPDOn: 0x80 + 0x100·n
+/// + node, RPDOn: 0x100 + 0x100·n + node).
+struct PdoConfig {
+  int number = 1;        ///< 1..4
+  int sync_divider = 1;  ///< sent every nth SYNC (CiA 301 transmission type n), 1..240
+  std::vector<PdoEntry> entries;  ///< at most 64 bits in all
+};
+
+/// CiA 402 objects the driver uses (subindex 0); defaults are the profile's.
+struct Cia402Objects {
+  std::uint16_t controlword = 0x6040;
+  std::uint16_t statusword = 0x6041;
+  std::uint16_t position_actual = 0x6064;
+  std::uint16_t target_torque = 0x6071;   ///< per mille of rated torque (0x6076)
+  std::uint16_t digital_inputs = 0x60FD;
+};
+
+struct CanopenBusConfig {
+  std::string interface_name;   ///< SocketCAN interface, e.g. can0
+  int bitrate = 1'000'000;      ///< bit/s
+  std::vector<int> node_ids;    ///< one per joint, 1..127, unique
+  Cia402Mode mode = Cia402Mode::kCyclicSyncTorque;
+  double sync_period = 0.001;   ///< s
+  double heartbeat_period = 0.1;  ///< s, consumer heartbeat expected from each node; 0: off
+  Cia402Objects objects;
+  std::vector<PdoConfig> rpdos;   ///< host → node
+  std::vector<PdoConfig> tpdos;   ///< node → host
+  std::optional<int> buttons_node;  ///< node whose digital inputs carry the buttons; unset: node_ids[0]
+};
+
+struct SafetyConfig {
+  double max_force = 0;                  ///< N, at the tool point, > 0
+  std::vector<double> max_joint_torque;  ///< N·m (N for prismatic joints), per joint, > 0
+  double max_slew = 0;                   ///< N/s, >= 0; 0: no slew limit
+  Vec3 workspace_min{}, workspace_max{}; ///< m, device frame, min < max on every axis
+  double watchdog_period = 0;            ///< s, > 0
+};
+
+enum class ButtonAction : std::uint8_t { kNone, kClutch, kActivate, kMode };
+
+struct ButtonConfig {
+  std::string name;
+  int bit = 0;              ///< bit in the backend's button word
+  ButtonAction action = ButtonAction::kNone;
+  bool active_low = false;
+};
+
+struct ArmConfig {
+  std::string source;       ///< the file it came from
+  int schema_version = 1;
+  std::string name;
+  std::string description;
+  Backend backend = Backend::kSim;
+  KinematicsConfig kinematics;
+  std::vector<JointConfig> joints;        ///< one per joint, model order
+  std::vector<ActuatorConfig> actuators;  ///< one per joint, model order
+  // the bus section of the backend (only that one is set)
+  std::optional<SimBusConfig> sim;
+  std::optional<UsbBusConfig> usb;
+  std::optional<ModbusBusConfig> modbus;
+  std::optional<CanopenBusConfig> canopen;
+  SafetyConfig safety;
+  std::vector<ButtonConfig> buttons;
+
+  [[nodiscard]] int joint_count() const noexcept { return kinematics.joint_count(); }
+};
+
+// ---------------------------------------------------------------------------------------------
+// Loading and validation
+
+/// One problem in a config file. line and column are 1-based; 0 when the problem is with the file
+/// as a whole (unreadable).
+struct ConfigError {
+  std::string file;
+  int line = 0;
+  int column = 0;
+  std::string field;     ///< dotted path, e.g. joints[1].gear_ratio; empty for syntax errors
+  std::string expected;  ///< what the schema wants (may be empty)
+  std::string found;     ///< what the file has (may be empty)
+  std::string message;   ///< the whole sentence, built from expected/found or a specific note
+};
+
+struct ConfigReport {
+  std::string file;
+  bool readable = true;                 ///< false: the file could not be opened or read
+  std::vector<ConfigError> errors;      ///< sorted by line, then column
+  [[nodiscard]] bool ok() const noexcept { return readable && errors.empty(); }
+};
+
+/// Validates a config file; the report holds every error found (a TOML syntax error stops the
+/// parse, so it is then the only one). Never throws (except std::bad_alloc).
+ConfigReport validate_arm_config_file(const std::string& path);
+/// As validate_arm_config_file, for text already in memory; `source_name` names it in errors.
+ConfigReport validate_arm_config_text(std::string_view text, const std::string& source_name);
+
+/// Loads and validates a config file. Errors: kNotFound / kSystem when it cannot be read,
+/// kInvalid with the formatted report (every error, one per line) when it is not valid.
+Result<ArmConfig> load_arm_config(const std::string& path);
+/// As load_arm_config, for text already in memory.
+Result<ArmConfig> load_arm_config_text(std::string_view text, const std::string& source_name);
+
+/// The report as lines `file:line:col: field: message` (syntax errors have no field; an
+/// unreadable file gives `file: message`), each ending in '\n'. Empty when there is no error.
+std::string format_report(const ConfigReport& report);
+
+// ---------------------------------------------------------------------------------------------
+// Conversions between motor and joint space (the formulas in JointConfig). Real-time safe.
+
+/// Joint position (rad, or m for prismatic) for a raw encoder count.
+[[nodiscard]] double joint_position_from_counts(const JointConfig& joint, std::int64_t counts) noexcept;
+/// Motor current (A) that gives the joint torque tau (N·m, or N for prismatic) through the gear.
+[[nodiscard]] double motor_current_for_joint_torque(const JointConfig& joint, const ActuatorConfig& actuator,
+                                                    double tau) noexcept;
+
+}  // namespace lancet::arm

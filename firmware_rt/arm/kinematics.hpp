@@ -1,0 +1,195 @@
+#pragma once
+// Arm kinematics built from a config: a general serial chain from Denavit-Hartenberg parameters
+// (standard convention, any number of joints up to kMaxJoints) and the closed-form 3-DOF
+// PHANToM-style arm, both giving the tool point, its pose and the Jacobian of the tool point, and
+// the Jacobian-transpose map from a tool force to joint torques. Models are small fixed-size values
+// built once at configure time (make_kinematics); forward, jacobian and joint_torques never
+// allocate and are real-time safe.
+//
+// Frames: every model works in the device base frame (m, rad). Where a config says so, a constant
+// translation (base_offset) moves the model's own origin within that frame; a rotated mount is the
+// caller's business (the device-to-world registration).
+//
+// Joint vectors are spans of joint_count() doubles: rad for revolute joints, m for prismatic ones.
+// Passing a span of another length is a programmer error (asserted); in release builds missing
+// entries read as 0 and extra entries are ignored.
+
+#include <array>
+#include <cstdint>
+#include <span>
+
+#include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/result.hpp"
+
+namespace lancet::arm {
+
+struct ArmConfig;
+
+/// Most joints any model handles; sizes the fixed arrays of the real-time path.
+inline constexpr int kMaxJoints = 8;
+
+/// Joint-space values (rad or m, N·m or N), entries [0, joint_count) used, the rest zero.
+using JointArray = std::array<double, kMaxJoints>;
+
+enum class JointType : std::uint8_t {
+  kRevolute,   ///< the joint variable (rad) adds to theta
+  kPrismatic,  ///< the joint variable (m) adds to d
+};
+
+enum class KinematicModel : std::uint8_t {
+  kDh,       ///< DhChain
+  kPhantom,  ///< PhantomArm
+};
+
+/// Rigid transform: row-major rotation (r[3*row + col]) and translation (m).
+struct Transform {
+  std::array<double, 9> r{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  Vec3 p{};
+};
+
+/// a ∘ b: the transform that applies b first, then a.
+Transform compose(const Transform& a, const Transform& b) noexcept;
+/// Rotates and translates v.
+Vec3 apply(const Transform& t, Vec3 v) noexcept;
+/// The unit quaternion of a rotation matrix (w >= 0).
+Quat to_quat(const std::array<double, 9>& r) noexcept;
+/// The pose (position, orientation) of a transform.
+Pose to_pose(const Transform& t) noexcept;
+
+/// Linear Jacobian of the tool point, 3 × n: column j = ∂p/∂q_j (m/rad for a revolute joint,
+/// dimensionless for a prismatic one). What haptics needs: τ = Jᵀ F.
+struct Jacobian {
+  int n = 0;
+  std::array<Vec3, kMaxJoints> column{};
+};
+
+/// Geometric Jacobian, 6 × n: linear (as Jacobian) over angular (rad/s of the tool frame per unit
+/// joint rate, base frame) parts.
+struct SpatialJacobian {
+  int n = 0;
+  std::array<Vec3, kMaxJoints> linear{};
+  std::array<Vec3, kMaxJoints> angular{};
+};
+
+/// One link in standard (distal) Denavit-Hartenberg form: frame i follows frame i-1 by
+///   Rot_z(theta) · Trans_z(d) · Trans_x(a) · Rot_x(alpha)
+/// with theta = q_i + theta_offset for a revolute joint and d = q_i + d for a prismatic one
+/// (theta_offset is then the fixed theta). Joint i moves about / along z_{i-1}.
+struct DhLink {
+  JointType type = JointType::kRevolute;
+  double a = 0;             ///< m, link length along x_i
+  double alpha = 0;         ///< rad, link twist about x_i
+  double d = 0;             ///< m, offset along z_{i-1} (added to q for a prismatic joint)
+  double theta_offset = 0;  ///< rad, angle about z_{i-1} (added to q for a revolute joint)
+};
+
+/// Serial chain of 1..kMaxJoints DH links. The tool point is tool_offset (m, in the last link's
+/// frame n); the chain's frame 0 sits at base_offset (m) in the device frame, axes aligned.
+class DhChain {
+ public:
+  DhChain() = default;
+  /// links.size() must be in 1..kMaxJoints (asserted; extra links are dropped in release).
+  explicit DhChain(std::span<const DhLink> links, Vec3 base_offset = {}, Vec3 tool_offset = {}) noexcept;
+
+  [[nodiscard]] int joint_count() const noexcept { return n_; }
+  [[nodiscard]] std::span<const DhLink> links() const noexcept { return {links_.data(), static_cast<std::size_t>(n_)}; }
+  [[nodiscard]] Vec3 base_offset() const noexcept { return base_offset_; }
+  [[nodiscard]] Vec3 tool_offset() const noexcept { return tool_offset_; }
+
+  /// The tool frame (last link frame moved to the tool point) in the device frame. Real-time safe.
+  [[nodiscard]] Transform forward_transform(std::span<const double> q) const noexcept;
+  /// forward_transform as a Pose. Real-time safe.
+  [[nodiscard]] Pose forward(std::span<const double> q) const noexcept;
+  /// The tool point (m, device frame). Real-time safe.
+  [[nodiscard]] Vec3 position(std::span<const double> q) const noexcept;
+  /// Linear Jacobian of the tool point. Real-time safe.
+  [[nodiscard]] Jacobian jacobian(std::span<const double> q) const noexcept;
+  /// Geometric 6 × n Jacobian of the tool frame. Real-time safe.
+  [[nodiscard]] SpatialJacobian spatial_jacobian(std::span<const double> q) const noexcept;
+
+ private:
+  std::array<DhLink, kMaxJoints> links_{};
+  int n_ = 0;
+  Vec3 base_offset_{};
+  Vec3 tool_offset_{};
+};
+
+/// Closed-form PHANToM Premium-style 3-DOF arm (capstan-driven parallelogram), in its base frame:
+/// origin on the shoulder axis where it meets the vertical base-yaw axis, z up, x the reach
+/// direction at q1 = 0, y = z × x.
+///   q1  base yaw about +z; positive turns the arm counter-clockwise seen from above.
+///   q2  shoulder: elevation of the upper arm (length l1) above the horizontal; positive raises
+///       the elbow.
+///   q3  elbow: angle of the forearm (length l2) from the downward vertical, positive swinging
+///       the tool point outward (away from the yaw axis). Absolute, not relative to the upper arm:
+///       the parallelogram drive makes the elbow motor measure the forearm against the base.
+/// With r = l1 cos q2 + l2 sin q3 (horizontal reach) and h = l1 sin q2 − l2 cos q3 (height):
+///   p(q) = base_offset + (r cos q1, r sin q1, h).
+/// At q = 0 the upper arm points along +x and the forearm hangs straight down: p = (l1, 0, −l2);
+/// base_offset = (−l1, 0, l2) puts that home position at the origin.
+/// The same chain in standard DH form (to_dh_chain) is
+///   link 1: a = 0,  alpha = +90°, d = 0, theta_offset = 0
+///   link 2: a = l1, alpha = 0,    d = 0, theta_offset = 0
+///   link 3: a = l2, alpha = 0,    d = 0, theta_offset = −90°
+/// with DH joint variables (q1, q2, q3 − q2) (to_dh_joints).
+struct PhantomArm {
+  double l1 = 0;      ///< m, upper arm (shoulder to elbow), > 0
+  double l2 = 0;      ///< m, forearm (elbow to tool point), > 0
+  Vec3 base_offset{}; ///< m, the model origin in the device frame
+
+  static constexpr int kJoints = 3;
+  [[nodiscard]] static constexpr int joint_count() noexcept { return kJoints; }
+
+  /// The tool point (m, device frame). Real-time safe.
+  [[nodiscard]] Vec3 position(std::span<const double> q) const noexcept;
+  /// Tool point and orientation; the 3-DOF arm senses no stylus orientation, so the orientation
+  /// is the identity. Real-time safe.
+  [[nodiscard]] Pose forward(std::span<const double> q) const noexcept;
+  /// Linear Jacobian of the tool point, closed form. Real-time safe.
+  [[nodiscard]] Jacobian jacobian(std::span<const double> q) const noexcept;
+
+  /// The equivalent standard-DH chain (see above), with the same base offset.
+  [[nodiscard]] DhChain to_dh_chain() const noexcept;
+  /// PHANToM joint angles to the DH chain's joint variables: (q1, q2, q3 − q2).
+  [[nodiscard]] static std::array<double, 3> to_dh_joints(std::span<const double> q) noexcept;
+};
+
+/// τ = Jᵀ F: joint torques (N·m for revolute, N for prismatic joints) that render the force F (N,
+/// device frame) at the tool point; entries at and beyond j.n are zero. Real-time safe.
+[[nodiscard]] JointArray joint_torques(const Jacobian& j, Vec3 force) noexcept;
+/// τ = Jᵀ [F; M] for a force F (N) and a moment M (N·m) on the tool frame. Real-time safe.
+[[nodiscard]] JointArray joint_torques(const SpatialJacobian& j, Vec3 force, Vec3 moment) noexcept;
+
+/// The arm's kinematic model as one value (either kind), so the servo loop holds it by value.
+class Kinematics {
+ public:
+  explicit Kinematics(const DhChain& chain) noexcept : model_(KinematicModel::kDh), dh_(chain) {}
+  explicit Kinematics(const PhantomArm& arm) noexcept : model_(KinematicModel::kPhantom), phantom_(arm) {}
+
+  [[nodiscard]] KinematicModel model() const noexcept { return model_; }
+  [[nodiscard]] int joint_count() const noexcept;
+  /// The tool point (m, device frame). Real-time safe.
+  [[nodiscard]] Vec3 position(std::span<const double> q) const noexcept;
+  /// The tool pose (identity orientation for the PHANToM model). Real-time safe.
+  [[nodiscard]] Pose forward(std::span<const double> q) const noexcept;
+  /// Linear Jacobian of the tool point. Real-time safe.
+  [[nodiscard]] Jacobian jacobian(std::span<const double> q) const noexcept;
+
+  /// The model itself; nullptr when the model is of the other kind.
+  [[nodiscard]] const DhChain* dh_chain() const noexcept { return model_ == KinematicModel::kDh ? &dh_ : nullptr; }
+  [[nodiscard]] const PhantomArm* phantom() const noexcept {
+    return model_ == KinematicModel::kPhantom ? &phantom_ : nullptr;
+  }
+
+ private:
+  KinematicModel model_;
+  DhChain dh_{};
+  PhantomArm phantom_{};
+};
+
+/// Builds the kinematic model of a loaded config (configure time). Fails with kInvalid, naming the
+/// field, when the config was built by hand and breaks what the loader checks (no links or more
+/// than kMaxJoints, non-positive or non-finite lengths).
+Result<Kinematics> make_kinematics(const ArmConfig& config);
+
+}  // namespace lancet::arm
