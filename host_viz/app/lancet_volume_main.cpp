@@ -37,6 +37,7 @@ struct Source {
   std::array<double, 3> spacing_mm{1, 1, 1};
   bool big_endian = false;
   bool resample_uneven = false;
+  bool shear_tilted = false;
 };
 
 bool ends_with(const std::string& s, const char* suffix) {
@@ -59,6 +60,7 @@ Result<Volume> load(const Source& src, std::vector<std::uint8_t>* labels, std::s
     format = "DICOM series";
     DicomOptions o;
     o.resample_uneven = src.resample_uneven;
+    o.shear_tilted = src.shear_tilted;
     r = load_dicom_series(src.path, o, progress);
   } else if (ends_with(src.path, ".mhd") || ends_with(src.path, ".mha")) {
     format = "MetaImage";
@@ -191,6 +193,7 @@ int main(int argc, char** argv) {
     cmd->add_option("--spacing-mm", src.spacing_mm, ".raw only: voxel spacing")->expected(3);
     cmd->add_flag("--big-endian", src.big_endian, ".raw only: big-endian samples");
     cmd->add_flag("--resample-uneven", src.resample_uneven, "DICOM: resample uneven slice spacing instead of refusing it");
+    cmd->add_flag("--shear-tilted", src.shear_tilted, "DICOM: keep a gantry-tilted series as a sheared grid instead of refusing it");
   };
   auto* info_cmd = app.add_subcommand("info", "print the header, geometry, value range and a histogram");
   add_source(info_cmd);

@@ -290,24 +290,46 @@ Result<Volume> load(const std::string& directory, const DicomOptions& options, c
     }
     const double length = norm(step);
     const double sine = std::sqrt(std::max(0.0, 1.0 - (along / length) * (along / length)));
-    if (sine > tol) {
+    if (sine > tol && !options.shear_tilted) {
       const double degrees = std::asin(std::min(1.0, sine)) * 180.0 / std::numbers::pi;
       std::ostringstream msg;
       msg.setf(std::ios::fixed);
       msg.precision(1);
       msg << directory << ": gantry tilt of " << degrees << " degrees: the step in " << tag_name(kPosition) << " from "
           << slices[i - 1].name << " to " << slices[i].name << " is not parallel to the slice normal (row x column of "
-          << tag_name(kOrientation) << " = " << join6(first.orientation) << "); tilted series are not supported";
+          << tag_name(kOrientation) << " = " << join6(first.orientation)
+          << "); set DicomOptions::shear_tilted to keep the tilt as a sheared slice axis";
       return invalid(msg.str());
     }
     gaps.push_back(along);
   }
 
+  // The slice axis: the normal, or for a tilted series kept sheared, the direction the slices
+  // step along (every slice must lie on that one line through the first; spacings along it are
+  // the normal gaps / cos tilt).
+  Vec3 axis = normal;
+  double stretch = 1;  // slice-axis length per mm along the normal
+  if (options.shear_tilted && slices.size() >= 2) {
+    const Vec3 span = slices.back().position - slices.front().position;
+    axis = normalized(span);
+    const double cosine = dot(axis, normal);
+    if (cosine < 0.5)
+      return invalid(directory + ": gantry tilt of more than 60 degrees between " + slices.front().name + " and " + slices.back().name +
+                     ": not a tilted stack");
+    stretch = 1 / cosine;
+    for (const Slice& sl : slices) {
+      const Vec3 expected = slices.front().position + axis * ((sl.along_normal - slices.front().along_normal) * stretch);
+      const double off = norm(sl.position - expected);
+      if (off > 0.1)
+        return invalid(directory + ": " + sl.name + " lies " + mm(off * 1e-3) + " off the tilted stack through " + slices.front().name +
+                       " and " + slices.back().name + " (" + tag_name(kPosition) + "): the slices do not form one sheared grid");
+    }
+  }
   Volume v;
   v.dims = {first.columns, first.rows, static_cast<int>(slices.size())};
-  v.spacing = {first.pixel_spacing[1] * 1e-3, first.pixel_spacing[0] * 1e-3, gaps.empty() ? 1e-3 : gaps.front() * 1e-3};
+  v.spacing = {first.pixel_spacing[1] * 1e-3, first.pixel_spacing[0] * 1e-3, gaps.empty() ? 1e-3 : gaps.front() * stretch * 1e-3};
   v.origin = slices.front().position * 1e-3;
-  v.direction = {nr.x, nc.x, normal.x, nr.y, nc.y, normal.y, nr.z, nc.z, normal.z};
+  v.direction = {nr.x, nc.x, axis.x, nr.y, nc.y, axis.y, nr.z, nc.z, axis.z};
   switch (first.scalar) {
     case gdcm::PixelFormat::UINT8: v.source_type = VoxelType::kU8; break;
     case gdcm::PixelFormat::UINT16: v.source_type = VoxelType::kU16; break;
@@ -349,7 +371,7 @@ Result<Volume> load(const std::string& directory, const DicomOptions& options, c
                    std::to_string(kMaxVoxels));
   }
   v.dims[2] = static_cast<int>(nz);
-  v.spacing.z = step * 1e-3;
+  v.spacing.z = step * stretch * 1e-3;
   v.data.resize(plane * nz);
   std::size_t seg = 0;
   for (std::size_t k = 0; k < nz; ++k) {

@@ -18,6 +18,12 @@ struct DicomOptions {
   /// Relative tolerance for "equal" slice spacings and for "step parallel to the slice normal"
   /// (sine of the angle between the position step and the normal).
   double spacing_tolerance = 0.01;
+  /// Gantry tilt (slice positions stepping off the normal): false = refuse, naming the angle;
+  /// true = keep the stack as acquired, on a sheared grid: direction's third column is then the
+  /// step direction (tilted from the normal by the gantry angle), spacing.z the step along it,
+  /// and every voxel sits exactly where the scanner put it (no resampling in-plane). Every slice
+  /// must lie on one line through the first and last.
+  bool shear_tilted = false;
 };
 
 /// Loads every file in `directory` (not recursive) that parses as a DICOM image with pixel data;
@@ -29,9 +35,10 @@ struct DicomOptions {
 /// value_unit "HU"; 8-bit and 16-bit (signed or unsigned) single-sample pixels. Geometry in
 /// metres: spacing x = PixelSpacing[1] (column spacing), y = PixelSpacing[0], z = distance between
 /// slices along the normal; origin = first slice's ImagePositionPatient; direction columns = row
-/// cosine, column cosine, slice normal. Refuses gantry tilt (position steps not parallel to the
-/// normal; the message gives the angle in degrees), multi-frame files, and uneven slice spacing
-/// unless options.resample_uneven (the message names both spacings and the files where it changes).
+/// cosine, column cosine, slice normal (the tilted step direction with options.shear_tilted).
+/// Refuses multi-frame files; gantry tilt (position steps not parallel to the normal; the message
+/// gives the angle in degrees) unless options.shear_tilted; and uneven slice spacing unless
+/// options.resample_uneven (the message names both spacings and the files where it changes).
 /// `progress` (may be empty) is called with 0..1 while reading.
 [[nodiscard]] Result<Volume> load_dicom_series(const std::string& directory, const DicomOptions& options = {},
                                                const Progress& progress = {});

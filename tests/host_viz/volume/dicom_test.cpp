@@ -121,6 +121,66 @@ TEST(Dicom, GeSeriesUnevenSpacingWhenTiltTolerated) {
   EXPECT_EQ(v.data.size(), v.voxel_count());
 }
 
+// Tilt kept as a sheared grid and the uneven spacing resampled: the whole GE series loads, and
+// every original slice's first voxel sits where its ImagePositionPatient says.
+TEST(Dicom, GeSeriesLoadsShearedAndResampled) {
+  require_data();
+  DicomOptions o;
+  o.resample_uneven = true;
+  o.shear_tilted = true;
+  auto r = load_dicom_series(kGe, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Volume& v = r.value();
+  EXPECT_EQ(v.dims[0], 512);
+  EXPECT_EQ(v.dims[1], 512);
+  EXPECT_EQ(v.dims[2], 134);
+  EXPECT_EQ(v.data.size(), v.voxel_count());
+  // The slice axis leans 18.5 degrees from the normal (row × column), in the y-z plane.
+  const Vec3 axis{v.direction[2], v.direction[5], v.direction[8]};
+  const Vec3 normal{0, 0.317, 0.948};  // row (1,0,0) × column (0, 0.948, -0.317)
+  EXPECT_NEAR(norm(axis), 1.0, 1e-9);
+  EXPECT_NEAR(std::acos(dot(axis, normalized(normal))) * 180 / 3.14159265358979, 18.5, 0.2);
+  EXPECT_NEAR(v.spacing.z * std::cos(18.5 * 3.14159265358979 / 180), 1.081e-3, 1e-5) << "1.08 mm along the normal";
+  const auto [mn, mx] = std::minmax_element(v.data.begin(), v.data.end());
+  EXPECT_LE(*mn, -1000.0f);
+  EXPECT_GT(*mx, 1000.0f);
+}
+
+// The sheared grid puts every slice exactly where the scanner did: the uniform sub-series 01–14,
+// loaded sheared, holds slice 07 (loaded alone: no tilt to speak of) at its own position and with
+// its own values.
+TEST(Dicom, ShearedGridPutsEachSliceAtItsPosition) {
+  require_data();
+  TempDir dir("sheared");
+  for (int i = 1; i <= 14; ++i) {
+    const std::string name = (i < 10 ? "0" : "") + std::to_string(i) + ".dcm";
+    fs::copy_file(kGe + "/" + name, dir.path() / name);
+  }
+  DicomOptions o;
+  o.shear_tilted = true;
+  auto r = load_dicom_series(dir.path().string(), o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Volume& v = r.value();
+  ASSERT_EQ(v.dims[2], 14);
+  EXPECT_NEAR(v.spacing.z, 4.22e-3, 0.01e-3) << "the step along the tilted axis, as the scanner moved";
+  TempDir one("sheared_one");
+  fs::copy_file(kGe + "/07.dcm", one.path() / "07.dcm");
+  auto s7 = load_dicom_series(one.path().string());
+  ASSERT_TRUE(s7.ok());
+  int best = -1;
+  double best_d = 1e9;
+  for (int k = 0; k < 14; ++k) {
+    const double d = norm(v.position(0, 0, k) - s7.value().origin);
+    if (d < best_d) best_d = d, best = k;
+  }
+  EXPECT_LT(best_d, 1e-6) << "slice 07's first voxel";
+  const Vec3 far_corner_sheared = v.position(511, 511, best);
+  const Vec3 far_corner_alone = s7.value().position(511, 511, 0);
+  EXPECT_LT(norm(far_corner_sheared - far_corner_alone), 1e-6);
+  const std::size_t plane = 512u * 512u;
+  EXPECT_TRUE(std::equal(s7.value().data.begin(), s7.value().data.end(), v.data.begin() + static_cast<std::ptrdiff_t>(plane * static_cast<std::size_t>(best))));
+}
+
 TEST(Dicom, MissingDirectoryIsNotFound) {
   const auto r = load_dicom_series("/nonexistent/lancet/dicom");
   ASSERT_FALSE(r.ok());
