@@ -152,7 +152,15 @@ int main(int argc, char** argv) {
   auto& win = *window.value();
   std::printf("lancet-viz: %s\n", win.gl_description().c_str());
 
-  const lancet::surface::TriangleMesh mesh = lancet::surface::make_tissue_block({});
+  // The tissue: the surface model on the tissue block (cut, dented, opened by what lancet-rt
+  // reports), drawn from a plain copy refreshed when it changes.
+  lancet::surface::TriangleMesh mesh = lancet::surface::make_tissue_block({});
+  auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
+  if (!made.ok()) {
+    std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
+    return 3;
+  }
+  lancet::surface::SurfaceModel& model = *made.value();
   lancet::viz::VizSessionParams sp;
   sp.shm_name = o.shm;
   sp.patch.radius = o.patch_radius_mm * 1e-3;
@@ -177,7 +185,10 @@ int main(int argc, char** argv) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
       const std::int64_t now = lancet::monotonic_ns();
-      session.frame(now, mesh);
+      if (session.frame(now, model)) {
+        model.to_triangle_mesh(mesh);
+        renderer.set_mesh(mesh);
+      }
       if (session.link_message() != last_message) {
         last_message = session.link_message();
         std::printf("lancet-viz: %s\n", last_message.c_str());

@@ -1,5 +1,7 @@
 #include "app/viz_session.hpp"
 
+#include <algorithm>
+
 #include <unistd.h>
 
 #include <utility>
@@ -43,6 +45,36 @@ void VizSession::detach(const std::string& why) {
 }
 
 void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
+  run_frame(now_ns, [](const ToolSample*, std::size_t) {},
+            [&](TissuePatch& p) { hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p); });
+}
+
+bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
+  bool changed = false;
+  const auto dt_between = [](const ToolSample& a, const ToolSample& b) {
+    return std::clamp(static_cast<double>(b.t_ns - a.t_ns) * 1e-9, 0.0, 0.1);
+  };
+  run_frame(
+      now_ns,
+      [&](const ToolSample* batch, std::size_t n) {
+        for (std::size_t i = 0; i < n; ++i) {
+          const ToolSample& t = batch[i];
+          const bool cutting = t.stage == Stage::kRupture || t.stage == Stage::kCutting;
+          const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & (event::kRupture | event::kPull)) != 0;
+          const bool last = i + 1 == n;
+          if (!(cutting || transition || last)) continue;
+          model.apply(t, fed_any_ ? dt_between(fed_, t) : 0.0);
+          fed_ = t;
+          fed_any_ = true;
+          changed = true;
+        }
+      },
+      [&](TissuePatch& p) { hybrid::export_patch(model, latest_.tool.position, params_.patch, scratch_, p); });
+  return changed;
+}
+
+template <class OnSamples, class Export>
+void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&& export_patch_now) {
   ++frame_;
   if (!channel_) try_attach(now_ns);
   if (!channel_) return;
@@ -71,6 +103,7 @@ void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
     if (n == 0) break;
     stats_.ingest(batch_.data(), n);
     latest_ = batch_[n - 1];
+    on_samples(batch_.data(), n);
     if (n < batch_.size()) break;
   }
 
@@ -80,7 +113,7 @@ void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
   // Publish the tissue near the newest tool position.
   if (has_sample()) {
     TissuePatch& p = *patch_;
-    hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p);
+    export_patch_now(p);
     p.seq = frame_;
     p.t_ns = now_ns;
     s.patch.write(p);

@@ -36,6 +36,11 @@ class VizSession {
   /// One frame's worth of link work at now_ns (CLOCK_MONOTONIC). Not real-time; allocates only
   /// while its scratch buffers grow.
   void frame(std::int64_t now_ns, const surface::TriangleMesh& mesh);
+  /// The same with the surface model: the drained ToolSamples also drive it (every cutting
+  /// sample extends the cut, so the path keeps lancet-rt's resolution; stage changes and pulls
+  /// apply as they come; the dent and the relaxation follow the newest sample once a frame), and
+  /// the patch comes from its BVH. Returns true when the model changed shape this frame.
+  bool frame(std::int64_t now_ns, surface::SurfaceModel& model);
 
   /// Sets (active=true) or releases the stylus target sent to the simulated arm.
   void set_stylus_target(bool active, Vec3 position, std::int64_t now_ns);
@@ -58,6 +63,8 @@ class VizSession {
   [[nodiscard]] std::uint32_t rt_losses() const noexcept { return rt_losses_; }
 
  private:
+  template <class OnSamples, class Export>
+  void run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&& export_patch);
   void try_attach(std::int64_t now_ns);
   void detach(const std::string& why);
 
@@ -79,6 +86,8 @@ class VizSession {
   std::uint64_t target_seq_ = 0;
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;
+  ToolSample fed_{};            ///< the last sample the surface model was given
+  bool fed_any_ = false;
 };
 
 }  // namespace lancet::viz

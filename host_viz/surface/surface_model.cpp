@@ -687,6 +687,20 @@ void SurfaceModel::relax(double dt) {
   }
 }
 
+void SurfaceModel::to_triangle_mesh(TriangleMesh& out) const {
+  const std::size_t nv = mesh_.n_vertices();
+  out.vertices.resize(nv);
+  out.normals.resize(nv);
+  for (std::size_t v = 0; v < nv; ++v) {
+    const P& p = mesh_.point(vh(static_cast<std::uint32_t>(v)));
+    const P& n = mesh_.normal(vh(static_cast<std::uint32_t>(v)));
+    out.vertices[v] = Vec3f{p[0], p[1], p[2]};
+    out.normals[v] = Vec3f{n[0], n[1], n[2]};
+  }
+  out.triangles.assign(faces_.begin(), faces_.end());
+  out.material.assign(material_.begin(), material_.end());
+}
+
 // ---- checks -------------------------------------------------------------------------------------
 
 SurfaceStats SurfaceModel::stats() const {

@@ -33,6 +33,7 @@
 #include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 #include "surface/bvh.hpp"
+#include "surface/placeholder_mesh.hpp"
 
 namespace lancet::surface {
 
@@ -165,6 +166,10 @@ class SurfaceModel {
   void relax(double dt);
 
   [[nodiscard]] SurfaceStats stats() const;
+
+  /// The current surface as plain arrays for drawing: every vertex (copies included, deleted
+  /// ones as unused entries), current positions and normals, the stable faces and materials.
+  void to_triangle_mesh(TriangleMesh& out) const;
 
  private:
   SurfaceModel() = default;

@@ -42,6 +42,54 @@ TEST(VizSession, WaitsWithoutAPeerAndSaysSo) {
   EXPECT_NE(s.link_message().find("does not exist"), std::string::npos) << s.link_message();
 }
 
+// lancet-rt's stream drives the surface model: a dent, a rupture and a cut along +x, then the
+// lift; the published patch carries the cut.
+TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
+  const std::string name = unique_name("cut");
+  auto rt = SharedChannel::create(name, {}).value();
+  SharedState& shared = rt.state();
+  std::int64_t now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  VizSessionParams p;
+  p.shm_name = name;
+  VizSession session(p);
+  auto block = surface::make_tissue_block({});
+  auto model = std::move(surface::SurfaceModel::create(block.vertices, block.triangles, block.material).value());
+  (void)session.frame(now, *model);  // attach
+  ASSERT_EQ(session.link(), Link::kConnected) << session.link_message();
+  const auto on_surface = [](double x, double y) { return Vec3{x, y, surface::tissue_block_height({}, x, y)}; };
+  std::uint64_t seq = 0;
+  const auto push = [&](Stage stage, Vec3 proxy, std::uint32_t events) {
+    ToolSample t = sample(++seq, proxy + Vec3{0, 0, -0.001});
+    t.t_ns = now + static_cast<std::int64_t>(seq) * 1'000'000;
+    t.stage = stage;
+    t.proxy.position = proxy;
+    t.events = events;
+    t.payload.position = proxy;
+    ASSERT_TRUE(shared.samples.try_push(t));
+  };
+  push(Stage::kDeform, on_surface(-0.02, 0.0011), 0);
+  push(Stage::kRupture, on_surface(-0.02, 0.0011), event::kRupture);
+  for (int i = 1; i <= 300; ++i) push(Stage::kCutting, on_surface(-0.02 + 0.0001 * i, 0.0011), 0);  // 3 cm at 0.1 mm a tick
+  now += 400'000'000;
+  shared.rt_heartbeat.beat(now, getpid());
+  EXPECT_TRUE(session.frame(now, *model));
+  ASSERT_EQ(model->cuts().size(), 1u);
+  EXPECT_TRUE(model->cutting());
+  EXPECT_GE(model->cuts()[0].pairs.size(), 10u) << "2 mm cells over 3 cm";
+  EXPECT_EQ(session.patch().cut.active, 1u);
+  push(Stage::kFree, on_surface(0.01, 0.0011), 0);
+  now += 20'000'000;
+  shared.rt_heartbeat.beat(now, getpid());
+  (void)session.frame(now, *model);
+  EXPECT_FALSE(model->cutting());
+  EXPECT_EQ(session.patch().cut.active, 0u);
+  EXPECT_EQ(session.patch().cut.n_cuts, 1u);
+  const auto st = model->stats();
+  EXPECT_EQ(st.non_manifold_vertices, 0u);
+  EXPECT_EQ(st.flipped_faces, 0u);
+}
+
 TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   const std::string name = unique_name("live");
   auto rt = std::make_optional(SharedChannel::create(name, {}).value());
