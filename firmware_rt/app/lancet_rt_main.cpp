@@ -10,6 +10,10 @@
 #include <cstdio>
 #include <thread>
 
+#include <memory>
+#include <optional>
+
+#include "app/device_factory.hpp"
 #include "app/rt_servo.hpp"
 #include "app/rt_cli.hpp"
 #include "rt/rt_loop.hpp"
@@ -52,7 +56,7 @@ bool write_stats(const std::string& path, const lancet::app::RtServo& servo, con
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App cli{"lancet-rt: 1 kHz haptic servo process (simulated stylus)"};
+  CLI::App cli{"lancet-rt: 1 kHz haptic servo process (built-in simulated stylus, or an arm from hw_configs)"};
   std::string shm = lancet::kDefaultShmName;
   double duration = 0;
   bool quiet = false;
@@ -73,7 +77,53 @@ int main(int argc, char** argv) {
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
       ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
   cli.add_option("--stats", stats_path, "write a JSON summary here on exit");
+  std::string config_path;
+  cli.add_option("--config", config_path,
+                 "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
+                 "built-in stylus");
   CLI11_PARSE(cli, argc, argv);
+
+  // The arm, when one is configured: load, build its kinematics and device, configure, activate.
+  std::optional<lancet::arm::ArmConfig> arm_config;
+  std::optional<lancet::arm::Kinematics> kinematics;
+  std::unique_ptr<lancet::device::Device> arm;
+  lancet::device::ArmPhysics* hand = nullptr;
+  if (!config_path.empty()) {
+    auto cfg = lancet::arm::load_arm_config(config_path);
+    if (!cfg.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", cfg.error().message.c_str());
+      return 2;
+    }
+    arm_config = std::move(cfg).value();
+    auto kin = lancet::arm::make_kinematics(*arm_config);
+    if (!kin.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", kin.error().message.c_str());
+      return 2;
+    }
+    kinematics = kin.value();
+    auto dev = lancet::app::make_device(*arm_config);
+    if (!dev.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", dev.error().message.c_str());
+      return 2;
+    }
+    arm = std::move(dev.value().device);
+    hand = dev.value().hand;
+    for (const bool configure : {true, false}) {
+      const lancet::device::Outcome o = configure ? arm->configure() : arm->activate();
+      if (!o.ok()) {
+        std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+        return 2;
+      }
+    }
+    model.kinematics = &*kinematics;
+    const auto& ws = arm_config->safety;
+    model.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
+    for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < model.max_joint_torque.size(); ++j)
+      model.max_joint_torque[j] = ws.max_joint_torque[j];
+    model.haptic.safety.max_force = std::min(model.haptic.safety.max_force, ws.max_force);
+    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm_config->name.c_str(), arm->name().c_str(),
+                 arm->joint_count(), lancet::device::to_string(arm->state()));
+  }
 
   lancet::rt::LoopParams loop_params = rt_opts.loop();
   loop_params.duration_ns = lancet::seconds_to_ns(duration);
@@ -123,7 +173,18 @@ int main(int argc, char** argv) {
   const lancet::rt::RtSetupOptions setup_opts = rt_opts.setup();
   lancet::rt::RtSetupReport setup;
   lancet::rt::RtEnvironment environment(setup_opts, setup);
-  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns());  // allocated after mlockall: locked too
+  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get(), hand);  // after mlockall: locked too
+  // Re-arming a faulted arm reconnects its bus: done here, off the servo thread, when asked.
+  std::thread supervisor;
+  if (arm) {
+    supervisor = std::thread([&servo, &arm] {
+      while (!g_stop.load(std::memory_order_relaxed)) {
+        if (servo.supervise())
+          std::fprintf(stderr, "lancet-rt: %s re-armed: %s\n", arm->name().c_str(), lancet::device::to_string(arm->state()));
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      }
+    });
+  }
   lancet::rt::RtLoop loop(loop_params);
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
     servo.set_fifo(lancet::rt::current_thread_is_fifo());
@@ -136,6 +197,18 @@ int main(int argc, char** argv) {
   thread.join();
   g_stop.store(true);
   if (reporter.joinable()) reporter.join();
+  if (supervisor.joinable()) supervisor.join();
+  if (arm) {
+    const auto& c = arm->counters();
+    std::fprintf(stderr,
+                 "lancet-rt: %s: %llu reads, %llu writes, %llu timeouts, %llu crc, %llu protocol, %llu disconnects, %llu faults, "
+                 "slowest I/O %.0f us\n",
+                 arm->name().c_str(), static_cast<unsigned long long>(c.reads), static_cast<unsigned long long>(c.writes),
+                 static_cast<unsigned long long>(c.timeouts), static_cast<unsigned long long>(c.crc_errors),
+                 static_cast<unsigned long long>(c.protocol_errors), static_cast<unsigned long long>(c.disconnects),
+                 static_cast<unsigned long long>(c.faults), static_cast<double>(c.max_io_ns) / 1e3);
+    (void)arm->deactivate();
+  }
   shared.rt_heartbeat.stop();
 
   const auto& ls = loop.stats();

@@ -16,11 +16,25 @@ RtModel with_period(RtModel m) {
 }
 }  // namespace
 
-RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns)
-    : model_(with_period(model)), shared_(shared), data_(std::make_unique<RtData>()) {
+RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm, device::ArmPhysics* hand)
+    : model_(with_period(model)), shared_(shared), arm_(model.kinematics != nullptr ? arm : nullptr), hand_(hand),
+      data_(std::make_unique<RtData>()) {
   data_->start_ns = start_ns;
   data_->pid = static_cast<std::int32_t>(getpid());
   data_->stylus.position = device::scripted_target(0.0, model_.script_depth);
+  if (arm_ != nullptr) data_->command.n = arm_->joint_count();
+}
+
+bool RtServo::supervise() {
+  if (arm_ == nullptr) return false;
+  int expected = static_cast<int>(RearmPhase::kRequested);
+  if (!data_->rearm_phase.compare_exchange_strong(expected, static_cast<int>(RearmPhase::kRunning), std::memory_order_acq_rel))
+    return false;
+  // The servo thread does not touch the device until kDone.
+  bool done = false;
+  if (arm_->state() == device::Lifecycle::kFault) done = arm_->rearm().ok();
+  data_->rearm_phase.store(static_cast<int>(RearmPhase::kDone), std::memory_order_release);
+  return done;
 }
 
 void RtServo::apply(const Command& c, rt::Watchdog& watchdog) noexcept {
@@ -29,7 +43,12 @@ void RtServo::apply(const Command& c, rt::Watchdog& watchdog) noexcept {
   switch (c.kind) {
     case CommandKind::kSetToolMode: d.mode = c.mode; break;
     case CommandKind::kReset: d.mode = ToolMode::kProbe; break;
-    case CommandKind::kRearm: watchdog.rearm(); break;
+    case CommandKind::kRearm:
+      watchdog.rearm();
+      if (arm_ != nullptr && d.rearm_phase.load(std::memory_order_acquire) == static_cast<int>(RearmPhase::kIdle) &&
+          arm_->state() == device::Lifecycle::kFault)
+        d.rearm_phase.store(static_cast<int>(RearmPhase::kRequested), std::memory_order_release);
+      break;
     case CommandKind::kSetMaterial:  // materials arrive with the haptic core; the penalty model ignores them
     case CommandKind::kNone: break;
   }
@@ -63,10 +82,36 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   }
   const TissuePatch& patch = d.patches[static_cast<std::size_t>(d.front)];
 
+  // Read the arm: encoders → forward kinematics → the tool in the tissue frame. While a re-arm is
+  // pending the servo keeps its hands off the device (the supervisor thread owns it).
+  bool device_ok = true;
+  if (arm_ != nullptr) {
+    int phase = d.rearm_phase.load(std::memory_order_acquire);
+    if (phase == static_cast<int>(RearmPhase::kDone)) {
+      d.rearm_phase.store(static_cast<int>(RearmPhase::kIdle), std::memory_order_relaxed);
+      phase = static_cast<int>(RearmPhase::kIdle);
+    }
+    const bool owned = phase == static_cast<int>(RearmPhase::kIdle);
+    if (hand_ != nullptr) hand_->set_hand_target(target + model_.device_origin);
+    d.last_read = owned ? arm_->read(d.joints) : device::IoStatus::kFault;
+    device_ok = d.last_read == device::IoStatus::kOk;
+    if (device_ok) {
+      const std::span<const double> q(d.joints.q.data(), static_cast<std::size_t>(d.joints.n));
+      d.jacobian = model_.kinematics->jacobian(q);
+      d.tool = model_.kinematics->position(q) - model_.device_origin;
+      Vec3 v{};
+      for (int j = 0; j < d.joints.n; ++j) v += d.jacobian.column[static_cast<std::size_t>(j)] * d.joints.qd[static_cast<std::size_t>(j)];
+      d.tool_velocity = v;
+    }
+  } else {
+    d.tool = d.stylus.position;
+    d.tool_velocity = d.stylus.velocity;
+  }
+
   // The haptic step: proxy against the patch, stage machine, cut friction, force safety.
   haptics::HapticInput in;
-  in.device = d.stylus.position;
-  in.velocity = d.stylus.velocity;
+  in.device = d.tool;
+  in.velocity = d.tool_velocity;
   in.orientation = Quat{};  // the simulated stylus does not rotate: the blade points along +x
   in.mode = d.mode;
   in.patch = d.patch_version != 0 ? &patch : nullptr;
@@ -96,24 +141,49 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
     ++d.watchdog_faulted_ticks;
     events |= event::kFault;
   }
+  if (!device_ok) {  // no fresh pose: no force (and the device layer counts why)
+    f = Vec3{};
+    ++d.device_error_ticks;
+    events |= event::kFault;
+  }
   d.force = f;
   d.max_force_seen = std::max(d.max_force_seen, norm(f));
   if (!alive && d.viz_lost_at_beat_ns != 0 && d.force_zero_ns == 0 && f == Vec3{}) d.force_zero_ns = deadline_ns;
 
-  // Write the device: the simulated stylus feels the force.
-  device::step_sim_stylus(model_.stylus, d.stylus, target, f, dt);
+  // Write the device: joint torques τ = Jᵀ F within each joint's limit, or the built-in stylus.
+  if (arm_ != nullptr) {
+    const auto tau = arm::joint_torques(d.jacobian, f);
+    for (int j = 0; j < d.command.n; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      const double lim = model_.max_joint_torque[uj] > 0 ? model_.max_joint_torque[uj] : 0.0;
+      d.command.tau[uj] = device_ok ? std::clamp(tau[uj], -lim, lim) : 0.0;
+    }
+    const bool owned = d.rearm_phase.load(std::memory_order_acquire) == static_cast<int>(RearmPhase::kIdle);
+    d.last_write = owned ? arm_->write(d.command) : device::IoStatus::kFault;
+    if (d.last_write != device::IoStatus::kOk) events |= event::kFault;
+  } else {
+    device::step_sim_stylus(model_.stylus, d.stylus, target, f, dt);
+  }
 
   // One ToolSample per tick.
   ToolSample& s = d.sample;
   s.seq = d.tick;
   s.t_ns = deadline_ns;
-  s.n_joints = 3;  // the sim stylus is a Cartesian 3-DOF point: q = position
   s.mode = d.mode;
   s.stage = h.stage;
-  s.q[0] = d.stylus.position.x, s.q[1] = d.stylus.position.y, s.q[2] = d.stylus.position.z;
-  s.qd[0] = d.stylus.velocity.x, s.qd[1] = d.stylus.velocity.y, s.qd[2] = d.stylus.velocity.z;
-  s.tau[0] = f.x, s.tau[1] = f.y, s.tau[2] = f.z;
-  s.tool = Pose{d.stylus.position, Quat{}};
+  if (arm_ != nullptr) {
+    s.n_joints = static_cast<std::uint32_t>(d.joints.n);
+    for (int j = 0; j < d.joints.n; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      s.q[uj] = d.joints.q[uj], s.qd[uj] = d.joints.qd[uj], s.tau[uj] = d.command.tau[uj];
+    }
+  } else {
+    s.n_joints = 3;  // the sim stylus is a Cartesian 3-DOF point: q = position
+    s.q[0] = d.stylus.position.x, s.q[1] = d.stylus.position.y, s.q[2] = d.stylus.position.z;
+    s.qd[0] = d.stylus.velocity.x, s.qd[1] = d.stylus.velocity.y, s.qd[2] = d.stylus.velocity.z;
+    s.tau[0] = f.x, s.tau[1] = f.y, s.tau[2] = f.z;
+  }
+  s.tool = Pose{d.tool, Quat{}};
   s.proxy = Pose{h.proxy, Quat{}};
   s.force = f;
   s.patch_version = d.patch_version;

@@ -10,6 +10,11 @@
 #include <cstdint>
 #include <memory>
 
+#include <atomic>
+
+#include "arm/kinematics.hpp"
+#include "device/arm_physics.hpp"
+#include "device/device.hpp"
 #include "device/sim_stylus.hpp"
 #include "haptics/force_fade.hpp"
 #include "haptics/haptic_step.hpp"
@@ -26,7 +31,17 @@ struct RtModel {
   device::SimStylusParams stylus{};
   double script_depth = 0.004;                   ///< m below z = 0 the script presses to
   std::int64_t target_timeout_ns = 250'000'000;  ///< a StylusTarget older than this is ignored
+  // An arm from hw_configs (optional; RtServo's `arm` argument): its kinematics, the device-frame
+  // point that maps to the tissue's origin (the centre of its workspace box) and the per-joint
+  // torque limits from its safety section.
+  const arm::Kinematics* kinematics = nullptr;
+  Vec3 device_origin{};
+  std::array<double, device::kMaxJoints> max_joint_torque{};
 };
+
+/// Re-arming a faulted arm reconnects its bus: never on the servo thread. The servo asks, stops
+/// touching the device, and a supervisor thread (RtServo::supervise) re-arms it.
+enum class RearmPhase : int { kIdle = 0, kRequested = 1, kRunning = 2, kDone = 3 };
 
 /// Everything the tick reads and writes, allocated once.
 struct RtData {
@@ -58,13 +73,28 @@ struct RtData {
   bool fifo = false;                         ///< reported in RtStatus
   ToolSample sample{};
   RtStatus status{};
+  // The arm, when there is one.
+  device::JointState joints{};
+  device::JointCommand command{};
+  arm::Jacobian jacobian{};              ///< of the last good read
+  Vec3 tool{}, tool_velocity{};          ///< tissue frame (m, m/s)
+  device::IoStatus last_read = device::IoStatus::kOk, last_write = device::IoStatus::kOk;
+  std::uint64_t device_error_ticks = 0;  ///< ticks at zero force because the arm could not be read or written
+  std::atomic<int> rearm_phase{0};       ///< RearmPhase
   std::array<Command, 16> command_batch{};
 };
 
 class RtServo {
  public:
-  /// shared must outlive the servo. Not real-time safe (it is the configure step).
-  RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns);
+  /// shared must outlive the servo. Not real-time safe (it is the configure step). With `arm`
+  /// (configured and activated, model.kinematics set) the servo reads and writes it instead of the
+  /// built-in stylus; with `hand` (the sim backend's physics) the viz target or script steers the
+  /// simulated hand.
+  RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm = nullptr,
+          device::ArmPhysics* hand = nullptr);
+  /// Performs a re-arm the servo asked for (call from a non-real-time thread, repeatedly).
+  /// Returns true when it re-armed the device this call.
+  bool supervise();
 
   /// One servo tick (called by RtLoop). A tripped watchdog holds the force at zero until a
   /// kRearm command re-arms it. Real-time safe.
@@ -81,6 +111,8 @@ class RtServo {
 
   const RtModel model_;
   SharedState& shared_;
+  device::Device* arm_ = nullptr;
+  device::ArmPhysics* hand_ = nullptr;
   std::unique_ptr<RtData> data_;  // large (two patches): on the heap, allocated once here
 };
 

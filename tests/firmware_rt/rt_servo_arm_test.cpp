@@ -1,0 +1,154 @@
+// The servo driving an arm from hw_configs through the Device interface: encoders → kinematics →
+// haptics → Jᵀ F within the joint limits → the device; device errors render zero force, a fault
+// holds it until a re-arm command, which a supervisor performs off the servo thread.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+
+#include "app/rt_servo.hpp"
+#include "arm/arm_config.hpp"
+#include "device/sim_arm.hpp"
+#include "malloc_guard.hpp"
+
+namespace lancet::app {
+namespace {
+
+struct ArmRig {
+  arm::ArmConfig config;
+  std::optional<arm::Kinematics> kin;
+  std::unique_ptr<device::SimArm> arm;
+  RtModel model;
+  std::unique_ptr<SharedState> shared = std::make_unique<SharedState>();
+  std::unique_ptr<RtServo> servo;
+  std::unique_ptr<TissuePatch> patch = std::make_unique<TissuePatch>();
+  std::int64_t t = 1'000'000'000;
+  rt::Watchdog watchdog;
+  rt::LoopLive live;
+  std::uint64_t n = 0;
+
+  ArmRig() {
+    auto c = arm::load_arm_config(std::string(LANCET_SOURCE_DIR) + "/hw_configs/sim_3dof.toml");
+    EXPECT_TRUE(c.ok()) << (c.ok() ? "" : c.error().message);
+    config = std::move(c).value();
+    kin = arm::make_kinematics(config).value();
+    arm = std::move(device::SimArm::create(config).value());
+    arm->set_fixed_dt(1e-3);
+    EXPECT_TRUE(arm->configure().ok());
+    EXPECT_TRUE(arm->activate().ok());
+    model.kinematics = &*kin;
+    model.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
+    for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.max_joint_torque[j] = config.safety.max_joint_torque[j];
+    servo = std::make_unique<RtServo>(model, *shared, t, arm.get(), &arm->physics());
+    // A flat tissue at the workspace centre's height (z = 0 in the tissue frame).
+    const float s = 0.1f;
+    patch->n_triangles = 2;
+    patch->triangles[0] = {{{-s, -s, 0}, {s, -s, 0}, {s, s, 0}}, 1, 0};
+    patch->triangles[1] = {{{-s, -s, 0}, {s, s, 0}, {-s, s, 0}}, 1, 0};
+  }
+  void tick() {
+    t += model.period_ns;
+    shared->viz_heartbeat.beat(t, 1);
+    if (n % 16 == 0) {
+      patch->t_ns = t;
+      shared->patch.write(*patch);
+    }
+    servo->tick(rt::TickContext{t, t, ++n, watchdog, live});
+    ToolSample s;
+    while (shared->samples.try_pop(s)) last = s;
+  }
+  ToolSample last{};
+};
+
+TEST(RtServoArm, TheArmPressesIntoThePatchAndRendersJacobianTransposeTorques) {
+  ArmRig rig;
+  for (int i = 0; i < 3000; ++i) rig.tick();
+  const RtData& d = rig.servo->data();
+  EXPECT_GT(d.contact_ticks, 300u) << "the scripted hand pushes the stylus into the tissue";
+  EXPECT_GT(d.force.z, 0.3);
+  EXPECT_EQ(d.last_read, device::IoStatus::kOk);
+  // τ = Jᵀ F, within each joint's limit.
+  const auto tau = arm::joint_torques(d.jacobian, d.force);
+  for (int j = 0; j < 3; ++j) {
+    const double lim = rig.model.max_joint_torque[static_cast<std::size_t>(j)];
+    EXPECT_NEAR(d.command.tau[static_cast<std::size_t>(j)], std::clamp(tau[static_cast<std::size_t>(j)], -lim, lim), 1e-12);
+  }
+  // The sample carries the joints; the tool is the forward kinematics of the encoders.
+  EXPECT_EQ(rig.last.n_joints, 3u);
+  const Vec3 fk = rig.kin->position(std::span<const double>(d.joints.q.data(), 3)) - rig.model.device_origin;
+  EXPECT_NEAR(norm(rig.last.tool.position - fk), 0, 1e-12);
+  // The motors' rendered force pushes back out of the tissue, as commanded.
+  EXPECT_GT(rig.arm->physics().rendered_force().z, 0.0);
+  EXPECT_LE(norm(d.force), rig.model.haptic.safety.max_force + 1e-9);
+}
+
+TEST(RtServoArm, TickWithTheArmAllocatesNothing) {
+  ArmRig rig;
+  for (int i = 0; i < 100; ++i) rig.tick();
+  lancet::test::MallocGuard guard;
+  for (int i = 0; i < 5000; ++i) rig.tick();
+  EXPECT_EQ(guard.count(), 0u);
+}
+
+TEST(RtServoArm, DeviceErrorsZeroTheForceAndAFaultWaitsForARearm) {
+  ArmRig rig;
+  for (int i = 0; i < 3000; ++i) rig.tick();
+  ASSERT_GT(norm(rig.servo->data().force), 0.3);
+  // Two lost replies: zero force on those ticks, no fault (the policy trips at three in a row).
+  rig.arm->inject(device::IoStatus::kTimeout, 2);
+  rig.tick();
+  EXPECT_EQ(rig.servo->data().force, Vec3{});
+  EXPECT_NE(rig.last.events & event::kFault, 0u);
+  rig.tick();
+  rig.tick();
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
+  EXPECT_GT(norm(rig.servo->data().force), 0.3) << "back to normal after the glitch";
+  // Five in a row: the device faults and the force stays zero even after the bus recovers.
+  rig.arm->inject(device::IoStatus::kTimeout, 5);
+  for (int i = 0; i < 200; ++i) {
+    rig.tick();
+    ASSERT_EQ(rig.servo->data().force, Vec3{}) << "tick " << i;
+    ASSERT_EQ(rig.servo->data().command.tau[0], 0.0);
+  }
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kFault);
+  EXPECT_EQ(rig.arm->fault_cause(), device::IoStatus::kTimeout);
+  EXPECT_FALSE(rig.servo->supervise()) << "nobody asked for a re-arm";
+  // The trainee presses W: the servo asks, the supervisor re-arms, forces come back.
+  Command c{};
+  c.kind = CommandKind::kRearm;
+  ASSERT_TRUE(rig.shared->commands.try_push(c));
+  rig.tick();
+  EXPECT_TRUE(rig.servo->supervise());
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
+  for (int i = 0; i < 300; ++i) rig.tick();
+  EXPECT_GT(norm(rig.servo->data().force), 0.3);
+  EXPECT_EQ(rig.arm->counters().faults, 1u);
+}
+
+TEST(RtServoArm, ForcesAndTorquesStayFiniteAndBoundedForWildTargets) {
+  ArmRig rig;
+  std::uint64_t seq = 0;
+  for (int i = 0; i < 4000; ++i) {
+    if (i % 50 == 0) {
+      StylusTarget tg{};
+      tg.seq = ++seq;
+      tg.t_ns = rig.t;
+      tg.active = 1;
+      const double a = i * 0.37;
+      tg.target.position = {0.08 * std::sin(a), 0.08 * std::cos(1.3 * a), -0.05 + 0.1 * std::sin(0.7 * a)};
+      rig.shared->stylus_target.write(tg);
+    }
+    rig.tick();
+    const RtData& d = rig.servo->data();
+    ASSERT_TRUE(is_finite(d.force));
+    ASSERT_LE(norm(d.force), rig.model.haptic.safety.max_force + 1e-9);
+    for (int j = 0; j < 3; ++j) {
+      ASSERT_TRUE(std::isfinite(d.command.tau[static_cast<std::size_t>(j)]));
+      ASSERT_LE(std::abs(d.command.tau[static_cast<std::size_t>(j)]), rig.model.max_joint_torque[static_cast<std::size_t>(j)] + 1e-12);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace lancet::app
