@@ -95,6 +95,12 @@ int main(int argc, char** argv) {
       return 2;
     }
     arm_config = std::move(cfg).value();
+    auto cal = lancet::arm::apply_calibration_file(*arm_config, lancet::arm::calibration_path(config_path));
+    if (!cal.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", cal.error().message.c_str());
+      return 2;
+    }
+    if (cal.value()) std::fprintf(stderr, "lancet-rt: calibration %s applied\n", lancet::arm::calibration_path(config_path).c_str());
     auto kin = lancet::arm::make_kinematics(*arm_config);
     if (!kin.ok()) {
       std::fprintf(stderr, "lancet-rt: %s\n", kin.error().message.c_str());

@@ -1288,6 +1288,74 @@ std::string format_report(const ConfigReport& report) {
   return out;
 }
 
+std::string calibration_path(const std::string& config_path) {
+  const std::string ext = ".toml";
+  const bool has_ext = config_path.size() >= ext.size() && config_path.compare(config_path.size() - ext.size(), ext.size(), ext) == 0;
+  return (has_ext ? config_path.substr(0, config_path.size() - ext.size()) : config_path) + ".calibration.toml";
+}
+
+std::string calibration_text(const ArmConfig& config, std::span<const double> offsets, const std::string& note) {
+  std::string out = "# Encoder offsets for arm '" + config.name + "' (" + config.source + "), written by lancetctl calibrate.\n";
+  out += "# " + note + "\n";
+  out += "# Loaded after the config by lancet-rt and lancetctl; delete this file to use the config's offsets.\n";
+  out += "arm = " + quoted(config.name) + "\n";
+  for (std::size_t j = 0; j < config.joints.size(); ++j) {
+    const JointConfig& jc = config.joints[j];
+    const double v = j < offsets.size() ? offsets[j] : jc.offset;
+    char buf[64];
+    if (jc.type == JointType::kRevolute) std::snprintf(buf, sizeof buf, "%.9g", v * 180.0 / std::numbers::pi);
+    else std::snprintf(buf, sizeof buf, "%.9g", v * 1e3);
+    out += "\n[[joints]]\nname = " + quoted(jc.name) + "\n" + (jc.type == JointType::kRevolute ? "offset_deg = " : "offset_mm = ") + buf + "\n";
+  }
+  return out;
+}
+
+Result<bool> apply_calibration_file(ArmConfig& config, const std::string& path) {
+  std::string text;
+  ErrorCode code{};
+  if (auto why = read_file(path, text, code)) {
+    if (code == ErrorCode::kNotFound) return false;
+    return Error{code, path + ": " + *why};
+  }
+  const auto where = [&](const toml::node& n) {
+    return path + ":" + std::to_string(n.source().begin.line) + ":" + std::to_string(n.source().begin.column) + ": ";
+  };
+  toml::table root;
+  try {
+    root = toml::parse(text, std::string_view(path));
+  } catch (const toml::parse_error& e) {
+    return Error{ErrorCode::kInvalid, path + ":" + std::to_string(e.source().begin.line) + ":" + std::to_string(e.source().begin.column) +
+                                          ": TOML syntax error: " + std::string(e.description())};
+  }
+  for (const auto& [key, node] : root)
+    if (key.str() != "arm" && key.str() != "joints") return Error{ErrorCode::kInvalid, where(node) + std::string(key.str()) + ": unknown key (expected arm, joints)"};
+  const auto* arm_name = root.get_as<std::string>("arm");
+  if (arm_name == nullptr) return Error{ErrorCode::kInvalid, path + ": arm: missing (the name of the arm this calibration is for)"};
+  if (arm_name->get() != config.name)
+    return Error{ErrorCode::kInvalid, where(*arm_name) + "arm: this calibration is for '" + arm_name->get() + "', the config is '" + config.name + "'"};
+  const auto* joints = root.get_as<toml::array>("joints");
+  if (joints == nullptr || !joints->is_array_of_tables() || joints->size() != config.joints.size())
+    return Error{ErrorCode::kInvalid, path + ": joints: expected " + std::to_string(config.joints.size()) + " [[joints]] tables, one per joint of the config"};
+  std::vector<double> offsets(config.joints.size());
+  for (std::size_t j = 0; j < config.joints.size(); ++j) {
+    const toml::table& t = *joints->get(j)->as_table();
+    const JointConfig& jc = config.joints[j];
+    const std::string field = "joints[" + std::to_string(j) + "]";
+    const std::string key = jc.type == JointType::kRevolute ? "offset_deg" : "offset_mm";
+    for (const auto& [k, n] : t)
+      if (k.str() != "name" && k.str() != key) return Error{ErrorCode::kInvalid, where(n) + field + "." + std::string(k.str()) + ": unknown key (expected name, " + key + ")"};
+    const auto* name = t.get_as<std::string>("name");
+    if (name == nullptr || name->get() != jc.name)
+      return Error{ErrorCode::kInvalid, where(t) + field + ".name: expected '" + jc.name + "'" + (name ? ", found '" + name->get() + "'" : std::string(", missing"))};
+    const toml::node* v = t.get(key);
+    const std::optional<double> num = v != nullptr ? v->value<double>() : std::nullopt;
+    if (!num || !std::isfinite(*num)) return Error{ErrorCode::kInvalid, where(t) + field + "." + key + ": expected a finite number"};
+    offsets[j] = jc.type == JointType::kRevolute ? *num * std::numbers::pi / 180.0 : *num * 1e-3;
+  }
+  for (std::size_t j = 0; j < offsets.size(); ++j) config.joints[j].offset = offsets[j];
+  return true;
+}
+
 double joint_position_from_counts(const JointConfig& j, std::int64_t counts) noexcept {
   const double per_output_rev = static_cast<double>(j.counts_per_rev) * j.gear_ratio;
   const double travel = j.type == JointType::kRevolute ? 2.0 * std::numbers::pi : j.lead;

@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -263,6 +264,17 @@ std::string format_report(const ConfigReport& report);
 
 // ---------------------------------------------------------------------------------------------
 // Conversions between motor and joint space (the formulas in JointConfig). Real-time safe.
+
+// ---- calibration: encoder offsets measured by `lancetctl calibrate`, kept next to the config ----
+/// foo.toml → foo.calibration.toml (next to, never inside, the config).
+[[nodiscard]] std::string calibration_path(const std::string& config_path);
+/// The calibration file's text: each joint's offset (offset_deg or offset_mm, like the config) and
+/// a comment saying when and from what it was measured.
+[[nodiscard]] std::string calibration_text(const ArmConfig& config, std::span<const double> offsets, const std::string& note);
+/// Replaces the joints' offsets with those in the calibration file at path. Returns false when
+/// there is no such file (the config's own offsets stay); an error names file:line and field
+/// (wrong arm name, joint count or names, unknown keys, non-numbers).
+[[nodiscard]] Result<bool> apply_calibration_file(ArmConfig& config, const std::string& path);
 
 /// Joint position (rad, or m for prismatic) for a raw encoder count.
 [[nodiscard]] double joint_position_from_counts(const JointConfig& joint, std::int64_t counts) noexcept;

@@ -106,7 +106,7 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
 }
 
 IoStatus Device::read(JointState& out) noexcept {
-  if (state_ != Lifecycle::kActive && state_ != Lifecycle::kFault) return IoStatus::kNotActive;
+  if (state_ == Lifecycle::kUnconfigured) return IoStatus::kNotActive;
   ++counters_.reads;
   const std::int64_t t0 = now_ns();
   const IoStatus s = on_read(out);

@@ -3,7 +3,8 @@
 //
 //   configure()  unconfigured → inactive   open the bus, check the arm answers (not real-time)
 //   activate()   inactive → active          enable the drives (not real-time)
-//   read()       active: encoders, buttons and status into JointState    (real-time, bounded)
+//   read()       inactive|active|fault: encoders, buttons, status        (real-time, bounded)
+//                (reading never moves the arm, so probing and monitoring need no activation)
 //   write()      active: joint torques out                               (real-time, bounded)
 //   deactivate() active|fault → inactive    zero torque, disable the drives (not real-time)
 //   rearm()      fault → active             clear the fault on the bus and the drives (explicit)

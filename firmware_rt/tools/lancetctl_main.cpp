@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "tools/bringup.hpp"
 #include "tools/validate_cmd.hpp"
 #include <cstdio>
 #include <fstream>
@@ -81,8 +82,40 @@ int main(int argc, char** argv) {
                   "exit 0 when valid, 1 when not, 2 when unreadable");
   validate->add_option("config", config_path, "the arm's TOML file")->required();
 
+  // Bring-up: list, probe, monitor, calibrate (home), jog.
+  cli.add_subcommand("list", "USB devices, CAN interfaces and serial ports on this machine");
+  CLI::App* probe = cli.add_subcommand("probe", "configure the arm from its config and read it once (exit 1 if it does not answer)");
+  probe->add_option("config", config_path, "the arm's TOML file")->required();
+  double mon_duration = 0, mon_rate = 10;
+  CLI::App* monitor = cli.add_subcommand("monitor", "read the arm continuously: joints, tool pose, buttons, bus statistics (never moves it)");
+  monitor->add_option("config", config_path, "the arm's TOML file")->required();
+  monitor->add_option("--duration", mon_duration, "seconds; 0 runs until interrupted")->check(CLI::NonNegativeNumber)->capture_default_str();
+  monitor->add_option("--rate", mon_rate, "lines per second")->check(CLI::Range(0.1, 1000.0))->capture_default_str();
+  std::vector<double> home;
+  bool write_cal = false;
+  CLI::App* calibrate = cli.add_subcommand(
+      "calibrate", "with the arm held in its home pose: encoder offsets that make the joints read that pose, saved next to the config");
+  calibrate->alias("home");
+  calibrate->add_option("config", config_path, "the arm's TOML file")->required();
+  calibrate->add_option("--home", home, "joint values of the home pose (deg; mm for prismatic joints); default all zero")->delimiter(',');
+  calibrate->add_flag("--write", write_cal, "write <config>.calibration.toml (default: a dry run that prints the offsets)");
+  int jog_joint = 0;
+  double jog_torque = 0, jog_seconds = 0.5;
+  bool jog_yes = false;
+  CLI::App* jog = cli.add_subcommand("jog", "a small torque on one joint for a moment (at most 10% of its limit, 2 s), after confirmation");
+  jog->add_option("config", config_path, "the arm's TOML file")->required();
+  jog->add_option("--joint", jog_joint, "joint index")->required();
+  jog->add_option("--torque", jog_torque, "N·m (N for prismatic joints)")->required();
+  jog->add_option("--seconds", jog_seconds, "how long")->capture_default_str();
+  jog->add_flag("--yes", jog_yes, "confirm: the workspace is clear and the stylus is held");
+
   CLI11_PARSE(cli, argc, argv);
   jo.servo_workload = workload == "servo";
+  if (cli.got_subcommand("list")) return lancet::tools::run_list(stdout);
+  if (probe->parsed()) return lancet::tools::run_probe(config_path, stdout);
+  if (monitor->parsed()) return lancet::tools::run_monitor(config_path, mon_duration, mon_rate, stdout);
+  if (calibrate->parsed()) return lancet::tools::run_calibrate(config_path, home, write_cal, stdout);
+  if (jog->parsed()) return lancet::tools::run_jog(config_path, jog_joint, jog_torque, jog_seconds, jog_yes, stdout);
   if (jitter->parsed()) return run_jitter_command(jo);
   if (validate->parsed()) return lancet::tools::run_validate(config_path, stdout);
   return 2;

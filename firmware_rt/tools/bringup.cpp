@@ -1,0 +1,302 @@
+#include "tools/bringup.hpp"
+
+#include <libusb.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <thread>
+#include <vector>
+
+#include "app/device_factory.hpp"
+#include "arm/arm_config.hpp"
+#include "arm/kinematics.hpp"
+
+namespace lancet::tools {
+
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+struct OpenArm {
+  arm::ArmConfig config;
+  std::optional<arm::Kinematics> kin;
+  app::MadeDevice dev;
+  bool calibrated = false;
+};
+
+// Loads the config (and its calibration file), builds kinematics and the device, configures it.
+// Prints what went wrong and returns nothing on failure; `code` then holds the exit code.
+std::optional<OpenArm> open_arm(const std::string& path, std::FILE* out, int& code) {
+  auto cfg = arm::load_arm_config(path);
+  if (!cfg.ok()) {
+    std::fprintf(out, "%s", cfg.error().message.c_str());
+    if (!cfg.error().message.empty() && cfg.error().message.back() != '\n') std::fputc('\n', out);
+    code = 2;
+    return std::nullopt;
+  }
+  OpenArm a;
+  a.config = std::move(cfg).value();
+  auto cal = arm::apply_calibration_file(a.config, arm::calibration_path(path));
+  if (!cal.ok()) {
+    std::fprintf(out, "%s\n", cal.error().message.c_str());
+    code = 2;
+    return std::nullopt;
+  }
+  a.calibrated = cal.value();
+  auto kin = arm::make_kinematics(a.config);
+  if (!kin.ok()) {
+    std::fprintf(out, "%s\n", kin.error().message.c_str());
+    code = 2;
+    return std::nullopt;
+  }
+  a.kin = kin.value();
+  auto dev = app::make_device(a.config);
+  if (!dev.ok()) {
+    std::fprintf(out, "%s\n", dev.error().message.c_str());
+    code = 2;
+    return std::nullopt;
+  }
+  a.dev = std::move(dev).value();
+  const device::Outcome o = a.dev.device->configure();
+  if (!o.ok()) {
+    std::fprintf(out, "%s: %s\n", a.dev.device->name().c_str(), o.error->message.c_str());
+    code = 1;
+    return std::nullopt;
+  }
+  return a;
+}
+
+bool is_revolute(const arm::ArmConfig& c, int j) { return c.joints[static_cast<std::size_t>(j)].type == arm::JointType::kRevolute; }
+double shown(const arm::ArmConfig& c, int j, double q) { return is_revolute(c, j) ? q * 180.0 / std::numbers::pi : q * 1e3; }
+const char* unit(const arm::ArmConfig& c, int j) { return is_revolute(c, j) ? "deg" : "mm"; }
+
+void print_state(const OpenArm& a, const device::JointState& s, std::FILE* out) {
+  for (int j = 0; j < s.n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    std::fprintf(out, "  joint %d %-10s counts %12lld  q %10.4f %s  qd %9.4f %s/s\n", j, a.config.joints[uj].name.c_str(),
+                 static_cast<long long>(s.counts[uj]), shown(a.config, j, s.q[uj]), unit(a.config, j), shown(a.config, j, s.qd[uj]),
+                 unit(a.config, j));
+  }
+  const Vec3 p = a.kin->position(std::span<const double>(s.q.data(), static_cast<std::size_t>(s.n)));
+  std::fprintf(out, "  tool %.2f %.2f %.2f mm (device frame)  buttons 0x%x  status 0x%x\n", p.x * 1e3, p.y * 1e3, p.z * 1e3, s.buttons,
+               s.status);
+}
+
+}  // namespace
+
+int run_list(std::FILE* out) {
+  // USB: everything libusb sees, with the strings when the device lets us read them.
+  std::fprintf(out, "USB devices:\n");
+  libusb_context* ctx = nullptr;
+  if (libusb_init(&ctx) != 0) {
+    std::fprintf(out, "  (libusb could not start: no USB support here)\n");
+  } else {
+    libusb_device** list = nullptr;
+    const ssize_t n = libusb_get_device_list(ctx, &list);
+    if (n <= 0) std::fprintf(out, "  none (no USB bus on this machine, or no permission to read /dev/bus/usb)\n");
+    for (ssize_t i = 0; i < n; ++i) {
+      libusb_device_descriptor d{};
+      if (libusb_get_device_descriptor(list[i], &d) != 0) continue;
+      std::fprintf(out, "  %04x:%04x  bus %03u address %03u  class 0x%02x\n", d.idVendor, d.idProduct, libusb_get_bus_number(list[i]),
+                   libusb_get_device_address(list[i]), d.bDeviceClass);
+    }
+    if (list != nullptr) libusb_free_device_list(list, 1);
+    libusb_exit(ctx);
+  }
+  // CAN: network interfaces of type ARPHRD_CAN (280).
+  std::fprintf(out, "CAN interfaces:\n");
+  int can = 0;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/sys/class/net", ec)) {
+    std::ifstream type(e.path() / "type");
+    int t = 0;
+    if (type >> t && t == 280) {
+      std::ifstream state(e.path() / "operstate");
+      std::string st;
+      state >> st;
+      std::fprintf(out, "  %s  (%s)\n", e.path().filename().c_str(), st.c_str());
+      ++can;
+    }
+  }
+  if (can == 0) std::fprintf(out, "  none (no CAN hardware, or the kernel has no CAN support)\n");
+  // Serial ports a Modbus RTU arm could be on.
+  std::fprintf(out, "Serial ports (Modbus RTU):\n");
+  int serial = 0;
+  for (const auto& e : fs::directory_iterator("/dev", ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("ttyUSB", 0) == 0 || name.rfind("ttyACM", 0) == 0 || name.rfind("ttyAMA", 0) == 0) {
+      std::fprintf(out, "  %s\n", e.path().c_str());
+      ++serial;
+    }
+  }
+  if (serial == 0) std::fprintf(out, "  none (no USB serial adapters plugged in)\n");
+  return 0;
+}
+
+int run_probe(const std::string& path, std::FILE* out) {
+  int code = 0;
+  auto a = open_arm(path, out, code);
+  if (!a) return code;
+  device::Device& dev = *a->dev.device;
+  std::fprintf(out, "arm '%s' (%s): %s, %d joints, %s kinematics%s\n", a->config.name.c_str(), path.c_str(), dev.name().c_str(),
+               dev.joint_count(), a->config.kinematics.model == arm::KinematicModel::kPhantom ? "PHANToM" : "DH",
+               a->calibrated ? ", calibrated" : ", not calibrated (run lancetctl calibrate)");
+  device::JointState s{};
+  const device::IoStatus st = dev.read(s);
+  if (st != device::IoStatus::kOk) {
+    std::fprintf(out, "read failed: %s\n", device::to_string(st));
+    return 1;
+  }
+  print_state(*a, s, out);
+  std::fprintf(out, "read took %.0f us\n", static_cast<double>(dev.counters().last_io_ns) / 1e3);
+  return 0;
+}
+
+int run_monitor(const std::string& path, double duration_s, double rate_hz, std::FILE* out) {
+  if (!(rate_hz > 0) || !(duration_s >= 0)) {
+    std::fprintf(out, "monitor: --rate must be > 0 and --duration >= 0\n");
+    return 2;
+  }
+  int code = 0;
+  auto a = open_arm(path, out, code);
+  if (!a) return code;
+  device::Device& dev = *a->dev.device;
+  const auto start = Clock::now();
+  const auto period = std::chrono::duration<double>(1.0 / rate_hz);
+  auto next = start;
+  device::JointState s{};
+  int failures = 0;
+  while (duration_s == 0 || std::chrono::duration<double>(Clock::now() - start).count() < duration_s) {
+    const device::IoStatus st = dev.read(s);
+    const double t = std::chrono::duration<double>(Clock::now() - start).count();
+    if (st != device::IoStatus::kOk) {
+      ++failures;
+      std::fprintf(out, "%8.3f s  read: %s\n", t, device::to_string(st));
+    } else {
+      const Vec3 p = a->kin->position(std::span<const double>(s.q.data(), static_cast<std::size_t>(s.n)));
+      std::fprintf(out, "%8.3f s  q", t);
+      for (int j = 0; j < s.n; ++j) std::fprintf(out, " %9.3f", shown(a->config, j, s.q[static_cast<std::size_t>(j)]));
+      const auto& c = dev.counters();
+      std::fprintf(out, "  tool %7.2f %7.2f %7.2f mm  buttons 0x%x  bus ok %llu timeouts %llu errors %llu  io %.0f us\n", p.x * 1e3,
+                   p.y * 1e3, p.z * 1e3, s.buttons, static_cast<unsigned long long>(c.ok), static_cast<unsigned long long>(c.timeouts),
+                   static_cast<unsigned long long>(c.crc_errors + c.protocol_errors + c.disconnects),
+                   static_cast<double>(c.last_io_ns) / 1e3);
+    }
+    std::fflush(out);
+    next += std::chrono::duration_cast<Clock::duration>(period);
+    std::this_thread::sleep_until(next);
+  }
+  return failures == 0 ? 0 : 1;
+}
+
+int run_calibrate(const std::string& path, std::span<const double> home, bool write, std::FILE* out) {
+  int code = 0;
+  auto a = open_arm(path, out, code);
+  if (!a) return code;
+  const int n = a->dev.device->joint_count();
+  if (!home.empty() && static_cast<int>(home.size()) != n) {
+    std::fprintf(out, "calibrate: --home gives %zu values, the arm has %d joints\n", home.size(), n);
+    return 2;
+  }
+  // Average a short burst of readings: encoder noise should not end up in the offsets.
+  constexpr int kSamples = 50;
+  std::vector<double> mean(static_cast<std::size_t>(n), 0.0);
+  device::JointState s{};
+  for (int i = 0; i < kSamples; ++i) {
+    if (a->dev.device->read(s) != device::IoStatus::kOk) {
+      std::fprintf(out, "calibrate: read failed: %s\n", device::to_string(a->dev.device->read(s)));
+      return 1;
+    }
+    for (int j = 0; j < n; ++j) mean[static_cast<std::size_t>(j)] += s.q[static_cast<std::size_t>(j)] / kSamples;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  // New offset: the old one moved so that the pose read now becomes the home pose.
+  std::vector<double> offsets(static_cast<std::size_t>(n));
+  for (int j = 0; j < n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    const double want = home.empty() ? 0.0 : (is_revolute(a->config, j) ? home[uj] * std::numbers::pi / 180.0 : home[uj] * 1e-3);
+    offsets[uj] = a->config.joints[uj].offset + (want - mean[uj]);
+    std::fprintf(out, "  joint %d %-10s reads %10.4f %s, home %10.4f %s: offset %+.4f %s\n", j, a->config.joints[uj].name.c_str(),
+                 shown(a->config, j, mean[uj]), unit(a->config, j), shown(a->config, j, want), unit(a->config, j),
+                 shown(a->config, j, offsets[uj]), unit(a->config, j));
+  }
+  const std::string cal = arm::calibration_path(path);
+  if (!write) {
+    std::fprintf(out, "dry run: add --write to save %s\n", cal.c_str());
+    return 0;
+  }
+  const std::time_t now = std::time(nullptr);
+  char stamp[64];
+  std::strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&now));
+  std::ofstream f(cal);
+  f << arm::calibration_text(a->config, offsets, std::string("measured ") + stamp + " from " + std::to_string(kSamples) + " readings");
+  f.close();
+  if (!f) {
+    std::fprintf(out, "calibrate: cannot write %s\n", cal.c_str());
+    return 2;
+  }
+  std::fprintf(out, "wrote %s\n", cal.c_str());
+  return 0;
+}
+
+int run_jog(const std::string& path, int joint, double torque, double seconds, bool confirmed, std::FILE* out) {
+  int code = 0;
+  auto a = open_arm(path, out, code);
+  if (!a) return code;
+  device::Device& dev = *a->dev.device;
+  const int n = dev.joint_count();
+  if (joint < 0 || joint >= n) {
+    std::fprintf(out, "jog: --joint must be 0..%d\n", n - 1);
+    return 2;
+  }
+  const auto uj = static_cast<std::size_t>(joint);
+  const double limit = uj < a->config.safety.max_joint_torque.size() ? 0.1 * a->config.safety.max_joint_torque[uj] : 0.0;
+  if (!std::isfinite(torque) || std::abs(torque) > limit) {
+    std::fprintf(out, "jog: |torque| must be at most %.4g (10%% of joint %d's max_joint_torque), found %g\n", limit, joint, torque);
+    return 2;
+  }
+  if (!(seconds > 0 && seconds <= 2)) {
+    std::fprintf(out, "jog: --seconds must be in (0, 2], found %g\n", seconds);
+    return 2;
+  }
+  if (!confirmed) {
+    std::fprintf(out, "jog moves joint %d (%s) with %g for %g s: clear the workspace, hold the stylus, and add --yes\n", joint,
+                 a->config.joints[uj].name.c_str(), torque, seconds);
+    return 2;
+  }
+  const device::Outcome on = dev.activate();
+  if (!on.ok()) {
+    std::fprintf(out, "jog: %s\n", on.error->message.c_str());
+    return 1;
+  }
+  device::JointState s{};
+  device::JointCommand cmd{};
+  cmd.n = n;
+  (void)dev.read(s);
+  const double q0 = s.q[uj];
+  const auto start = Clock::now();
+  auto next = start;
+  int failures = 0;
+  while (std::chrono::duration<double>(Clock::now() - start).count() < seconds) {
+    if (dev.read(s) != device::IoStatus::kOk) ++failures;
+    cmd.tau.fill(0.0);
+    cmd.tau[uj] = torque;
+    if (dev.write(cmd) != device::IoStatus::kOk) ++failures;
+    next += std::chrono::milliseconds(1);
+    std::this_thread::sleep_until(next);
+  }
+  (void)dev.deactivate();
+  (void)dev.read(s);
+  std::fprintf(out, "joint %d %s moved %+.4f %s (from %.4f to %.4f) under %g for %g s; %d I/O failures; torque off\n", joint,
+               a->config.joints[uj].name.c_str(), shown(a->config, joint, s.q[uj] - q0), unit(a->config, joint),
+               shown(a->config, joint, q0), shown(a->config, joint, s.q[uj]), torque, seconds, failures);
+  return failures == 0 ? 0 : 1;
+}
+
+}  // namespace lancet::tools

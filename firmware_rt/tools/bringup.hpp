@@ -1,0 +1,26 @@
+#pragma once
+// lancetctl's bring-up commands for hardware integrators (not real-time; they talk to the arm at
+// a leisurely rate from an ordinary thread):
+//   list       USB devices, CAN interfaces and serial ports this machine has
+//   probe      configure the arm from its config and read it once: encoders, joints, tool, status
+//   monitor    read it continuously: joints, tool pose, buttons, bus statistics (never moves it)
+//   calibrate  the arm held in its home pose: encoder offsets that make the joints read that pose,
+//              written to the calibration file next to the config (never into the config)
+//   jog        a small bounded torque on one joint for a short time, after explicit confirmation
+// Exit codes: 0 done, 1 the arm did not answer or a check failed, 2 bad arguments or config.
+
+#include <cstdio>
+#include <optional>
+#include <span>
+#include <string>
+
+namespace lancet::tools {
+
+int run_list(std::FILE* out);
+int run_probe(const std::string& config_path, std::FILE* out);
+int run_monitor(const std::string& config_path, double duration_s, double rate_hz, std::FILE* out);
+/// home_deg: the joint angles of the home pose (deg, or mm for prismatic joints); empty: all zero.
+int run_calibrate(const std::string& config_path, std::span<const double> home, bool write, std::FILE* out);
+int run_jog(const std::string& config_path, int joint, double torque, double seconds, bool confirmed, std::FILE* out);
+
+}  // namespace lancet::tools

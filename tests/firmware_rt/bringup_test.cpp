@@ -1,0 +1,123 @@
+// lancetctl's bring-up commands on the simulated arm, and the calibration file they write.
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "arm/arm_config.hpp"
+#include "temp_files.hpp"
+#include "tools/bringup.hpp"
+
+namespace lancet::tools {
+namespace {
+
+class Bringup : public test::TempDirTest {
+ protected:
+  void SetUp() override {
+    TempDirTest::SetUp();
+    config_ = (dir_ / "arm.toml").string();
+    std::filesystem::copy_file(std::string(LANCET_SOURCE_DIR) + "/hw_configs/sim_3dof.toml", config_);
+  }
+  // Runs fn with a temporary FILE* and returns (exit code, output).
+  template <class F>
+  std::pair<int, std::string> capture(F&& fn) {
+    std::FILE* f = std::tmpfile();
+    const int code = fn(f);
+    std::rewind(f);
+    std::string out;
+    char buf[4096];
+    for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) out.append(buf, n);
+    std::fclose(f);
+    return {code, out};
+  }
+  std::string config_;
+};
+
+TEST_F(Bringup, ListAlwaysAnswers) {
+  const auto [code, out] = capture([](std::FILE* f) { return run_list(f); });
+  EXPECT_EQ(code, 0);
+  EXPECT_NE(out.find("USB devices:"), std::string::npos);
+  EXPECT_NE(out.find("CAN interfaces:"), std::string::npos);
+  EXPECT_NE(out.find("Serial ports"), std::string::npos);
+}
+
+TEST_F(Bringup, ProbeReadsTheArmOnce) {
+  const auto [code, out] = capture([&](std::FILE* f) { return run_probe(config_, f); });
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("arm 'sim-3dof'"), std::string::npos) << out;
+  EXPECT_NE(out.find("joint 2 elbow"), std::string::npos) << out;
+  EXPECT_NE(out.find("not calibrated"), std::string::npos) << out;
+  const auto [bad, msg] = capture([&](std::FILE* f) { return run_probe((dir_ / "missing.toml").string(), f); });
+  EXPECT_EQ(bad, 2);
+  EXPECT_NE(msg.find("missing.toml"), std::string::npos) << msg;
+}
+
+TEST_F(Bringup, MonitorPrintsLinesAtItsRate) {
+  const auto [code, out] = capture([&](std::FILE* f) { return run_monitor(config_, 0.25, 20, f); });
+  EXPECT_EQ(code, 0) << out;
+  std::size_t lines = 0;
+  for (char c : out) lines += c == '\n';
+  EXPECT_GE(lines, 3u);
+  EXPECT_NE(out.find("bus ok"), std::string::npos);
+}
+
+TEST_F(Bringup, CalibrateWritesOffsetsBesideTheConfigThatMakeTheHomePoseRead) {
+  const double home[3] = {10, -20, 30};
+  const auto [dry, dry_out] = capture([&](std::FILE* f) { return run_calibrate(config_, home, false, f); });
+  EXPECT_EQ(dry, 0);
+  EXPECT_NE(dry_out.find("dry run"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(arm::calibration_path(config_)));
+  const auto [code, out] = capture([&](std::FILE* f) { return run_calibrate(config_, home, true, f); });
+  ASSERT_EQ(code, 0) << out;
+  ASSERT_TRUE(std::filesystem::exists(dir_ / "arm.calibration.toml"));
+  // The config itself is untouched; loading it and then the calibration gives the new offsets.
+  auto cfg = arm::load_arm_config(config_).value();
+  const double before = cfg.joints[1].offset;
+  ASSERT_TRUE(arm::apply_calibration_file(cfg, arm::calibration_path(config_)).value());
+  EXPECT_NEAR(cfg.joints[1].offset - before, -20.0 * 3.14159265358979 / 180.0, 1e-6);
+  const auto [pcode, pout] = capture([&](std::FILE* f) { return run_probe(config_, f); });
+  EXPECT_EQ(pcode, 0);
+  EXPECT_NE(pout.find(", calibrated"), std::string::npos) << pout;
+  const double wrong[2] = {1, 2};
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_calibrate(config_, wrong, true, f); }).first, 2);
+}
+
+TEST_F(Bringup, CalibrationFilesAreChecked) {
+  auto cfg = arm::load_arm_config(config_).value();
+  EXPECT_FALSE(arm::apply_calibration_file(cfg, (dir_ / "none.toml").string()).value()) << "no file: nothing applied";
+  const auto bad = [&](const std::string& text, const std::string& expect) {
+    const std::string p = write("cal.toml", text);
+    auto c = cfg;
+    auto r = arm::apply_calibration_file(c, p);
+    ASSERT_FALSE(r.ok()) << text;
+    EXPECT_NE(r.error().message.find(expect), std::string::npos) << r.error().message;
+  };
+  bad("arm = \"other\"\n", "this calibration is for 'other'");
+  bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"base_yaw\"\noffset_deg = 1\n", "expected 3 [[joints]]");
+  bad("arm = \"sim-3dof\"\nbogus = 1\n", ":2:9: bogus: unknown key");
+  bad("arm = \"sim-3dof\"\n[[joints]\n", ":2:");
+  bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"base_yaw\"\noffset_deg = \"x\"\n[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n"
+      "[[joints]]\nname = \"elbow\"\noffset_deg = 0\n",
+      "joints[0].offset_deg: expected a finite number");
+  bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"wrong\"\noffset_deg = 1\n[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n"
+      "[[joints]]\nname = \"elbow\"\noffset_deg = 0\n",
+      "joints[0].name: expected 'base_yaw', found 'wrong'");
+}
+
+TEST_F(Bringup, JogNeedsConfirmationAndStaysWithinItsBounds) {
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_jog(config_, 0, 0.01, 0.2, false, f); }).first, 2) << "no --yes";
+  const auto [big, big_out] = capture([&](std::FILE* f) { return run_jog(config_, 0, 100.0, 0.2, true, f); });
+  EXPECT_EQ(big, 2);
+  EXPECT_NE(big_out.find("10% of joint 0's max_joint_torque"), std::string::npos) << big_out;
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_jog(config_, 7, 0.01, 0.2, true, f); }).first, 2) << "no joint 7";
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_jog(config_, 0, 0.01, 5.0, true, f); }).first, 2) << "too long";
+  const auto [code, out] = capture([&](std::FILE* f) { return run_jog(config_, 0, 0.01, 0.2, true, f); });
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("torque off"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace lancet::tools
