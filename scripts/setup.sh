@@ -6,8 +6,8 @@ set -euo pipefail
 PACKAGES=(
   # toolchain and build
   g++ make cmake ninja-build ccache pkg-config git
-  # device backends
-  libusb-1.0-0-dev libmodbus-dev
+  # device backends (umockdev: the USB backend's tests without hardware)
+  libusb-1.0-0-dev libmodbus-dev umockdev libumockdev-dev
   # visualizer
   libglfw3-dev libglm-dev libepoxy-dev libgl-dev libgl1-mesa-dri libimgui-dev libstb-dev libopenmesh-dev
   # configuration, command lines, logging

@@ -2,6 +2,7 @@
 
 
 #include "device/sim_arm.hpp"
+#include "device/usb_arm.hpp"
 
 namespace lancet::app {
 
@@ -13,6 +14,13 @@ Result<MadeDevice> make_device(const arm::ArmConfig& config) {
       MadeDevice m;
       m.hand = &sim.value()->physics();
       m.device = std::move(sim).value();
+      return m;
+    }
+    case arm::Backend::kUsb: {
+      auto usb = device::UsbArm::create(config);
+      if (!usb.ok()) return usb.error();
+      MadeDevice m;
+      m.device = std::move(usb).value();
       return m;
     }
     default:

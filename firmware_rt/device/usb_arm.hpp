@@ -1,0 +1,140 @@
+#pragma once
+// The `usb` backend: a haptic arm that streams one interrupt report each way per tick over
+// libusb-1.0 (report layout: [bus.usb] in hw_configs/README.md).
+//
+//   configure()  fresh libusb context, find VID:PID, check both endpoints exist as interrupt
+//                endpoints of the configured direction, open, detach a kernel driver (usbhid) if
+//                one is bound, claim the interface, allocate both transfers (their buffers are
+//                allocated once, at create()), and wait up to 200 ms for one well-formed IN report.
+//   activate()   one OUT report: zero currents, enable bit set (when the layout has `control`).
+//   read()       one interrupt IN transfer of in_size bytes → counts, q, q̇, buttons, status
+//                (also while inactive: the interface stays claimed from configure() on).
+//   write()      τ → motor current (clamped to the actuator's peak current) → counts of
+//                `current_command.lsb` (clamped to the field's type), one interrupt OUT transfer.
+//   deactivate() zero currents, enable off (the interface stays claimed for read(); it is
+//                released, and a detached kernel driver re-attached, when the UsbArm is destroyed).
+//   rearm()      reopen the device if it went away (it may come back at a new bus address) or
+//                the bus failed, re-claim, enable; a device that is still there is only enabled.
+//
+// IoStatus from libusb: a transfer timeout → kTimeout; LIBUSB_ERROR_NO_DEVICE, LIBUSB_ERROR_IO, or
+// a stalled endpoint whose halt cannot be cleared → kDisconnected (trips kFault at once); a short
+// report, a wrong report id, an overflow or a stall that was cleared → kProtocolError; bit 0 of the
+// device's `status` field set → kDeviceFault (the report's values are still delivered, with the
+// status word). On any other error `out` is left untouched: no value from a bad report is used.
+//
+// Encoder counts are unwrapped across the field's range (a narrow incremental counter that wraps
+// keeps q continuous); the first report after configure(), activate() or rearm() is taken as is. q̇ is the finite
+// difference of q between successful reads (CLOCK_MONOTONIC at each reply), through a first-order
+// low-pass of velocity_cutoff_hz(); a gap of more than 50 ms restarts it at zero.
+//
+// Real-time notes: read() and write() allocate nothing in this class and throw nothing; each waits
+// at most timeout + 2 × max(timeout, 1 ms): libusb's own timeout, a margin for its cancellation to
+// come back, and one more after a second cancel (then the transfer is left to finish later and
+// the call reports kTimeout). A timeout normally returns just after the configured time, which
+// is rounded up to whole milliseconds (libusb's unit). libusb's
+// Linux backend (1.0.26) callocs one URB descriptor per submitted transfer and frees it on
+// completion: one malloc/free pair per read() and per write() that this class cannot avoid without
+// bypassing libusb. Clearing a stalled endpoint is a synchronous control request (kernel timeout
+// 5 s); stalls do not happen in normal operation.
+//
+// Not thread-safe: one thread drives the lifecycle and the I/O (libusb events are handled inside
+// read() and write()).
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "arm/arm_config.hpp"
+#include "device/device.hpp"
+
+struct libusb_context;
+struct libusb_device_handle;
+struct libusb_transfer;
+
+namespace lancet::device {
+
+class UsbArm final : public Device {
+ public:
+  /// Validates that the config has a [bus.usb] section and 1..kMaxJoints joints with one actuator
+  /// each; opens nothing (that is configure()). kInvalid otherwise.
+  [[nodiscard]] static Result<std::unique_ptr<UsbArm>> create(const arm::ArmConfig& config, FaultPolicy policy = {});
+  ~UsbArm() override;
+
+  [[nodiscard]] int joint_count() const noexcept override { return n_; }
+  [[nodiscard]] const arm::UsbBusConfig& bus() const noexcept { return usb_; }
+  /// "bus 001 address 002" of the open device, empty when none is open.
+  [[nodiscard]] std::string device_location() const;
+  /// Cutoff of the velocity low-pass (Hz, > 0; default 200). Not real-time: call while inactive.
+  void set_velocity_cutoff_hz(double hz) noexcept;
+  [[nodiscard]] double velocity_cutoff_hz() const noexcept { return cutoff_hz_; }
+
+  /// Transfer bookkeeping for diagnostics and tests (updated by every transfer, not real-time
+  /// safe to read from another thread). cancelled_late counts transfers that libusb's own timeout
+  /// did not bring back within the margin (then cancelled again and left to finish later).
+  struct TransferStats {
+    std::uint64_t submitted = 0, completed = 0, cancelled_late = 0, clear_halts = 0;
+  };
+  [[nodiscard]] const TransferStats& transfer_stats() const noexcept { return stats_; }
+
+ protected:
+  Outcome on_configure() override;
+  Outcome on_activate() override;
+  Outcome on_deactivate() override;
+  Outcome on_rearm() override;
+  IoStatus on_read(JointState& out) noexcept override;
+  IoStatus on_write(const JointCommand& cmd) noexcept override;
+
+ private:
+  /// One preallocated transfer and what its callback reported.
+  struct Slot {
+    libusb_transfer* transfer = nullptr;
+    std::vector<std::uint8_t> buffer;  ///< sized once in the constructor
+    int completed = 0;                 ///< set by the callback (libusb's completion flag)
+    bool in_flight = false;            ///< submitted and not yet called back
+    int status = 0;                    ///< libusb_transfer_status of the last completion
+    int actual_length = 0;
+    std::int64_t done_ns = 0;          ///< CLOCK_MONOTONIC when the callback ran
+  };
+
+  UsbArm(const arm::ArmConfig& config, FaultPolicy policy);
+
+  Outcome open_and_claim();   // find, open, detach, claim, check endpoints, bind the transfers
+  Outcome reopen();           // close, fresh libusb context, open_and_claim()
+  void close_device() noexcept;  // cancel what is in flight, release, close (context kept)
+  Outcome send_control(bool enable);  // zero currents, enable bit as given; not real-time
+  IoStatus transfer(Slot& slot, unsigned char endpoint) noexcept;  // submit and wait, bounded
+  IoStatus finish_in_flight(Slot& slot) noexcept;                   // drain a late completion
+  void pump_until(Slot& slot, std::int64_t deadline_ns) noexcept;
+  IoStatus status_from_completion(Slot& slot, unsigned char endpoint) noexcept;
+  IoStatus status_from_error(int libusb_error) noexcept;
+  void encode_out(const JointCommand* cmd, bool enable) noexcept;
+  void reset_estimator() noexcept;
+
+  arm::ArmConfig config_;
+  arm::UsbBusConfig usb_;
+  int n_ = 0;
+  unsigned int timeout_ms_ = 2;   ///< libusb transfer timeout (≥ 1: 0 would mean none)
+  std::int64_t timeout_ns_ = 2'000'000;
+  double cutoff_hz_ = 200;
+
+  libusb_context* ctx_ = nullptr;
+  libusb_device_handle* handle_ = nullptr;
+  bool claimed_ = false;
+  bool detached_driver_ = false;  ///< we detached a kernel driver: re-attach it when done
+  bool lost_ = false;             ///< the device went away: only a reopen helps
+  std::uint8_t bus_number_ = 0, address_ = 0;
+  Slot in_, out_;
+  bool enabled_ = false;          ///< what the enable bit of every OUT report says
+
+  // Estimator state (per joint).
+  bool have_sample_ = false;
+  std::int64_t last_sample_ns_ = 0;
+  std::array<std::int64_t, kMaxJoints> last_raw_{}, counts_{};
+  std::array<double, kMaxJoints> last_q_{}, qd_{};
+
+  TransferStats stats_{};
+};
+
+}  // namespace lancet::device
