@@ -8,6 +8,9 @@ PACKAGES=(
   g++ make cmake ninja-build ccache pkg-config git
   # device backends (umockdev: the USB backend's tests without hardware)
   libusb-1.0-0-dev libmodbus-dev umockdev libumockdev-dev
+  # a foreign Modbus server for the cross-check (run by Debian's /usr/bin/python3); a QEMU guest
+  # with vcan for the CANopen tests (this kernel has no CAN)
+  python3-pymodbus qemu-system-x86 busybox-static
   # visualizer
   libglfw3-dev libglm-dev libepoxy-dev libgl-dev libgl1-mesa-dri libimgui-dev libstb-dev libopenmesh-dev
   # configuration, command lines, logging

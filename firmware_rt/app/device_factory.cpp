@@ -1,6 +1,8 @@
 #include "app/device_factory.hpp"
 
 
+#include "device/canopen_arm.hpp"
+#include "device/modbus_arm.hpp"
 #include "device/sim_arm.hpp"
 #include "device/usb_arm.hpp"
 
@@ -16,6 +18,20 @@ Result<MadeDevice> make_device(const arm::ArmConfig& config) {
       m.device = std::move(sim).value();
       return m;
     }
+    case arm::Backend::kModbus: {
+      auto mb = device::ModbusArm::create(config);
+      if (!mb.ok()) return mb.error();
+      MadeDevice m;
+      m.device = std::move(mb).value();
+      return m;
+    }
+    case arm::Backend::kCanopen: {
+      auto can = device::CanopenArm::create(config);
+      if (!can.ok()) return can.error();
+      MadeDevice m;
+      m.device = std::move(can).value();
+      return m;
+    }
     case arm::Backend::kUsb: {
       auto usb = device::UsbArm::create(config);
       if (!usb.ok()) return usb.error();
@@ -23,12 +39,8 @@ Result<MadeDevice> make_device(const arm::ArmConfig& config) {
       m.device = std::move(usb).value();
       return m;
     }
-    default:
-      break;
   }
-  const char* names[] = {"sim", "usb", "modbus", "canopen"};
-  return Error{ErrorCode::kInvalid, config.source + ": backend '" + names[static_cast<int>(config.backend)] +
-                                        "' is not available in this build yet (sim is)"};
+  return Error{ErrorCode::kInvalid, config.source + ": unknown backend"};
 }
 
 }  // namespace lancet::app

@@ -1,0 +1,542 @@
+#include "armsim/modbus_server.hpp"
+
+#include <arpa/inet.h>
+#include <errno.h>
+#include <modbus.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <numbers>
+#include <string>
+
+#include "device/modbus_arm.hpp"
+#include "device/sim_stylus.hpp"
+
+namespace lancet::armsim {
+
+namespace {
+
+namespace mb = device::modbus;
+
+constexpr int kTcpHeader = 7;  // MBAP header: the function code follows it
+constexpr int kRtuHeader = 1;  // slave address
+constexpr int kMaxClients = 16;
+constexpr int kPollMs = 20;
+constexpr double kApproachS = 1.5;  // the scripted hand's move from the start pose to the script
+
+std::int64_t mono_ns() noexcept {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+}
+
+void sleep_ns(std::int64_t ns) {
+  if (ns > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(ns));
+}
+
+bool is_write(int function) {
+  return function == MODBUS_FC_WRITE_SINGLE_REGISTER || function == MODBUS_FC_WRITE_MULTIPLE_REGISTERS ||
+         function == MODBUS_FC_WRITE_AND_READ_REGISTERS || function == MODBUS_FC_MASK_WRITE_REGISTER;
+}
+
+}  // namespace
+
+Result<HandMode> parse_hand_mode(const std::string& s) {
+  if (s == "script") return HandMode::kScript;
+  if (s == "hold") return HandMode::kHold;
+  if (s == "free") return HandMode::kFree;
+  return Error{ErrorCode::kInvalid, "hand mode: expected script, hold or free, found '" + s + "'"};
+}
+
+ArmServer::ArmServer(const arm::ArmConfig& config, const ServerOptions& options, std::unique_ptr<device::ArmPhysics> physics)
+    : config_(config), options_(options), physics_(std::move(physics)), faults_(options.faults), rng_(options.seed) {}
+
+Result<std::unique_ptr<ArmServer>> ArmServer::create(const arm::ArmConfig& config, const ServerOptions& options) {
+  if (!config.modbus)
+    return Error{ErrorCode::kInvalid, (config.source.empty() ? config.name : config.source) +
+                                          ": lancet-armsim serves the [bus.modbus] register map, and this config has none"};
+  auto physics = device::ArmPhysics::create(config);
+  if (!physics.ok()) return physics.error();
+  std::unique_ptr<ArmServer> s(new ArmServer(config, options, std::move(physics).value()));
+  const device::Outcome o = s->init_mapping();
+  if (!o.ok()) return *o.error;
+  return s;
+}
+
+ArmServer::~ArmServer() {
+  stop();
+  if (ctx_ != nullptr) modbus_free(ctx_);
+  if (mapping_ != nullptr) modbus_mapping_free(mapping_);
+}
+
+device::Outcome ArmServer::init_mapping() {
+  const arm::ModbusRegisterMap& map = config_.modbus->registers;
+  const int n = physics_->joint_count();
+  high_word_first_ = map.high_word_first;
+  const auto field = [](const arm::RegisterField& f) { return Field{true, f.table, f.address, f.type, f.lsb}; };
+  encoders_ = field(map.encoder_counts);
+  currents_ = field(map.current_command);
+  if (map.status) status_ = field(*map.status);
+  if (map.buttons) buttons_ = field(*map.buttons);
+  if (map.control) control_ = field(*map.control);
+  if (map.heartbeat) heartbeat_ = field(*map.heartbeat);
+
+  // Each table spans from its lowest to its highest mapped register.
+  struct Span {
+    unsigned lo = 0xFFFFFFFFu, hi = 0;
+  } input, holding;
+  const auto cover = [&](const Field& f, int values) {
+    if (!f.present) return;
+    Span& s = f.table == arm::RegisterTable::kInput ? input : holding;
+    s.lo = std::min<unsigned>(s.lo, f.address);
+    s.hi = std::max<unsigned>(s.hi, f.address + static_cast<unsigned>(mb::register_count(f.type) * values));
+  };
+  cover(encoders_, n);
+  cover(currents_, n);
+  cover(status_, 1);
+  cover(buttons_, 1);
+  cover(control_, 1);
+  cover(heartbeat_, 1);
+  const auto start = [](const Span& s) { return s.hi > s.lo ? s.lo : 0u; };
+  const auto count = [](const Span& s) { return s.hi > s.lo ? s.hi - s.lo : 0u; };
+  mapping_ = modbus_mapping_new_start_address(0, 0, 0, 0, start(holding), count(holding), start(input), count(input));
+  if (mapping_ == nullptr)
+    return device::Outcome::failure(ErrorCode::kSystem, std::string("lancet-armsim: cannot allocate the register mapping: ") + modbus_strerror(errno));
+
+  for (int j = 0; j < n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    amps_per_unit_[uj] = arm::motor_current_for_joint_torque(config_.joints[uj], config_.actuators[uj], 1.0);
+  }
+  start_tool_ = physics_->tool_position();
+  centre_ = 0.5 * (config_.safety.workspace_min + config_.safety.workspace_max);
+  target_ = start_tool_;
+  if (options_.hand == HandMode::kFree) physics_->set_hand_holding(false);
+  std::lock_guard lock(mu_);
+  apply_control();
+  publish();
+  return device::Outcome::success();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Registers and the drive model (under mu_)
+
+std::uint16_t* ArmServer::reg(const Field& f, int index) const noexcept {
+  const int at = f.address + index * mb::register_count(f.type);
+  if (f.table == arm::RegisterTable::kInput) return mapping_->tab_input_registers + (at - mapping_->start_input_registers);
+  return mapping_->tab_registers + (at - mapping_->start_registers);
+}
+
+std::int64_t ArmServer::get(const Field& f, int index) const noexcept {
+  if (!f.present) return 0;
+  return mb::decode_registers(f.type, high_word_first_, std::span<const std::uint16_t>(reg(f, index), static_cast<std::size_t>(mb::register_count(f.type))));
+}
+
+void ArmServer::put(const Field& f, std::int64_t v, int index) noexcept {
+  if (!f.present) return;
+  (void)mb::encode_registers(f.type, high_word_first_, v, std::span<std::uint16_t>(reg(f, index), static_cast<std::size_t>(mb::register_count(f.type))));
+}
+
+void ArmServer::apply_control() noexcept {
+  const auto control = control_.present ? static_cast<std::uint32_t>(get(control_)) : mb::kControlEnable;
+  if ((control & mb::kControlFaultReset) != 0 && !fault_sticky_) drive_fault_ = false;
+  enabled_ = (control & mb::kControlEnable) != 0 && !drive_fault_;
+  put(status_, (drive_fault_ ? mb::kStatusDriveFault : 0u) | (enabled_ ? mb::kStatusEnabled : 0u));
+}
+
+void ArmServer::publish() noexcept {
+  for (int j = 0; j < physics_->joint_count(); ++j) {
+    const std::int64_t c = physics_->encoder_counts(j);
+    published_[static_cast<std::size_t>(j)] = c;
+    put(encoders_, c, j);
+  }
+  put(buttons_, buttons_raw_);
+  put(status_, (drive_fault_ ? mb::kStatusDriveFault : 0u) | (enabled_ ? mb::kStatusEnabled : 0u));
+}
+
+void ArmServer::step_locked(double dt) noexcept {
+  apply_control();
+  device::JointCommand cmd{};
+  cmd.n = physics_->joint_count();
+  for (int j = 0; j < cmd.n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    current_[uj] = static_cast<double>(get(currents_, j)) * currents_.lsb;
+    // The inverse of the driver's mapping: joint torque = current / (current per unit torque).
+    cmd.tau[uj] = enabled_ && amps_per_unit_[uj] != 0 ? current_[uj] / amps_per_unit_[uj] : 0.0;
+  }
+  if (options_.hand == HandMode::kScript) {
+    const Vec3 first = centre_ + device::scripted_target(0, options_.script_depth);
+    if (sim_time_ < kApproachS) {
+      const double s = 0.5 - 0.5 * std::cos(std::numbers::pi * sim_time_ / kApproachS);
+      target_ = start_tool_ + s * (first - start_tool_);
+    } else {
+      target_ = centre_ + device::scripted_target(sim_time_ - kApproachS, options_.script_depth);
+    }
+    physics_->set_hand_target(target_);
+  }
+  physics_->step(cmd, dt);
+  sim_time_ += dt;
+  ++steps_;
+  publish();
+}
+
+double ArmServer::uniform() noexcept { return std::uniform_real_distribution<double>(0.0, 1.0)(rng_); }
+
+// ---------------------------------------------------------------------------------------------
+// Hooks
+
+ArmSnapshot ArmServer::snapshot() const {
+  std::lock_guard lock(mu_);
+  ArmSnapshot s;
+  s.n = physics_->joint_count();
+  for (int j = 0; j < s.n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    s.counts[uj] = published_[uj];
+    s.q[uj] = physics_->q(j);
+    s.current[uj] = static_cast<double>(get(currents_, j)) * currents_.lsb;
+    s.motor_torque[uj] = physics_->motor_torque(j);
+  }
+  s.enabled = enabled_;
+  s.drive_fault = drive_fault_;
+  s.control = static_cast<std::uint32_t>(get(control_));
+  s.status = static_cast<std::uint32_t>(get(status_));
+  s.buttons = buttons_raw_;
+  s.heartbeat = static_cast<std::uint32_t>(get(heartbeat_));
+  s.steps = steps_;
+  s.tool = physics_->tool_position();
+  s.target = target_;
+  s.stats = stats_;
+  return s;
+}
+
+void ArmServer::set_faults(const FaultInjection& faults) {
+  std::lock_guard lock(mu_);
+  faults_ = faults;
+}
+
+void ArmServer::set_drive_fault(bool fault, bool sticky) {
+  std::lock_guard lock(mu_);
+  drive_fault_ = fault;
+  fault_sticky_ = fault && sticky;
+  apply_control();
+}
+
+void ArmServer::set_buttons(std::uint32_t raw) {
+  std::lock_guard lock(mu_);
+  buttons_raw_ = raw;
+  put(buttons_, raw);
+}
+
+void ArmServer::set_pose(std::span<const double> q) {
+  std::lock_guard lock(mu_);
+  physics_->reset(q);
+  publish();
+}
+
+void ArmServer::pause_physics(bool paused) {
+  std::lock_guard lock(mu_);
+  paused_ = paused;
+}
+
+void ArmServer::step_physics(double dt, int steps) {
+  std::lock_guard lock(mu_);
+  for (int i = 0; i < steps; ++i) step_locked(dt);
+}
+
+void ArmServer::disconnect_clients(double refuse_s) {
+  std::lock_guard lock(mu_);
+  refuse_request_s_ = std::max(0.0, refuse_s);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Threads
+
+Result<int> ArmServer::start_tcp(int port) {
+  if (started_) return Error{ErrorCode::kInUse, "lancet-armsim: already serving"};
+  // Bind with a throwaway context (it may ask for port 0), then serve with one that knows the port
+  // we got, so that a re-listen after a refusal window takes the same port.
+  modbus_t* probe = modbus_new_tcp("127.0.0.1", port);
+  if (probe == nullptr) return Error{ErrorCode::kSystem, std::string("lancet-armsim: modbus_new_tcp: ") + modbus_strerror(errno)};
+  listen_fd_ = modbus_tcp_listen(probe, kMaxClients);
+  const int listen_err = errno;
+  modbus_free(probe);
+  if (listen_fd_ < 0)
+    return Error{ErrorCode::kSystem, "lancet-armsim: cannot listen on 127.0.0.1:" + std::to_string(port) + ": " + modbus_strerror(listen_err)};
+  sockaddr_in addr{};
+  socklen_t len = sizeof addr;
+  if (getsockname(listen_fd_, reinterpret_cast<sockaddr*>(&addr), &len) != 0) {
+    const int err = errno;
+    close(listen_fd_);
+    listen_fd_ = -1;
+    return Error{ErrorCode::kSystem, std::string("lancet-armsim: getsockname: ") + std::strerror(err)};
+  }
+  port_ = ntohs(addr.sin_port);
+  ctx_ = modbus_new_tcp("127.0.0.1", port_);
+  if (ctx_ == nullptr) {
+    close(listen_fd_);
+    listen_fd_ = -1;
+    return Error{ErrorCode::kSystem, std::string("lancet-armsim: modbus_new_tcp: ") + modbus_strerror(errno)};
+  }
+  (void)modbus_set_slave(ctx_, config_.modbus->unit_id);
+  (void)modbus_set_indication_timeout(ctx_, 1, 0);
+  start_threads();
+  serve_thread_ = std::thread([this] { tcp_loop(); });
+  return port_;
+}
+
+device::Outcome ArmServer::start_rtu(int fd) {
+  if (started_) return device::Outcome::failure(ErrorCode::kInUse, "lancet-armsim: already serving");
+  // The serial settings do not matter: the context never opens a device, it is given fd.
+  ctx_ = modbus_new_rtu("/dev/null", 115200, 'N', 8, 1);
+  if (ctx_ == nullptr)
+    return device::Outcome::failure(ErrorCode::kSystem, std::string("lancet-armsim: modbus_new_rtu: ") + modbus_strerror(errno));
+  if (modbus_set_slave(ctx_, config_.modbus->unit_id) == -1)
+    return device::Outcome::failure(ErrorCode::kInvalid, "lancet-armsim: bad unit id " + std::to_string(config_.modbus->unit_id));
+  (void)modbus_set_indication_timeout(ctx_, 1, 0);
+  (void)modbus_set_socket(ctx_, fd);
+  start_threads();
+  serve_thread_ = std::thread([this, fd] { rtu_loop(fd); });
+  return device::Outcome::success();
+}
+
+void ArmServer::start_threads() {
+  started_ = true;
+  stop_ = false;
+  start_ns_ = mono_ns();
+  if (options_.physics_rate > 0) physics_thread_ = std::thread([this] { physics_loop(); });
+}
+
+void ArmServer::stop() {
+  stop_ = true;
+  if (physics_thread_.joinable()) physics_thread_.join();
+  if (serve_thread_.joinable()) serve_thread_.join();
+  close_clients();
+  if (listen_fd_ >= 0) {
+    close(listen_fd_);
+    listen_fd_ = -1;
+  }
+}
+
+void ArmServer::physics_loop() {
+  const double dt = 1.0 / options_.physics_rate;
+  const auto period = static_cast<std::int64_t>(1e9 * dt);
+  std::int64_t next = mono_ns();
+  while (!stop_) {
+    {
+      std::lock_guard lock(mu_);
+      if (!paused_) step_locked(dt);
+    }
+    next += period;
+    const std::int64_t now = mono_ns();
+    if (now - next > 50'000'000) next = now;  // fell far behind (debugger, loaded machine): no catch-up burst
+    timespec ts{static_cast<time_t>(next / 1'000'000'000), static_cast<long>(next % 1'000'000'000)};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+  }
+}
+
+void ArmServer::close_clients() {
+  for (int fd : clients_) {
+    shutdown(fd, SHUT_RDWR);
+    close(fd);
+  }
+  clients_.clear();
+}
+
+bool ArmServer::relisten() {
+  listen_fd_ = modbus_tcp_listen(ctx_, kMaxClients);
+  return listen_fd_ >= 0;
+}
+
+void ArmServer::tcp_loop() {
+  std::vector<std::uint8_t> query(MODBUS_TCP_MAX_ADU_LENGTH);
+  std::vector<pollfd> pfds;
+  bool scheduled_done = options_.disconnect_after <= 0;
+  std::int64_t relisten_at = 0;
+  while (!stop_) {
+    // Cutting the clients off: on schedule (--disconnect-after) or on request (tests).
+    const std::int64_t now = mono_ns();
+    double refuse_s = -1;
+    if (!scheduled_done && now - start_ns_ >= static_cast<std::int64_t>(options_.disconnect_after * 1e9)) {
+      scheduled_done = true;
+      refuse_s = options_.reconnect_after;
+    }
+    {
+      std::lock_guard lock(mu_);
+      if (refuse_request_s_ >= 0) {
+        refuse_s = refuse_request_s_;
+        refuse_request_s_ = -1;
+      }
+      if (refuse_s >= 0) ++stats_.forced_disconnects;
+    }
+    if (refuse_s >= 0) {
+      close_clients();
+      if (refuse_s > 0 && listen_fd_ >= 0) {
+        close(listen_fd_);  // connection attempts now get ECONNREFUSED
+        listen_fd_ = -1;
+        relisten_at = now + static_cast<std::int64_t>(refuse_s * 1e9);
+      }
+    }
+    if (listen_fd_ < 0 && mono_ns() >= relisten_at && !relisten()) relisten_at = mono_ns() + 50'000'000;
+
+    pfds.clear();
+    if (listen_fd_ >= 0) pfds.push_back({listen_fd_, POLLIN, 0});
+    for (int fd : clients_) pfds.push_back({fd, POLLIN, 0});
+    if (poll(pfds.data(), pfds.size(), kPollMs) <= 0) continue;
+    std::size_t i = 0;
+    if (listen_fd_ >= 0) {
+      if ((pfds[0].revents & POLLIN) != 0) {
+        const int fd = accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC);
+        if (fd >= 0) {
+          if (static_cast<int>(clients_.size()) >= kMaxClients) {
+            close(fd);
+          } else {
+            const int one = 1;
+            (void)setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+            clients_.push_back(fd);
+            std::lock_guard lock(mu_);
+            ++stats_.connections;
+          }
+        }
+      }
+      i = 1;
+    }
+    std::vector<int> gone;
+    for (; i < pfds.size(); ++i) {
+      if ((pfds[i].revents & (POLLIN | POLLHUP | POLLERR)) == 0) continue;
+      const int fd = pfds[i].fd;
+      (void)modbus_set_socket(ctx_, fd);
+      const int rc = modbus_receive(ctx_, query.data());
+      if (rc > 0) {
+        handle_request(fd, query.data(), rc, kTcpHeader);
+      } else if (rc < 0) {
+        gone.push_back(fd);  // closed by the client, or garbage we cannot frame
+      }
+    }
+    for (int fd : gone) {
+      close(fd);
+      clients_.erase(std::remove(clients_.begin(), clients_.end(), fd), clients_.end());
+    }
+  }
+}
+
+void ArmServer::rtu_loop(int fd) {
+  std::vector<std::uint8_t> query(MODBUS_RTU_MAX_ADU_LENGTH);
+  while (!stop_) {
+    pollfd p{fd, POLLIN, 0};
+    if (poll(&p, 1, kPollMs) <= 0) continue;
+    if ((p.revents & POLLIN) == 0) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));  // nobody has the other end open
+      continue;
+    }
+    (void)modbus_set_socket(ctx_, fd);
+    const int rc = modbus_receive(ctx_, query.data());
+    if (rc > 0) {
+      handle_request(fd, query.data(), rc, kRtuHeader);
+    } else if (rc < 0) {
+      if (errno == EIO) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      (void)modbus_flush(ctx_);  // a garbled or partial request: start afresh
+    }
+  }
+}
+
+bool ArmServer::maybe_glitch(const std::uint8_t* req, int h) {
+  const int function = req[h];
+  if (!(faults_.encoder_glitch > 0) || (function != MODBUS_FC_READ_INPUT_REGISTERS && function != MODBUS_FC_READ_HOLDING_REGISTERS)) return false;
+  const auto table = function == MODBUS_FC_READ_INPUT_REGISTERS ? arm::RegisterTable::kInput : arm::RegisterTable::kHolding;
+  if (table != encoders_.table) return false;
+  const int addr = (req[h + 1] << 8) | req[h + 2];
+  const int nb = (req[h + 3] << 8) | req[h + 4];
+  const int rc = mb::register_count(encoders_.type);
+  const int n = physics_->joint_count();
+  // The joints whose registers this request reads.
+  int first = -1, last = -1;
+  for (int j = 0; j < n; ++j) {
+    const int a = encoders_.address + j * rc;
+    if (a + rc > addr && a < addr + nb) {
+      if (first < 0) first = j;
+      last = j;
+    }
+  }
+  if (first < 0 || !(uniform() < faults_.encoder_glitch)) return false;
+  const int j = first + static_cast<int>(uniform() * (last - first + 1)) % (last - first + 1);
+  const std::int64_t size = faults_.glitch_counts != 0 ? faults_.glitch_counts
+                                                       : config_.joints[static_cast<std::size_t>(j)].counts_per_rev;
+  put(encoders_, published_[static_cast<std::size_t>(j)] + (uniform() < 0.5 ? -size : size), j);
+  ++stats_.glitches;
+  return true;
+}
+
+void ArmServer::send_reply_corrupted(int fd, const std::uint8_t* req, int len, bool tcp) {
+  // Let libmodbus build the reply into a socket pair, flip one byte, pass it on.
+  int sp[2];
+  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sp) != 0) return;
+  (void)modbus_set_socket(ctx_, sp[0]);
+  (void)modbus_reply(ctx_, req, len, mapping_);
+  (void)modbus_set_socket(ctx_, fd);
+  std::uint8_t buf[MODBUS_TCP_MAX_ADU_LENGTH + 8];
+  const ssize_t got = recv(sp[1], buf, sizeof buf, MSG_DONTWAIT);
+  close(sp[0]);
+  close(sp[1]);
+  if (got <= 0) return;
+  const auto size = static_cast<std::size_t>(got);
+  std::size_t at = 0;
+  if (tcp) {
+    // A byte the client checks: the transaction id, the function code or (reads) the byte count.
+    std::size_t choices[4] = {0, 1, 7, 8};
+    const bool read_reply = size > 9 && (buf[7] == MODBUS_FC_READ_INPUT_REGISTERS || buf[7] == MODBUS_FC_READ_HOLDING_REGISTERS);
+    const std::size_t k = static_cast<std::size_t>(uniform() * (read_reply ? 4 : 3)) % (read_reply ? 4 : 3);
+    at = std::min(choices[k], size - 1);
+  } else {
+    // Past slave, function and byte count: the CRC catches it, the frame length stays right.
+    at = size > 3 ? 3 + static_cast<std::size_t>(uniform() * static_cast<double>(size - 3)) % (size - 3) : size - 1;
+  }
+  const auto mask = static_cast<std::uint8_t>(1 + static_cast<int>(uniform() * 255) % 255);
+  buf[at] = static_cast<std::uint8_t>(buf[at] ^ mask);
+  if (tcp)
+    (void)send(fd, buf, size, MSG_NOSIGNAL);
+  else
+    (void)write(fd, buf, size);
+}
+
+void ArmServer::handle_request(int fd, const std::uint8_t* req, int len, int header_length) {
+  FaultInjection f;
+  bool drop = false, corrupt = false;
+  {
+    std::lock_guard lock(mu_);
+    ++stats_.requests;
+    f = faults_;
+    drop = f.drop_replies > 0 && uniform() < f.drop_replies;
+    corrupt = !drop && f.corrupt > 0 && uniform() < f.corrupt;
+    if (drop) ++stats_.dropped;
+    if (!drop && f.delay_us > 0) ++stats_.delayed;
+  }
+  if (drop) return;  // as if the request was lost: not applied, not answered
+  if (f.delay_us > 0) {
+    const std::int64_t until = mono_ns() + f.delay_us * 1000;
+    while (!stop_ && mono_ns() < until) sleep_ns(std::min<std::int64_t>(until - mono_ns(), 10'000'000));
+  }
+  std::lock_guard lock(mu_);
+  const bool glitched = maybe_glitch(req, header_length);
+  if (corrupt) {
+    send_reply_corrupted(fd, req, len, header_length == kTcpHeader);
+    ++stats_.corrupted;
+  } else {
+    (void)modbus_set_socket(ctx_, fd);
+    (void)modbus_reply(ctx_, req, len, mapping_);
+  }
+  ++stats_.replies;
+  if (glitched)
+    for (int j = 0; j < physics_->joint_count(); ++j) put(encoders_, published_[static_cast<std::size_t>(j)], j);
+  // Control writes act at once (a fault reset clears the status the client reads next).
+  if (is_write(req[header_length])) apply_control();
+}
+
+}  // namespace lancet::armsim

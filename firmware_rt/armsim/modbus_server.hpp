@@ -1,0 +1,202 @@
+#pragma once
+// ArmServer: a simulated arm (ArmPhysics built from an arm config) served over Modbus with the
+// config's register map, through a libmodbus server — the library part of lancet-armsim, so tests
+// can run the same server in process.
+//
+// Two threads once started:
+//   physics  ArmPhysics at `physics_rate` (1 kHz): the holding current-command registers → joint
+//            torques (the inverse of the driver's current mapping) while the drives are enabled,
+//            zero otherwise; encoder counts → their registers; the status word.
+//   server   Modbus TCP on 127.0.0.1 (any number of clients, one request at a time) or Modbus RTU
+//            on an already open file descriptor (a pty master), with optional fault injection.
+//
+// The drive model behind the map's registers (hw_configs/README.md, "Status and control bits"):
+//   control bit 0  enable: the drives follow the current commands only while it is set (a map with
+//                  no control register is always enabled);
+//   control bit 1  fault reset: while set, a latched drive fault is cleared;
+//   status bit 0   drive fault (latched; set_drive_fault() injects one), forces zero torque;
+//   status bit 1   drives enabled.
+//
+// Not real-time: the server sleeps for injected delays and takes a mutex shared with the physics.
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <span>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "arm/arm_config.hpp"
+#include "device/arm_physics.hpp"
+#include "device/device.hpp"
+#include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/result.hpp"
+
+struct _modbus;
+struct _modbus_mapping_t;
+
+namespace lancet::armsim {
+
+/// What the simulated hand does with the stylus.
+enum class HandMode : std::uint8_t {
+  kScript,  ///< follows device::scripted_target around the centre of the config's safety workspace
+  kHold,    ///< holds the stylus at the start pose (a spring to where it began)
+  kFree,    ///< no hand: only the motors move the arm
+};
+
+/// Faults the server injects into its replies; all off by default.
+struct FaultInjection {
+  double drop_replies = 0;    ///< probability [0, 1] that a request gets no reply at all
+  std::int64_t delay_us = 0;  ///< every reply goes out this late (µs)
+  double corrupt = 0;         ///< probability [0, 1] that one byte of a reply is flipped: over TCP in
+                              ///< the framing (transaction id, function code, byte count: the client
+                              ///< sees a protocol error, never a wrong value), over RTU anywhere past
+                              ///< the byte count (the client sees a CRC error)
+  double encoder_glitch = 0;  ///< probability [0, 1] that a reply carrying the encoder registers has
+                              ///< one joint's count off by `glitch_counts`
+  std::int64_t glitch_counts = 0;  ///< size of a glitch; 0: one motor revolution (counts_per_rev)
+};
+
+struct ServerOptions {
+  HandMode hand = HandMode::kScript;
+  FaultInjection faults;
+  double disconnect_after = 0;  ///< s after start: close every client's socket (TCP only; 0: never)
+  double reconnect_after = 0;   ///< s after that disconnect during which new connections are refused
+  std::uint64_t seed = 1;       ///< of the fault injection's random draws
+  double physics_rate = 1000;   ///< Hz; 0: no physics thread (tests call step_physics)
+  double script_depth = 0.01;   ///< m below the workspace centre that the scripted hand strokes at
+};
+
+/// What the server has done so far.
+struct ServerStats {
+  std::uint64_t requests = 0;     ///< requests received (any function)
+  std::uint64_t replies = 0;      ///< replies sent (intact or corrupted)
+  std::uint64_t dropped = 0;      ///< requests left unanswered on purpose
+  std::uint64_t delayed = 0;      ///< replies sent late on purpose
+  std::uint64_t corrupted = 0;    ///< replies sent with a flipped byte
+  std::uint64_t glitches = 0;     ///< replies with an encoder glitch
+  std::uint64_t connections = 0;  ///< TCP connections accepted
+  std::uint64_t forced_disconnects = 0;  ///< times the clients were cut off on purpose
+};
+
+/// A consistent copy of the simulated arm and its registers.
+struct ArmSnapshot {
+  int n = 0;
+  std::array<std::int64_t, device::kMaxJoints> counts{};    ///< encoder counts as published (no glitch)
+  std::array<double, device::kMaxJoints> q{};               ///< rad (m), the true joint positions
+  std::array<double, device::kMaxJoints> current{};         ///< A, the current commands in the registers
+  std::array<double, device::kMaxJoints> motor_torque{};    ///< N·m (N) the motors gave in the last step
+  bool enabled = false;      ///< drives on (control enable and no fault)
+  bool drive_fault = false;  ///< latched drive fault
+  std::uint32_t control = 0, status = 0, buttons = 0, heartbeat = 0;  ///< register words, raw
+  std::uint64_t steps = 0;   ///< physics steps so far
+  Vec3 tool{}, target{};     ///< m, tool point and hand target (device frame)
+  ServerStats stats;
+};
+
+class ArmServer {
+ public:
+  /// From a config with a [bus.modbus] register map (kInvalid otherwise). Starts nothing.
+  [[nodiscard]] static Result<std::unique_ptr<ArmServer>> create(const arm::ArmConfig& config, const ServerOptions& options = {});
+  ~ArmServer();  ///< stops
+  ArmServer(const ArmServer&) = delete;
+  ArmServer& operator=(const ArmServer&) = delete;
+
+  /// Listens on 127.0.0.1:port (0: an ephemeral port) and starts the threads; returns the port.
+  [[nodiscard]] Result<int> start_tcp(int port);
+  /// Serves Modbus RTU on an open descriptor (e.g. a pty master; not closed by the server) and
+  /// starts the threads.
+  [[nodiscard]] device::Outcome start_rtu(int fd);
+  /// Stops and joins the threads, closes the clients and the listening socket. Idempotent.
+  void stop();
+
+  [[nodiscard]] int port() const noexcept { return port_; }
+  [[nodiscard]] ArmSnapshot snapshot() const;
+
+  // Test and demo hooks; thread-safe.
+  void set_faults(const FaultInjection& faults);
+  /// Latches a drive fault (status bit 0, zero torque) or clears it. A sticky fault ignores the
+  /// fault-reset bit (a drive that will not come back).
+  void set_drive_fault(bool fault, bool sticky = false);
+  /// The raw word of the buttons register.
+  void set_buttons(std::uint32_t raw);
+  /// Puts the arm at q (rad / m) at rest and publishes its encoders.
+  void set_pose(std::span<const double> q);
+  /// Stops / resumes the physics thread's stepping (registers stay served).
+  void pause_physics(bool paused);
+  /// Advances the physics by `steps` steps of dt seconds now, on the calling thread.
+  void step_physics(double dt, int steps = 1);
+  /// Closes every client's socket now and refuses connections for refuse_s seconds (TCP).
+  void disconnect_clients(double refuse_s);
+
+ private:
+  struct Field {
+    bool present = false;
+    arm::RegisterTable table = arm::RegisterTable::kInput;
+    std::uint16_t address = 0;
+    arm::FieldType type = arm::FieldType::kU16;
+    double lsb = 1;
+  };
+
+  ArmServer(const arm::ArmConfig& config, const ServerOptions& options, std::unique_ptr<device::ArmPhysics> physics);
+
+  device::Outcome init_mapping();
+  void start_threads();
+  void physics_loop();
+  void tcp_loop();
+  void rtu_loop(int fd);
+  void handle_request(int fd, const std::uint8_t* req, int len, int header_length);
+  void send_reply_corrupted(int fd, const std::uint8_t* req, int len, bool tcp);
+  bool maybe_glitch(const std::uint8_t* req, int header_length);
+  void close_clients();
+  bool relisten();
+
+  // Under mu_.
+  std::uint16_t* reg(const Field& f, int index = 0) const noexcept;
+  std::int64_t get(const Field& f, int index = 0) const noexcept;
+  void put(const Field& f, std::int64_t v, int index = 0) noexcept;
+  void apply_control() noexcept;
+  void step_locked(double dt) noexcept;
+  void publish() noexcept;
+  double uniform() noexcept;
+
+  arm::ArmConfig config_;
+  ServerOptions options_;
+  bool high_word_first_ = true;
+  Field encoders_, currents_, status_, buttons_, control_, heartbeat_;
+  std::array<double, device::kMaxJoints> amps_per_unit_{};  // motor A per joint N·m (signed)
+
+  mutable std::mutex mu_;
+  std::unique_ptr<device::ArmPhysics> physics_;
+  ::_modbus_mapping_t* mapping_ = nullptr;
+  std::array<std::int64_t, device::kMaxJoints> published_{};
+  std::array<double, device::kMaxJoints> current_{};
+  bool enabled_ = false, drive_fault_ = false, fault_sticky_ = false;
+  std::uint32_t buttons_raw_ = 0;
+  std::uint64_t steps_ = 0;
+  double sim_time_ = 0;
+  Vec3 start_tool_{}, centre_{}, target_{};
+  bool paused_ = false;
+  ServerStats stats_;
+  FaultInjection faults_;
+  std::mt19937_64 rng_;
+  double refuse_request_s_ = -1;  // set by disconnect_clients, taken by the server thread
+
+  ::_modbus* ctx_ = nullptr;  // the server's libmodbus context (its socket is set per client)
+  int listen_fd_ = -1;
+  int port_ = 0;
+  std::vector<int> clients_;
+  std::int64_t start_ns_ = 0;
+  bool started_ = false;
+  std::atomic<bool> stop_{false};
+  std::thread physics_thread_, serve_thread_;
+};
+
+/// Parses "script" / "hold" / "free".
+[[nodiscard]] Result<HandMode> parse_hand_mode(const std::string& s);
+
+}  // namespace lancet::armsim

@@ -1,0 +1,326 @@
+#pragma once
+// CanopenArm: a haptic arm whose joints are CiA 402 servo drives on one CAN bus, one node per
+// joint, driven through a SocketCAN raw socket with the PDO map of the arm's config
+// ([bus.canopen] in hw_configs/*.toml; schema and behaviour in hw_configs/README.md). The host is
+// the NMT master and the SYNC producer.
+//
+//   configure()  open the socket on the interface; per node: NMT reset communication (wait for the
+//                boot-up), check the device type (0x1000: a CiA 402 drive), read the vendor id
+//                (0x1018:1), SDO-download controlword 0 and target torque 0 (a drive left enabled
+//                is switched off), the heartbeat time (0x1017), mode of operation (0x6060),
+//                rated torque (0x6076, mN·m), max torque (0x6072, ‰) and the PDO communication and
+//                mapping parameters, read the statusword; NMT start; one SYNC to check that every
+//                node's TPDOs arrive
+//   activate()   the CiA 402 state machine through the controlword in the RPDOs, SYNC by SYNC at
+//                the sync period (shutdown → switch on → enable operation; a drive in fault gets
+//                a fault reset first), until every statusword says operation enabled
+//   read()       drain, SYNC, then wait (ppoll, at most a fraction of the sync period) for this
+//                cycle's TPDOs of every node: position actual (0x6064), statusword (0x6041),
+//                digital inputs (0x60FD); decodes EMCY and heartbeats on the way
+//   write()      joint torques → target torque (0x6071, ‰ of 0x6076) in each node's RPDO, right
+//                after the SYNC of the same cycle; the drives apply it at the next SYNC
+//   deactivate() zero torque, controlword shutdown until no drive is enabled, NMT pre-operational
+//   rearm()      a node that rebooted or left operational is configured again and started; then a
+//                fault reset (controlword bit 7) and enable again
+//
+// read() and write() are real-time safe: no allocation, no exceptions, and each blocks at most
+// for the read budget (CanopenTiming::read_budget_fraction × sync period) in ppoll(); the socket is
+// non-blocking. What read() reports, most severe first:
+//   kDisconnected  the socket failed (interface down, bus-off), a node's heartbeat is overdue
+//                  (heartbeat_timeout_factor × heartbeat period), or a heartbeat / boot-up says a
+//                  node is no longer operational (it rebooted or was stopped)
+//   kDeviceFault   an EMCY with a non-zero error code arrived, a statusword has the fault bit, or
+//                  (while active) a drive is no longer in operation enabled
+//   kProtocolError a TPDO arrived with the wrong length
+//   kTimeout       a TPDO of this cycle did not arrive within the budget (a TPDO sent every nth
+//                  SYNC: none for 2n + 1 SYNCs)
+// When read() reports kDisconnected or kDeviceFault (both trip kFault at once) it sends zero
+// torque at once, before the next write(). After deactivate() the nodes are pre-operational and
+// send no PDOs: read() then returns kNotActive until activate().
+//
+// JointState.status packs the drives' statuswords: bit j = node j operation enabled, bit 8 + j =
+// node j fault, bit 16 + j = node j warning (statusword bit 7). JointState.buttons: bit i = config
+// button i pressed, from the 32-bit digital inputs of the buttons node. Encoder counts are the
+// 32-bit position actual, unwrapped to 64 bits between reads.
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "arm/arm_config.hpp"
+#include "device/device.hpp"
+
+struct can_frame;  // <linux/can.h>, kept out of this header
+
+namespace lancet::device {
+
+// ---------------------------------------------------------------------------------------------
+// CANopen / CiA 402 codec (shared with the tests' emulated nodes). All real-time safe.
+
+namespace canopen {
+
+inline constexpr std::uint32_t kCobNmt = 0x000;
+inline constexpr std::uint32_t kCobSync = 0x080;
+inline constexpr std::uint32_t kCobEmcy = 0x080;       ///< + node id
+inline constexpr std::uint32_t kCobSdoTx = 0x580;      ///< server → client, + node id
+inline constexpr std::uint32_t kCobSdoRx = 0x600;      ///< client → server, + node id
+inline constexpr std::uint32_t kCobHeartbeat = 0x700;  ///< + node id
+
+/// TPDOn (node → host) and RPDOn (host → node) COB-IDs of the predefined connection set, n = 1..4.
+[[nodiscard]] constexpr std::uint32_t tpdo_cob_id(int number, int node_id) noexcept {
+  return static_cast<std::uint32_t>(0x080 + 0x100 * number + node_id);
+}
+[[nodiscard]] constexpr std::uint32_t rpdo_cob_id(int number, int node_id) noexcept {
+  return static_cast<std::uint32_t>(0x100 + 0x100 * number + node_id);
+}
+
+/// NMT command specifiers (byte 0 of an NMT frame; byte 1 is the node id, 0 for all).
+enum class NmtCommand : std::uint8_t {
+  kStart = 0x01,
+  kStop = 0x02,
+  kEnterPreOperational = 0x80,
+  kResetNode = 0x81,
+  kResetCommunication = 0x82,
+};
+
+/// NMT states as a heartbeat reports them (byte 0; boot-up is the one-off 0x00).
+enum class NmtState : std::uint8_t {
+  kBootUp = 0x00,
+  kStopped = 0x04,
+  kOperational = 0x05,
+  kPreOperational = 0x7F,
+  kUnknown = 0xFF,  ///< nothing heard yet
+};
+
+/// CiA 402 power drive states, from the statusword.
+enum class Cia402State : std::uint8_t {
+  kNotReadyToSwitchOn,
+  kSwitchOnDisabled,
+  kReadyToSwitchOn,
+  kSwitchedOn,
+  kOperationEnabled,
+  kQuickStopActive,
+  kFaultReactionActive,
+  kFault,
+  kUnknown,
+};
+
+// Statusword bits.
+inline constexpr std::uint16_t kSwReadyToSwitchOn = 1u << 0;
+inline constexpr std::uint16_t kSwSwitchedOn = 1u << 1;
+inline constexpr std::uint16_t kSwOperationEnabled = 1u << 2;
+inline constexpr std::uint16_t kSwFault = 1u << 3;
+inline constexpr std::uint16_t kSwVoltageEnabled = 1u << 4;
+inline constexpr std::uint16_t kSwQuickStop = 1u << 5;
+inline constexpr std::uint16_t kSwSwitchOnDisabled = 1u << 6;
+inline constexpr std::uint16_t kSwWarning = 1u << 7;
+// Controlword commands (CiA 402 device control).
+inline constexpr std::uint16_t kCwDisableVoltage = 0x0000;
+inline constexpr std::uint16_t kCwShutdown = 0x0006;
+inline constexpr std::uint16_t kCwSwitchOn = 0x0007;
+inline constexpr std::uint16_t kCwEnableOperation = 0x000F;
+inline constexpr std::uint16_t kCwFaultReset = 0x0080;  ///< acts on the rising edge of bit 7
+
+/// CiA 402 modes of operation (0x6060).
+inline constexpr std::int8_t kModeProfileTorque = 4;
+inline constexpr std::int8_t kModeCyclicSyncTorque = 10;
+
+/// The drive state a statusword encodes.
+[[nodiscard]] Cia402State cia402_state(std::uint16_t statusword) noexcept;
+[[nodiscard]] const char* to_string(Cia402State s) noexcept;
+[[nodiscard]] const char* to_string(NmtState s) noexcept;
+
+/// The next controlword on the way to operation enabled, given the drive's statusword and the
+/// controlword sent last (for the fault reset's rising edge: a drive in fault gets 0x0000, then
+/// 0x0080). Holds 0x000F once enabled; waits (0x0000) through the transient states.
+[[nodiscard]] std::uint16_t controlword_toward_enabled(std::uint16_t statusword, std::uint16_t previous) noexcept;
+
+/// The rated torque written to 0x6076: the actuator's continuous torque in mN·m, rounded (CiA 402
+/// unit). 0 when it rounds below 1 mN·m (create() rejects that).
+[[nodiscard]] std::uint32_t rated_torque_mnm(const arm::ActuatorConfig& actuator) noexcept;
+
+/// Target torque (0x6071, per mille of `rated_mnm`) for the joint torque tau (N·m, N for
+/// prismatic) through the joint's gear, direction and lead; rounded, clamped to ± limit (and the
+/// int16 range); 0 for a non-finite tau.
+[[nodiscard]] std::int16_t torque_per_mille(const arm::JointConfig& joint, const arm::ActuatorConfig& actuator,
+                                            std::uint32_t rated_mnm, std::int16_t limit, double tau) noexcept;
+
+/// An emergency message (COB-ID 0x80 + node id): error code (CiA 301/402), error register
+/// (0x1001), five manufacturer-specific bytes. Code 0x0000 is "error reset / no error".
+struct Emcy {
+  int node_id = 0;
+  std::uint16_t error_code = 0;
+  std::uint8_t error_register = 0;
+  std::array<std::uint8_t, 5> vendor{};
+  std::int64_t t_ns = 0;  ///< CLOCK_MONOTONIC when received
+};
+
+/// A few words on an SDO abort code (CiA 301, 7.2.4.3.17); "unknown abort code" otherwise.
+[[nodiscard]] const char* sdo_abort_text(std::uint32_t code) noexcept;
+
+}  // namespace canopen
+
+// ---------------------------------------------------------------------------------------------
+
+/// Waits and timeouts (defaults suit a real 1 Mbit/s bus).
+struct CanopenTiming {
+  double read_budget_fraction = 0.5;     ///< read() waits for TPDOs at most this fraction of the sync period
+  double sdo_timeout = 0.1;              ///< s, per SDO request (configure, rearm)
+  double boot_timeout = 1.0;             ///< s, to wait for the boot-up messages after NMT reset communication
+  double state_timeout = 1.0;            ///< s, for the drives to reach (activate, rearm) or leave (deactivate) operation enabled
+  double heartbeat_timeout_factor = 2.0; ///< a node's heartbeat is overdue after this many heartbeat periods
+};
+
+/// What went wrong last on the bus (real-time safe to update and to copy).
+struct CanopenEvent {
+  IoStatus status = IoStatus::kOk;
+  int node_id = 0;                 ///< 0 when the bus as a whole (socket, bus-off)
+  std::uint32_t cob_id = 0;        ///< the frame concerned, when one
+  canopen::Emcy emcy{};            ///< when status is kDeviceFault from an EMCY
+  std::uint16_t statusword = 0;    ///< the node's last statusword
+  canopen::NmtState nmt = canopen::NmtState::kUnknown;  ///< the node's last heartbeat state
+  int err_no = 0;                  ///< errno of a failed socket call
+  std::int64_t t_ns = 0;
+  enum class What : std::uint8_t {
+    kNone, kSocket, kBusOff, kHeartbeatLost, kNotOperational, kEmcy, kFaultBit, kNotEnabled, kBadLength, kMissingTpdo,
+  } what = What::kNone;
+};
+
+class CanopenArm final : public Device {
+ public:
+  /// From a loaded config with a [bus.canopen] section (kInvalid otherwise, or when the PDO map
+  /// lacks an object the driver needs, a PDO is over 8 bytes, or a rated torque rounds to 0 mN·m).
+  /// Opens nothing yet: configure() does.
+  [[nodiscard]] static Result<std::unique_ptr<CanopenArm>> create(const arm::ArmConfig& config, FaultPolicy policy = {},
+                                                                  CanopenTiming timing = {});
+  /// Best effort when the drives may still be enabled: zero torque, shutdown, NMT pre-operational.
+  ~CanopenArm() override;
+
+  [[nodiscard]] int joint_count() const noexcept override { return n_; }
+  [[nodiscard]] const std::string& interface_name() const noexcept { return bus_.interface_name; }
+
+  /// What the driver knows of one node (joint j), real-time safe to read between ticks.
+  struct NodeInfo {
+    int node_id = 0;
+    std::uint16_t statusword = 0;
+    std::uint16_t controlword = 0;              ///< last sent
+    std::int16_t target_torque = 0;             ///< ‰ of rated_torque_mnm, last sent
+    std::uint32_t rated_torque_mnm = 0;         ///< written to 0x6076
+    std::int16_t max_torque = 0;                ///< ‰, written to 0x6072 (the peak torque)
+    std::uint32_t vendor_id = 0;                ///< 0x1018:1
+    canopen::NmtState nmt = canopen::NmtState::kUnknown;  ///< from the last heartbeat / boot-up
+    std::int64_t last_heartbeat_ns = 0;
+    std::uint64_t tpdos = 0, emcys = 0, heartbeats = 0;
+    canopen::Emcy last_emcy{};                  ///< the last EMCY (any code)
+  };
+  [[nodiscard]] const NodeInfo& node(int joint) const noexcept { return nodes_[static_cast<std::size_t>(joint)].info; }
+  /// The last thing that went wrong on the bus (status kOk: nothing yet).
+  [[nodiscard]] const CanopenEvent& last_event() const noexcept { return last_event_; }
+  /// last_event() as a sentence (allocates: not real-time).
+  [[nodiscard]] std::string describe(const CanopenEvent& e) const;
+  /// SYNCs sent since configure().
+  [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
+
+ protected:
+  Outcome on_configure() override;
+  Outcome on_activate() override;
+  Outcome on_deactivate() override;
+  Outcome on_rearm() override;
+  IoStatus on_read(JointState& out) noexcept override;
+  IoStatus on_write(const JointCommand& cmd) noexcept override;
+
+ private:
+  /// Where an object sits in a PDO's data.
+  struct Slot {
+    bool present = false;
+    std::uint8_t offset = 0;  ///< bytes
+    std::uint8_t bytes = 0;
+  };
+  struct PdoPlan {
+    int number = 0;   ///< 1..4
+    int divider = 1;  ///< sent every nth SYNC
+    std::uint8_t size = 0;  ///< bytes of mapped data
+    Slot statusword, position, inputs;       // TPDO
+    Slot controlword, target_torque, mode;   // RPDO
+  };
+  struct Node {
+    NodeInfo info;
+    // decoding
+    std::int64_t counts = 0;
+    std::int32_t last_raw = 0;
+    bool have_position = false;
+    std::uint32_t inputs = 0;
+    std::array<std::uint64_t, 4> tpdo_sync{};  ///< SYNC count when TPDO k last arrived
+    std::uint8_t seen_mask = 0;                ///< TPDOs (bit k) received this cycle
+    bool emcy_pending = false;                 ///< a non-zero EMCY not yet reported by read()
+    bool bad_length = false;
+    std::uint32_t bad_cob = 0;
+    bool boot_seen = false;                    ///< a boot-up since the last (re)configuration
+    // SDO client
+    bool sdo_reply = false;
+    std::array<std::uint8_t, 8> sdo_data{};
+    // estimation
+    double q_prev = 0;
+  };
+
+  CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
+
+  // Socket and frames (real-time safe).
+  [[nodiscard]] IoStatus send(const ::can_frame& f) noexcept;
+  [[nodiscard]] IoStatus send_sync() noexcept;
+  void send_nmt(canopen::NmtCommand cmd, int node_id) noexcept;
+  void handle(const ::can_frame& f, std::int64_t now) noexcept;
+  /// Reads every frame waiting (at most a bounded number). false: the socket failed.
+  bool drain(std::int64_t now) noexcept;
+  /// drain, SYNC, collect until every node's TPDOs of this cycle are in or the wait ends.
+  [[nodiscard]] IoStatus exchange(std::int64_t wait_ns) noexcept;
+  /// The status of the cycle just exchanged (see the header comment for the order).
+  [[nodiscard]] IoStatus evaluate(std::int64_t now, bool require_enabled) noexcept;
+  /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).
+  [[nodiscard]] IoStatus send_rpdos(bool all = false) noexcept;
+  void send_zero_torque() noexcept;
+  void note(IoStatus s, CanopenEvent::What what, int node_index, std::uint32_t cob, int err_no, std::int64_t now) noexcept;
+
+  // Configure-time steps (may allocate); failures name the interface, the node and the object.
+  Outcome open_socket();
+  Outcome fail(const std::string& what) const;
+  Outcome sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes);
+  Result<std::uint32_t> sdo_upload(int i, std::uint16_t index, std::uint8_t sub);
+  Result<std::uint32_t> sdo_transfer(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
+                                     const std::string& what);
+  void wait_boot_ups(double timeout_s, std::uint32_t node_mask);
+  Outcome configure_node(int i);
+  void start_nodes(std::uint32_t node_mask);
+  /// Runs paced SYNC cycles, each node's controlword from `next_cw`, zero torque, until `done`
+  /// holds for every node or the timeout; the error names the nodes that did not get there.
+  template <class NextCw, class Done>
+  Outcome drive_states(NextCw next_cw, Done done, const std::string& goal);
+  void restart_tracking(std::int64_t now) noexcept;
+
+  arm::ArmConfig config_;
+  arm::CanopenBusConfig bus_;
+  CanopenTiming timing_;
+  int n_ = 0;
+  int fd_ = -1;
+  bool pdo_running_ = false;  ///< nodes operational: PDOs flow
+  std::array<Node, kMaxJoints> nodes_{};
+  std::array<std::int8_t, 128> index_of_id_{};  ///< node id → joint, −1 when not ours
+  std::array<PdoPlan, 4> tpdos_{}, rpdos_{};
+  int n_tpdos_ = 0, n_rpdos_ = 0;
+  std::uint8_t expected_mask_ = 0;  ///< TPDOs due every SYNC (bit k of tpdos_)
+  int buttons_joint_ = 0;
+  std::int64_t sync_period_ns_ = 1'000'000;
+  std::int64_t read_budget_ns_ = 500'000;
+  std::int64_t heartbeat_timeout_ns_ = 0;  ///< 0: no heartbeat consumer
+  std::uint64_t sync_count_ = 0;
+  std::uint64_t tracking_since_ = 0;     ///< SYNC count when TPDO tracking (re)started
+  std::int64_t cycle_t_ns_ = 0;          ///< when this cycle's SYNC went out
+  std::int64_t prev_good_t_ns_ = 0;      ///< SYNC time of the previous good read (0: none)
+  bool socket_failed_ = false;
+  int socket_errno_ = 0;
+  bool bus_off_ = false;
+  CanopenEvent last_event_{};
+};
+
+}  // namespace lancet::device

@@ -1,0 +1,999 @@
+// ModbusArm (device/modbus_arm.hpp) against real Modbus peers, no hardware:
+//   - the in-process ArmServer (armsim/modbus_server.hpp) over TCP on an ephemeral loopback port,
+//     and over RTU on an openpty() pair (server on the master, ModbusArm opens the slave's path);
+//   - the lancet-armsim binary as a child process;
+//   - a foreign server: Debian's python3-pymodbus serving the same map (tests/.../pymodbus_arm.py;
+//     skipped when pymodbus is not installed);
+//   - fault injection on the server side: dropped, late and corrupted replies, a cut connection,
+//     encoder glitches; and a malloc guard over the steady-state read/write path.
+// Timing assertions are loose bounds only (10× the response timeout), never tight.
+
+#include <errno.h>
+#include <modbus.h>
+#include <netinet/in.h>
+#include <pty.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "arm/arm_config.hpp"
+#include "armsim/modbus_server.hpp"
+#include "device/modbus_arm.hpp"
+#include "malloc_guard.hpp"
+#include "process.hpp"
+#include "temp_files.hpp"
+
+#ifndef LANCET_SOURCE_DIR
+#define LANCET_SOURCE_DIR "."
+#endif
+#ifndef LANCET_BINARY_DIR
+#define LANCET_BINARY_DIR "."
+#endif
+
+namespace {
+
+using namespace lancet;
+using namespace lancet::device;
+using armsim::ArmServer;
+using armsim::ArmSnapshot;
+using armsim::FaultInjection;
+using armsim::HandMode;
+using armsim::ServerOptions;
+using Clock = std::chrono::steady_clock;
+
+const std::string kTcpConfig = std::string(LANCET_SOURCE_DIR) + "/hw_configs/modbus_tcp_arm.toml";
+const std::string kSimConfig = std::string(LANCET_SOURCE_DIR) + "/hw_configs/sim_3dof.toml";
+const std::string kArmsim = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-armsim";
+const std::string kPymodbusScript = std::string(LANCET_SOURCE_DIR) + "/tests/firmware_rt/device/pymodbus_arm.py";
+
+// Functional tests use a generous response timeout (sanitizer builds on two shared cores); the
+// shipped 0.8 ms is for the real loop.
+constexpr double kTimeout = 0.05;
+
+arm::ArmConfig load(const std::string& path) {
+  auto c = arm::load_arm_config(path);
+  EXPECT_TRUE(c.ok()) << (c.ok() ? "" : c.error().message);
+  return c.ok() ? c.value() : arm::ArmConfig{};
+}
+
+arm::ArmConfig tcp_config(int port, double timeout = kTimeout) {
+  arm::ArmConfig c = load(kTcpConfig);
+  c.modbus->port = port;
+  c.modbus->response_timeout = timeout;
+  return c;
+}
+
+arm::ArmConfig rtu_config(const std::string& device, double timeout = kTimeout) {
+  arm::ArmConfig c = load(kTcpConfig);
+  c.modbus->transport = arm::ModbusTransport::kRtu;
+  c.modbus->host.clear();
+  c.modbus->device = device;
+  c.modbus->baud = 115200;
+  c.modbus->parity = arm::Parity::kEven;
+  c.modbus->unit_id = 17;
+  c.modbus->response_timeout = timeout;
+  return c;
+}
+
+ServerOptions quiet_options() {
+  ServerOptions o;
+  o.hand = HandMode::kHold;
+  o.physics_rate = 0;  // the test steps the physics: values are deterministic
+  return o;
+}
+
+std::unique_ptr<ArmServer> make_server(const arm::ArmConfig& config, const ServerOptions& o = quiet_options()) {
+  auto s = ArmServer::create(config, o);
+  EXPECT_TRUE(s.ok()) << (s.ok() ? "" : s.error().message);
+  return s.ok() ? std::move(s).value() : nullptr;
+}
+
+std::unique_ptr<ModbusArm> make_arm(const arm::ArmConfig& config, FaultPolicy policy = {}) {
+  auto a = ModbusArm::create(config, policy);
+  EXPECT_TRUE(a.ok()) << (a.ok() ? "" : a.error().message);
+  return a.ok() ? std::move(a).value() : nullptr;
+}
+
+JointCommand torques(double t0, double t1, double t2) {
+  JointCommand c;
+  c.n = 3;
+  c.tau[0] = t0;
+  c.tau[1] = t1;
+  c.tau[2] = t2;
+  return c;
+}
+
+/// Joint torque of one current lsb on joint j (N·m).
+double torque_lsb(const arm::ArmConfig& c, int j) {
+  const auto uj = static_cast<std::size_t>(j);
+  return c.modbus->registers.current_command.lsb / std::abs(arm::motor_current_for_joint_torque(c.joints[uj], c.actuators[uj], 1.0));
+}
+
+/// A TCP server on an ephemeral port and a ModbusArm pointed at it (not configured yet).
+struct TcpRig {
+  explicit TcpRig(const ServerOptions& o = quiet_options(), FaultPolicy policy = {}, double timeout = kTimeout) {
+    server = make_server(load(kTcpConfig), o);
+    if (!server) return;
+    auto p = server->start_tcp(0);
+    EXPECT_TRUE(p.ok()) << (p.ok() ? "" : p.error().message);
+    if (!p.ok()) return;
+    port = p.value();
+    config = tcp_config(port, timeout);
+    arm = make_arm(config, policy);
+  }
+  [[nodiscard]] bool ready() const { return server && arm; }
+  bool bring_up() {
+    const Outcome c = arm->configure();
+    EXPECT_TRUE(c.ok()) << c.error->message;
+    if (!c.ok()) return false;
+    const Outcome a = arm->activate();
+    EXPECT_TRUE(a.ok()) << a.error->message;
+    return a.ok();
+  }
+  std::unique_ptr<ArmServer> server;
+  std::unique_ptr<ModbusArm> arm;
+  arm::ArmConfig config;
+  int port = 0;
+};
+
+/// A pty pair in raw mode; the test keeps the slave open too so the master never sees a hang-up.
+struct Pty {
+  Pty() {
+    char name[256] = {};
+    if (openpty(&master, &slave, name, nullptr, nullptr) != 0) return;
+    termios t{};
+    tcgetattr(slave, &t);
+    cfmakeraw(&t);
+    tcsetattr(slave, TCSANOW, &t);
+    path = name;
+  }
+  ~Pty() {
+    if (master >= 0) close(master);
+    if (slave >= 0) close(slave);
+  }
+  Pty(const Pty&) = delete;
+  Pty& operator=(const Pty&) = delete;
+  int master = -1, slave = -1;
+  std::string path;
+};
+
+/// A port nobody listens on (bound, read, released).
+int free_port() {
+  const int s = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t len = sizeof a;
+  bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  getsockname(s, reinterpret_cast<sockaddr*>(&a), &len);
+  close(s);
+  return ntohs(a.sin_port);
+}
+
+/// The port in a child's "... on 127.0.0.1:<port>" line; nullopt if it exits or times out.
+std::optional<int> wait_for_port(test::Child& child, const std::string& output, double timeout_s) {
+  const std::string marker = "' on 127.0.0.1:";
+  const auto end = Clock::now() + std::chrono::duration<double>(timeout_s);
+  while (Clock::now() < end) {
+    const std::string text = test::read_file(output);
+    const std::size_t at = text.find(marker);
+    const std::size_t eol = at == std::string::npos ? std::string::npos : text.find('\n', at);
+    if (eol != std::string::npos && text.find("serving '") < at) return std::stoi(text.substr(at + marker.size(), eol - at - marker.size()));
+    if (child.wait_exit(std::chrono::milliseconds(20))) return std::nullopt;
+  }
+  return std::nullopt;
+}
+
+template <class F>
+bool eventually(F&& f, double timeout_s) {
+  const auto end = Clock::now() + std::chrono::duration<double>(timeout_s);
+  while (Clock::now() < end) {
+    if (f()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return f();
+}
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
+
+std::string describe(const IoCounters& c) {
+  return "reads " + std::to_string(c.reads) + ", writes " + std::to_string(c.writes) + ", ok " + std::to_string(c.ok) + ", timeouts " +
+         std::to_string(c.timeouts) + ", crc errors " + std::to_string(c.crc_errors) + ", protocol errors " + std::to_string(c.protocol_errors) +
+         ", disconnects " + std::to_string(c.disconnects);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Codec, error mapping and transaction planning
+
+TEST(ModbusCodec, RegisterCountsAndWordOrder) {
+  using arm::FieldType;
+  EXPECT_EQ(modbus::register_count(FieldType::kU16), 1);
+  EXPECT_EQ(modbus::register_count(FieldType::kI16), 1);
+  EXPECT_EQ(modbus::register_count(FieldType::kU32), 2);
+  EXPECT_EQ(modbus::register_count(FieldType::kI32), 2);
+  std::uint16_t r[2] = {};
+  modbus::encode_registers(FieldType::kI32, true, -2, r);
+  EXPECT_EQ(r[0], 0xFFFF);
+  EXPECT_EQ(r[1], 0xFFFE);
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, true, r), -2);
+  modbus::encode_registers(FieldType::kU32, true, 0x12345678, r);
+  EXPECT_EQ(r[0], 0x1234);
+  EXPECT_EQ(r[1], 0x5678);
+  modbus::encode_registers(FieldType::kU32, false, 0x12345678, r);
+  EXPECT_EQ(r[0], 0x5678);
+  EXPECT_EQ(r[1], 0x1234);
+  EXPECT_EQ(modbus::decode_registers(FieldType::kU32, false, r), 0x12345678);
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, false, r), 0x12345678);
+  r[0] = 0x8000;
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), -32768);
+  EXPECT_EQ(modbus::decode_registers(FieldType::kU16, true, r), 32768);
+  for (std::int64_t v : {-2147483648LL, -1LL, 0LL, 1LL, 300000LL, 2147483647LL})
+    for (bool hwf : {true, false}) {
+      modbus::encode_registers(FieldType::kI32, hwf, v, r);
+      EXPECT_EQ(modbus::decode_registers(FieldType::kI32, hwf, r), v);
+    }
+}
+
+TEST(ModbusCodec, EncodeClampsToTheTypesRange) {
+  using arm::FieldType;
+  std::uint16_t r[2] = {};
+  EXPECT_TRUE(modbus::encode_registers(FieldType::kI16, true, 40000, r));
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), 32767);
+  EXPECT_TRUE(modbus::encode_registers(FieldType::kI16, true, -40000, r));
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), -32768);
+  EXPECT_TRUE(modbus::encode_registers(FieldType::kU16, true, -1, r));
+  EXPECT_EQ(r[0], 0);
+  EXPECT_TRUE(modbus::encode_registers(FieldType::kI32, true, 1LL << 40, r));
+  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, true, r), 2147483647);
+  EXPECT_FALSE(modbus::encode_registers(FieldType::kI16, true, -5, r));
+}
+
+TEST(ModbusCodec, ErrnoMapsToIoStatus) {
+  EXPECT_EQ(modbus::io_status_from_errno(0), IoStatus::kOk);
+  EXPECT_EQ(modbus::io_status_from_errno(ETIMEDOUT), IoStatus::kTimeout);
+  EXPECT_EQ(modbus::io_status_from_errno(EMBBADCRC), IoStatus::kCrcError);
+  for (int e : {EMBBADDATA, EMBBADEXC, EMBMDATA, EMBXILFUN, EMBXILADD, EMBXILVAL, EMBXSFAIL, EMBXSBUSY, EMBXGTAR, EMBBADSLAVE, EMBUNKEXC})
+    EXPECT_EQ(modbus::io_status_from_errno(e), IoStatus::kProtocolError) << modbus_strerror(e);
+  for (int e : {ECONNRESET, EPIPE, ECONNREFUSED, EBADF, ENOTCONN, EIO})
+    EXPECT_EQ(modbus::io_status_from_errno(e), IoStatus::kDisconnected) << modbus_strerror(e);
+}
+
+TEST(ModbusCodec, PlanMergesContiguousRegistersOfOneTable) {
+  using arm::RegisterTable;
+  using modbus::RegisterSpan;
+  // Encoders 0..5, status 6, buttons 7 of the input table: one read.
+  auto b = modbus::plan_blocks({{RegisterTable::kInput, 7, 1}, {RegisterTable::kInput, 0, 6}, {RegisterTable::kInput, 6, 1}}, 125);
+  ASSERT_EQ(b.size(), 1u);
+  EXPECT_EQ(b[0].address, 0);
+  EXPECT_EQ(b[0].count, 8);
+  // A gap or another table splits; offsets pack the blocks back to back.
+  b = modbus::plan_blocks({{RegisterTable::kHolding, 0, 3}, {RegisterTable::kHolding, 4, 1}, {RegisterTable::kInput, 3, 2}}, 125);
+  ASSERT_EQ(b.size(), 3u);
+  EXPECT_EQ(b[0].table, RegisterTable::kInput);
+  EXPECT_EQ(b[0].offset, 0);
+  EXPECT_EQ(b[1].table, RegisterTable::kHolding);
+  EXPECT_EQ(b[1].offset, 2);
+  EXPECT_EQ(b[2].address, 4);
+  EXPECT_EQ(b[2].offset, 5);
+  // The per-transaction limit splits too.
+  b = modbus::plan_blocks({{RegisterTable::kInput, 0, 100}, {RegisterTable::kInput, 100, 100}}, 125);
+  EXPECT_EQ(b.size(), 2u);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Create and configure
+
+TEST(ModbusArm, CreateNeedsAModbusSection) {
+  auto a = ModbusArm::create(load(kSimConfig));
+  ASSERT_FALSE(a.ok());
+  EXPECT_TRUE(contains(a.error().message, "[bus.modbus]")) << a.error().message;
+  EXPECT_TRUE(contains(a.error().message, "sim_3dof.toml")) << a.error().message;
+}
+
+TEST(ModbusArm, TheShippedMapIsOneReadAndOneWritePerTick) {
+  auto a = make_arm(tcp_config(1502));
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a->read_transactions(), 1);   // input 0..7: encoders, status, buttons
+  EXPECT_EQ(a->write_transactions(), 1);  // holding 0..4: currents, control, heartbeat
+  EXPECT_EQ(a->endpoint(), "127.0.0.1:1502");
+  EXPECT_EQ(a->joint_count(), 3);
+  EXPECT_EQ(a->name(), "modbus arm 'modbus-bench-3dof'");
+
+  // A control register away from the per-tick registers is not written every tick.
+  arm::ArmConfig c = tcp_config(1502);
+  c.modbus->registers.heartbeat->address = 3;
+  c.modbus->registers.control->address = 10;
+  c.modbus->registers.buttons->address = 20;
+  a = make_arm(c);
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a->write_transactions(), 1);  // holding 0..3
+  EXPECT_EQ(a->read_transactions(), 2);   // input 0..6, 20
+}
+
+TEST(ModbusArm, ConfigureNamesTheEndpointWhenNobodyListens) {
+  const int port = free_port();
+  auto a = make_arm(tcp_config(port));
+  ASSERT_TRUE(a);
+  const Outcome o = a->configure();
+  ASSERT_FALSE(o.ok());
+  const std::string& m = o.error->message;
+  EXPECT_TRUE(contains(m, "127.0.0.1:" + std::to_string(port))) << m;
+  EXPECT_TRUE(contains(m, "cannot connect")) << m;
+  EXPECT_TRUE(contains(m, "refused")) << m;
+  EXPECT_EQ(a->state(), Lifecycle::kUnconfigured);
+}
+
+TEST(ModbusArm, ConfigureNamesTheSerialDeviceThatIsMissing) {
+  auto a = make_arm(rtu_config("/dev/lancet-no-such-tty"));
+  ASSERT_TRUE(a);
+  const Outcome o = a->configure();
+  ASSERT_FALSE(o.ok());
+  EXPECT_TRUE(contains(o.error->message, "/dev/lancet-no-such-tty")) << o.error->message;
+  EXPECT_TRUE(contains(o.error->message, "cannot open the serial device")) << o.error->message;
+}
+
+TEST(ModbusArm, ConfigureFailsWhenTheArmDoesNotAnswerAndCanBeRetried) {
+  ServerOptions o = quiet_options();
+  o.faults.drop_replies = 1.0;
+  TcpRig rig(o, {}, 0.02);
+  ASSERT_TRUE(rig.ready());
+  const Outcome c = rig.arm->configure();
+  ASSERT_FALSE(c.ok());
+  const std::string& m = c.error->message;
+  EXPECT_TRUE(contains(m, "127.0.0.1:" + std::to_string(rig.port))) << m;
+  EXPECT_TRUE(contains(m, "does not answer")) << m;
+  EXPECT_TRUE(contains(m, "input registers 0..7")) << m;
+  EXPECT_TRUE(contains(m, "timed out")) << m;
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kUnconfigured);
+  rig.server->set_faults({});
+  EXPECT_TRUE(rig.arm->configure().ok());
+}
+
+// ---------------------------------------------------------------------------------------------
+// TCP against the in-process server
+
+TEST(ModbusArmTcp, EncodersReadBackEqualTheSimulatorsCounts) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  const double poses[][3] = {{0, 0, 0}, {0.5, -0.3, 0.2}, {-1.1, 1.2, -1.6}, {1e-4, 2e-4, -3e-4}};
+  for (const auto& q : poses) {
+    rig.server->set_pose(q);
+    const ArmSnapshot truth = rig.server->snapshot();
+    JointState s;
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+    ASSERT_EQ(s.n, 3);
+    for (int j = 0; j < 3; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      EXPECT_EQ(s.counts[uj], truth.counts[uj]) << "joint " << j;
+      EXPECT_DOUBLE_EQ(s.q[uj], arm::joint_position_from_counts(rig.config.joints[uj], truth.counts[uj]));
+      const double per_count = std::abs(arm::joint_position_from_counts(rig.config.joints[uj], 1) - arm::joint_position_from_counts(rig.config.joints[uj], 0));
+      EXPECT_NEAR(s.q[uj], truth.q[uj], per_count);
+    }
+  }
+  EXPECT_EQ(rig.arm->counters().ok, 4u);
+}
+
+TEST(ModbusArmTcp, AWrittenTorqueBecomesTheSimulatorsMotorTorque) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  for (const JointCommand& cmd : {torques(0.5, -0.25, 0.1), torques(-1.3, 0.001, -0.7), torques(0, 0, 0)}) {
+    ASSERT_EQ(rig.arm->write(cmd), IoStatus::kOk);
+    rig.server->step_physics(1e-3);
+    const ArmSnapshot snap = rig.server->snapshot();
+    EXPECT_TRUE(snap.enabled);
+    for (int j = 0; j < 3; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      EXPECT_NEAR(snap.motor_torque[uj], cmd.tau[uj], torque_lsb(rig.config, j)) << "joint " << j;
+      EXPECT_NEAR(snap.current[uj], rig.arm->commanded_current(j), 1e-12);
+    }
+  }
+  // Beyond the peak current: clamped at the driver (and counted), the motor gives its peak.
+  ASSERT_EQ(rig.arm->write(torques(50, -50, 0)), IoStatus::kOk);
+  rig.server->step_physics(1e-3);
+  const ArmSnapshot snap = rig.server->snapshot();
+  EXPECT_NEAR(snap.current[0], rig.config.actuators[0].peak_current, 1e-9);
+  EXPECT_NEAR(std::abs(snap.current[1]), rig.config.actuators[1].peak_current, 1e-9);
+  EXPECT_EQ(rig.arm->current_clamps(), 2u);
+  const double peak0 = rig.config.actuators[0].peak_torque() * rig.config.joints[0].gear_ratio;
+  EXPECT_NEAR(snap.motor_torque[0], peak0, 1e-9);
+  EXPECT_NEAR(snap.motor_torque[1], -peak0, 1e-9);  // joint 1 turns the other way, same motor
+  // Non-finite torques send zero current.
+  ASSERT_EQ(rig.arm->write(torques(std::nan(""), INFINITY, 0)), IoStatus::kOk);
+  rig.server->step_physics(1e-3);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(rig.server->snapshot().motor_torque[static_cast<std::size_t>(j)], 0.0);
+}
+
+TEST(ModbusArmTcp, ActivateEnablesTheDrivesAndDeactivateZeroesAndDisablesThem) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.arm->configure().ok());
+  EXPECT_FALSE(rig.server->snapshot().enabled);
+  ASSERT_TRUE(rig.arm->activate().ok());
+  ArmSnapshot snap = rig.server->snapshot();
+  EXPECT_TRUE(snap.enabled);
+  EXPECT_EQ(snap.control, modbus::kControlEnable);
+  for (int i = 0; i < 5; ++i) ASSERT_EQ(rig.arm->write(torques(0.2, 0.2, 0.2)), IoStatus::kOk);
+  snap = rig.server->snapshot();
+  EXPECT_EQ(snap.heartbeat, 5u);  // bumped on every write
+  EXPECT_EQ(snap.control, modbus::kControlEnable);  // held as a level in the same transaction
+  EXPECT_NE(snap.current[0], 0.0);
+  ASSERT_TRUE(rig.arm->deactivate().ok());
+  rig.server->step_physics(1e-3);
+  snap = rig.server->snapshot();
+  EXPECT_FALSE(snap.enabled);
+  EXPECT_EQ(snap.control, 0u);
+  for (int j = 0; j < 3; ++j) {
+    EXPECT_EQ(snap.current[static_cast<std::size_t>(j)], 0.0);
+    EXPECT_EQ(snap.motor_torque[static_cast<std::size_t>(j)], 0.0);
+  }
+  // Reading still works while inactive (monitoring).
+  JointState s;
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+}
+
+TEST(ModbusArmTcp, AHostNameIsResolved) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  arm::ArmConfig c = rig.config;
+  c.modbus->host = "localhost";
+  auto a = make_arm(c);
+  ASSERT_TRUE(a);
+  const Outcome o = a->configure();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  JointState s;
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+}
+
+TEST(ModbusArmTcp, StatusAndButtonsDecode) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+  EXPECT_EQ(s.buttons, 0u);
+  // Config buttons: 0 handle_trigger (bit 0), 1 handle_thumb (bit 1), 2 foot_pedal (bit 4).
+  rig.server->set_buttons(1u << 4);
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.buttons, 1u << 2);
+  rig.server->set_buttons((1u << 0) | (1u << 1) | (1u << 3));
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.buttons, 0b011u);  // bit 3 is no configured button
+  // An active-low button reads pressed when its bit is 0.
+  arm::ArmConfig c = rig.config;
+  c.buttons[2].active_low = true;
+  auto low = make_arm(c);
+  ASSERT_TRUE(low);
+  ASSERT_TRUE(low->configure().ok());
+  ASSERT_EQ(low->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.buttons, 0b111u);
+}
+
+TEST(ModbusArmTcp, ADriveFaultTripsAtOnceAndRearmResetsIt) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 100});
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  ASSERT_EQ(rig.arm->write(torques(0.3, 0, 0)), IoStatus::kOk);
+  rig.server->set_drive_fault(true);
+  JointState s;
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kFault);
+  EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDeviceFault);
+  EXPECT_EQ(rig.arm->counters().device_faults, 1u);
+  EXPECT_TRUE((s.status & modbus::kStatusDriveFault) != 0);
+  EXPECT_EQ(rig.arm->write(torques(0.3, 0, 0)), IoStatus::kFault);
+  EXPECT_EQ(rig.server->snapshot().current[0], 0.0);  // the fault path sent zero
+  ASSERT_TRUE(rig.arm->rearm().ok());
+  const ArmSnapshot snap = rig.server->snapshot();
+  EXPECT_FALSE(snap.drive_fault);  // the fault-reset bit cleared it
+  EXPECT_TRUE(snap.enabled);
+  EXPECT_EQ(snap.control, modbus::kControlEnable);
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+}
+
+TEST(ModbusArmTcp, RearmFailsWhileTheDriveKeepsItsFault) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  rig.server->set_drive_fault(true, /*sticky=*/true);
+  JointState s;
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kFault);
+  const Outcome r = rig.arm->rearm();
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(contains(r.error->message, "still reports a fault")) << r.error->message;
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kFault);
+  EXPECT_FALSE(rig.server->snapshot().enabled);
+  rig.server->set_drive_fault(false);
+  const Outcome again = rig.arm->rearm();
+  ASSERT_TRUE(again.ok()) << again.error->message;
+  EXPECT_TRUE(rig.server->snapshot().enabled);
+}
+
+TEST(ModbusArmTcp, VelocityIsAFilteredFiniteDifference) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  double q[3] = {0, 0, 0};
+  rig.server->set_pose(q);
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.qd[0], 0.0);  // no history yet
+  // The pose ramps at 1 rad/s in joint 0; the estimate heads there and stays finite.
+  const auto t0 = Clock::now();
+  for (int i = 0; i < 200; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    q[0] = seconds_since(t0);
+    rig.server->set_pose(q);
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+    ASSERT_TRUE(std::isfinite(s.qd[0]));
+  }
+  EXPECT_GT(s.qd[0], 0.3);
+  EXPECT_LT(s.qd[0], 3.0);
+  EXPECT_NEAR(s.qd[1], 0.0, 1e-9);
+}
+
+TEST(ModbusArmTcp, ThePhysicsThreadFollowsTheCommands) {
+  ServerOptions o = quiet_options();
+  o.physics_rate = 1000;
+  o.hand = HandMode::kFree;
+  TcpRig rig(o);
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  const double q0 = s.q[0];
+  // Joint 0 (direction +1) pushed positive for a while with no hand: it turns positive.
+  ASSERT_TRUE(eventually([&] {
+    EXPECT_EQ(rig.arm->write(torques(0.05, 0, 0)), IoStatus::kOk);
+    EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+    return s.q[0] > q0 + 0.01;
+  }, 5.0));
+  EXPECT_GT(s.qd[0], 0.0);
+  EXPECT_GT(rig.server->snapshot().steps, 10u);
+}
+
+TEST(ModbusArmTcp, ReadAndWriteAllocateNothingInSteadyState) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  for (int i = 0; i < 200; ++i) {  // warm-up
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+    ASSERT_EQ(rig.arm->write(torques(0.01 * i, 0, 0)), IoStatus::kOk);
+  }
+  lancet::test::MallocGuard guard;
+  for (int i = 0; i < 2000; ++i) {
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+    ASSERT_EQ(rig.arm->write(torques(0.001 * (i % 100), -0.1, 0.05)), IoStatus::kOk);
+  }
+  EXPECT_EQ(guard.count(), 0u) << "ModbusArm read/write (or libmodbus under them) allocated; malloc counted: "
+                               << lancet::test::malloc_is_counted();
+}
+
+// ---------------------------------------------------------------------------------------------
+// RTU over a pty pair
+
+TEST(ModbusArmRtu, EncodersAndTorquesOverAPty) {
+  Pty pty;
+  ASSERT_GE(pty.master, 0) << "openpty: " << std::strerror(errno);
+  const arm::ArmConfig config = rtu_config(pty.path);
+  auto server = make_server(config);
+  ASSERT_TRUE(server);
+  ASSERT_TRUE(server->start_rtu(pty.master).ok());
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a->endpoint(), pty.path);
+  const Outcome c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error->message;
+  ASSERT_TRUE(a->activate().ok());
+  const double q[3] = {0.4, -0.2, 0.9};
+  server->set_pose(q);
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  const ArmSnapshot truth = server->snapshot();
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]);
+  const JointCommand cmd = torques(-0.4, 0.8, 0.15);
+  ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  server->step_physics(1e-3);
+  const ArmSnapshot after = server->snapshot();
+  for (int j = 0; j < 3; ++j)
+    EXPECT_NEAR(after.motor_torque[static_cast<std::size_t>(j)], cmd.tau[static_cast<std::size_t>(j)], torque_lsb(config, j));
+  EXPECT_EQ(after.heartbeat, 1u);
+  for (int i = 0; i < 200; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  }
+  lancet::test::MallocGuard guard;
+  for (int i = 0; i < 500; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  }
+  EXPECT_EQ(guard.count(), 0u) << "RTU read/write allocated";
+  ASSERT_TRUE(a->deactivate().ok());
+  EXPECT_EQ(server->snapshot().control, 0u);
+  a.reset();
+  server->stop();
+}
+
+TEST(ModbusArmRtu, CorruptRepliesAreCrcErrorsAndNeverAccepted) {
+  Pty pty;
+  ASSERT_GE(pty.master, 0);
+  const arm::ArmConfig config = rtu_config(pty.path, 0.02);
+  auto server = make_server(config);
+  ASSERT_TRUE(server);
+  ASSERT_TRUE(server->start_rtu(pty.master).ok());
+  auto a = make_arm(config, {.max_consecutive_errors = 1'000'000});
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  const double q[3] = {0.3, 0.3, -0.3};
+  server->set_pose(q);
+  const ArmSnapshot truth = server->snapshot();
+  FaultInjection f;
+  f.corrupt = 0.3;
+  server->set_faults(f);
+  JointState s;
+  int ok = 0;
+  for (int i = 0; i < 300; ++i) {
+    const IoStatus st = a->read(s);
+    if (st == IoStatus::kOk) {
+      ++ok;
+      for (int j = 0; j < 3; ++j) ASSERT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]);
+    }
+    (void)a->write(torques(0.1, 0.1, 0.1));
+  }
+  const IoCounters& c = a->counters();
+  std::printf("rtu corrupt replies: %s\n", describe(c).c_str());
+  EXPECT_GT(ok, 100);
+  EXPECT_GT(c.crc_errors, 20u);
+  // Over RTU every flipped byte is a CRC error: one per corrupted reply, nothing else.
+  EXPECT_EQ(c.crc_errors, server->snapshot().stats.corrupted) << describe(c);
+  EXPECT_EQ(c.crc_errors + c.ok, c.reads + c.writes) << describe(c);
+  EXPECT_EQ(a->state(), Lifecycle::kActive);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fault injection over TCP
+
+TEST(ModbusArmFaults, DroppedRepliesTimeOutThenFaultWithZeroTorque) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 3});
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  ASSERT_EQ(rig.arm->write(torques(0.4, 0.4, 0.4)), IoStatus::kOk);
+  EXPECT_NE(rig.server->snapshot().current[0], 0.0);
+  FaultInjection drop;
+  drop.drop_replies = 1.0;
+  rig.server->set_faults(drop);
+  JointState s;
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kTimeout);
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kTimeout);
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kFault);
+  EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kTimeout);
+  EXPECT_EQ(rig.arm->counters().timeouts, 3u);
+  EXPECT_EQ(rig.arm->last_errno(), ETIMEDOUT);
+  // Once the bus answers again, the fault path's best-effort write lands: zero current.
+  rig.server->set_faults({});
+  EXPECT_EQ(rig.arm->write(torques(0.4, 0.4, 0.4)), IoStatus::kFault);
+  rig.server->step_physics(1e-3);
+  const ArmSnapshot snap = rig.server->snapshot();
+  for (int j = 0; j < 3; ++j) {
+    EXPECT_EQ(snap.current[static_cast<std::size_t>(j)], 0.0);
+    EXPECT_EQ(snap.motor_torque[static_cast<std::size_t>(j)], 0.0);
+  }
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kFault);  // still in fault until rearm
+  ASSERT_TRUE(rig.arm->rearm().ok());
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+}
+
+TEST(ModbusArmFaults, LateRepliesTimeOutWithinABoundAndRearmRecovers) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 3});
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  FaultInjection late;
+  late.delay_us = 300'000;  // far beyond the 50 ms timeout
+  rig.server->set_faults(late);
+  JointState s;
+  for (int i = 0; i < 3; ++i) {
+    const auto t0 = Clock::now();
+    const IoStatus st = rig.arm->read(s);
+    const double took = seconds_since(t0);
+    EXPECT_EQ(st, i < 2 ? IoStatus::kTimeout : IoStatus::kFault);
+    EXPECT_LT(took, 10 * kTimeout) << "a read must give up after about the response timeout";
+  }
+  EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kTimeout);
+  // The late replies still arrive on the old connection; rearm starts a clean one.
+  rig.server->set_faults({});
+  ASSERT_TRUE(eventually([&] { const auto st = rig.server->snapshot().stats; return st.replies >= st.requests; }, 5.0));
+  const Outcome r = rig.arm->rearm();
+  ASSERT_TRUE(r.ok()) << r.error->message;
+  const ArmSnapshot truth = rig.server->snapshot();
+  for (int i = 0; i < 20; ++i) {
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+    EXPECT_EQ(s.counts[0], truth.counts[0]);
+  }
+}
+
+TEST(ModbusArmFaults, ADisconnectFaultsAtOnceAndRearmReconnectsWhenTheServerIsBack) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 100});
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  rig.server->disconnect_clients(0.4);
+  // The server acts within its poll period; until then reads still succeed.
+  IoStatus st = IoStatus::kOk;
+  ASSERT_TRUE(eventually([&] {
+    st = rig.arm->read(s);
+    return st != IoStatus::kOk;
+  }, 2.0));
+  EXPECT_EQ(st, IoStatus::kFault);
+  EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDisconnected);
+  EXPECT_EQ(rig.arm->counters().disconnects, 1u);
+  EXPECT_EQ(rig.arm->write(torques(0.1, 0, 0)), IoStatus::kFault);  // best effort, fails fast
+  // While the server refuses connections, rearm fails and says where and why.
+  const Outcome refused = rig.arm->rearm();
+  ASSERT_FALSE(refused.ok());
+  EXPECT_TRUE(contains(refused.error->message, "127.0.0.1:" + std::to_string(rig.port))) << refused.error->message;
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kFault);
+  // Once it listens again, rearm reconnects and the arm is active.
+  ASSERT_TRUE(eventually([&] { return rig.arm->rearm().ok(); }, 5.0));
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kActive);
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(rig.arm->write(torques(0.1, 0, 0)), IoStatus::kOk);
+  EXPECT_GE(rig.server->snapshot().stats.connections, 2u);
+}
+
+TEST(ModbusArmFaults, ActivateAfterADisconnectReconnects) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  rig.server->disconnect_clients(0);  // cut, but keep listening
+  JointState s;
+  ASSERT_TRUE(eventually([&] { return rig.arm->read(s) != IoStatus::kOk; }, 2.0));
+  EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDisconnected);
+  (void)rig.arm->deactivate();  // the link is gone: it may fail, the arm is inactive anyway
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kInactive);
+  const Outcome a = rig.arm->activate();
+  ASSERT_TRUE(a.ok()) << a.error->message;
+  EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_TRUE(rig.server->snapshot().enabled);
+}
+
+TEST(ModbusArmFaults, CorruptRepliesAreCountedAndNeverAccepted) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 1'000'000}, 0.02);
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  const double q[3] = {-0.5, 0.7, 0.25};
+  rig.server->set_pose(q);
+  const ArmSnapshot truth = rig.server->snapshot();
+  FaultInjection f;
+  f.corrupt = 0.3;
+  rig.server->set_faults(f);
+  JointState s;
+  int ok = 0;
+  for (int i = 0; i < 300; ++i) {
+    if (rig.arm->read(s) == IoStatus::kOk) {
+      ++ok;
+      for (int j = 0; j < 3; ++j) ASSERT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]);
+      ASSERT_EQ(s.status, modbus::kStatusEnabled);
+    }
+    (void)rig.arm->write(torques(0.2, -0.2, 0.1));
+  }
+  const IoCounters& c = rig.arm->counters();
+  EXPECT_GT(ok, 100);
+  EXPECT_GT(c.protocol_errors + c.timeouts, 20u);
+  std::printf("tcp corrupt replies: %s\n", describe(c).c_str());
+  EXPECT_EQ(c.crc_errors, 0u);  // TCP has no CRC: garbled framing shows as protocol errors
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kActive);
+  // Writes are applied whether or not their reply came back intact: the registers hold the command.
+  rig.server->set_faults({});
+  ASSERT_EQ(rig.arm->write(torques(0.2, -0.2, 0.1)), IoStatus::kOk);
+  rig.server->step_physics(1e-3);
+  EXPECT_NEAR(rig.server->snapshot().motor_torque[0], 0.2, torque_lsb(rig.config, 0));
+}
+
+TEST(ModbusArmFaults, EncoderGlitchesShowInQWithoutNaN) {
+  TcpRig rig;
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  const double q[3] = {0.1, 0.2, 0.3};
+  rig.server->set_pose(q);
+  const ArmSnapshot truth = rig.server->snapshot();
+  FaultInjection f;
+  f.encoder_glitch = 0.5;
+  rig.server->set_faults(f);
+  JointState s;
+  int glitched = 0;
+  for (int i = 0; i < 200; ++i) {
+    ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);  // the device layer reports what the encoder says
+    bool any = false;
+    for (int j = 0; j < 3; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      ASSERT_TRUE(std::isfinite(s.q[uj]) && std::isfinite(s.qd[uj]));
+      const std::int64_t jump = s.counts[uj] - truth.counts[uj];
+      if (jump != 0) {
+        EXPECT_EQ(std::abs(jump), rig.config.joints[uj].counts_per_rev);
+        EXPECT_NEAR(std::abs(s.q[uj] - q[j]), std::abs(arm::joint_position_from_counts(rig.config.joints[uj], jump) - rig.config.joints[uj].offset), 1e-3);
+        any = true;
+      }
+    }
+    glitched += any ? 1 : 0;
+  }
+  EXPECT_GT(glitched, 20);
+  EXPECT_EQ(rig.server->snapshot().stats.glitches, static_cast<std::uint64_t>(glitched));
+  rig.server->set_faults({});
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.counts[0], truth.counts[0]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The lancet-armsim binary
+
+class LancetArmsim : public test::TempDirTest {};
+
+TEST_F(LancetArmsim, ServesTheArmAndExitsCleanlyOnSigterm) {
+  const std::string out = (dir_ / "armsim.out").string();
+  test::Child child({kArmsim, kTcpConfig, "--port", "0", "--hand", "hold"}, out);
+  ASSERT_TRUE(child.started()) << kArmsim;
+  const auto port = wait_for_port(child, out, 10.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  auto a = make_arm(tcp_config(*port, 0.2));
+  ASSERT_TRUE(a);
+  const Outcome c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error->message;
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  const double q0 = s.q[0];
+  // Held by the hand's spring, joint 0 yields a little to a positive torque.
+  ASSERT_TRUE(eventually([&] {
+    EXPECT_EQ(a->write(torques(0.3, 0, 0)), IoStatus::kOk);
+    EXPECT_EQ(a->read(s), IoStatus::kOk);
+    return s.q[0] > q0 + 1e-3;
+  }, 5.0)) << "q0 " << s.q[0];
+  ASSERT_TRUE(a->deactivate().ok());
+  child.signal(SIGTERM);
+  const auto status = child.wait_exit(std::chrono::seconds(5));
+  ASSERT_TRUE(status);
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 0) << test::read_file(out);
+  EXPECT_TRUE(contains(test::read_file(out), "lancet-armsim: SIGTERM after")) << test::read_file(out);
+}
+
+TEST_F(LancetArmsim, ScheduledDisconnectFaultsTheArmAndRearmReconnects) {
+  const std::string out = (dir_ / "armsim.out").string();
+  test::Child child({kArmsim, kTcpConfig, "--port", "0", "--hand", "hold", "--disconnect-after", "0.5", "--reconnect-after", "0.5"}, out);
+  const auto port = wait_for_port(child, out, 10.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  auto a = make_arm(tcp_config(*port, 0.2), {.max_consecutive_errors = 100});
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  ASSERT_TRUE(eventually([&] {
+    (void)a->read(s);
+    (void)a->write(torques(0, 0, 0));
+    return a->state() == Lifecycle::kFault;
+  }, 10.0));
+  EXPECT_EQ(a->fault_cause(), IoStatus::kDisconnected);
+  int refused = 0;
+  ASSERT_TRUE(eventually([&] {
+    if (a->rearm().ok()) return true;
+    ++refused;
+    return false;
+  }, 10.0));
+  EXPECT_GT(refused, 0) << "the server should refuse for 0.5 s";
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+  child.signal(SIGTERM);
+  ASSERT_TRUE(child.wait_exit(std::chrono::seconds(5)));
+}
+
+TEST_F(LancetArmsim, ServesRtuOnAnInheritedPty) {
+  Pty pty;  // not close-on-exec: the child inherits the master
+  ASSERT_GE(pty.master, 0);
+  const std::string out = (dir_ / "armsim.out").string();
+  test::Child child({kArmsim, kTcpConfig, "--rtu-fd", std::to_string(pty.master), "--hand", "hold"}, out);
+  ASSERT_TRUE(eventually([&] { return contains(test::read_file(out), "(rtu, unit 1)"); }, 10.0)) << test::read_file(out);
+  arm::ArmConfig config = rtu_config(pty.path, 0.2);
+  config.modbus->unit_id = 1;  // the shipped file's unit
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  const Outcome c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error->message;
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  for (int i = 0; i < 50; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(torques(0, 0, 0)), IoStatus::kOk);
+  }
+  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+  ASSERT_TRUE(a->deactivate().ok());
+  child.signal(SIGTERM);
+  const auto status = child.wait_exit(std::chrono::seconds(5));
+  ASSERT_TRUE(status);
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 0) << test::read_file(out);
+}
+
+TEST_F(LancetArmsim, RefusesAConfigWithoutARegisterMap) {
+  const std::string out = (dir_ / "armsim.out").string();
+  test::Child child({kArmsim, kSimConfig, "--port", "0"}, out);
+  const auto status = child.wait_exit(std::chrono::seconds(10));
+  ASSERT_TRUE(status);
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 2);
+  EXPECT_TRUE(contains(test::read_file(out), "[bus.modbus]")) << test::read_file(out);
+}
+
+// ---------------------------------------------------------------------------------------------
+// A foreign server: pymodbus
+
+class PymodbusServer : public test::TempDirTest {};
+
+TEST_F(PymodbusServer, ModbusArmReadsAndWritesAForeignServer) {
+  if (std::system("/usr/bin/python3 -c 'import pymodbus' >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "python3-pymodbus is not installed (apt-get install --no-install-recommends python3-pymodbus)";
+  const std::string out = (dir_ / "pymodbus.out").string();
+  test::Child child({"/usr/bin/python3", kPymodbusScript, "--config", kTcpConfig, "--port", "0", "--counts", "1000,-2000,300000",
+                     "--status", "0", "--buttons", "0x13"},
+                    out);
+  const auto port = wait_for_port(child, out, 20.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  const arm::ArmConfig config = tcp_config(*port, 0.5);
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  const Outcome c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error->message;
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  const std::int64_t expected[3] = {1000, -2000, 300000};
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    EXPECT_EQ(s.counts[uj], expected[j]);
+    EXPECT_DOUBLE_EQ(s.q[uj], arm::joint_position_from_counts(config.joints[uj], expected[j]));
+  }
+  EXPECT_EQ(s.buttons, 0b111u);  // raw 0x13: bits 0, 1, 4
+  EXPECT_EQ(s.status, 0u);
+
+  const JointCommand cmd = torques(0.1, -0.2, 0.05);
+  ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  // Read the holding registers back with a second, plain libmodbus client.
+  modbus_t* peek = modbus_new_tcp("127.0.0.1", *port);
+  ASSERT_NE(peek, nullptr);
+  modbus_set_response_timeout(peek, 1, 0);
+  ASSERT_EQ(modbus_connect(peek), 0) << modbus_strerror(errno);
+  std::uint16_t regs[5] = {};
+  ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5) << modbus_strerror(errno);
+  const double lsb = config.modbus->registers.current_command.lsb;
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    const double amps = arm::motor_current_for_joint_torque(config.joints[uj], config.actuators[uj], cmd.tau[uj]);
+    EXPECT_EQ(static_cast<std::int16_t>(regs[j]), static_cast<std::int16_t>(std::lround(amps / lsb))) << "joint " << j;
+  }
+  EXPECT_EQ(regs[3], modbus::kControlEnable);
+  EXPECT_EQ(regs[4], 1u);  // heartbeat: one write so far
+  ASSERT_TRUE(a->deactivate().ok());
+  ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5);
+  EXPECT_EQ(regs[0], 0u);
+  EXPECT_EQ(regs[3], 0u);
+  modbus_close(peek);
+  modbus_free(peek);
+  child.signal(SIGTERM);
+  (void)child.wait_exit(std::chrono::seconds(5));
+}
+
+}  // namespace
