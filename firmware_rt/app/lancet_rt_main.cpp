@@ -77,12 +77,25 @@ int main(int argc, char** argv) {
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
       ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
   cli.add_option("--stats", stats_path, "write a JSON summary here on exit");
-  std::string config_path;
+  std::string config_path, trajectory_path;
+  cli.add_option("--trajectory", trajectory_path,
+                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm) instead of the built-in script");
   cli.add_option("--config", config_path,
                  "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
                  "built-in stylus");
   CLI11_PARSE(cli, argc, argv);
 
+  std::optional<lancet::device::Trajectory> trajectory;
+  if (!trajectory_path.empty()) {
+    auto tr = lancet::device::load_trajectory_csv(trajectory_path);
+    if (!tr.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", tr.error().message.c_str());
+      return 2;
+    }
+    trajectory = std::move(tr).value();
+    model.trajectory = &*trajectory;
+    std::fprintf(stderr, "lancet-rt: replaying %zu trajectory points over %.2f s\n", trajectory->t.size(), trajectory->duration());
+  }
   // The arm, when one is configured: load, build its kinematics and device, configure, activate.
   std::optional<lancet::arm::ArmConfig> arm_config;
   std::optional<lancet::arm::Kinematics> kinematics;

@@ -72,7 +72,9 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   // Where the hand pulls the stylus: the viz's target while it is fresh, else the script.
   (void)shared_.stylus_target.try_read_if_newer(d.target, d.target_version);
   const bool target_fresh = d.target.active != 0 && now_ns - d.target.t_ns <= model_.target_timeout_ns;
-  const Vec3 target = target_fresh ? d.target.target.position : device::scripted_target(t, model_.script_depth);
+  const Vec3 target = target_fresh              ? d.target.target.position
+                      : model_.trajectory != nullptr ? model_.trajectory->at(t)
+                                                     : device::scripted_target(t, model_.script_depth);
 
   // Newest patch, into the back buffer; swap only on a consistent read.
   TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];

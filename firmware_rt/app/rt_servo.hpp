@@ -16,6 +16,7 @@
 #include "device/arm_physics.hpp"
 #include "device/device.hpp"
 #include "device/sim_stylus.hpp"
+#include "device/trajectory.hpp"
 #include "haptics/force_fade.hpp"
 #include "haptics/haptic_step.hpp"
 #include "lancet/shared_model/shared_state.hpp"
@@ -31,6 +32,7 @@ struct RtModel {
   device::SimStylusParams stylus{};
   double script_depth = 0.004;                   ///< m below z = 0 the script presses to
   std::int64_t target_timeout_ns = 250'000'000;  ///< a StylusTarget older than this is ignored
+  const device::Trajectory* trajectory = nullptr;  ///< replayed instead of the script (optional)
   // An arm from hw_configs (optional; RtServo's `arm` argument): its kinematics, the device-frame
   // point that maps to the tissue's origin (the centre of its workspace box) and the per-joint
   // torque limits from its safety section.

@@ -1,0 +1,70 @@
+#include "device/trajectory.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+namespace lancet::device {
+
+Vec3 Trajectory::at(double s) const noexcept {
+  if (t.empty()) return {};
+  if (!(s > t.front())) return p.front();
+  if (s >= t.back()) return p.back();
+  const auto hi = static_cast<std::size_t>(std::upper_bound(t.begin(), t.end(), s) - t.begin());
+  const std::size_t lo = hi - 1;
+  const double w = (s - t[lo]) / (t[hi] - t[lo]);
+  return p[lo] + (p[hi] - p[lo]) * w;
+}
+
+Result<Trajectory> load_trajectory_csv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open the trajectory file"};
+  Trajectory tr;
+  std::string line;
+  int n = 0;
+  bool header_allowed = true;
+  static const char* kNames[4] = {"t_s", "x_mm", "y_mm", "z_mm"};
+  while (std::getline(in, line)) {
+    ++n;
+    if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
+    if (line.find_first_not_of(" \t\r,") == std::string::npos) continue;
+    std::vector<std::string> cells;
+    std::stringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) {
+      const auto b = c.find_first_not_of(" \t\r"), e = c.find_last_not_of(" \t\r");
+      cells.push_back(b == std::string::npos ? std::string() : c.substr(b, e - b + 1));
+    }
+    const std::string where = path + ":" + std::to_string(n) + ": ";
+    if (cells.size() != 4)
+      return Error{ErrorCode::kInvalid, where + "expected 4 values (t_s, x_mm, y_mm, z_mm), found " + std::to_string(cells.size())};
+    double v[4];
+    bool numbers = true;
+    for (int i = 0; i < 4; ++i) {
+      std::size_t used = 0;
+      try {
+        v[i] = std::stod(cells[static_cast<std::size_t>(i)], &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != cells[static_cast<std::size_t>(i)].size() || !std::isfinite(v[i])) {
+        if (header_allowed && i == 0) {  // a first line whose first cell is no number: the header
+          numbers = false;
+          break;
+        }
+        return Error{ErrorCode::kInvalid, where + kNames[i] + ": expected a number, found '" + cells[static_cast<std::size_t>(i)] + "'"};
+      }
+    }
+    header_allowed = false;
+    if (!numbers) continue;  // the header line
+    if (v[0] < 0) return Error{ErrorCode::kInvalid, where + "t_s: expected >= 0, found " + cells[0]};
+    if (!tr.t.empty() && !(v[0] > tr.t.back()))
+      return Error{ErrorCode::kInvalid, where + "t_s: times must increase: " + cells[0] + " follows " + std::to_string(tr.t.back())};
+    tr.t.push_back(v[0]);
+    tr.p.push_back(Vec3{v[1] * 1e-3, v[2] * 1e-3, v[3] * 1e-3});
+  }
+  if (tr.t.empty()) return Error{ErrorCode::kInvalid, path + ": no trajectory points (lines of t_s, x_mm, y_mm, z_mm)"};
+  return tr;
+}
+
+}  // namespace lancet::device

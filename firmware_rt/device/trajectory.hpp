@@ -1,0 +1,27 @@
+#pragma once
+// A recorded hand trajectory for the simulated arm or stylus: where the hand pulls the stylus
+// over time, replayed instead of the built-in script (test rigs, repeatable demos).
+// File: CSV lines `t_s, x_mm, y_mm, z_mm` (tissue frame), '#' comments, an optional header line
+// of names; times strictly increasing from >= 0. Loading allocates; at() does not.
+
+#include <string>
+#include <vector>
+
+#include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/result.hpp"
+
+namespace lancet::device {
+
+struct Trajectory {
+  std::vector<double> t;  ///< s
+  std::vector<Vec3> p;    ///< m
+  /// Linear interpolation at time s; the first point before it, the last after. RT-safe.
+  [[nodiscard]] Vec3 at(double s) const noexcept;
+  [[nodiscard]] double duration() const noexcept { return t.empty() ? 0.0 : t.back(); }
+};
+
+/// Errors name the file, the line and what was expected (e.g. "trajectory.csv:7: x_mm: expected
+/// a number, found 'abc'").
+[[nodiscard]] Result<Trajectory> load_trajectory_csv(const std::string& path);
+
+}  // namespace lancet::device
