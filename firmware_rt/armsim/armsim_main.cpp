@@ -15,7 +15,9 @@
 #include <string>
 
 #include "arm/arm_config.hpp"
+#include "armsim/canopen_nodes.hpp"
 #include "armsim/modbus_server.hpp"
+#include "device/sim_stylus.hpp"
 
 namespace {
 
@@ -29,6 +31,53 @@ std::int64_t mono_ns() {
   return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
 }
 
+// CANopen: the arm's CiA 402 nodes on a SocketCAN interface (vcan where the kernel has CAN). The
+// hand follows the script, holds or lets go; --disconnect-after silences every node (an unplugged
+// bus).
+int serve_can(lancet::arm::ArmConfig config, const std::string& iface, const ServerOptions& o, double duration) {
+  if (!iface.empty()) config.canopen->interface_name = iface;
+  auto nodes = lancet::armsim::CanopenNodeSet::start(config);
+  if (!nodes.ok()) {
+    std::fprintf(stderr, "lancet-armsim: %s\n", nodes.error().message.c_str());
+    return 2;
+  }
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+  std::printf("lancet-armsim: serving '%s' on CAN %s (%zu nodes)\n", config.name.c_str(), config.canopen->interface_name.c_str(),
+              config.canopen->node_ids.size());
+  std::fflush(stdout);
+  const auto& ws = config.safety;
+  const lancet::Vec3 centre = 0.5 * (ws.workspace_min + ws.workspace_max);
+  const std::int64_t start = mono_ns();
+  const std::int64_t end = duration > 0 ? start + static_cast<std::int64_t>(duration * 1e9) : 0;
+  bool silenced = false;
+  int sig = 0;
+  nodes.value()->with_physics([&](lancet::device::ArmPhysics& p) {
+    p.set_hand_holding(o.hand != HandMode::kFree);
+    return 0;
+  });
+  while (end == 0 || mono_ns() < end) {
+    const double t = static_cast<double>(mono_ns() - start) * 1e-9;
+    if (o.hand == HandMode::kScript)
+      nodes.value()->with_physics([&](lancet::device::ArmPhysics& p) {
+        p.set_hand_target(centre + lancet::device::scripted_target(t, 0.004));
+        return 0;
+      });
+    if (!silenced && o.disconnect_after > 0 && t >= o.disconnect_after) {
+      for (int id : config.canopen->node_ids) nodes.value()->set_silent(id, true);
+      silenced = true;
+    }
+    const timespec poll_interval{0, 10'000'000};
+    sig = sigtimedwait(&stop_signals, nullptr, &poll_interval);
+    if (sig == SIGINT || sig == SIGTERM) break;
+  }
+  std::fprintf(stderr, "lancet-armsim: %s\n", sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "done");
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -39,7 +88,7 @@ int main(int argc, char** argv) {
   std::string hand = "script";
   double duration = 0;
   ServerOptions o;
-  cli.add_option("config", config_path, "the arm's TOML file (needs a [bus.modbus] register map)")->required();
+  cli.add_option("config", config_path, "the arm's TOML file: a [bus.modbus] register map (served over TCP or RTU) or a [bus.canopen] node set (served on SocketCAN)")->required();
   cli.add_option("--port", port, "TCP port on 127.0.0.1; 0: an ephemeral port (default: the config's port)")->check(CLI::Range(0, 65535));
   cli.add_option("--rtu-fd", rtu_fd, "serve Modbus RTU on this inherited, open descriptor (a pty master) instead of TCP")
       ->check(CLI::NonNegativeNumber);
@@ -59,6 +108,8 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1.0));
   cli.add_option("--seed", o.seed, "seed of the fault injection")->capture_default_str();
   cli.add_option("--duration", duration, "seconds to run; 0: until SIGINT or SIGTERM")->check(CLI::NonNegativeNumber);
+  std::string can_iface;
+  cli.add_option("--can", can_iface, "for a canopen config: emulate its CiA 402 nodes on this SocketCAN interface (default: the config's)");
   CLI11_PARSE(cli, argc, argv);
 
   auto mode = lancet::armsim::parse_hand_mode(hand);
@@ -72,6 +123,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "lancet-armsim: %s\n", config.error().message.c_str());
     return 2;
   }
+  if (config.value().backend == lancet::arm::Backend::kCanopen) return serve_can(config.value(), can_iface, o, duration);
   auto server = ArmServer::create(config.value(), o);
   if (!server.ok()) {
     std::fprintf(stderr, "%s\n", server.error().message.c_str());

@@ -23,14 +23,14 @@
 #include <string>
 #include <vector>
 
-#include "canopen_nodes.hpp"
+#include "armsim/canopen_nodes.hpp"
 #include "malloc_guard.hpp"
 
 namespace lancet::device {
 namespace {
 
 using canopen::Cia402State;
-using test::CanopenNodeSet;
+using armsim::CanopenNodeSet;
 
 std::int64_t now_ns() {
   timespec ts{};

@@ -1,4 +1,4 @@
-#include "canopen_nodes.hpp"
+#include "armsim/canopen_nodes.hpp"
 
 #include <errno.h>
 #include <linux/can.h>
@@ -17,7 +17,7 @@
 #include <cstring>
 #include <string>
 
-namespace lancet::test {
+namespace lancet::armsim {
 
 namespace {
 
@@ -670,4 +670,4 @@ CanopenNodeSet::NodeView CanopenNodeSet::node(int node_id) const {
   return v;
 }
 
-}  // namespace lancet::test
+}  // namespace lancet::armsim

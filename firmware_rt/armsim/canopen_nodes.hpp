@@ -32,7 +32,7 @@
 #include "device/arm_physics.hpp"
 #include "lancet/shared_model/result.hpp"
 
-namespace lancet::test {
+namespace lancet::armsim {
 
 class CanopenNodeSet {
  public:
@@ -166,4 +166,4 @@ class CanopenNodeSet {
   std::thread thread_;
 };
 
-}  // namespace lancet::test
+}  // namespace lancet::armsim
