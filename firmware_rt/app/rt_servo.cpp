@@ -215,6 +215,12 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   st.samples_dropped = shared_.samples.overflow_count();
   st.viz_last_beat_ns = alive ? d.viz_last_beat_ns : d.viz_lost_at_beat_ns;
   st.force_zero_ns = d.force_zero_ns;
+  st.tool = d.tool;
+  if (arm_ != nullptr && d.rearm_phase.load(std::memory_order_acquire) == static_cast<int>(RearmPhase::kIdle)) {
+    st.device_state = static_cast<std::uint32_t>(arm_->state());
+    st.device_fault_cause = static_cast<std::uint32_t>(arm_->fault_cause());
+  }
+  st.device_errors = d.device_error_ticks;
   shared_.rt_status.write(st);
   shared_.rt_heartbeat.beat(now_ns, d.pid);
 }

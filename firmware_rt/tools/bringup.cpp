@@ -15,6 +15,7 @@
 #include "app/device_factory.hpp"
 #include "arm/arm_config.hpp"
 #include "arm/kinematics.hpp"
+#include "lancet/shared_model/shared_state.hpp"
 
 namespace lancet::tools {
 
@@ -193,6 +194,37 @@ int run_monitor(const std::string& path, double duration_s, double rate_hz, std:
     std::this_thread::sleep_until(next);
   }
   return failures == 0 ? 0 : 1;
+}
+
+int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out) {
+  if (!(rate_hz > 0) || !(duration_s >= 0)) {
+    std::fprintf(out, "monitor: --rate must be > 0 and --duration >= 0\n");
+    return 2;
+  }
+  auto ch = SharedChannel::open(shm);
+  if (!ch) {
+    std::fprintf(out, "monitor: %s (is lancet-rt running?)\n", ch.error().message.c_str());
+    return 1;
+  }
+  const auto start = Clock::now();
+  auto next = start;
+  RtStatus st{};
+  while (duration_s == 0 || std::chrono::duration<double>(Clock::now() - start).count() < duration_s) {
+    const double t = std::chrono::duration<double>(Clock::now() - start).count();
+    if (ch.value().state().rt_status.try_read(st) == ReadStatus::kOk) {
+      std::fprintf(out, "%8.3f s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  arm %s%s%s errors %llu  wake p99 %.0f us%s\n", t,
+                   st.tool.x * 1e3, st.tool.y * 1e3, st.tool.z * 1e3, st.force.x, st.force.y, st.force.z, st.force_scale,
+                   st.contact ? " contact" : "", device::to_string(static_cast<device::Lifecycle>(st.device_state)),
+                   st.device_fault_cause != 0 ? " (" : "",
+                   st.device_fault_cause != 0 ? (std::string(device::to_string(static_cast<device::IoStatus>(st.device_fault_cause))) + ")").c_str() : "",
+                   static_cast<unsigned long long>(st.device_errors), static_cast<double>(st.wake_p99_ns) / 1e3,
+                   st.watchdog_tripped ? "  WATCHDOG" : "");
+      std::fflush(out);
+    }
+    next += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / rate_hz));
+    std::this_thread::sleep_until(next);
+  }
+  return 0;
 }
 
 int run_calibrate(const std::string& path, std::span<const double> home, bool write, std::FILE* out) {

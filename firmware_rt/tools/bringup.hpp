@@ -19,6 +19,9 @@ namespace lancet::tools {
 int run_list(std::FILE* out);
 int run_probe(const std::string& config_path, std::FILE* out);
 int run_monitor(const std::string& config_path, double duration_s, double rate_hz, std::FILE* out);
+/// While lancet-rt drives the arm (it owns the bus): its live status from shared memory: tool
+/// position, commanded force and fade, contact, the arm's state and error count, wake-up p99.
+int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out);
 /// home_deg: the joint angles of the home pose (deg, or mm for prismatic joints); empty: all zero.
 int run_calibrate(const std::string& config_path, std::span<const double> home, bool write, std::FILE* out);
 int run_jog(const std::string& config_path, int joint, double torque, double seconds, bool confirmed, std::FILE* out);

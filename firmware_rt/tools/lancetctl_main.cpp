@@ -88,7 +88,10 @@ int main(int argc, char** argv) {
   probe->add_option("config", config_path, "the arm's TOML file")->required();
   double mon_duration = 0, mon_rate = 10;
   CLI::App* monitor = cli.add_subcommand("monitor", "read the arm continuously: joints, tool pose, buttons, bus statistics (never moves it)");
-  monitor->add_option("config", config_path, "the arm's TOML file")->required();
+  std::string mon_shm;
+  monitor->add_option("config", config_path, "the arm's TOML file (not with --rt)");
+  monitor->add_option("--rt", mon_shm, "instead: follow a running lancet-rt on this segment (e.g. /lancet): tool, force, arm state")
+      ->expected(0, 1)->default_str("/lancet");
   monitor->add_option("--duration", mon_duration, "seconds; 0 runs until interrupted")->check(CLI::NonNegativeNumber)->capture_default_str();
   monitor->add_option("--rate", mon_rate, "lines per second")->check(CLI::Range(0.1, 1000.0))->capture_default_str();
   std::vector<double> home;
@@ -113,7 +116,14 @@ int main(int argc, char** argv) {
   jo.servo_workload = workload == "servo";
   if (cli.got_subcommand("list")) return lancet::tools::run_list(stdout);
   if (probe->parsed()) return lancet::tools::run_probe(config_path, stdout);
-  if (monitor->parsed()) return lancet::tools::run_monitor(config_path, mon_duration, mon_rate, stdout);
+  if (monitor->parsed()) {
+    if (monitor->count("--rt") > 0) return lancet::tools::run_monitor_rt(mon_shm.empty() ? "/lancet" : mon_shm, mon_duration, mon_rate, stdout);
+    if (config_path.empty()) {
+      std::fprintf(stderr, "lancetctl monitor: give the arm's config, or --rt to follow a running lancet-rt\n");
+      return 2;
+    }
+    return lancet::tools::run_monitor(config_path, mon_duration, mon_rate, stdout);
+  }
   if (calibrate->parsed()) return lancet::tools::run_calibrate(config_path, home, write_cal, stdout);
   if (jog->parsed()) return lancet::tools::run_jog(config_path, jog_joint, jog_torque, jog_seconds, jog_yes, stdout);
   if (jitter->parsed()) return run_jitter_command(jo);

@@ -11,6 +11,11 @@
 #include "temp_files.hpp"
 #include "tools/bringup.hpp"
 
+#include <unistd.h>
+
+#include "device/device.hpp"
+#include "lancet/shared_model/shared_state.hpp"
+
 namespace lancet::tools {
 namespace {
 
@@ -105,6 +110,27 @@ TEST_F(Bringup, CalibrationFilesAreChecked) {
   bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"wrong\"\noffset_deg = 1\n[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n"
       "[[joints]]\nname = \"elbow\"\noffset_deg = 0\n",
       "joints[0].name: expected 'base_yaw', found 'wrong'");
+}
+
+TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
+  const std::string shm = "/lancet-bringup-" + std::to_string(getpid());
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.1, 10, f); }).first, 1) << "no lancet-rt yet";
+  auto ch = SharedChannel::create(shm, {});
+  ASSERT_TRUE(ch.ok()) << ch.error().message;
+  RtStatus st{};
+  st.tool = {0.001, 0.002, -0.003};
+  st.force = {0, 0, 1.5};
+  st.force_scale = 1;
+  st.contact = 1;
+  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
+  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kTimeout);
+  st.device_errors = 7;
+  ch.value().state().rt_status.write(st);
+  const auto [code, out] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.2, 20, f); });
+  EXPECT_EQ(code, 0);
+  EXPECT_NE(out.find("tool    1.00    2.00   -3.00 mm"), std::string::npos) << out;
+  EXPECT_NE(out.find("force   0.00   0.00   1.50 N (x1.00) contact"), std::string::npos) << out;
+  EXPECT_NE(out.find("arm fault (timeout) errors 7"), std::string::npos) << out;
 }
 
 TEST_F(Bringup, JogNeedsConfirmationAndStaysWithinItsBounds) {

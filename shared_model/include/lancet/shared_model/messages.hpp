@@ -189,6 +189,10 @@ struct RtStatus {
   std::uint64_t samples_dropped;   ///< ToolSamples refused because the ring was full
   std::int64_t viz_last_beat_ns;   ///< last viz heartbeat seen (ns; 0: never)
   std::int64_t force_zero_ns;      ///< first tick with zero force after the viz was lost (ns; 0: n/a)
+  Vec3 tool;                       ///< tool position, tissue frame (m)
+  std::uint32_t device_state;      ///< the arm's lifecycle (device::Lifecycle; 0 with the built-in stylus)
+  std::uint32_t device_fault_cause;///< device::IoStatus that tripped its fault (0: none)
+  std::uint64_t device_errors;     ///< ticks at zero force because the arm could not be read or written
 };
 
 #define LANCET_ASSERT_WIRE_TYPE(T)                                                        \
