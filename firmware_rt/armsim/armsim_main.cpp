@@ -31,6 +31,17 @@ std::int64_t mono_ns() {
   return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
 }
 
+// SIGINT and SIGTERM blocked in this thread and in the threads it starts; the main loop takes
+// them with sigtimedwait.
+sigset_t block_stop_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &set, nullptr);
+  return set;
+}
+
 // CANopen: the arm's CiA 402 nodes on a SocketCAN interface (vcan where the kernel has CAN). The
 // hand follows the script, holds or lets go; --disconnect-after silences every node (an unplugged
 // bus).
@@ -41,11 +52,7 @@ int serve_can(lancet::arm::ArmConfig config, const std::string& iface, const Ser
     std::fprintf(stderr, "lancet-armsim: %s\n", nodes.error().message.c_str());
     return 2;
   }
-  sigset_t stop_signals;
-  sigemptyset(&stop_signals);
-  sigaddset(&stop_signals, SIGINT);
-  sigaddset(&stop_signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+  const sigset_t stop_signals = block_stop_signals();
   std::printf("lancet-armsim: serving '%s' on CAN %s (%zu nodes)\n", config.name.c_str(), config.canopen->interface_name.c_str(),
               config.canopen->node_ids.size());
   std::fflush(stdout);
@@ -131,11 +138,7 @@ int main(int argc, char** argv) {
   }
 
   // The threads the server starts inherit this mask; the main thread takes the signals itself.
-  sigset_t stop_signals;
-  sigemptyset(&stop_signals);
-  sigaddset(&stop_signals, SIGINT);
-  sigaddset(&stop_signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+  const sigset_t stop_signals = block_stop_signals();
   signal(SIGPIPE, SIG_IGN);
 
   ArmServer& s = *server.value();

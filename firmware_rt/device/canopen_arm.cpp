@@ -1,5 +1,7 @@
 #include "device/canopen_arm.hpp"
 
+#include "lancet/shared_model/units.hpp"
+
 #include <errno.h>
 #include <fcntl.h>
 #include <linux/can.h>
@@ -22,12 +24,6 @@
 namespace lancet::device {
 
 namespace {
-
-std::int64_t mono_ns() noexcept {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
 
 timespec to_timespec(std::int64_t ns) noexcept {
   if (ns < 0) ns = 0;
@@ -365,7 +361,7 @@ IoStatus CanopenArm::send(const ::can_frame& f) noexcept {
       socket_errno_ = err;
     }
     const IoStatus s = full ? IoStatus::kTimeout : IoStatus::kDisconnected;
-    note(s, CanopenEvent::What::kSocket, -1, f.can_id & CAN_SFF_MASK, err, mono_ns());
+    note(s, CanopenEvent::What::kSocket, -1, f.can_id & CAN_SFF_MASK, err, monotonic_ns());
     return s;
   }
 }
@@ -491,14 +487,14 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].bad_length = false;
   // Frames still waiting belong to earlier cycles (late TPDOs, heartbeats, EMCY): take them now
   // so that only what follows this SYNC counts for it (a late malformed one is still reported).
-  if (!drain(mono_ns())) return IoStatus::kDisconnected;
+  if (!drain(monotonic_ns())) return IoStatus::kDisconnected;
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].seen_mask = 0;
-  cycle_t_ns_ = mono_ns();
+  cycle_t_ns_ = monotonic_ns();
   if (const IoStatus s = send_sync(); s != IoStatus::kOk) return s;
   ++sync_count_;
   const std::int64_t deadline = cycle_t_ns_ + wait_ns;
   for (;;) {
-    std::int64_t now = mono_ns();
+    std::int64_t now = monotonic_ns();
     if (!drain(now)) return IoStatus::kDisconnected;
     bool all = true;
     for (int j = 0; j < n_ && all; ++j) {
@@ -506,7 +502,7 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
       all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
     }
     if (all) return IoStatus::kOk;
-    now = mono_ns();
+    now = monotonic_ns();
     if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
     pollfd p{fd_, POLLIN, 0};
     const timespec ts = to_timespec(deadline - now);
@@ -632,7 +628,7 @@ void CanopenArm::restart_tracking(std::int64_t now) noexcept {
 IoStatus CanopenArm::on_read(JointState& out) noexcept {
   if (!pdo_running_) return IoStatus::kNotActive;
   IoStatus s = exchange(read_budget_ns_);
-  if (s == IoStatus::kOk) s = evaluate(mono_ns(), state() == Lifecycle::kActive);
+  if (s == IoStatus::kOk) s = evaluate(monotonic_ns(), state() == Lifecycle::kActive);
   if (s == IoStatus::kDisconnected || s == IoStatus::kDeviceFault) send_zero_torque();  // both trip kFault at once
   if (s != IoStatus::kOk) return s;
 
@@ -747,15 +743,15 @@ Result<std::uint32_t> CanopenArm::sdo_transfer(int i, const ::can_frame& request
                                                const std::string& what) {
   Node& nd = nodes_[static_cast<std::size_t>(i)];
   const std::string who = "node " + std::to_string(nd.info.node_id) + ": SDO " + what;
-  (void)drain(mono_ns());
+  (void)drain(monotonic_ns());
   nd.sdo_reply = false;
   socket_failed_ = false;
   if (send(request) != IoStatus::kOk) {
     return Error{ErrorCode::kSystem, name() + ": " + who + ": cannot send: " + errno_text(last_event_.err_no)};
   }
-  const std::int64_t deadline = mono_ns() + ns_of(timing_.sdo_timeout);
+  const std::int64_t deadline = monotonic_ns() + ns_of(timing_.sdo_timeout);
   for (;;) {
-    (void)drain(mono_ns());
+    (void)drain(monotonic_ns());
     if (socket_failed_) return Error{ErrorCode::kSystem, name() + ": " + who + ": " + errno_text(socket_errno_)};
     if (nd.sdo_reply) {
       nd.sdo_reply = false;
@@ -775,7 +771,7 @@ Result<std::uint32_t> CanopenArm::sdo_transfer(int i, const ::can_frame& request
       }
       // Anything else is not the answer to this request (a late one): keep waiting.
     }
-    const std::int64_t now = mono_ns();
+    const std::int64_t now = monotonic_ns();
     if (now >= deadline) break;
     pollfd p{fd_, POLLIN, 0};
     const timespec ts = to_timespec(deadline - now);
@@ -812,13 +808,13 @@ Result<std::uint32_t> CanopenArm::sdo_upload(int i, std::uint16_t index, std::ui
 }
 
 void CanopenArm::wait_boot_ups(double timeout_s, std::uint32_t node_mask) {
-  const std::int64_t deadline = mono_ns() + ns_of(timeout_s);
+  const std::int64_t deadline = monotonic_ns() + ns_of(timeout_s);
   for (;;) {
-    (void)drain(mono_ns());
+    (void)drain(monotonic_ns());
     bool all = true;
     for (int j = 0; j < n_; ++j)
       if ((node_mask & (1u << j)) != 0 && !nodes_[static_cast<std::size_t>(j)].boot_seen) all = false;
-    const std::int64_t now = mono_ns();
+    const std::int64_t now = monotonic_ns();
     if (all || now >= deadline) return;
     pollfd p{fd_, POLLIN, 0};
     const timespec ts = to_timespec(deadline - now);
@@ -894,7 +890,7 @@ Outcome CanopenArm::configure_node(int i) {
 }
 
 void CanopenArm::start_nodes(std::uint32_t node_mask) {
-  (void)drain(mono_ns());
+  (void)drain(monotonic_ns());
   for (int j = 0; j < n_; ++j) {
     if ((node_mask & (1u << j)) == 0) continue;
     Node& nd = nodes_[static_cast<std::size_t>(j)];
@@ -909,10 +905,10 @@ void CanopenArm::start_nodes(std::uint32_t node_mask) {
 
 template <class NextCw, class Done>
 Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& goal) {
-  const std::int64_t deadline = mono_ns() + ns_of(timing_.state_timeout);
+  const std::int64_t deadline = monotonic_ns() + ns_of(timing_.state_timeout);
   const std::int64_t wait = std::max(read_budget_ns_, sync_period_ns_ / 2);
   for (;;) {
-    const std::int64_t t0 = mono_ns();
+    const std::int64_t t0 = monotonic_ns();
     (void)exchange(wait);
     if (socket_failed_) return fail("the bus failed while bringing the drives to " + goal + ": " + errno_text(socket_errno_));
     bool all = true;
@@ -924,7 +920,7 @@ Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& g
       nd.info.target_torque = 0;
     }
     if (all) return Outcome::success();
-    if (mono_ns() >= deadline) {
+    if (monotonic_ns() >= deadline) {
       std::string msg = "the drives did not reach " + goal + " within " + ms_text(timing_.state_timeout) + ":";
       for (int j = 0; j < n_; ++j) {
         const Node& nd = nodes_[static_cast<std::size_t>(j)];
@@ -964,7 +960,7 @@ Outcome CanopenArm::on_configure() {
     nd.info.rated_torque_mnm = keep.rated_torque_mnm;
     nd.info.max_torque = keep.max_torque;
   }
-  (void)drain(mono_ns());
+  (void)drain(monotonic_ns());
   // Reset communication: every node comes back pre-operational with its default PDOs and says so.
   for (int j = 0; j < n_; ++j) send_nmt(canopen::NmtCommand::kResetCommunication, nodes_[static_cast<std::size_t>(j)].info.node_id);
   wait_boot_ups(timing_.boot_timeout, all);
@@ -975,13 +971,13 @@ Outcome CanopenArm::on_configure() {
   std::array<std::uint64_t, kMaxJoints> heartbeats_before{};
   for (int j = 0; j < n_; ++j) heartbeats_before[static_cast<std::size_t>(j)] = nodes_[static_cast<std::size_t>(j)].info.heartbeats;
   start_nodes(all);
-  restart_tracking(mono_ns());
+  restart_tracking(monotonic_ns());
 
   // Every node's TPDOs must follow a SYNC, and with heartbeats on, a heartbeat must come (0x1017 took).
-  const std::int64_t deadline = mono_ns() + ns_of(std::max(timing_.boot_timeout, 3 * bus_.heartbeat_period));
+  const std::int64_t deadline = monotonic_ns() + ns_of(std::max(timing_.boot_timeout, 3 * bus_.heartbeat_period));
   const std::int64_t wait = std::max(read_budget_ns_, ns_of(timing_.sdo_timeout));
   for (;;) {
-    const std::int64_t t0 = mono_ns();
+    const std::int64_t t0 = monotonic_ns();
     (void)exchange(wait);
     if (socket_failed_) {
       pdo_running_ = false;
@@ -1003,27 +999,32 @@ Outcome CanopenArm::on_configure() {
       }
     }
     if (missing.empty()) break;
-    if (mono_ns() >= deadline) {
+    if (monotonic_ns() >= deadline) {
       missing.pop_back();
       pdo_running_ = false;
       return fail("after NMT start and SYNC:" + missing + " (check the nodes' PDO support and that they went operational)");
     }
     sleep_until(t0 + sync_period_ns_);
   }
-  restart_tracking(mono_ns());
+  restart_tracking(monotonic_ns());
   return Outcome::success();
 }
 
 Outcome CanopenArm::on_activate() {
   if (!pdo_running_) {
     start_nodes((1u << n_) - 1);
-    restart_tracking(mono_ns());
+    restart_tracking(monotonic_ns());
   }
   bus_off_ = false;
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
+  return enable_drives("operation enabled");
+}
+
+// Every drive through the CiA 402 state machine to operation enabled; zero torque on failure.
+Outcome CanopenArm::enable_drives(const char* goal) {
   Outcome o = drive_states([](std::uint16_t sw, std::uint16_t prev) { return canopen::controlword_toward_enabled(sw, prev); },
                            [](std::uint16_t sw) { return canopen::cia402_state(sw) == canopen::Cia402State::kOperationEnabled; },
-                           "operation enabled");
+                           goal);
   if (!o.ok()) {
     send_zero_torque();
     return o;
@@ -1033,7 +1034,7 @@ Outcome CanopenArm::on_activate() {
     nd.info.controlword = canopen::kCwEnableOperation;
     nd.emcy_pending = false;
   }
-  restart_tracking(mono_ns());
+  restart_tracking(monotonic_ns());
   return Outcome::success();
 }
 
@@ -1055,22 +1056,9 @@ Outcome CanopenArm::on_rearm() {
     }
   }
   if (restart != 0) start_nodes(restart);
-  restart_tracking(mono_ns());
+  restart_tracking(monotonic_ns());
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
-  Outcome o = drive_states([](std::uint16_t sw, std::uint16_t prev) { return canopen::controlword_toward_enabled(sw, prev); },
-                           [](std::uint16_t sw) { return canopen::cia402_state(sw) == canopen::Cia402State::kOperationEnabled; },
-                           "operation enabled after a fault reset");
-  if (!o.ok()) {
-    send_zero_torque();
-    return o;
-  }
-  for (int j = 0; j < n_; ++j) {
-    Node& nd = nodes_[static_cast<std::size_t>(j)];
-    nd.info.controlword = canopen::kCwEnableOperation;
-    nd.emcy_pending = false;
-  }
-  restart_tracking(mono_ns());
-  return Outcome::success();
+  return enable_drives("operation enabled after a fault reset");
 }
 
 Outcome CanopenArm::on_deactivate() {

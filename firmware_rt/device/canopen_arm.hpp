@@ -296,6 +296,7 @@ class CanopenArm final : public Device {
   /// holds for every node or the timeout; the error names the nodes that did not get there.
   template <class NextCw, class Done>
   Outcome drive_states(NextCw next_cw, Done done, const std::string& goal);
+  Outcome enable_drives(const char* goal);
   void restart_tracking(std::int64_t now) noexcept;
 
   arm::ArmConfig config_;

@@ -1,16 +1,12 @@
 #include "device/device.hpp"
 
+#include "lancet/shared_model/units.hpp"
+
 #include <time.h>
 
 namespace lancet::device {
 
 namespace {
-
-std::int64_t now_ns() noexcept {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
 
 Outcome wrong_state(const std::string& name, const char* step, Lifecycle s) {
   return Outcome::failure(ErrorCode::kInvalid, name + ": cannot " + step + " from state " + to_string(s));
@@ -77,7 +73,7 @@ Outcome Device::rearm() {
 }
 
 void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
-  const std::int64_t dt = now_ns() - t0_ns;
+  const std::int64_t dt = monotonic_ns() - t0_ns;
   counters_.last_io_ns = dt;
   if (dt > counters_.max_io_ns) counters_.max_io_ns = dt;
   switch (s) {
@@ -108,7 +104,7 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
 IoStatus Device::read(JointState& out) noexcept {
   if (state_ == Lifecycle::kUnconfigured) return IoStatus::kNotActive;
   ++counters_.reads;
-  const std::int64_t t0 = now_ns();
+  const std::int64_t t0 = monotonic_ns();
   const IoStatus s = on_read(out);
   if (s == IoStatus::kOk) out.t_ns = t0;
   account(s, t0, true);
@@ -118,7 +114,7 @@ IoStatus Device::read(JointState& out) noexcept {
 IoStatus Device::write(const JointCommand& cmd) noexcept {
   if (state_ != Lifecycle::kActive && state_ != Lifecycle::kFault) return IoStatus::kNotActive;
   ++counters_.writes;
-  const std::int64_t t0 = now_ns();
+  const std::int64_t t0 = monotonic_ns();
   if (state_ == Lifecycle::kFault) {
     JointCommand zero{};
     zero.n = cmd.n;

@@ -1,18 +1,12 @@
 #include "device/sim_arm.hpp"
 
+#include "lancet/shared_model/units.hpp"
+
 #include <algorithm>
 
 #include <time.h>
 
 namespace lancet::device {
-
-namespace {
-std::int64_t mono_ns() noexcept {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
-}  // namespace
 
 SimArm::SimArm(std::unique_ptr<ArmPhysics> physics, FaultPolicy policy)
     : Device("sim arm '" + physics->config().name + "'", policy), physics_(std::move(physics)) {}
@@ -62,7 +56,7 @@ IoStatus SimArm::on_read(JointState& out) noexcept {
 IoStatus SimArm::on_write(const JointCommand& cmd) noexcept {
   double dt = fixed_dt_;
   if (!(dt > 0)) {
-    const std::int64_t now = mono_ns();
+    const std::int64_t now = monotonic_ns();
     dt = last_write_ns_ == 0 ? 1e-3 : std::clamp(static_cast<double>(now - last_write_ns_) * 1e-9, 0.0, 5e-3);
     last_write_ns_ = now;
   }

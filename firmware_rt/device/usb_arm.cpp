@@ -1,5 +1,7 @@
 #include "device/usb_arm.hpp"
 
+#include "lancet/shared_model/units.hpp"
+
 #include <libusb.h>
 #include <time.h>
 
@@ -12,12 +14,6 @@
 namespace lancet::device {
 
 namespace {
-
-std::int64_t mono_ns() noexcept {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
 
 // A q̇ estimate older than this is not continued from (a pause, a fault): it restarts at zero.
 constexpr std::int64_t kMaxVelocityGapNs = 50'000'000;
@@ -303,7 +299,7 @@ void UsbArm::close_device() noexcept {
   for (Slot* s : {&in_, &out_}) {
     if (!s->in_flight) continue;
     (void)libusb_cancel_transfer(s->transfer);
-    pump_until(*s, mono_ns() + kCancelWaitNs);
+    pump_until(*s, monotonic_ns() + kCancelWaitNs);
   }
   if (claimed_ && !lost_) (void)libusb_release_interface(handle_, usb_.interface_number);
   claimed_ = false;
@@ -333,7 +329,7 @@ Outcome UsbArm::on_configure() {
   if (!o.ok()) return o;
 
   // The arm must answer: wait a little for one well-formed IN report.
-  const std::int64_t until = mono_ns() + std::max(kFirstReportWindowNs, 10 * timeout_ns_);
+  const std::int64_t until = monotonic_ns() + std::max(kFirstReportWindowNs, 10 * timeout_ns_);
   IoStatus s = IoStatus::kTimeout;
   do {
     s = transfer(in_, usb_.endpoint_in);
@@ -349,7 +345,7 @@ Outcome UsbArm::on_configure() {
                                                         " has report id " + std::to_string(in_.buffer[0]) + ", expected " +
                                                         std::to_string(*usb_.in_report_id) + " (bus.usb.in_report.report_id)");
     }
-  } while (s == IoStatus::kTimeout && mono_ns() < until);
+  } while (s == IoStatus::kTimeout && monotonic_ns() < until);
   if (s != IoStatus::kOk) {
     close_device();
     return Outcome::failure(ErrorCode::kNotReady, name() + ": the arm at " + location(bus_number_, address_) +
@@ -414,7 +410,7 @@ Outcome UsbArm::on_rearm() {
 
 void UsbArm::pump_until(Slot& slot, std::int64_t deadline_ns) noexcept {
   while (slot.completed == 0) {
-    const std::int64_t left = deadline_ns - mono_ns();
+    const std::int64_t left = deadline_ns - monotonic_ns();
     if (left <= 0) return;
     timeval tv{};
     tv.tv_sec = static_cast<time_t>(left / 1'000'000'000);
@@ -426,12 +422,12 @@ void UsbArm::pump_until(Slot& slot, std::int64_t deadline_ns) noexcept {
     slot.in_flight = false;
     slot.status = slot.transfer->status;
     slot.actual_length = slot.transfer->actual_length;
-    slot.done_ns = mono_ns();
+    slot.done_ns = monotonic_ns();
   }
 }
 
 IoStatus UsbArm::finish_in_flight(Slot& slot) noexcept {
-  pump_until(slot, mono_ns() + 1);  // whatever libusb has already: do not wait
+  pump_until(slot, monotonic_ns() + 1);  // whatever libusb has already: do not wait
   if (slot.in_flight) return IoStatus::kTimeout;
   ++stats_.completed;
   return IoStatus::kOk;  // the late result is dropped: it belongs to an earlier tick
@@ -447,13 +443,13 @@ IoStatus UsbArm::transfer(Slot& slot, unsigned char endpoint) noexcept {
   slot.in_flight = true;
   // libusb cancels the transfer itself after timeout_ms_; the margin covers the cancellation.
   const std::int64_t margin = std::max<std::int64_t>(timeout_ns_, 1'000'000);
-  pump_until(slot, mono_ns() + timeout_ns_ + margin);
+  pump_until(slot, monotonic_ns() + timeout_ns_ + margin);
   if (slot.in_flight) {
     // The cancellation did not come back in time (a reply that never arrives, not even as an
     // error): cancel again and give it one more margin; then leave it for a later call.
     const int c = libusb_cancel_transfer(slot.transfer);
     if (c == LIBUSB_ERROR_NO_DEVICE) lost_ = true;
-    pump_until(slot, mono_ns() + margin);
+    pump_until(slot, monotonic_ns() + margin);
     if (slot.in_flight) {
       ++stats_.cancelled_late;
       return lost_ ? IoStatus::kDisconnected : IoStatus::kTimeout;

@@ -1,5 +1,7 @@
 #include "volume/drill.hpp"
 
+#include "volume/detail/index_frame.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -13,25 +15,10 @@ Result<DrillResult> drill_sphere(Volume& volume, const DrillParams& p, std::span
   if (!labels.empty() && labels.size() != volume.voxel_count())
     return Error{ErrorCode::kInvalid, "drill: labels have " + std::to_string(labels.size()) + " entries, expected " +
                                           std::to_string(volume.voxel_count())};
-  // Index frame: world = origin + M · index with M = direction · diag(spacing).
-  const auto& d = volume.direction;
-  const double s[3] = {volume.spacing.x, volume.spacing.y, volume.spacing.z};
-  double m[3][3];
-  for (int r = 0; r < 3; ++r)
-    for (int a = 0; a < 3; ++a) m[r][a] = d[static_cast<std::size_t>(r * 3 + a)] * s[a];
-  const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
-                     m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-  if (!(std::abs(det) > 0)) return Error{ErrorCode::kInvalid, "drill: the volume's spacing or direction is singular"};
-  double inv[3][3];
-  inv[0][0] = (m[1][1] * m[2][2] - m[1][2] * m[2][1]) / det;
-  inv[0][1] = (m[0][2] * m[2][1] - m[0][1] * m[2][2]) / det;
-  inv[0][2] = (m[0][1] * m[1][2] - m[0][2] * m[1][1]) / det;
-  inv[1][0] = (m[1][2] * m[2][0] - m[1][0] * m[2][2]) / det;
-  inv[1][1] = (m[0][0] * m[2][2] - m[0][2] * m[2][0]) / det;
-  inv[1][2] = (m[0][2] * m[1][0] - m[0][0] * m[1][2]) / det;
-  inv[2][0] = (m[1][0] * m[2][1] - m[1][1] * m[2][0]) / det;
-  inv[2][1] = (m[0][1] * m[2][0] - m[0][0] * m[2][1]) / det;
-  inv[2][2] = (m[0][0] * m[1][1] - m[0][1] * m[1][0]) / det;
+  const detail::IndexFrame fr = detail::index_frame(volume);
+  if (!(std::abs(fr.det) > 0)) return Error{ErrorCode::kInvalid, "drill: the volume's spacing or direction is singular"};
+  const auto& inv = fr.inv;
+  const double det = fr.det;
   const Vec3 rel = p.centre - volume.origin;
   const double c[3] = {inv[0][0] * rel.x + inv[0][1] * rel.y + inv[0][2] * rel.z, inv[1][0] * rel.x + inv[1][1] * rel.y + inv[1][2] * rel.z,
                        inv[2][0] * rel.x + inv[2][1] * rel.y + inv[2][2] * rel.z};

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "volume/detail/index_frame.hpp"
 #include "volume/marching_cubes.hpp"
 
 namespace lancet::volume::detail {
@@ -36,27 +37,11 @@ struct McField {
 /// Fills origin, step, grad and flip from a volume's geometry; pad shifts the grid origin by
 /// pad voxels down every axis.
 inline void set_geometry(McField& f, const Volume& vol, int pad) {
-  const auto& d = vol.direction;
-  const double s[3] = {vol.spacing.x, vol.spacing.y, vol.spacing.z};
-  double m[3][3];  // m[r][a] = world component r of one step along index axis a
-  for (int r = 0; r < 3; ++r)
-    for (int a = 0; a < 3; ++a) m[r][a] = d[static_cast<std::size_t>(r * 3 + a)] * s[a];
-  for (int a = 0; a < 3; ++a) f.step[static_cast<std::size_t>(a)] = Vec3{m[0][a], m[1][a], m[2][a]};
-  const double det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
-                     m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-  f.flip = det < 0;
+  const IndexFrame fr = index_frame(vol);
+  for (int a = 0; a < 3; ++a) f.step[static_cast<std::size_t>(a)] = Vec3{fr.m[0][a], fr.m[1][a], fr.m[2][a]};
+  f.flip = fr.det < 0;
   // ∇_world v = M^{-T} ∇_index v: grad[a] is row a of M^{-1} (as a world vector).
-  double inv[3][3];
-  inv[0][0] = (m[1][1] * m[2][2] - m[1][2] * m[2][1]) / det;
-  inv[0][1] = (m[0][2] * m[2][1] - m[0][1] * m[2][2]) / det;
-  inv[0][2] = (m[0][1] * m[1][2] - m[0][2] * m[1][1]) / det;
-  inv[1][0] = (m[1][2] * m[2][0] - m[1][0] * m[2][2]) / det;
-  inv[1][1] = (m[0][0] * m[2][2] - m[0][2] * m[2][0]) / det;
-  inv[1][2] = (m[0][2] * m[1][0] - m[0][0] * m[1][2]) / det;
-  inv[2][0] = (m[1][0] * m[2][1] - m[1][1] * m[2][0]) / det;
-  inv[2][1] = (m[0][1] * m[2][0] - m[0][0] * m[2][1]) / det;
-  inv[2][2] = (m[0][0] * m[1][1] - m[0][1] * m[1][0]) / det;
-  for (int a = 0; a < 3; ++a) f.grad[static_cast<std::size_t>(a)] = Vec3{inv[a][0], inv[a][1], inv[a][2]};
+  for (int a = 0; a < 3; ++a) f.grad[static_cast<std::size_t>(a)] = Vec3{fr.inv[a][0], fr.inv[a][1], fr.inv[a][2]};
   f.origin = vol.position(-pad, -pad, -pad);
 }
 
