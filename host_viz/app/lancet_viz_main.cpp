@@ -16,6 +16,8 @@
 #include <thread>
 
 #include "app/viz_session.hpp"
+#include "volume/marching_cubes.hpp"
+#include "volume/phantom.hpp"
 #include "render/overlay.hpp"
 #include "render/scene_renderer.hpp"
 #include "render/window.hpp"
@@ -124,6 +126,32 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
 
 }  // namespace
 
+// The built-in CT phantom's skin (marching cubes at -300 HU, padded so it closes), turned so the
+// limb lies along x with its upper side facing +z, and lowered so its top is at z = 0 where the
+// stylus script works.
+lancet::surface::TriangleMesh phantom_skin() {
+  const auto ph = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
+  lancet::volume::IsoOptions o;
+  o.iso = -300;
+  o.pad_border = true;
+  o.pad_value = -1000;
+  auto s = lancet::volume::extract_isosurface(ph.volume, o, ph.material);
+  lancet::surface::TriangleMesh m;
+  if (!s.ok()) return m;
+  const auto& iso = s.value();
+  float top = -1e9f;
+  for (const auto& p : iso.positions) top = std::max(top, p.y);
+  for (std::size_t i = 0; i < iso.positions.size(); ++i) {
+    const auto& p = iso.positions[i];
+    const auto& n = iso.normals[i];
+    m.vertices.push_back({p.z, p.x, p.y - top});  // (x, y, z) → (z, x, y): a rotation, then down
+    m.normals.push_back({n.z, n.x, n.y});
+  }
+  m.triangles = iso.triangles;
+  for (const auto& t : iso.triangles) m.material.push_back(iso.material[t[0]]);
+  return m;
+}
+
 int main(int argc, char** argv) {
   CLI::App cli{"lancet-viz: Lancet's visualizer (tissue, tool, link to lancet-rt)"};
   VizOptions o;
@@ -138,6 +166,9 @@ int main(int argc, char** argv) {
   cli.add_option("--patch-radius-mm", o.patch_radius_mm, "radius of the tissue patch sent to lancet-rt")
       ->check(CLI::Range(1.0, 200.0))->capture_default_str();
   cli.add_option("--fps", o.fps, "frame-rate cap")->check(CLI::Range(1.0, 1000.0))->capture_default_str();
+  std::string tissue = "block";
+  cli.add_option("--tissue", tissue, "block: the procedural skin block; phantom: the skin of the built-in CT phantom (marching cubes)")
+      ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str();
   CLI11_PARSE(cli, argc, argv);
   if (o.headless && o.duration == 0) o.duration = 5;
 
@@ -154,13 +185,15 @@ int main(int argc, char** argv) {
 
   // The tissue: the surface model on the tissue block (cut, dented, opened by what lancet-rt
   // reports), drawn from a plain copy refreshed when it changes.
-  lancet::surface::TriangleMesh mesh = lancet::surface::make_tissue_block({});
+  lancet::surface::TriangleMesh mesh =
+      tissue == "phantom" ? phantom_skin() : lancet::surface::make_tissue_block({});
   auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
   if (!made.ok()) {
     std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
     return 3;
   }
   lancet::surface::SurfaceModel& model = *made.value();
+  std::uint64_t shown_revision = model.revision();
   lancet::viz::VizSessionParams sp;
   sp.shm_name = o.shm;
   sp.patch.radius = o.patch_radius_mm * 1e-3;
@@ -185,7 +218,9 @@ int main(int argc, char** argv) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
       const std::int64_t now = lancet::monotonic_ns();
-      if (session.frame(now, model)) {
+      (void)session.frame(now, model);
+      if (model.revision() != shown_revision) {  // redraw only what changed shape
+        shown_revision = model.revision();
         model.to_triangle_mesh(mesh);
         renderer.set_mesh(mesh);
       }

@@ -125,6 +125,7 @@ void SurfaceModel::set_current(std::uint32_t v) {
 // After vertices moved or faces were reconnected: refit their faces in the BVH and renormalise
 // the vertices of those faces.
 void SurfaceModel::refresh(std::span<const std::uint32_t> vertices) {
+  if (!vertices.empty()) ++revision_;
   scratch_faces_.clear();
   for (std::uint32_t v : vertices)
     for (auto f : mesh_.vf_range(vh(v))) {

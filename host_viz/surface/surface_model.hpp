@@ -130,6 +130,8 @@ class SurfaceModel {
   [[nodiscard]] MeshView view() const noexcept;
   [[nodiscard]] const TriangleBvh& bvh() const noexcept { return bvh_; }
   [[nodiscard]] const SurfaceParams& params() const noexcept { return params_; }
+  /// Bumped whenever positions or connectivity change (to redraw only when needed).
+  [[nodiscard]] std::uint64_t revision() const noexcept { return revision_; }
 
   // ---- driven by lancet-rt ----
   /// Applies one ToolSample (dt: seconds since the previous one): in the deform stage the dent
@@ -200,6 +202,7 @@ class SurfaceModel {
   std::vector<float> wrinkle_amp_;                 ///< per vertex in wrinkled_: its profile
   double wrinkle_level_ = 0;                       ///< current wrinkle amplitude (m)
   TriangleBvh bvh_;
+  std::uint64_t revision_ = 0;
   std::vector<Cut> cuts_;
   std::uint32_t walk_face_ = 0;                    ///< stable face under the cut's tip
   Vec3 walk_point_{};

@@ -112,6 +112,23 @@ TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
   EXPECT_FALSE(std::filesystem::exists("/dev/shm" + shm_)) << "lancet-rt did not unlink its segment";
 }
 
+// The CT phantom's marching-cubes skin as the tissue: the stylus touches it and feels it.
+TEST_F(TwoProcess, PhantomSkinTissueGivesContactAndForce) {
+  auto rt = start_rt();
+  ASSERT_TRUE(rt->running());
+  auto viz = start_viz({"--duration", "2.5", "--tissue", "phantom", "--stats", path("viz.json")});
+  const auto vs = viz->wait_exit(60s);
+  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
+  EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  EXPECT_GT(json_number(read_file(path("viz.json")), "patches_published").value_or(0), 0);
+  rt->signal(SIGTERM);
+  const auto rs = rt->wait_exit(10s);
+  ASSERT_TRUE(rs.has_value());
+  const std::string r = read_file(path("rt.json"));
+  EXPECT_GT(json_number(r, "contact_ticks").value_or(0), 0) << r;
+  EXPECT_GT(json_number(r, "max_force_n").value_or(0), 0.2) << r;
+}
+
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto rt = start_rt();
   auto ch = SharedChannel::open(shm_);
