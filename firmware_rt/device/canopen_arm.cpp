@@ -1,5 +1,7 @@
 #include "device/canopen_arm.hpp"
 
+#include "device/joint_signals.hpp"
+
 #include "lancet/shared_model/units.hpp"
 
 #include <errno.h>
@@ -649,12 +651,7 @@ IoStatus CanopenArm::on_read(JointState& out) noexcept {
   }
   prev_good_t_ns_ = cycle_t_ns_;
   const std::uint32_t raw = nodes_[static_cast<std::size_t>(buttons_joint_)].inputs;
-  out.buttons = 0;
-  for (std::size_t b = 0; b < config_.buttons.size() && b < 32; ++b) {
-    const arm::ButtonConfig& bc = config_.buttons[b];
-    const bool level = ((raw >> bc.bit) & 1u) != 0;
-    if (level != bc.active_low) out.buttons |= 1u << b;
-  }
+  out.buttons = pressed_buttons(config_.buttons, raw);
   return IoStatus::kOk;
 }
 

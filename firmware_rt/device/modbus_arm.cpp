@@ -1,5 +1,8 @@
 #include "device/modbus_arm.hpp"
 
+#include "device/joint_signals.hpp"
+#include "lancet/shared_model/units.hpp"
+
 #include <arpa/inet.h>
 #include <errno.h>
 #include <modbus.h>
@@ -145,14 +148,7 @@ namespace {
 using modbus::RegisterBlock;
 using modbus::RegisterSpan;
 
-constexpr double kVelocityCutoffHz = 100;  // the light low-pass on the finite-difference velocity
 constexpr std::int64_t kRearmSettleNs = 100'000'000;  // how long rearm waits for a drive fault to clear
-
-std::int64_t mono_ns() noexcept {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
 
 const char* table_name(arm::RegisterTable t) { return t == arm::RegisterTable::kInput ? "input" : "holding"; }
 
@@ -361,10 +357,7 @@ Outcome ModbusArm::write_zero_current(const std::string& what) {
   return Outcome::success();
 }
 
-void ModbusArm::reset_velocity() noexcept {
-  t_prev_ns_ = 0;
-  qd_filt_.fill(0);
-}
+void ModbusArm::reset_velocity() noexcept { velocity_.reset(); }
 
 Outcome ModbusArm::on_configure() {
   ctx_.reset();
@@ -447,14 +440,14 @@ Outcome ModbusArm::on_rearm() {
   }
   // A drive may take a moment to leave its fault state: give it kRearmSettle before giving up.
   std::uint32_t status = 0;
-  const std::int64_t give_up = mono_ns() + kRearmSettleNs;
+  const std::int64_t give_up = monotonic_ns() + kRearmSettleNs;
   while (o.ok()) {
     o = check_read("rearm: reading the encoder registers");
     if (!o.ok() || !status_.present) break;
     status = static_cast<std::uint32_t>(
         modbus::decode_registers(status_.type, bus_.registers.high_word_first, std::span<const std::uint16_t>(rbuf_).subspan(status_.offset)));
     if ((status & modbus::kStatusDriveFault) == 0) break;
-    if (mono_ns() >= give_up) {
+    if (monotonic_ns() >= give_up) {
       char hex[16];
       std::snprintf(hex, sizeof hex, "0x%X", status);
       o = fail(std::string("rearm: the drive still reports a fault after the fault reset (status ") + hex + ", bit 0 set)", 0);
@@ -512,40 +505,22 @@ IoStatus ModbusArm::write_blocks() noexcept {
 IoStatus ModbusArm::on_read(JointState& out) noexcept {
   const IoStatus s = read_blocks();
   if (s != IoStatus::kOk) return s;
-  const std::int64_t now = mono_ns();
+  const std::int64_t now = monotonic_ns();
   const bool hwf = bus_.registers.high_word_first;
   const std::span<const std::uint16_t> regs(rbuf_);
   const int rc = modbus::register_count(encoders_.type);
-  const double dt = t_prev_ns_ > 0 ? static_cast<double>(now - t_prev_ns_) * 1e-9 : 0.0;
-  // First-order low-pass on the finite difference: alpha = dt / (dt + 1/(2π fc)).
-  const double tau_f = 1.0 / (2.0 * std::numbers::pi * kVelocityCutoffHz);
-  const double alpha = dt > 0 ? dt / (dt + tau_f) : 0.0;
   out.n = n_;
   for (int j = 0; j < n_; ++j) {
     const auto uj = static_cast<std::size_t>(j);
     const std::int64_t counts = modbus::decode_registers(encoders_.type, hwf, regs.subspan(static_cast<std::size_t>(encoders_.offset + j * rc)));
-    const double q = arm::joint_position_from_counts(config_.joints[uj], counts);
-    if (t_prev_ns_ == 0) {
-      qd_filt_[uj] = 0;
-    } else if (dt > 0) {
-      qd_filt_[uj] += alpha * ((q - q_prev_[uj]) / dt - qd_filt_[uj]);
-    }
-    q_prev_[uj] = q;
     out.counts[uj] = counts;
-    out.q[uj] = q;
-    out.qd[uj] = qd_filt_[uj];
+    out.q[uj] = arm::joint_position_from_counts(config_.joints[uj], counts);
   }
-  if (t_prev_ns_ == 0 || dt > 0) t_prev_ns_ = now;
+  velocity_.update(n_, out.q, now, out.qd);
   out.status = status_.present ? static_cast<std::uint32_t>(modbus::decode_registers(status_.type, hwf, regs.subspan(status_.offset))) : 0;
-  out.buttons = 0;
-  if (buttons_.present) {
-    const auto raw = static_cast<std::uint32_t>(modbus::decode_registers(buttons_.type, hwf, regs.subspan(buttons_.offset)));
-    for (std::size_t i = 0; i < config_.buttons.size() && i < 32; ++i) {
-      const arm::ButtonConfig& b = config_.buttons[i];
-      const bool level = b.bit >= 0 && b.bit < 32 && ((raw >> b.bit) & 1u) != 0;
-      if (level != b.active_low) out.buttons |= 1u << i;
-    }
-  }
+  out.buttons = buttons_.present
+                    ? pressed_buttons(config_.buttons, static_cast<std::uint32_t>(modbus::decode_registers(buttons_.type, hwf, regs.subspan(buttons_.offset))))
+                    : 0;
   if ((out.status & modbus::kStatusDriveFault) != 0) return IoStatus::kDeviceFault;
   return IoStatus::kOk;
 }

@@ -36,6 +36,7 @@
 
 #include "arm/arm_config.hpp"
 #include "device/device.hpp"
+#include "device/joint_signals.hpp"
 
 struct _modbus;  // libmodbus's context (modbus_t), kept out of this header
 
@@ -175,8 +176,7 @@ class ModbusArm final : public Device {
   std::array<double, kMaxJoints> sent_current_{};
 
   // Velocity estimate: finite difference through a first-order low-pass.
-  std::array<double, kMaxJoints> q_prev_{}, qd_filt_{};
-  std::int64_t t_prev_ns_ = 0;
+  VelocityEstimator velocity_{100.0};  ///< a light low-pass (100 Hz) on the finite difference
 };
 
 }  // namespace lancet::device

@@ -1,5 +1,7 @@
 #include "device/usb_arm.hpp"
 
+#include "device/joint_signals.hpp"
+
 #include "lancet/shared_model/units.hpp"
 
 #include <libusb.h>
@@ -15,8 +17,6 @@ namespace lancet::device {
 
 namespace {
 
-// A q̇ estimate older than this is not continued from (a pause, a fault): it restarts at zero.
-constexpr std::int64_t kMaxVelocityGapNs = 50'000'000;
 // How long configure() waits for the first IN report (the arm must answer).
 constexpr std::int64_t kFirstReportWindowNs = 200'000'000;
 // How long teardown waits for a cancelled transfer to come back.
@@ -165,17 +165,13 @@ UsbArm::~UsbArm() {
 
 std::string UsbArm::device_location() const { return handle_ == nullptr ? std::string() : location(bus_number_, address_); }
 
-void UsbArm::set_velocity_cutoff_hz(double hz) noexcept {
-  if (hz > 0 && std::isfinite(hz)) cutoff_hz_ = hz;
-}
+void UsbArm::set_velocity_cutoff_hz(double hz) noexcept { velocity_.set_cutoff_hz(hz); }
 
 void UsbArm::reset_estimator() noexcept {
   have_sample_ = false;
-  last_sample_ns_ = 0;
   last_raw_.fill(0);
   counts_.fill(0);
-  last_q_.fill(0);
-  qd_.fill(0);
+  velocity_.reset();
 }
 
 // --------------------------------------------------------------------------------------------
@@ -517,39 +513,21 @@ IoStatus UsbArm::on_read(JointState& out) noexcept {
   const arm::ReportField& ef = usb_.encoder_counts;
   const int size = arm::field_size(ef.type);
   const std::int64_t t = in_.done_ns;
-  const double dt = have_sample_ ? static_cast<double>(t - last_sample_ns_) * 1e-9 : 0.0;
-  const bool continue_velocity = have_sample_ && t - last_sample_ns_ <= kMaxVelocityGapNs;
-  const double tau = 1.0 / (2.0 * std::numbers::pi * cutoff_hz_);
   out.n = n_;
   for (int j = 0; j < n_; ++j) {
     const auto uj = static_cast<std::size_t>(j);
     const std::int64_t raw = read_field(b + ef.offset + static_cast<std::size_t>(j * size), ef.type, usb_.byte_order);
     counts_[uj] = have_sample_ ? counts_[uj] + wrapped_delta(raw, last_raw_[uj], ef.type) : raw;
     last_raw_[uj] = raw;
-    const double q = arm::joint_position_from_counts(config_.joints[uj], counts_[uj]);
-    if (!continue_velocity) {
-      qd_[uj] = 0;
-    } else if (dt > 0) {
-      const double v = (q - last_q_[uj]) / dt;
-      qd_[uj] += dt / (dt + tau) * (v - qd_[uj]);
-    }
-    last_q_[uj] = q;
-    out.q[uj] = q;
-    out.qd[uj] = qd_[uj];
+    out.q[uj] = arm::joint_position_from_counts(config_.joints[uj], counts_[uj]);
     out.counts[uj] = counts_[uj];
   }
+  velocity_.update(n_, out.q, t, out.qd);
   have_sample_ = true;
-  last_sample_ns_ = t;
 
   std::uint32_t word = 0;
   if (usb_.buttons) word = static_cast<std::uint32_t>(read_field(b + usb_.buttons->offset, usb_.buttons->type, usb_.byte_order));
-  std::uint32_t pressed = 0;
-  for (std::size_t i = 0; i < config_.buttons.size() && i < 32; ++i) {
-    const auto& bc = config_.buttons[i];
-    const bool bit = ((word >> static_cast<unsigned>(bc.bit)) & 1u) != 0;
-    if (bit != bc.active_low) pressed |= 1u << i;
-  }
-  out.buttons = pressed;
+  out.buttons = pressed_buttons(config_.buttons, word);
   out.status = usb_.status ? static_cast<std::uint32_t>(read_field(b + usb_.status->offset, usb_.status->type, usb_.byte_order)) : 0u;
   return (out.status & 1u) != 0 ? IoStatus::kDeviceFault : IoStatus::kOk;
 }

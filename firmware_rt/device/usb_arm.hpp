@@ -48,6 +48,7 @@
 
 #include "arm/arm_config.hpp"
 #include "device/device.hpp"
+#include "device/joint_signals.hpp"
 
 struct libusb_context;
 struct libusb_device_handle;
@@ -68,7 +69,7 @@ class UsbArm final : public Device {
   [[nodiscard]] std::string device_location() const;
   /// Cutoff of the velocity low-pass (Hz, > 0; default 200). Not real-time: call while inactive.
   void set_velocity_cutoff_hz(double hz) noexcept;
-  [[nodiscard]] double velocity_cutoff_hz() const noexcept { return cutoff_hz_; }
+  [[nodiscard]] double velocity_cutoff_hz() const noexcept { return velocity_.cutoff_hz(); }
 
   /// Transfer bookkeeping for diagnostics and tests (updated by every transfer, not real-time
   /// safe to read from another thread). cancelled_late counts transfers that libusb's own timeout
@@ -117,7 +118,6 @@ class UsbArm final : public Device {
   int n_ = 0;
   unsigned int timeout_ms_ = 2;   ///< libusb transfer timeout (≥ 1: 0 would mean none)
   std::int64_t timeout_ns_ = 2'000'000;
-  double cutoff_hz_ = 200;
 
   libusb_context* ctx_ = nullptr;
   libusb_device_handle* handle_ = nullptr;
@@ -129,10 +129,10 @@ class UsbArm final : public Device {
   bool enabled_ = false;          ///< what the enable bit of every OUT report says
 
   // Estimator state (per joint).
-  bool have_sample_ = false;
-  std::int64_t last_sample_ns_ = 0;
+  bool have_sample_ = false;  ///< counts_ continue from a previous report (unwrapping)
   std::array<std::int64_t, kMaxJoints> last_raw_{}, counts_{};
-  std::array<double, kMaxJoints> last_q_{}, qd_{};
+  /// 200 Hz low-pass; after a 50 ms gap (a pause, a fault) it restarts at zero.
+  VelocityEstimator velocity_{200.0, 50'000'000};
 
   TransferStats stats_{};
 };
