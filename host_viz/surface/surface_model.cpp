@@ -89,14 +89,9 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   }
   // Normals, rest face normals, the BVH.
   m->rest_normal_.resize(triangles.size());
-  for (std::size_t f = 0; f < triangles.size(); ++f) {
-    const auto& t = triangles[f];
-    const P a = mesh.point(vh(t[0])), b = mesh.point(vh(t[1])), c = mesh.point(vh(t[2]));
-    m->rest_normal_[f] = OpenMesh::cross(b - a, c - a);
-  }
+  for (std::size_t f = 0; f < triangles.size(); ++f) m->rest_normal_[f] = m->face_cross(static_cast<std::uint32_t>(f), true);
   for (auto v : mesh.vertices()) {
-    P n(0, 0, 0);
-    for (auto f : mesh.vf_range(v)) n += m->rest_normal_[mesh.property(m->stable_, f)];
+    const P n = m->vertex_cross_sum(idx(v));
     const float len = n.norm();
     mesh.set_normal(v, len > 0 ? n / len : P(0, 0, 1));
   }
@@ -106,6 +101,21 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   }
   m->bvh_.build(m->view());
   return m;
+}
+
+// (b − a) × (c − a) of stable face f, at current or rest positions: twice its area along its normal.
+OpenMesh::Vec3f SurfaceModel::face_cross(std::uint32_t f, bool rest) const {
+  const auto& t = faces_[f];
+  const auto at = [&](std::uint32_t v) { return rest ? mesh_.property(rest_, vh(v)) : mesh_.point(vh(v)); };
+  const P a = at(t[0]);
+  return OpenMesh::cross(at(t[1]) - a, at(t[2]) - a);
+}
+
+// Σ face_cross over the faces around v (current positions): the area-weighted normal direction.
+OpenMesh::Vec3f SurfaceModel::vertex_cross_sum(std::uint32_t v) const {
+  P n(0, 0, 0);
+  for (auto f : mesh_.vf_range(vh(v))) n += face_cross(stable_of(f), false);
+  return n;
 }
 
 Vec3 SurfaceModel::position(std::uint32_t v) const noexcept { return v3(mesh_.point(vh(v))); }
@@ -147,12 +157,7 @@ void SurfaceModel::refresh(std::span<const std::uint32_t> vertices) {
       }
   for (std::uint32_t v : scratch_vertices_) {
     mark_[v] = 0;
-    P n(0, 0, 0);
-    for (auto f : mesh_.vf_range(vh(v))) {
-      const auto& t = faces_[stable_of(f)];
-      const P a = mesh_.point(vh(t[0])), b = mesh_.point(vh(t[1])), c = mesh_.point(vh(t[2]));
-      n += OpenMesh::cross(b - a, c - a);
-    }
+    const P n = vertex_cross_sum(v);
     const float len = n.norm();
     if (len > 0) mesh_.set_normal(vh(v), n / len);
   }
@@ -287,9 +292,7 @@ bool SurfaceModel::snap(std::uint32_t v, Vec3 target, CutStepResult& r) {
     const std::uint32_t one[1] = {v};
     refresh(one);
     for (auto f : mesh_.vf_range(h)) {
-      const auto& t = faces_[stable_of(f)];
-      const P a = mesh_.property(rest_, vh(t[0])), b = mesh_.property(rest_, vh(t[1])), c = mesh_.property(rest_, vh(t[2]));
-      P n = OpenMesh::cross(b - a, c - a);
+      const P n = face_cross(stable_of(f), true);
       const float len = n.norm();
       if (len > 0) rest_normal_[stable_of(f)] = n / len;
     }
@@ -716,12 +719,10 @@ SurfaceStats SurfaceModel::stats() const {
     if (mesh_.is_boundary(e)) ++s.boundary_edges;
   for (std::size_t f = 0; f < faces_.size(); ++f) {
     const auto& t = faces_[f];
-    const P a = mesh_.point(vh(t[0])), b = mesh_.point(vh(t[1])), c = mesh_.point(vh(t[2]));
-    const P n = OpenMesh::cross(b - a, c - a);
+    const P n = face_cross(static_cast<std::uint32_t>(f), false);
     const double area = 0.5 * static_cast<double>(n.norm());
     s.area += area;
-    const P ra = mesh_.property(rest_, vh(t[0])), rb = mesh_.property(rest_, vh(t[1])), rc = mesh_.property(rest_, vh(t[2]));
-    s.rest_area += 0.5 * static_cast<double>(OpenMesh::cross(rb - ra, rc - ra).norm());
+    s.rest_area += 0.5 * static_cast<double>(face_cross(static_cast<std::uint32_t>(f), true).norm());
     if (!(area > kMinArea) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++s.degenerate_faces;
     if (OpenMesh::dot(n, rest_normal_[f]) <= 0) ++s.flipped_faces;
   }

@@ -178,6 +178,8 @@ class SurfaceModel {
   void set_current(std::uint32_t v);  // current = rest + deformation + opening + wrinkle
   void refresh(std::span<const std::uint32_t> vertices);  // positions → normals, BVH
   std::uint32_t stable_of(SurfaceMesh::FaceHandle fh) const;
+  OpenMesh::Vec3f face_cross(std::uint32_t f, bool rest) const;
+  OpenMesh::Vec3f vertex_cross_sum(std::uint32_t v) const;
   std::optional<std::uint32_t> locate(Vec3 p, double max_distance, Vec3* on_surface) const;
   bool snap(std::uint32_t v, Vec3 target, CutStepResult& r);
   bool duplicate(Cut& cut, std::size_t k, CutStepResult& r);
