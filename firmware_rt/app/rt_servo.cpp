@@ -87,15 +87,16 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   // Read the arm: encoders → forward kinematics → the tool in the tissue frame. While a re-arm is
   // pending the servo keeps its hands off the device (the supervisor thread owns it).
   bool device_ok = true;
+  bool device_owned = true;  // false while a re-arm is pending: the supervisor owns the device
   if (arm_ != nullptr) {
     int phase = d.rearm_phase.load(std::memory_order_acquire);
     if (phase == static_cast<int>(RearmPhase::kDone)) {
       d.rearm_phase.store(static_cast<int>(RearmPhase::kIdle), std::memory_order_relaxed);
       phase = static_cast<int>(RearmPhase::kIdle);
     }
-    const bool owned = phase == static_cast<int>(RearmPhase::kIdle);
+    device_owned = phase == static_cast<int>(RearmPhase::kIdle);
     if (hand_ != nullptr) hand_->set_hand_target(target + model_.device_origin);
-    d.last_read = owned ? arm_->read(d.joints) : device::IoStatus::kFault;
+    d.last_read = device_owned ? arm_->read(d.joints) : device::IoStatus::kFault;
     device_ok = d.last_read == device::IoStatus::kOk;
     if (device_ok) {
       const std::span<const double> q(d.joints.q.data(), static_cast<std::size_t>(d.joints.n));
@@ -160,8 +161,8 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
       const double lim = model_.max_joint_torque[uj] > 0 ? model_.max_joint_torque[uj] : 0.0;
       d.command.tau[uj] = device_ok ? std::clamp(tau[uj], -lim, lim) : 0.0;
     }
-    const bool owned = d.rearm_phase.load(std::memory_order_acquire) == static_cast<int>(RearmPhase::kIdle);
-    d.last_write = owned ? arm_->write(d.command) : device::IoStatus::kFault;
+    // (The phase cannot leave kIdle within a tick: only this thread requests, before the read.)
+    d.last_write = device_owned ? arm_->write(d.command) : device::IoStatus::kFault;
     if (d.last_write != device::IoStatus::kOk) events |= event::kFault;
   } else {
     device::step_sim_stylus(model_.stylus, d.stylus, target, f, dt);
@@ -216,7 +217,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   st.viz_last_beat_ns = alive ? d.viz_last_beat_ns : d.viz_lost_at_beat_ns;
   st.force_zero_ns = d.force_zero_ns;
   st.tool = d.tool;
-  if (arm_ != nullptr && d.rearm_phase.load(std::memory_order_acquire) == static_cast<int>(RearmPhase::kIdle)) {
+  if (arm_ != nullptr && device_owned) {
     st.device_state = static_cast<std::uint32_t>(arm_->state());
     st.device_fault_cause = static_cast<std::uint32_t>(arm_->fault_cause());
   }

@@ -241,8 +241,8 @@ int run_calibrate(const std::string& path, std::span<const double> home, bool wr
   std::vector<double> mean(static_cast<std::size_t>(n), 0.0);
   device::JointState s{};
   for (int i = 0; i < kSamples; ++i) {
-    if (a->dev.device->read(s) != device::IoStatus::kOk) {
-      std::fprintf(out, "calibrate: read failed: %s\n", device::to_string(a->dev.device->read(s)));
+    if (const device::IoStatus st = a->dev.device->read(s); st != device::IoStatus::kOk) {
+      std::fprintf(out, "calibrate: read failed: %s\n", device::to_string(st));
       return 1;
     }
     for (int j = 0; j < n; ++j) mean[static_cast<std::size_t>(j)] += s.q[static_cast<std::size_t>(j)] / kSamples;
