@@ -1,5 +1,8 @@
 #include "app/device_factory.hpp"
 
+#include <algorithm>
+#include <cmath>
+
 
 #include "device/canopen_arm.hpp"
 #include "device/modbus_arm.hpp"
@@ -8,7 +11,21 @@
 
 namespace lancet::app {
 
-Result<MadeDevice> make_device(const arm::ArmConfig& config) {
+device::Plausibility plausibility_of(const arm::ArmConfig& config) {
+  device::Plausibility p;
+  p.n = std::min<int>(static_cast<int>(config.joints.size()), device::kMaxJoints);
+  for (int j = 0; j < p.n; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    const arm::JointConfig& jc = config.joints[uj];
+    p.max_speed[uj] = jc.max_speed;
+    p.resolution[uj] = std::abs(arm::joint_position_from_counts(jc, 1) - arm::joint_position_from_counts(jc, 0));
+  }
+  return p;
+}
+
+namespace {
+
+Result<MadeDevice> make_backend(const arm::ArmConfig& config) {
   switch (config.backend) {
     case arm::Backend::kSim: {
       auto sim = device::SimArm::create(config);
@@ -41,6 +58,14 @@ Result<MadeDevice> make_device(const arm::ArmConfig& config) {
     }
   }
   return Error{ErrorCode::kInvalid, config.source + ": unknown backend"};
+}
+
+}  // namespace
+
+Result<MadeDevice> make_device(const arm::ArmConfig& config) {
+  auto made = make_backend(config);
+  if (made.ok()) made.value().device->set_plausibility(plausibility_of(config));
+  return made;
 }
 
 }  // namespace lancet::app

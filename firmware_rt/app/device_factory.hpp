@@ -15,7 +15,11 @@ struct MadeDevice {
   device::ArmPhysics* hand = nullptr;  ///< the simulated hand, for the sim backend (owned by device)
 };
 
+/// The encoder plausibility limits of a config's joints (max speed, one count).
+[[nodiscard]] device::Plausibility plausibility_of(const arm::ArmConfig& config);
+
 /// sim: the in-process simulated arm. Backends not built into this binary are a clear error.
+/// The device checks encoder plausibility with plausibility_of(config).
 [[nodiscard]] Result<MadeDevice> make_device(const arm::ArmConfig& config);
 
 }  // namespace lancet::app

@@ -571,7 +571,8 @@ void parse_joints(Section& top, std::vector<JointConfig>& out, const Context& ct
     j.direction = static_cast<int>(s.integer_in("direction", kReq, dirs).value_or(1));
     if (!known_type) {
       // The model is broken: accept either unit family without judging it.
-      s.skip({"offset_deg", "min_deg", "max_deg", "offset_mm", "min_mm", "max_mm", "lead_mm"});
+      s.skip({"offset_deg", "min_deg", "max_deg", "offset_mm", "min_mm", "max_mm", "lead_mm", "max_speed_deg_s",
+              "max_speed_mm_s"});
     } else {
       const bool revolute = j.type == JointType::kRevolute;
       const char* unit = revolute ? "deg" : "mm";
@@ -579,8 +580,8 @@ void parse_joints(Section& top, std::vector<JointConfig>& out, const Context& ct
       const std::string o = std::string("offset_") + unit, lo = std::string("min_") + unit, hi = std::string("max_") + unit;
       const std::string why = revolute ? "prismatic joints; this joint is revolute in the kinematic model"
                                        : "revolute joints; this joint is prismatic in the kinematic model";
-      static constexpr std::array<const char*, 4> kPrismaticOnly{"offset_mm", "min_mm", "max_mm", "lead_mm"};
-      static constexpr std::array<const char*, 3> kRevoluteOnly{"offset_deg", "min_deg", "max_deg"};
+      static constexpr std::array<const char*, 5> kPrismaticOnly{"offset_mm", "min_mm", "max_mm", "lead_mm", "max_speed_mm_s"};
+      static constexpr std::array<const char*, 4> kRevoluteOnly{"offset_deg", "min_deg", "max_deg", "max_speed_deg_s"};
       if (revolute) {
         for (const char* key : kPrismaticOnly) s.forbid(key, why);
       } else {
@@ -595,6 +596,11 @@ void parse_joints(Section& top, std::vector<JointConfig>& out, const Context& ct
       j.min = mn.value_or(0) * scale;
       j.max = mx.value_or(0) * scale;
       if (!revolute) j.lead = s.number("lead_mm", kReq, kPositive).value_or(0) * kMm;
+      // Encoder plausibility: a reading that moved faster than this since the last one is a glitch.
+      const std::string vmax = std::string("max_speed_") + unit + "_s";
+      j.max_speed = s.number(vmax, kOpt, kPositive).value_or(revolute ? JointConfig::kDefaultMaxSpeedDegS
+                                                                       : JointConfig::kDefaultMaxSpeedMmS) *
+                    scale;
     }
     s.finish();
     out.push_back(j);

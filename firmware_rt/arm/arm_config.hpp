@@ -55,6 +55,11 @@ struct JointConfig {
   double offset = 0;                      ///< rad (m for prismatic): joint position at count 0
   double min = 0, max = 0;                ///< rad (m for prismatic): soft limits, min < max
   double lead = 0;                        ///< m of travel per output revolution (prismatic only)
+  /// rad/s (m/s for prismatic), > 0: the fastest the joint can really move. An encoder reading
+  /// further from the last good one than this speed allows is a glitch (device::Device counts it).
+  double max_speed = kDefaultMaxSpeedDegS * 3.14159265358979323846 / 180.0;
+  static constexpr double kDefaultMaxSpeedDegS = 1800;  ///< max_speed_deg_s when the file has none
+  static constexpr double kDefaultMaxSpeedMmS = 3000;   ///< max_speed_mm_s when the file has none
 };
 
 /// One joint's motor.

@@ -4,6 +4,11 @@
 
 #include <time.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+
 namespace lancet::device {
 
 namespace {
@@ -24,6 +29,7 @@ const char* to_string(IoStatus s) noexcept {
     case IoStatus::kDeviceFault: return "device fault";
     case IoStatus::kNotActive: return "not active";
     case IoStatus::kFault: return "fault";
+    case IoStatus::kImplausible: return "encoder glitch";
   }
   return "?";
 }
@@ -69,20 +75,87 @@ Outcome Device::rearm() {
   state_ = Lifecycle::kActive;
   counters_.consecutive_errors = 0;
   fault_cause_ = IoStatus::kOk;
+  fault_detail_ = FaultDetail{};
+  link_lost_ = false;
+  glitch_bucket_ = 0;
+  q_ref_ns_ = 0;  // the arm may have moved while faulted: the next reading is the new reference
   return o;
+}
+
+Outcome Device::reconnect() {
+  if (state_ != Lifecycle::kFault) return wrong_state(name_, "reconnect", state_);
+  Outcome o = on_reconnect();
+  if (o.ok()) {
+    link_lost_ = false;
+    ++counters_.reconnects;
+    q_ref_ns_ = 0;
+  }
+  return o;
+}
+
+Outcome Device::on_reconnect() {
+  return Outcome::failure(ErrorCode::kUnsupported, name_ + ": reconnect is not supported by this backend");
+}
+
+void Device::note_error(IoStatus status, std::int32_t node, std::uint32_t code, const char* text) noexcept {
+  last_error_.status = status;
+  last_error_.node = node;
+  last_error_.code = code;
+  last_error_.t_ns = monotonic_ns();
+  const char* t = text != nullptr ? text : to_string(status);
+  const std::size_t n = std::min(std::strlen(t), last_error_.text.size() - 1);
+  std::memcpy(last_error_.text.data(), t, n);
+  last_error_.text[n] = '\0';
+  noted_ = true;
+}
+
+IoStatus Device::check_plausible(const JointState& in) noexcept {
+  const Plausibility& p = plausibility_;
+  if (p.n == 0) return IoStatus::kOk;
+  const int n = std::min(p.n, in.n);
+  if (q_ref_ns_ != 0) {
+    const double dt = std::max(static_cast<double>(in.t_ns - q_ref_ns_) * 1e-9, 1e-3);
+    for (int j = 0; j < n; ++j) {
+      const auto uj = static_cast<std::size_t>(j);
+      const double allowed = 2.0 * p.max_speed[uj] * dt + 2.0 * p.resolution[uj];
+      const double jump = std::abs(in.q[uj] - q_ref_[uj]);
+      if (!(jump <= allowed)) {  // NaN included
+        char buf[112];
+        std::snprintf(buf, sizeof buf, "joint %d encoder jumped %.4g (allowed %.4g in %.1f ms)", j, jump, allowed, dt * 1e3);
+        note_error(IoStatus::kImplausible, j, 0, buf);
+        return IoStatus::kImplausible;
+      }
+    }
+  }
+  for (int j = 0; j < n; ++j) q_ref_[static_cast<std::size_t>(j)] = in.q[static_cast<std::size_t>(j)];
+  q_ref_ns_ = in.t_ns;
+  return IoStatus::kOk;
 }
 
 void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
   const std::int64_t dt = monotonic_ns() - t0_ns;
   counters_.last_io_ns = dt;
   if (dt > counters_.max_io_ns) counters_.max_io_ns = dt;
+  const bool noted = noted_;
+  noted_ = false;
+  bool trip = false;
   switch (s) {
     case IoStatus::kOk:
       ++counters_.ok;
       // A good read proves the device answers; a write that went out does not (many buses do not
       // confirm writes), so it does not clear a run of failed reads.
-      if (is_read) counters_.consecutive_errors = 0;
+      if (is_read) {
+        counters_.consecutive_errors = 0;
+        if (glitch_bucket_ > 0) --glitch_bucket_;
+      }
       return;
+    case IoStatus::kImplausible:
+      // The bus answered; the reading was wrong. Glitches trip through their own bucket.
+      ++counters_.glitches;
+      glitch_bucket_ += policy_.glitch_leak_reads;
+      trip = policy_.max_glitches > 0 &&
+             glitch_bucket_ >= static_cast<std::uint64_t>(policy_.max_glitches) * policy_.glitch_leak_reads;
+      break;
     case IoStatus::kTimeout: ++counters_.timeouts; break;
     case IoStatus::kCrcError: ++counters_.crc_errors; break;
     case IoStatus::kProtocolError: ++counters_.protocol_errors; break;
@@ -91,12 +164,18 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
     case IoStatus::kNotActive:
     case IoStatus::kFault: return;
   }
-  ++counters_.consecutive_errors;
-  const bool trip = s == IoStatus::kDisconnected || s == IoStatus::kDeviceFault ||
-                    counters_.consecutive_errors >= policy_.max_consecutive_errors;
+  if (!noted) note_error(s, -1, 0, nullptr);
+  noted_ = false;
+  if (s == IoStatus::kDisconnected) link_lost_ = true;
+  if (s != IoStatus::kImplausible) {
+    ++counters_.consecutive_errors;
+    trip = s == IoStatus::kDisconnected || s == IoStatus::kDeviceFault ||
+           counters_.consecutive_errors >= policy_.max_consecutive_errors;
+  }
   if (trip && state_ == Lifecycle::kActive) {
     state_ = Lifecycle::kFault;
     fault_cause_ = s;
+    fault_detail_ = last_error_;
     ++counters_.faults;
   }
 }
@@ -105,8 +184,11 @@ IoStatus Device::read(JointState& out) noexcept {
   if (state_ == Lifecycle::kUnconfigured) return IoStatus::kNotActive;
   ++counters_.reads;
   const std::int64_t t0 = monotonic_ns();
-  const IoStatus s = on_read(out);
-  if (s == IoStatus::kOk) out.t_ns = t0;
+  IoStatus s = on_read(out);
+  if (s == IoStatus::kOk) {
+    out.t_ns = t0;
+    s = check_plausible(out);
+  }
   account(s, t0, true);
   return state_ == Lifecycle::kFault ? IoStatus::kFault : s;
 }
@@ -119,6 +201,7 @@ IoStatus Device::write(const JointCommand& cmd) noexcept {
     JointCommand zero{};
     zero.n = cmd.n;
     (void)on_write(zero);  // best effort: the drives should hold no torque
+    noted_ = false;        // what that write noted is not an error of this call
     return IoStatus::kFault;
   }
   const IoStatus s = on_write(cmd);

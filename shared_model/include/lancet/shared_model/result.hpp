@@ -17,6 +17,7 @@ enum class ErrorCode {
   kStale,       ///< left behind by a process that died
   kSystem,      ///< a system call failed
   kInvalid,     ///< bad argument or input
+  kUnsupported, ///< the operation does not exist for this object (a backend without it)
 };
 
 struct Error {
