@@ -1,5 +1,12 @@
 // lancet-rt: the 1 kHz servo process. Creates the shared-memory segment, runs the servo loop
-// with the simulated stylus, and pushes one ToolSample per tick to lancet-viz.
+// with the simulated stylus or an arm from hw_configs, and pushes one ToolSample per tick to
+// lancet-viz. The main thread supervises (re-arms, reconnects, announcements, stalls).
+//
+// It always ends within a bounded time, with its stats written and its segment removed: at
+// --duration, on SIGINT / SIGTERM / SIGHUP, or when the servo tick stops advancing
+// (--stall-timeout-ms). Exit codes: 0 ended normally, 1 stats could not be written, 2 bad
+// arguments or the arm could not be brought up, 3 ended because the servo stalled, 4 the servo
+// thread never came back (left without it, --shutdown-grace-ms).
 
 #include <unistd.h>
 
@@ -13,7 +20,11 @@
 #include <memory>
 #include <optional>
 
+#include <cmath>
+#include <string>
+
 #include "app/device_factory.hpp"
+#include "app/supervisor.hpp"
 #include "app/rt_servo.hpp"
 #include "app/rt_cli.hpp"
 #include "rt/rt_loop.hpp"
@@ -21,36 +32,149 @@
 
 namespace {
 
+using lancet::app::copy_text;
+
 std::atomic<bool> g_stop{false};
+std::atomic<int> g_signal{0};
 static_assert(std::atomic<bool>::is_always_lock_free, "the stop flag is set from a signal handler");
+static_assert(std::atomic<int>::is_always_lock_free, "the signal number is set from a signal handler");
 
-extern "C" void on_signal(int) { g_stop.store(true, std::memory_order_relaxed); }
+extern "C" void on_signal(int sig) {
+  g_signal.store(sig, std::memory_order_relaxed);
+  g_stop.store(true, std::memory_order_relaxed);
+}
 
-bool write_stats(const std::string& path, const lancet::app::RtServo& servo, const lancet::rt::RtLoop& loop,
-                 const lancet::SharedState& shared) {
-  const lancet::app::RtData& d = servo.data();
-  const lancet::rt::LoopStats& ls = loop.stats();
+/// SIGINT, SIGTERM and SIGHUP end lancet-rt: without SA_RESTART, so a blocking call in the main
+/// thread returns at once.
+void install_signal_handlers() {
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = 0;
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaction(sig, &sa, nullptr);
+}
+
+/// A JSON number, or null for what JSON cannot hold.
+std::string num(double v, int decimals = 1) {
+  if (!std::isfinite(v)) return "null";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
+  return buf;
+}
+std::string num(std::uint64_t v) { return std::to_string(v); }
+std::string num(std::int64_t v) { return std::to_string(v); }
+/// A JSON string (our own texts are printable ASCII; quotes and backslashes escaped).
+std::string str(const std::string& v) {
+  std::string out = "\"";
+  for (char c : v) {
+    if (c == '"' || c == '\\') out += '\\';
+    out += (static_cast<unsigned char>(c) < 0x20) ? ' ' : c;
+  }
+  return out + "\"";
+}
+
+struct StatsInput {
+  const lancet::rt::LoopStats* loop = nullptr;  ///< null when the servo thread never came back
+  std::uint64_t watchdog_trips = 0;
+  const lancet::app::RtData* data = nullptr;    ///< null likewise
+  lancet::RtStatus status{};                    ///< the servo's last published status
+  bool has_status = false;
+  std::string ended_by;                         ///< duration, SIGTERM, SIGINT, SIGHUP, stall
+  bool clean = true;                            ///< the servo thread stopped and the arm was deactivated
+  std::string arm_name;
+};
+
+bool write_stats(const std::string& path, const StatsInput& in) {
+  const lancet::RtStatus& st = in.status;
+  std::string j = "{\n";
+  auto field = [&j](const char* key, const std::string& value) { j += std::string("  \"") + key + "\": " + value + ",\n"; };
+  field("ended_by", str(in.ended_by));
+  field("clean_exit", in.clean ? "true" : "false");
+  if (in.loop != nullptr) {
+    const lancet::rt::LoopStats& ls = *in.loop;
+    field("ticks", num(ls.ticks));
+    field("overruns", num(ls.overruns));
+    field("missed", num(ls.missed));
+    field("wake_p50_us", num(static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3));
+    field("wake_p99_us", num(static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3));
+    field("wake_max_us", num(static_cast<double>(ls.wake_latency.max_ns()) / 1e3));
+    field("compute_p99_us", num(static_cast<double>(ls.compute.percentile_ns(99)) / 1e3));
+    field("longest_stall_us", num(static_cast<double>(ls.longest_stall_ns) / 1e3));
+    field("watchdog_trips", num(in.watchdog_trips));
+  } else {
+    field("ticks", num(st.tick));
+    field("missed", num(st.missed));
+  }
+  field("samples_pushed", num(st.samples_pushed));
+  field("samples_dropped", num(st.samples_dropped));
+  if (in.data != nullptr) {
+    const lancet::app::RtData& d = *in.data;
+    field("patches_received", num(d.patches_received));
+    field("contact_ticks", num(d.contact_ticks));
+    field("max_force_n", num(d.max_force_seen, 6));
+    field("nan_guards", num(d.haptic.safety.nan_guards));
+    field("clamps", num(d.haptic.safety.clamps));
+    field("commands_applied", num(d.commands_applied));
+    field("viz_lost_at_beat_ns", num(d.viz_lost_at_beat_ns));
+    field("force_zero_ns", num(d.force_zero_ns));
+  }
+  const lancet::SegmentHealth& h = st.health;
+  j += "  \"segment\": {\"ring_resets\": " + num(h.ring_resets) + ", \"commands_rejected\": " + num(h.commands_rejected) +
+       ", \"commands_deferred\": " + num(h.commands_deferred) + ", \"patches_rejected\": " + num(h.patches_rejected) +
+       ", \"targets_rejected\": " + num(h.targets_rejected) + ", \"sample_ring_resets\": " + num(h.sample_ring_resets) +
+       "},\n";
+  field("rearms", num(st.rearms));
+  field("operator_requests", num(st.operator_requests));
+  if (st.has_arm != 0) {
+    const lancet::BusCounters& b = st.bus;
+    j += "  \"arm\": {\"name\": " + str(in.arm_name) + ", \"state\": " +
+         str(lancet::device::to_string(static_cast<lancet::device::Lifecycle>(st.device_state))) + ", \"fault_cause\": " +
+         str(st.device_state == static_cast<std::uint32_t>(lancet::device::Lifecycle::kFault)
+                 ? lancet::device::to_string(static_cast<lancet::device::IoStatus>(st.device_fault_cause))
+                 : "") +
+         ", \"fault\": " + str(st.fault_text) + ", \"fault_node\": " + std::to_string(st.fault_node) +
+         ", \"fault_code\": " + std::to_string(st.fault_code) + ", \"last_error\": " + str(st.error_text) +
+         ", \"link_lost\": " + (st.link_lost != 0 ? "true" : "false") + ", \"error_ticks\": " + num(st.device_errors) +
+         ", \"rearm_failures\": " + num(st.rearm_failures) + ", \"last_rearm\": " + str(st.rearm_text) +
+         ",\n          \"bus\": {\"reads\": " + num(b.reads) + ", \"writes\": " + num(b.writes) + ", \"ok\": " + num(b.ok) +
+         ", \"timeouts\": " + num(b.timeouts) + ", \"crc_errors\": " + num(b.crc_errors) +
+         ", \"protocol_errors\": " + num(b.protocol_errors) + ", \"disconnects\": " + num(b.disconnects) +
+         ", \"device_faults\": " + num(b.device_faults) + ", \"glitches\": " + num(b.glitches) +
+         ", \"stale_replies\": " + num(b.stale_replies) + ", \"faults\": " + num(b.faults) +
+         ", \"reconnects\": " + num(b.reconnects) + ", \"max_io_us\": " + num(static_cast<double>(b.max_io_ns) / 1e3) +
+         "}},\n";
+  }
+  j += "  \"has_status\": " + std::string(in.has_status ? "true" : "false") + "\n}\n";
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return false;
-  std::fprintf(f,
-               "{\n  \"ticks\": %llu,\n  \"overruns\": %llu,\n  \"missed\": %llu,\n"
-               "  \"wake_p50_us\": %.1f,\n  \"wake_p99_us\": %.1f,\n  \"wake_max_us\": %.1f,\n"
-               "  \"compute_p99_us\": %.1f,\n  \"longest_stall_us\": %.1f,\n  \"watchdog_trips\": %llu,\n"
-               "  \"samples_pushed\": %llu,\n  \"samples_dropped\": %llu,\n  \"patches_received\": %llu,\n"
-               "  \"contact_ticks\": %llu,\n  \"max_force_n\": %.6f,\n  \"nan_guards\": %llu,\n  \"clamps\": %llu,\n"
-               "  \"commands_applied\": %llu,\n  \"viz_lost_at_beat_ns\": %lld,\n  \"force_zero_ns\": %lld\n}\n",
-               static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.overruns),
-               static_cast<unsigned long long>(ls.missed), static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
-               static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
-               static_cast<double>(ls.wake_latency.max_ns()) / 1e3, static_cast<double>(ls.compute.percentile_ns(99)) / 1e3,
-               static_cast<double>(ls.longest_stall_ns) / 1e3, static_cast<unsigned long long>(loop.watchdog().trips()),
-               static_cast<unsigned long long>(shared.samples.pushed_count()),
-               static_cast<unsigned long long>(shared.samples.overflow_count()),
-               static_cast<unsigned long long>(d.patches_received), static_cast<unsigned long long>(d.contact_ticks),
-               d.max_force_seen, static_cast<unsigned long long>(d.haptic.safety.nan_guards),
-               static_cast<unsigned long long>(d.haptic.safety.clamps), static_cast<unsigned long long>(d.commands_applied),
-               static_cast<long long>(d.viz_lost_at_beat_ns), static_cast<long long>(d.force_zero_ns));
-  return std::fclose(f) == 0;
+  const bool wrote = std::fputs(j.c_str(), f) >= 0;
+  return std::fclose(f) == 0 && wrote;
+}
+
+const char* signal_name(int sig) {
+  switch (sig) {
+    case SIGINT: return "SIGINT";
+    case SIGTERM: return "SIGTERM";
+    case SIGHUP: return "SIGHUP";
+    default: return "signal";
+  }
+}
+
+/// Reads the arm until one read succeeds (the arm inactive: errors here never fault it), or the
+/// timeout. Returns an empty string when it answered, else why not.
+std::string await_first_read(lancet::device::Device& arm, double timeout_s) {
+  lancet::device::JointState js;
+  const std::int64_t deadline = lancet::monotonic_ns() + static_cast<std::int64_t>(timeout_s * 1e9);
+  lancet::device::IoStatus last = lancet::device::IoStatus::kOk;
+  for (;;) {
+    last = arm.read(js);
+    if (last == lancet::device::IoStatus::kOk) return {};
+    if (g_stop.load(std::memory_order_relaxed)) return "interrupted by a signal";
+    if (lancet::monotonic_ns() >= deadline) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  const auto& e = arm.last_error();
+  return std::string(lancet::device::to_string(last)) + (e.status != lancet::device::IoStatus::kOk ? std::string(": ") + e.c_str() : "");
 }
 
 }  // namespace
@@ -76,7 +200,19 @@ int main(int argc, char** argv) {
   cli.add_option("--fade-ms", fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
       ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
-  cli.add_option("--stats", stats_path, "write a JSON summary here on exit");
+  cli.add_option("--stats", stats_path, "write a JSON summary here on exit (also after a signal or a stall)");
+  double stall_timeout_ms = 1000, first_read_timeout_ms = 2000, shutdown_grace_ms = 2000;
+  cli.add_option("--stall-timeout-ms", stall_timeout_ms,
+                 "end lancet-rt when the servo tick has not advanced for this long (the arm's own watchdog then takes its "
+                 "torque off)")
+      ->check(CLI::Range(50.0, 60000.0))->capture_default_str();
+  cli.add_option("--first-read-timeout-ms", first_read_timeout_ms,
+                 "with --config: wait this long for the arm's first good read before enabling it")
+      ->check(CLI::Range(1.0, 60000.0))->capture_default_str();
+  cli.add_option("--shutdown-grace-ms", shutdown_grace_ms,
+                 "after a signal, a stall or --duration, wait this long for the servo thread to stop before leaving "
+                 "without it")
+      ->check(CLI::Range(10.0, 60000.0))->capture_default_str();
   std::string config_path, trajectory_path;
   cli.add_option("--trajectory", trajectory_path,
                  "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm) instead of the built-in script");
@@ -127,12 +263,21 @@ int main(int argc, char** argv) {
     }
     arm = std::move(dev.value().device);
     hand = dev.value().hand;
-    for (const bool configure : {true, false}) {
-      const lancet::device::Outcome o = configure ? arm->configure() : arm->activate();
-      if (!o.ok()) {
-        std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
-        return 2;
-      }
+    install_signal_handlers();
+    if (const lancet::device::Outcome o = arm->configure(); !o.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+      return 2;
+    }
+    // No fault before the first good read: wait for it with the arm still disabled (errors while
+    // inactive never trip the fault policy).
+    if (const std::string why = await_first_read(*arm, first_read_timeout_ms * 1e-3); !why.empty()) {
+      std::fprintf(stderr, "lancet-rt: %s did not answer within %.0f ms of configuration (--first-read-timeout-ms): %s\n",
+                   arm->name().c_str(), first_read_timeout_ms, why.c_str());
+      return 2;
+    }
+    if (const lancet::device::Outcome o = arm->activate(); !o.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+      return 2;
     }
     model.kinematics = &*kinematics;
     const auto& ws = arm_config->safety;
@@ -163,85 +308,115 @@ int main(int argc, char** argv) {
   for (const auto& note : channel.value().segment().notes()) std::fprintf(stderr, "lancet-rt: %s\n", note.c_str());
   lancet::SharedState& shared = channel.value().state();
 
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
-
-  // Status printing happens here, off the servo thread, from the RtStatus seqlock.
-  std::thread reporter;
-  if (!quiet) {
-    reporter = std::thread([&shared] {
-      lancet::RtStatus st{};
-      while (!g_stop.load(std::memory_order_relaxed)) {
-        for (int i = 0; i < 10 && !g_stop.load(std::memory_order_relaxed); ++i) {
-          std::this_thread::sleep_for(std::chrono::milliseconds(100));
-        }
-        if (shared.rt_status.try_read(st) != lancet::ReadStatus::kOk) continue;
-        std::fprintf(stderr,
-                     "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
-                     "missed %llu  dropped %llu%s\n",
-                     static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
-                     st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
-                     static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
-                     static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
-                     st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
-      }
-    });
-  }
+  install_signal_handlers();
 
   // Real time: process-wide setup first, then the loop on its own SCHED_FIFO thread.
   const lancet::rt::RtSetupOptions setup_opts = rt_opts.setup();
   lancet::rt::RtSetupReport setup;
   lancet::rt::RtEnvironment environment(setup_opts, setup);
   lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get(), hand);  // after mlockall: locked too
-  // Re-arming a faulted arm reconnects its bus: done here, off the servo thread, when asked.
-  std::thread supervisor;
-  if (arm) {
-    supervisor = std::thread([&servo, &arm] {
-      while (!g_stop.load(std::memory_order_relaxed)) {
-        if (servo.supervise())
-          std::fprintf(stderr, "lancet-rt: %s re-armed: %s\n", arm->name().c_str(), lancet::device::to_string(arm->state()));
-        std::this_thread::sleep_for(std::chrono::milliseconds(10));
-      }
-    });
-  }
   lancet::rt::RtLoop loop(loop_params);
+  std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
     servo.set_fifo(lancet::rt::current_thread_is_fifo());
     loop.run([&servo](const lancet::rt::TickContext& ctx) { servo.tick(ctx); }, g_stop);
+    loop_done.store(true, std::memory_order_release);
   });
   for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
   std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
                1e9 / static_cast<double>(model.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
+
+  // This thread supervises: device re-arms and reconnects, what changed (said the moment it is
+  // seen), a servo tick that stops advancing, signals, and the status line once a second. It
+  // reads only the servo's private status, never the segment.
+  lancet::app::SupervisorParams sp;
+  sp.shm_name = shm;
+  sp.arm_name = arm ? arm->name() : "";
+  sp.stall_timeout_ns = static_cast<std::int64_t>(stall_timeout_ms * 1e6);
+  const std::int64_t started_ns = lancet::monotonic_ns();
+  lancet::app::RtSupervisor supervisor(servo, sp, started_ns);
+  std::string ended_by = "duration";
+  std::int64_t next_line_ns = started_ns + 1'000'000'000;
+  std::int64_t stop_asked_ns = 0;
+  bool stalled = false;
+  for (;;) {
+    const std::int64_t now = lancet::monotonic_ns();
+    for (const auto& line : supervisor.poll(now)) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
+    if (loop_done.load(std::memory_order_acquire)) break;
+    if (supervisor.stalled() && !stalled) {
+      stalled = true;
+      ended_by = "stall";
+      g_stop.store(true);
+    }
+    if (g_stop.load(std::memory_order_relaxed) && stop_asked_ns == 0) {
+      stop_asked_ns = now;
+      if (const int sig = g_signal.load(std::memory_order_relaxed); sig != 0 && !stalled) ended_by = signal_name(sig);
+    }
+    // --duration is the loop's own end; should the loop not get there, it is enforced here too.
+    if (duration > 0 && stop_asked_ns == 0 && now - started_ns > lancet::seconds_to_ns(duration) + loop_params.period_ns * 100) {
+      stop_asked_ns = now;
+      g_stop.store(true);
+    }
+    if (stop_asked_ns != 0 && now - stop_asked_ns > static_cast<std::int64_t>(shutdown_grace_ms * 1e6)) break;
+    if (!quiet && now >= next_line_ns && supervisor.has_status()) {
+      next_line_ns += 1'000'000'000;
+      const lancet::RtStatus& st = supervisor.last();
+      std::fprintf(stderr,
+                   "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
+                   "missed %llu  dropped %llu%s%s%s\n",
+                   static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
+                   st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
+                   static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
+                   static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
+                   st.has_arm ? "  arm " : "", st.has_arm ? lancet::app::describe_arm(st).c_str() : "",
+                   st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+
+  StatsInput stats;
+  stats.arm_name = arm ? arm->name() : "";
+  stats.ended_by = ended_by;
+  if (!loop_done.load(std::memory_order_acquire)) {
+    // The servo thread is stuck (in a tick, in the device): leave without it. The segment goes,
+    // the stats come from its last published status, and the arm's own watchdog (drive side)
+    // takes the torque off, since nobody writes to it any more.
+    std::fprintf(stderr, "lancet-rt: the servo thread did not stop within %.0f ms: leaving without it (exit 4)\n",
+                 shutdown_grace_ms);
+    stats.clean = false;
+    stats.has_status = servo.read_status(stats.status) == lancet::ReadStatus::kOk;
+    if (!stats_path.empty() && !write_stats(stats_path, stats))
+      std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", stats_path.c_str());
+    channel.value().segment().unlink_name();
+    std::fflush(stderr);
+    std::_Exit(4);
+  }
   thread.join();
   g_stop.store(true);
-  if (reporter.joinable()) reporter.join();
-  if (supervisor.joinable()) supervisor.join();
   if (arm) {
-    const auto& c = arm->counters();
-    std::fprintf(stderr,
-                 "lancet-rt: %s: %llu reads, %llu writes, %llu timeouts, %llu crc, %llu protocol, %llu disconnects, %llu faults, "
-                 "slowest I/O %.0f us\n",
-                 arm->name().c_str(), static_cast<unsigned long long>(c.reads), static_cast<unsigned long long>(c.writes),
-                 static_cast<unsigned long long>(c.timeouts), static_cast<unsigned long long>(c.crc_errors),
-                 static_cast<unsigned long long>(c.protocol_errors), static_cast<unsigned long long>(c.disconnects),
-                 static_cast<unsigned long long>(c.faults), static_cast<double>(c.max_io_ns) / 1e3);
+    std::fprintf(stderr, "lancet-rt: %s: %s\n", arm->name().c_str(),
+                 lancet::app::describe_bus(servo.data().status.bus).c_str());
     (void)arm->deactivate();
   }
   shared.rt_heartbeat.stop();
 
   const auto& ls = loop.stats();
   std::fprintf(stderr,
-               "lancet-rt: stopped after %llu ticks: %llu missed deadlines, wake-up p50 %.1f us p99 %.1f us max %.1f us, "
+               "lancet-rt: stopped (%s) after %llu ticks: %llu missed deadlines, wake-up p50 %.1f us p99 %.1f us max %.1f us, "
                "%llu samples dropped, max force %.2f N\n",
-               static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.missed),
+               ended_by.c_str(), static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.missed),
                static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
                static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
                static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
                static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().max_force_seen);
-  if (!stats_path.empty() && !write_stats(stats_path, servo, loop, shared)) {
+  stats.loop = &ls;
+  stats.watchdog_trips = loop.watchdog().trips();
+  stats.data = &servo.data();
+  stats.has_status = servo.read_status(stats.status) == lancet::ReadStatus::kOk;
+  if (!stats_path.empty() && !write_stats(stats_path, stats)) {
     std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", stats_path.c_str());
     return 1;
   }
-  return 0;
+  return stalled ? 3 : 0;
 }

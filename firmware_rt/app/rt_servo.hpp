@@ -2,15 +2,27 @@
 // The lancet-rt servo tick in the model/data manner: an immutable RtModel, a preallocated RtData,
 // and RtServo::tick(), which never allocates, locks, blocks, throws or logs.
 //
-// One tick: drain commands → stylus target (viz or script) → read the simulated device → take the
-// newest TissuePatch (seqlock, never waits) → haptic step (proxy, stages, cut friction, force
-// safety) → fade by viz liveness → watchdog → write the device → push one ToolSample → publish RtStatus and heartbeat.
+// One tick: hand the device over if the supervisor asked → commands (at most
+// max_commands_per_tick, each checked) and operator requests → stylus target (viz or script;
+// checked) → read the device → take the newest TissuePatch (seqlock, never waits; checked) →
+// haptic step (proxy, stages, cut friction, force safety) → fade by viz liveness → watchdog →
+// write the device → push one ToolSample → publish RtStatus (shared, and a private copy for the
+// supervisor) and the heartbeat.
+//
+// The segment is untrusted input: whatever the viz (or anything else) wrote is checked before use
+// (lancet/shared_model/validate.hpp), the work it can cause per tick is bounded, and what was
+// rejected is counted in RtStatus::health.
+//
+// Work that may block (re-arming a faulted arm, reconnecting a lost bus) is never done on the
+// servo thread. A supervisor thread calls supervise(); the device changes hands through a
+// handshake in which only the servo grants: supervisor kIdle → kRequested, servo (at the start of
+// its next tick) kRequested → kGranted and from then on keeps off the device, supervisor does the
+// job and stores kDone, servo kDone → kIdle and takes the device back.
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
-
-#include <atomic>
 
 #include "arm/kinematics.hpp"
 #include "device/arm_physics.hpp"
@@ -39,11 +51,22 @@ struct RtModel {
   const arm::Kinematics* kinematics = nullptr;
   Vec3 device_origin{};
   std::array<double, device::kMaxJoints> max_joint_torque{};
+  /// Commands taken from the ring per tick at most (the rest wait for the next tick): whatever the
+  /// ring's indices say, a tick's work stays bounded.
+  std::size_t max_commands_per_tick = 16;
+  /// An operator request (lancetctl rearm) older than this when seen is ignored.
+  std::int64_t operator_request_max_age_ns = 2'000'000'000;
+  /// Seqlock read attempts for the patch per tick (each a 50 KB copy); a busy writer is retried
+  /// next tick.
+  int patch_read_attempts = 2;
+  /// While the arm's link is lost, the supervisor tries to reconnect this often.
+  std::int64_t reconnect_interval_ns = 1'000'000'000;
 };
 
-/// Re-arming a faulted arm reconnects its bus: never on the servo thread. The servo asks, stops
-/// touching the device, and a supervisor thread (RtServo::supervise) re-arms it.
-enum class RearmPhase : int { kIdle = 0, kRequested = 1, kRunning = 2, kDone = 3 };
+/// Who holds the device (see the header comment).
+enum class Handover : int { kIdle = 0, kRequested = 1, kGranted = 2, kDone = 3 };
+/// What the supervisor does with the device once granted.
+enum class DeviceJob : int { kNone = 0, kRearm = 1, kReconnect = 2 };
 
 /// Everything the tick reads and writes, allocated once.
 struct RtData {
@@ -51,12 +74,15 @@ struct RtData {
   std::int32_t pid = 0;
   std::int64_t start_ns = 0;
   device::SimStylusState stylus{};
-  StylusTarget target{};
+  StylusTarget target{};                 ///< the last valid target
+  StylusTarget target_scratch{};         ///< read from the segment, checked before it is taken
   std::uint64_t target_version = 0;
-  // Double-buffered patch: a read that fails (writer busy) must not clobber the one in use.
+  // Double-buffered patch: a read that fails (writer busy) or is rejected must not clobber the one
+  // in use.
   std::array<TissuePatch, 2> patches{};
   int front = 0;
-  std::uint64_t patch_version = 0;
+  std::uint64_t patch_seen = 0;          ///< seqlock version last read (accepted or not)
+  std::uint64_t patch_version = 0;       ///< version of the patch in use (0: none)
   std::uint64_t patches_received = 0;
   haptics::ForceFade fade{};
   haptics::HapticData haptic{};
@@ -72,9 +98,20 @@ struct RtData {
   std::int64_t viz_lost_at_beat_ns = 0;  ///< last beat seen before the viz was judged lost
   std::int64_t force_zero_ns = 0;        ///< first tick at zero force after the loss
   std::uint64_t watchdog_faulted_ticks = 0;  ///< ticks rendered at zero force by the watchdog
+  std::uint64_t rearms = 0;                  ///< re-arms done (watchdog, and the arm by the supervisor)
   bool fifo = false;                         ///< reported in RtStatus
   ToolSample sample{};
   RtStatus status{};
+  SegmentHealth health{};
+  /// The check that rejected the last bad message (a static string; nullptr: none yet). Read by the
+  /// supervisor for its log line.
+  std::atomic<const char*> last_reject{nullptr};
+  OperatorRequest request{};
+  std::uint64_t request_version = 0;
+  std::uint64_t request_seq = 0;         ///< seq of the last operator request taken
+  std::uint64_t operator_requests = 0;
+  std::array<Command, 64> command_batch{};
+  std::int64_t last_command_t_ns = 0;    ///< stamp of the last command applied (commands must be newer)
   // The arm, when there is one.
   device::JointState joints{};
   device::JointCommand command{};
@@ -82,8 +119,18 @@ struct RtData {
   Vec3 tool{}, tool_velocity{};          ///< tissue frame (m, m/s)
   device::IoStatus last_read = device::IoStatus::kOk, last_write = device::IoStatus::kOk;
   std::uint64_t device_error_ticks = 0;  ///< ticks at zero force because the arm could not be read or written
-  std::atomic<int> rearm_phase{0};       ///< RearmPhase
-  std::array<Command, 16> command_batch{};
+  // The device handover (see the header comment).
+  std::atomic<int> handover{0};          ///< Handover
+  std::atomic<int> job{0};               ///< DeviceJob, set by the supervisor before kRequested
+  std::atomic<bool> rearm_wanted{false}; ///< set by the servo when a re-arm is asked for
+  // Written by the supervisor before it stores kDone, read by the servo after it sees kDone.
+  bool job_ok = false;
+  std::uint64_t rearm_failures = 0;
+  std::array<char, kStatusTextSize> rearm_text{};
+  std::int64_t next_reconnect_ns = 0;    ///< supervisor only
+  /// The servo's RtStatus in this process's own memory, for the supervisor: unlike the segment's
+  /// copy nobody else can write it.
+  Seqlock<RtStatus> own_status;
 };
 
 class RtServo {
@@ -94,9 +141,14 @@ class RtServo {
   /// simulated hand.
   RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm = nullptr,
           device::ArmPhysics* hand = nullptr);
-  /// Performs a re-arm the servo asked for (call from a non-real-time thread, repeatedly).
-  /// Returns true when it re-armed the device this call.
-  bool supervise();
+
+  /// The supervisor's side of the device handover: call from one non-real-time thread, repeatedly
+  /// (every few ms). Asks for the device when a re-arm was requested (and the arm is faulted) or
+  /// when the arm's link is lost (every reconnect_interval_ns), runs the job once the servo has
+  /// granted the device (this call then blocks for the job's duration), and hands it back. Returns
+  /// true when a job succeeded in this call.
+  bool supervise(std::int64_t now_ns);
+  bool supervise() { return supervise(monotonic_ns()); }
 
   /// One servo tick (called by RtLoop). A tripped watchdog holds the force at zero until a
   /// kRearm command re-arms it. Real-time safe.
@@ -105,11 +157,23 @@ class RtServo {
   /// Whether the loop thread runs SCHED_FIFO (reported in RtStatus).
   void set_fifo(bool fifo) noexcept { data_->fifo = fifo; }
 
+  /// The latest published status, from the servo's private copy (any thread). kEmpty before the
+  /// first tick.
+  [[nodiscard]] ReadStatus read_status(RtStatus& out) const noexcept { return data_->own_status.try_read(out, 1000); }
+
   [[nodiscard]] const RtData& data() const noexcept { return *data_; }
   [[nodiscard]] const RtModel& model() const noexcept { return model_; }
+  [[nodiscard]] device::Device* arm() const noexcept { return arm_; }
 
  private:
   void apply(const Command& c, rt::Watchdog& watchdog) noexcept;
+  void request_rearm(rt::Watchdog& watchdog) noexcept;
+  void reject(std::uint64_t& counter, const char* why) noexcept;
+  void drain_commands(rt::Watchdog& watchdog, std::int64_t now_ns) noexcept;
+  /// The device handover, at the start of a tick. Returns whether the servo owns the device now.
+  bool take_device() noexcept;
+  void publish_status(const rt::TickContext& ctx, const haptics::HapticOutput& h, double scale, bool alive,
+                      bool device_owned) noexcept;
 
   const RtModel model_;
   SharedState& shared_;
@@ -117,5 +181,8 @@ class RtServo {
   device::ArmPhysics* hand_ = nullptr;
   std::unique_ptr<RtData> data_;  // large (two patches): on the heap, allocated once here
 };
+
+/// Copies a C string into a fixed status text, truncated and NUL-terminated. Real-time safe.
+void copy_text(char* dst, std::size_t size, const char* src) noexcept;
 
 }  // namespace lancet::app

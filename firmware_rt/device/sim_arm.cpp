@@ -45,9 +45,11 @@ IoStatus SimArm::on_read(JointState& out) noexcept {
   for (int j = 0; j < out.n; ++j) {
     const auto uj = static_cast<std::size_t>(j);
     out.counts[uj] = physics_->encoder_counts(j);
+    if (glitch_reads_ > 0 && j == glitch_joint_) out.counts[uj] += glitch_counts_;
     out.q[uj] = arm::joint_position_from_counts(cfg.joints[uj], out.counts[uj]);
     out.qd[uj] = physics_->qd(j);
   }
+  if (glitch_reads_ > 0) --glitch_reads_;
   out.buttons = 0;
   out.status = 0;
   return IoStatus::kOk;

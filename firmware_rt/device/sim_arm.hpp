@@ -24,6 +24,12 @@ class SimArm final : public Device {
     inject_status_ = status;
     inject_count_ = count;
   }
+  /// The next `reads` reads report joint j's encoder `counts` off (an encoder glitch).
+  void inject_encoder_offset(int j, std::int64_t counts, int reads) noexcept {
+    glitch_joint_ = j;
+    glitch_counts_ = counts;
+    glitch_reads_ = reads;
+  }
   [[nodiscard]] int joint_count() const noexcept override { return physics_->joint_count(); }
 
  protected:
@@ -42,6 +48,9 @@ class SimArm final : public Device {
   std::int64_t last_write_ns_ = 0;
   IoStatus inject_status_ = IoStatus::kOk;
   int inject_count_ = 0;
+  int glitch_joint_ = 0;
+  std::int64_t glitch_counts_ = 0;
+  int glitch_reads_ = 0;
 };
 
 }  // namespace lancet::device

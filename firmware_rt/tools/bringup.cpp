@@ -9,13 +9,18 @@
 #include <filesystem>
 #include <fstream>
 #include <numbers>
+#include <optional>
+#include <string_view>
 #include <thread>
 #include <vector>
 
 #include "app/device_factory.hpp"
 #include "arm/arm_config.hpp"
 #include "arm/kinematics.hpp"
+#include "app/supervisor.hpp"
 #include "lancet/shared_model/shared_state.hpp"
+#include "lancet/shared_model/validate.hpp"
+#include "rt/watchdog.hpp"
 
 namespace lancet::tools {
 
@@ -196,6 +201,31 @@ int run_monitor(const std::string& path, double duration_s, double rate_hz, std:
   return failures == 0 ? 0 : 1;
 }
 
+namespace {
+
+/// The newest valid RtStatus of a running lancet-rt, trying for up to `wait_s`. Empty (and `why`
+/// set) when there is none or what is there fails the checks.
+std::optional<RtStatus> read_rt_status(const SharedState& shared, double wait_s, std::string& why) {
+  const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(wait_s));
+  RtStatus st{};
+  for (;;) {
+    const ReadStatus r = shared.rt_status.try_read(st);
+    if (r == ReadStatus::kOk) {
+      if (const char* bad = wire::check(st)) {
+        why = std::string("its status is corrupt (") + bad + ")";
+      } else {
+        return st;
+      }
+    } else {
+      why = r == ReadStatus::kEmpty ? "it has not published a status yet" : "its status is being rewritten too fast to read";
+    }
+    if (Clock::now() >= until) return std::nullopt;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+}
+
+}  // namespace
+
 int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out) {
   if (!(rate_hz > 0) || !(duration_s >= 0)) {
     std::fprintf(out, "monitor: --rate must be > 0 and --duration >= 0\n");
@@ -206,25 +236,103 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
     std::fprintf(out, "monitor: %s (is lancet-rt running?)\n", ch.error().message.c_str());
     return 1;
   }
+  const SharedState& shared = ch.value().state();
   const auto start = Clock::now();
   auto next = start;
-  RtStatus st{};
+  std::uint64_t rejected = 0;
   while (duration_s == 0 || std::chrono::duration<double>(Clock::now() - start).count() < duration_s) {
     const double t = std::chrono::duration<double>(Clock::now() - start).count();
-    if (ch.value().state().rt_status.try_read(st) == ReadStatus::kOk) {
-      std::fprintf(out, "%8.3f s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  arm %s%s%s errors %llu  wake p99 %.0f us%s\n", t,
-                   st.tool.x * 1e3, st.tool.y * 1e3, st.tool.z * 1e3, st.force.x, st.force.y, st.force.z, st.force_scale,
-                   st.contact ? " contact" : "", device::to_string(static_cast<device::Lifecycle>(st.device_state)),
-                   st.device_fault_cause != 0 ? " (" : "",
-                   st.device_fault_cause != 0 ? (std::string(device::to_string(static_cast<device::IoStatus>(st.device_fault_cause))) + ")").c_str() : "",
-                   static_cast<unsigned long long>(st.device_errors), static_cast<double>(st.wake_p99_ns) / 1e3,
-                   st.watchdog_tripped ? "  WATCHDOG" : "");
+    RtStatus st{};
+    const ReadStatus r = shared.rt_status.try_read(st);
+    if (r == ReadStatus::kOk) {
+      // What lancet-rt wrote is checked before any of it is printed.
+      if (const char* bad = wire::check(st)) {
+        ++rejected;
+        std::fprintf(out, "%8.3f s  status rejected (%s); %llu so far\n", t, bad, static_cast<unsigned long long>(rejected));
+      } else {
+        std::fprintf(out, "%8.3f s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  arm %s  errors %llu  wake p99 %.0f us%s\n",
+                     t, st.tool.x * 1e3, st.tool.y * 1e3, st.tool.z * 1e3, st.force.x, st.force.y, st.force.z, st.force_scale,
+                     st.contact ? " contact" : "", app::describe_arm(st).c_str(), static_cast<unsigned long long>(st.device_errors),
+                     static_cast<double>(st.wake_p99_ns) / 1e3, st.watchdog_tripped ? "  WATCHDOG TRIPPED" : "");
+      }
       std::fflush(out);
     }
     next += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / rate_hz));
     std::this_thread::sleep_until(next);
   }
   return 0;
+}
+
+int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::FILE* in, std::FILE* out) {
+  if (!(timeout_s > 0)) {
+    std::fprintf(out, "rearm: --timeout must be > 0\n");
+    return 2;
+  }
+  auto ch = SharedChannel::open(shm);
+  if (!ch) {
+    std::fprintf(out, "rearm: %s (is lancet-rt running?)\n", ch.error().message.c_str());
+    return 1;
+  }
+  SharedState& shared = ch.value().state();
+  std::string why;
+  auto st = read_rt_status(shared, 1.0, why);
+  if (!st) {
+    std::fprintf(out, "rearm: lancet-rt on %s: %s\n", shm.c_str(), why.c_str());
+    return 1;
+  }
+  const bool arm_faulted = st->has_arm != 0 && st->device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault);
+  std::fprintf(out, "lancet-rt (pid %d) on %s, tick %llu\n  arm: %s\n", ch.value().segment().creator_pid(), shm.c_str(),
+               static_cast<unsigned long long>(st->tick), app::describe_arm(*st).c_str());
+  if (st->has_arm != 0) {
+    std::fprintf(out, "  bus: %s\n", app::describe_bus(st->bus).c_str());
+    if (st->error_text[0] != '\0') std::fprintf(out, "  last error: %s\n", st->error_text);
+  }
+  std::fprintf(out, "  watchdog: %s\n", st->watchdog_tripped ? rt::to_string(static_cast<rt::Watchdog::Reason>(st->watchdog_reason)) : "armed");
+  if (!arm_faulted && st->watchdog_tripped == 0) {
+    std::fprintf(out, "rearm: nothing to re-arm: the arm and the watchdog are armed\n");
+    return 0;
+  }
+  if (st->link_lost != 0) {
+    std::fprintf(out, "rearm: the arm's bus link is down; lancet-rt reconnects on its own, re-arm once it says the link is back\n");
+  }
+  if (!confirmed) {
+    std::fprintf(out, "Re-arm? Forces return as soon as the arm is active. Type 'yes' to re-arm: ");
+    std::fflush(out);
+    char line[64] = {};
+    if (in == nullptr || std::fgets(line, sizeof line, in) == nullptr || std::string_view(line).substr(0, 3) != "yes") {
+      std::fprintf(out, "\nrearm: not re-armed\n");
+      return 1;
+    }
+  }
+  OperatorRequest req{};
+  req.seq = static_cast<std::uint64_t>(monotonic_ns());
+  req.t_ns = monotonic_ns();
+  req.kind = kOperatorRearm;
+  req.pid = static_cast<std::int32_t>(getpid());
+  wire::seal(req);
+  shared.operator_request.write(req);
+  const std::uint64_t taken_before = st->operator_requests, failures_before = st->rearm_failures;
+  const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(timeout_s));
+  bool taken = false;
+  while (Clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    auto now = read_rt_status(shared, 0.2, why);
+    if (!now) continue;
+    taken = taken || now->operator_requests > taken_before;
+    if (!taken) continue;
+    if (now->rearm_failures > failures_before) {
+      std::fprintf(out, "rearm: failed: %s\n", now->rearm_text);
+      return 1;
+    }
+    const bool arm_ok = now->has_arm == 0 || now->device_state == static_cast<std::uint32_t>(device::Lifecycle::kActive);
+    if (now->rearm_pending == 0 && arm_ok && now->watchdog_tripped == 0) {
+      std::fprintf(out, "rearm: re-armed: arm %s, watchdog armed\n", app::describe_arm(*now).c_str());
+      return 0;
+    }
+  }
+  std::fprintf(out, "rearm: %s within %.1f s\n", taken ? "lancet-rt took the request but the arm is not active" : "lancet-rt did not take the request",
+               timeout_s);
+  return 1;
 }
 
 int run_calibrate(const std::string& path, std::span<const double> home, bool write, std::FILE* out) {

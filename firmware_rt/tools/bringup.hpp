@@ -22,6 +22,11 @@ int run_monitor(const std::string& config_path, double duration_s, double rate_h
 /// While lancet-rt drives the arm (it owns the bus): its live status from shared memory: tool
 /// position, commanded force and fade, contact, the arm's state and error count, wake-up p99.
 int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out);
+/// Re-arms a running lancet-rt's faulted arm and tripped watchdog: shows the fault, asks for
+/// "yes" on `in` unless `confirmed`, sends the request (SharedState::operator_request) and waits
+/// up to timeout_s for the outcome. 0: re-armed or nothing to do; 1: refused, failed or no
+/// answer; 2: bad arguments.
+int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::FILE* in, std::FILE* out);
 /// home_deg: the joint angles of the home pose (deg, or mm for prismatic joints); empty: all zero.
 int run_calibrate(const std::string& config_path, std::span<const double> home, bool write, std::FILE* out);
 int run_jog(const std::string& config_path, int joint, double torque, double seconds, bool confirmed, std::FILE* out);

@@ -75,7 +75,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "{\n  \"frames\": %llu,\n  \"connections\": %u,\n  \"rt_losses\": %u,\n  \"link\": \"%s\",\n"
                "  \"samples_received\": %llu,\n  \"samples_total\": %llu,\n  \"first_seq\": %llu,\n  \"last_seq\": %llu,\n"
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
-               "  \"patches_published\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
+               "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
+               "  \"status_rejected\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
                : s.link() == lancet::viz::Link::kLost   ? "lost"
@@ -84,7 +85,9 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(st.first_seq), static_cast<unsigned long long>(st.last_seq),
                static_cast<unsigned long long>(st.lost), static_cast<unsigned long long>(st.out_of_order),
                static_cast<unsigned long long>(st.discarded), static_cast<unsigned long long>(st.max_batch),
-               static_cast<unsigned long long>(s.patches_published()), o.screenshot.c_str(), variance);
+               static_cast<unsigned long long>(s.patches_published()), static_cast<unsigned long long>(st.rejected),
+               static_cast<unsigned long long>(st.ring_resets), static_cast<unsigned long long>(st.status_rejected),
+               o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
 
@@ -101,6 +104,11 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
                   static_cast<double>(st->wake_p99_ns) / 1e3, static_cast<double>(st->wake_max_ns) / 1e3);
     lines.push_back({buf});
     if (st->watchdog_tripped) lines.push_back({"WATCHDOG TRIPPED: force held at zero; press W to re-arm", true});
+    if (st->has_arm != 0 && st->device_state == 3) {  // device::Lifecycle::kFault
+      std::snprintf(buf, sizeof buf, "ARM FAULT: %s; force held at zero; press W to re-arm%s", st->fault_text,
+                    st->link_lost ? " (bus link lost: reconnecting)" : "");
+      lines.push_back({buf, true});
+    }
     std::snprintf(buf, sizeof buf, "force %.2f N (scale %.2f)%s", lancet::norm(st->force), st->force_scale,
                   st->contact ? "  in contact" : "");
     lines.push_back({buf});
@@ -116,6 +124,12 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
                 static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(st.lost),
                 static_cast<unsigned long long>(st.out_of_order), s.patch().n_triangles);
   lines.push_back({buf, st.lost > 0 || st.out_of_order > 0});
+  if (st.rejected + st.ring_resets + st.status_rejected > 0) {
+    std::snprintf(buf, sizeof buf, "shared segment: %llu samples and %llu status reads rejected, ring reset %llu times (%s)",
+                  static_cast<unsigned long long>(st.rejected), static_cast<unsigned long long>(st.status_rejected),
+                  static_cast<unsigned long long>(st.ring_resets), st.last_reject != nullptr ? st.last_reject : "-");
+    lines.push_back({buf, true});
+  }
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
@@ -174,6 +188,7 @@ int main(int argc, char** argv) {
 
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
+  std::signal(SIGHUP, on_signal);
 
   auto window = lancet::render::Window::create({o.width, o.height, !o.headless, "Lancet"});
   if (!window) {

@@ -16,6 +16,11 @@ struct SampleStats {
   std::uint64_t out_of_order = 0;  ///< samples whose seq did not increase (duplicates, reordering)
   std::uint64_t discarded = 0;     ///< backlog dropped when attaching
   std::uint64_t max_batch = 0;     ///< most samples drained in one frame
+  // What the segment held that the viz would not take (never happens with a sane lancet-rt).
+  std::uint64_t rejected = 0;        ///< samples that failed validation (wire::check), not used
+  std::uint64_t ring_resets = 0;     ///< sample ring indices found impossible and reset
+  std::uint64_t status_rejected = 0; ///< RtStatus reads that failed validation (the previous one is kept)
+  const char* last_reject = nullptr; ///< the check that failed last (static string)
 
   /// Accounts n samples in ring order.
   void ingest(const ToolSample* samples, std::size_t n) noexcept {

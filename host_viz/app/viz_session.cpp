@@ -1,5 +1,7 @@
 #include "app/viz_session.hpp"
 
+#include "lancet/shared_model/validate.hpp"
+
 #include <algorithm>
 
 #include <unistd.h>
@@ -28,10 +30,12 @@ void VizSession::try_attach(std::int64_t now_ns) {
   total_received_ += stats_.received;
   stats_.restart();
   // Samples queued before we attached are history; start from the live edge.
-  stats_.discarded = s.samples.discard_all();
+  bool reset = false;
+  stats_.discarded = s.samples.discard_all(&reset);
+  if (reset) ++stats_.ring_resets;
   link_ = Link::kConnected;
   ++connections_;
-  message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) + ") on " +
+  message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().creator_pid()) + ") on " +
              params_.shm_name;
 }
 
@@ -85,30 +89,55 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
     const bool alive = channel_->segment().creator_alive();
     // last_ns() == 0 with beats counted is a clean exit; with none counted, rt has not ticked yet.
     if (!alive || (s.rt_heartbeat.last_ns() == 0 && s.rt_heartbeat.count() > 0)) {
-      detach("lancet-rt is not running (pid " + std::to_string(channel_->segment().header().creator_pid) +
+      detach("lancet-rt is not running (pid " + std::to_string(channel_->segment().creator_pid()) +
              " exited): haptics stopped, waiting for it to restart");
       return;
     }
     if (s.rt_heartbeat.count() > 0) {
-      message_ = "lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) +
+      message_ = "lancet-rt (pid " + std::to_string(channel_->segment().creator_pid()) +
                  ") is not answering: its loop is stalled";
     }
   } else if (link_ == Link::kConnected && message_.find("not answering") != std::string::npos) {
-    message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().header().creator_pid) + ")";
+    message_ = "connected to lancet-rt (pid " + std::to_string(channel_->segment().creator_pid()) + ")";
   }
 
-  // Drain every ToolSample since the last frame.
-  for (;;) {
-    const std::size_t n = s.samples.try_pop_n(batch_.data(), batch_.size());
+  // Drain the ToolSamples since the last frame: at most one ring's worth, whatever the ring's
+  // indices say, and only samples that pass the checks.
+  for (std::size_t drained = 0; drained < kSampleRingCapacity;) {
+    bool reset = false;
+    const std::size_t n = s.samples.try_pop_n(batch_.data(), batch_.size(), &reset);
+    if (reset) {
+      ++stats_.ring_resets;
+      stats_.last_reject = "samples ring: indices impossible, reset";
+    }
     if (n == 0) break;
-    stats_.ingest(batch_.data(), n);
-    latest_ = batch_[n - 1];
-    on_samples(batch_.data(), n);
+    drained += n;
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (const char* why = wire::check(batch_[i])) {
+        ++stats_.rejected;
+        stats_.last_reject = why;
+        continue;
+      }
+      batch_[kept++] = batch_[i];
+    }
+    if (kept > 0) {
+      stats_.ingest(batch_.data(), kept);
+      latest_ = batch_[kept - 1];
+      on_samples(batch_.data(), kept);
+    }
     if (n < batch_.size()) break;
   }
 
   RtStatus st{};
-  if (s.rt_status.try_read(st) == ReadStatus::kOk) rt_status_ = st;
+  if (s.rt_status.try_read(st) == ReadStatus::kOk) {
+    if (const char* why = wire::check(st)) {
+      ++stats_.status_rejected;
+      stats_.last_reject = why;
+    } else {
+      rt_status_ = st;
+    }
+  }
 
   // Publish the tissue near the newest tool position.
   if (has_sample()) {
@@ -135,7 +164,9 @@ void VizSession::set_stylus_target(bool active, Vec3 position, std::int64_t now_
 bool VizSession::send(Command c, std::int64_t now_ns) {
   if (!channel_) return false;
   c.seq = ++command_seq_;
-  c.t_ns = now_ns;
+  c.t_ns = std::max(now_ns, last_command_t_ns_ + 1);  // lancet-rt takes only newer commands
+  last_command_t_ns_ = c.t_ns;
+  wire::seal(c);
   return channel_->state().commands.try_push(c);
 }
 

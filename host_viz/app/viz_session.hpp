@@ -83,6 +83,7 @@ class VizSession {
   std::uint64_t patches_published_ = 0;
   std::optional<RtStatus> rt_status_;
   std::uint64_t command_seq_ = 0;
+  std::int64_t last_command_t_ns_ = 0;
   std::uint64_t target_seq_ = 0;
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;

@@ -177,6 +177,8 @@ Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t paylo
   h->payload_size = payload_size;
   h->state.store(static_cast<std::uint32_t>(SegmentState::kInitialising), std::memory_order_relaxed);
   std::snprintf(h->creator_name, sizeof h->creator_name, "%s", options.creator_name.c_str());
+  seg.creator_pid_ = h->creator_pid;
+  seg.creator_start_ticks_ = h->creator_start_ticks;
   return seg;
 }
 
@@ -203,6 +205,8 @@ Result<ShmSegment> ShmSegment::open(const std::string& name, std::size_t payload
   seg.size_ = actual;
   seg.inode_ = st.st_ino;
   const SegmentHeader& h = seg.header();
+  // The header is the peer's: never trust its string to be terminated.
+  const std::string creator_name(h.creator_name, strnlen(h.creator_name, sizeof h.creator_name));
   if (h.magic != kSegmentMagic) {
     return Error{ErrorCode::kMismatch, "segment " + name + " is not a Lancet segment: magic " + hex(h.magic) +
                                            ", expected " + hex(kSegmentMagic)};
@@ -222,7 +226,7 @@ Result<ShmSegment> ShmSegment::open(const std::string& name, std::size_t payload
   }
   if (h.layout_hash != layout_hash) {
     return Error{ErrorCode::kMismatch, "segment " + name + " layout hash mismatch: the segment (made by " +
-                                           std::string(h.creator_name) + ", pid " + std::to_string(h.creator_pid) +
+                                           creator_name + ", pid " + std::to_string(h.creator_pid) +
                                            ") has " + hex(h.layout_hash) + ", this process expects " +
                                            hex(layout_hash) + "; rebuild both processes from the same source"};
   }
@@ -232,9 +236,12 @@ Result<ShmSegment> ShmSegment::open(const std::string& name, std::size_t payload
                                            std::to_string(h.total_size) + " (file is " + std::to_string(actual) + ")"};
   }
   if (state != SegmentState::kReady || !process_alive(h.creator_pid, h.creator_start_ticks)) {
-    return Error{ErrorCode::kStale, "segment " + name + " is stale: its creator " + std::string(h.creator_name) +
+    return Error{ErrorCode::kStale, "segment " + name + " is stale: its creator " + creator_name +
                                         " (pid " + std::to_string(h.creator_pid) + ") is no longer running"};
   }
+  // Remember who made it: the header may be overwritten later, the creator's identity may not.
+  seg.creator_pid_ = h.creator_pid;
+  seg.creator_start_ticks_ = h.creator_start_ticks;
   return seg;
 }
 
@@ -245,6 +252,8 @@ ShmSegment::ShmSegment(ShmSegment&& o) noexcept
       creator_(std::exchange(o.creator_, false)),
       locked_(std::exchange(o.locked_, false)),
       inode_(o.inode_),
+      creator_pid_(o.creator_pid_),
+      creator_start_ticks_(o.creator_start_ticks_),
       notes_(std::move(o.notes_)) {}
 
 ShmSegment& ShmSegment::operator=(ShmSegment&& o) noexcept {
@@ -256,6 +265,8 @@ ShmSegment& ShmSegment::operator=(ShmSegment&& o) noexcept {
     creator_ = std::exchange(o.creator_, false);
     locked_ = std::exchange(o.locked_, false);
     inode_ = o.inode_;
+    creator_pid_ = o.creator_pid_;
+    creator_start_ticks_ = o.creator_start_ticks_;
     notes_ = std::move(o.notes_);
   }
   return *this;
@@ -263,16 +274,19 @@ ShmSegment& ShmSegment::operator=(ShmSegment&& o) noexcept {
 
 ShmSegment::~ShmSegment() { release(); }
 
+void ShmSegment::unlink_name() noexcept {
+  if (base_ == nullptr || !creator_) return;
+  auto* h = reinterpret_cast<SegmentHeader*>(base_);
+  h->state.store(static_cast<std::uint32_t>(SegmentState::kClosed), std::memory_order_release);
+  // Unlink only our own segment: a successor may already have replaced the name.
+  struct stat st {};
+  Fd f{shm_open(name_.c_str(), O_RDONLY, 0)};
+  if (f.fd >= 0 && fstat(f.fd, &st) == 0 && st.st_ino == inode_) shm_unlink(name_.c_str());
+}
+
 void ShmSegment::release() noexcept {
   if (base_ == nullptr) return;
-  if (creator_) {
-    auto* h = reinterpret_cast<SegmentHeader*>(base_);
-    h->state.store(static_cast<std::uint32_t>(SegmentState::kClosed), std::memory_order_release);
-    // Unlink only our own segment: a successor may already have replaced the name.
-    struct stat st {};
-    Fd f{shm_open(name_.c_str(), O_RDONLY, 0)};
-    if (f.fd >= 0 && fstat(f.fd, &st) == 0 && st.st_ino == inode_) shm_unlink(name_.c_str());
-  }
+  unlink_name();
   if (locked_) munlock(base_, size_);
   munmap(base_, size_);
   base_ = nullptr;
@@ -286,7 +300,7 @@ void ShmSegment::mark_ready() noexcept {
 bool ShmSegment::creator_alive() const {
   const SegmentHeader& h = header();
   if (h.state.load(std::memory_order_acquire) == static_cast<std::uint32_t>(SegmentState::kClosed)) return false;
-  return process_alive(h.creator_pid, h.creator_start_ticks);
+  return process_alive(creator_pid_, creator_start_ticks_);
 }
 
 bool ShmSegment::replaced() const {

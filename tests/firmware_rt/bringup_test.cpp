@@ -2,6 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include <cstring>
+
+#include "lancet/shared_model/validate.hpp"
+
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -125,12 +129,66 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
   st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kTimeout);
   st.device_errors = 7;
+  st.period_ns = 1'000'000;
+  st.has_arm = 1;
+  std::strcpy(st.fault_text, "3 timeouts in a row on 127.0.0.1:1502");
+  st.fault_node = -1;  // the bus as a whole
   ch.value().state().rt_status.write(st);
   const auto [code, out] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.2, 20, f); });
   EXPECT_EQ(code, 0);
   EXPECT_NE(out.find("tool    1.00    2.00   -3.00 mm"), std::string::npos) << out;
   EXPECT_NE(out.find("force   0.00   0.00   1.50 N (x1.00) contact"), std::string::npos) << out;
-  EXPECT_NE(out.find("arm fault (timeout) errors 7"), std::string::npos) << out;
+  EXPECT_NE(out.find("arm fault (timeout): 3 timeouts in a row on 127.0.0.1:1502  errors 7"), std::string::npos) << out;
+  // What lancet-rt's segment says is checked before it is printed: no "inf", no 3e142 N.
+  st.force = {3e142, 0, 0};
+  ch.value().state().rt_status.write(st);
+  const auto [code2, out2] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f); });
+  EXPECT_EQ(code2, 0);
+  EXPECT_NE(out2.find("status rejected (rt_status.force: not finite or above 1000 N)"), std::string::npos) << out2;
+  EXPECT_EQ(out2.find("e+142"), std::string::npos) << out2;
+}
+
+TEST_F(Bringup, RearmShowsTheFaultAsksAndSendsASealedRequest) {
+  const std::string shm = "/lancet-rearm-" + std::to_string(getpid());
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_rearm_rt(shm, true, 0.2, nullptr, f); }).first, 1) << "no lancet-rt yet";
+  auto ch = SharedChannel::create(shm, {});
+  ASSERT_TRUE(ch.ok()) << ch.error().message;
+  SharedState& shared = ch.value().state();
+  RtStatus st{};
+  st.period_ns = 1'000'000;
+  st.force_scale = 1;
+  st.has_arm = 1;
+  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kActive);
+  shared.rt_status.write(st);
+  auto [idle, idle_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, nullptr, f); });
+  EXPECT_EQ(idle, 0);
+  EXPECT_NE(idle_out.find("nothing to re-arm"), std::string::npos) << idle_out;
+
+  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
+  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kDeviceFault);
+  std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
+  st.fault_node = 1;
+  st.fault_code = 0x2310;
+  shared.rt_status.write(st);
+  // Asked, answered "no": nothing is sent.
+  std::FILE* no = fmemopen(const_cast<char*>("no\n"), 3, "r");
+  auto [refused, refused_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, no, f); });
+  std::fclose(no);
+  EXPECT_EQ(refused, 1);
+  EXPECT_NE(refused_out.find("arm: fault (device fault): node 1: EMCY 0x2310 continuous over-current [node 1] [code 0x2310]"),
+            std::string::npos)
+      << refused_out;
+  EXPECT_NE(refused_out.find("Type 'yes' to re-arm"), std::string::npos) << refused_out;
+  EXPECT_NE(refused_out.find("not re-armed"), std::string::npos) << refused_out;
+  EXPECT_EQ(shared.operator_request.version(), 0u);
+  // --yes: a sealed request goes out; with no servo to take it, the wait ends with exit 1.
+  auto [unanswered, unanswered_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, true, 0.3, nullptr, f); });
+  EXPECT_EQ(unanswered, 1);
+  EXPECT_NE(unanswered_out.find("lancet-rt did not take the request"), std::string::npos) << unanswered_out;
+  OperatorRequest req{};
+  ASSERT_EQ(shared.operator_request.try_read(req), ReadStatus::kOk);
+  EXPECT_EQ(wire::check(req, monotonic_ns()), nullptr);
+  EXPECT_EQ(req.pid, static_cast<std::int32_t>(getpid()));
 }
 
 TEST_F(Bringup, JogNeedsConfirmationAndStaysWithinItsBounds) {

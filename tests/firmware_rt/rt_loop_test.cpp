@@ -122,6 +122,7 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   patch->n_triangles = 2;
   patch->triangles[0] = {{{-0.1f, -0.1f, 0}, {0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}}, 1, 0};
   patch->triangles[1] = {{{-0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}, {-0.1f, 0.1f, 0}}, 1, 0};
+  patch->t_ns = monotonic_ns();  // a patch must be stamped (and not from the future) to be taken
   shared->patch.write(*patch);
   RtLoop loop(p);
   std::size_t allocations = 1;

@@ -9,7 +9,10 @@
 
 #include "app/rt_servo.hpp"
 #include "arm/arm_config.hpp"
+#include "app/device_factory.hpp"
+#include "app/supervisor.hpp"
 #include "device/sim_arm.hpp"
+#include "lancet/shared_model/validate.hpp"
 #include "malloc_guard.hpp"
 
 namespace lancet::app {
@@ -58,6 +61,16 @@ struct ArmRig {
     ToolSample s;
     while (shared->samples.try_pop(s)) last = s;
   }
+  /// The viz's W key: a sealed re-arm command.
+  void push_rearm() {
+    Command c{};
+    c.kind = CommandKind::kRearm;
+    c.seq = ++command_seq;
+    c.t_ns = t + static_cast<std::int64_t>(command_seq);
+    wire::seal(c);
+    ASSERT_TRUE(shared->commands.try_push(c));
+  }
+  std::uint64_t command_seq = 0;
   ToolSample last{};
 };
 
@@ -113,14 +126,25 @@ TEST(RtServoArm, DeviceErrorsZeroTheForceAndAFaultWaitsForARearm) {
   }
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kFault);
   EXPECT_EQ(rig.arm->fault_cause(), device::IoStatus::kTimeout);
-  EXPECT_FALSE(rig.servo->supervise()) << "nobody asked for a re-arm";
-  // The trainee presses W: the servo asks, the supervisor re-arms, forces come back.
-  Command c{};
-  c.kind = CommandKind::kRearm;
-  ASSERT_TRUE(rig.shared->commands.try_push(c));
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_FALSE(rig.servo->supervise()) << "nobody asked for a re-arm";
+    rig.tick();
+  }
+  EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kIdle));
+  // The trainee presses W: the servo asks, the supervisor requests the device, the servo grants
+  // it at its next tick, the supervisor re-arms and hands it back, forces come back.
+  rig.push_rearm();
   rig.tick();
-  EXPECT_TRUE(rig.servo->supervise());
+  EXPECT_FALSE(rig.servo->supervise()) << "first the request";
+  EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kRequested));
+  rig.tick();
+  EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kGranted));
+  EXPECT_EQ(rig.servo->data().force, Vec3{}) << "the servo keeps off the device it granted";
+  EXPECT_TRUE(rig.servo->supervise()) << "then the re-arm";
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
+  rig.tick();
+  EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kIdle));
+  EXPECT_EQ(rig.servo->data().rearms, 1u);
   for (int i = 0; i < 300; ++i) rig.tick();
   EXPECT_GT(norm(rig.servo->data().force), 0.3);
   EXPECT_EQ(rig.arm->counters().faults, 1u);
@@ -148,6 +172,66 @@ TEST(RtServoArm, ForcesAndTorquesStayFiniteAndBoundedForWildTargets) {
       ASSERT_LE(std::abs(d.command.tau[static_cast<std::size_t>(j)]), rig.model.max_joint_torque[static_cast<std::size_t>(j)] + 1e-12);
     }
   }
+}
+
+TEST(RtServoArm, AGlitchingEncoderIsCountedZeroesTheForceAndRepeatedGlitchesFault) {
+  ArmRig rig;
+  rig.arm->set_plausibility(plausibility_of(rig.config));
+  for (int i = 0; i < 3000; ++i) rig.tick();
+  ASSERT_GT(norm(rig.servo->data().force), 0.3);
+  // One reading a motor revolution off on joint 0: impossible in a millisecond.
+  rig.arm->inject_encoder_offset(0, rig.config.joints[0].counts_per_rev, 1);
+  rig.tick();
+  EXPECT_EQ(rig.servo->data().last_read, device::IoStatus::kImplausible);
+  EXPECT_EQ(rig.servo->data().force, Vec3{});
+  EXPECT_EQ(rig.arm->counters().glitches, 1u);
+  for (int i = 0; i < 50; ++i) rig.tick();
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive) << "one glitch is not a fault";
+  EXPECT_GT(norm(rig.servo->data().force), 0.3);
+  // Glitch after glitch: a fault, with the joint named.
+  rig.arm->inject_encoder_offset(1, 4 * rig.config.joints[1].counts_per_rev, 3);
+  for (int i = 0; i < 5; ++i) rig.tick();
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kFault);
+  EXPECT_EQ(rig.arm->fault_cause(), device::IoStatus::kImplausible);
+  EXPECT_EQ(rig.arm->fault_detail().node, 1);
+  RtStatus st{};
+  ASSERT_EQ(rig.servo->read_status(st), ReadStatus::kOk);
+  EXPECT_EQ(st.bus.glitches, 4u);
+  EXPECT_NE(std::string(st.fault_text).find("joint 1 encoder jumped"), std::string::npos) << st.fault_text;
+}
+
+TEST(RtSupervisor, AnnouncesAFaultWithItsCauseAndTheReArmAndNoticesAStall) {
+  ArmRig rig;
+  for (int i = 0; i < 200; ++i) rig.tick();
+  SupervisorParams p;
+  p.shm_name = "/lancet-test";
+  p.arm_name = "bench arm";
+  p.stall_timeout_ns = 500'000'000;
+  RtSupervisor sup(*rig.servo, p, rig.t);
+  std::vector<std::string> lines = sup.poll(rig.t);
+  EXPECT_TRUE(lines.empty());
+  rig.arm->inject(device::IoStatus::kDeviceFault, 1);
+  rig.tick();
+  lines = sup.poll(rig.t);
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("FAULT on bench arm: fault (device fault)"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("lancetctl rearm --rt /lancet-test"), std::string::npos) << lines[0];
+  // The re-arm, through the supervisor's own polling.
+  rig.push_rearm();
+  std::string all;
+  for (int i = 0; i < 6; ++i) {
+    rig.tick();
+    for (const auto& l : sup.poll(rig.t)) all += l + "\n";
+  }
+  EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
+  EXPECT_NE(all.find("bench arm re-armed: active"), std::string::npos) << all;
+  EXPECT_FALSE(sup.stalled());
+  // No tick for longer than the stall timeout.
+  EXPECT_TRUE(sup.poll(rig.t + 400'000'000).empty());
+  lines = sup.poll(rig.t + 600'000'000);
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("SERVO STALLED"), std::string::npos);
+  EXPECT_TRUE(sup.stalled());
 }
 
 }  // namespace

@@ -45,5 +45,14 @@ TEST(Heartbeat, StopMakesThePeerGoneAtOnce) {
   EXPECT_EQ(hb.count(), 1u) << "stop does not rewrite the beat count";
 }
 
+TEST(Heartbeat, ABeatFromTheFutureIsNotFresh) {
+  Heartbeat hb;
+  const std::int64_t now = 10'000'000'000;
+  hb.beat(now + Heartbeat::kFutureSlackNs / 2, 1);
+  EXPECT_TRUE(hb.fresh(now, 1'000'000)) << "a peer that stamped a moment later is fine";
+  hb.beat(now + 3'600'000'000'000, 1);  // an hour ahead: only garbage gets there
+  EXPECT_FALSE(hb.fresh(now, 1'000'000)) << "would otherwise look alive for an hour";
+}
+
 }  // namespace
 }  // namespace lancet

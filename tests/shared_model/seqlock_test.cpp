@@ -170,5 +170,18 @@ TEST(Seqlock, TissuePatchRoundTrips) {
   EXPECT_EQ(lock->version(), 1u);
 }
 
+TEST(Seqlock, AnOddCounterLeftByACorruptPeerIsHealedByTheNextWrite) {
+  Seqlock<std::uint64_t> lock;
+  lock.write(1);
+  // Someone wrote an odd value into the counter: readers would see a write in progress forever.
+  const std::uint64_t odd = 7;
+  std::memcpy(reinterpret_cast<unsigned char*>(&lock), &odd, sizeof odd);
+  std::uint64_t v = 0;
+  EXPECT_EQ(lock.try_read(v, 8), ReadStatus::kBusy) << "bounded: gives up instead of spinning";
+  lock.write(2);
+  EXPECT_EQ(lock.try_read(v), ReadStatus::kOk);
+  EXPECT_EQ(v, 2u);
+}
+
 }  // namespace
 }  // namespace lancet

@@ -273,5 +273,98 @@ TEST(SpscRing, CarriesToolSamplesBitExact) {
   EXPECT_EQ(ring->overflow_count(), refused);
 }
 
+// A corrupted peer: anything with write access to the segment may write any index. Each side
+// checks the other's index, resets its own, counts it, and never reads more than N slots.
+template <class Ring>
+void poke(Ring& r, std::size_t offset, std::uint64_t v) {
+  std::memcpy(reinterpret_cast<unsigned char*>(&r) + offset, &v, sizeof v);
+}
+
+TEST(SpscRingCorruptPeer, AHeadFarAheadIsResetNotReadAndTheRingWorksOn) {
+  SpscRing<std::uint64_t, 8> ring;
+  for (std::uint64_t v = 1; v <= 3; ++v) ASSERT_TRUE(ring.try_push(v));
+  poke(ring, ring.head_offset(), 0x7fffffffffff1234ull);  // the attacker's eight bytes
+  std::array<std::uint64_t, 64> out{};
+  bool reset = false;
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(ring.try_pop_n(out.data(), out.size(), &reset), 0u) << "nothing read from garbage";
+  EXPECT_TRUE(reset);
+  EXPECT_EQ(ring.consumer_resets(), 1u) << "reset once, then consistent";
+  // The producer goes on from its (garbage) index; consumer and producer agree again.
+  ASSERT_TRUE(ring.try_push(42));
+  ASSERT_EQ(ring.try_pop_n(out.data(), out.size()), 1u);
+  EXPECT_EQ(out[0], 42u);
+}
+
+TEST(SpscRingCorruptPeer, AHeadBehindTailIsResetToo) {
+  SpscRing<std::uint64_t, 8> ring;
+  for (std::uint64_t v = 1; v <= 5; ++v) ASSERT_TRUE(ring.try_push(v));
+  std::uint64_t x = 0;
+  ASSERT_TRUE(ring.try_pop(x));
+  ASSERT_TRUE(ring.try_pop(x));
+  poke(ring, ring.head_offset(), 1);  // behind tail (2)
+  bool reset = false;
+  std::array<std::uint64_t, 8> out{};
+  EXPECT_EQ(ring.try_pop_n(out.data(), out.size(), &reset), 0u);
+  EXPECT_TRUE(reset);
+  EXPECT_EQ(ring.size_approx(), 0u);
+}
+
+TEST(SpscRingCorruptPeer, AHeadWithinCapacityIsDrainedBoundedByN) {
+  SpscRing<std::uint64_t, 8> ring;
+  ASSERT_TRUE(ring.try_push(1));
+  poke(ring, ring.head_offset(), 8);  // tail 0, head 8: a full ring of stale slots, plausible
+  std::array<std::uint64_t, 64> out{};
+  EXPECT_EQ(ring.try_pop_n(out.data(), out.size()), 8u) << "at most N";
+  EXPECT_EQ(ring.try_pop_n(out.data(), out.size()), 0u);
+}
+
+TEST(SpscRingCorruptPeer, AGarbageTailMakesTheProducerRestartFromIt) {
+  SpscRing<std::uint64_t, 8> ring;
+  for (std::uint64_t v = 0; v < 8; ++v) ASSERT_TRUE(ring.try_push(v));
+  EXPECT_FALSE(ring.try_push(99)) << "full";
+  poke(ring, ring.tail_offset(), 0x5555555555555555ull);
+  bool reset = false;
+  EXPECT_TRUE(ring.try_push(7, &reset)) << "the producer restarts from the consumer's index and pushes";
+  EXPECT_TRUE(reset);
+  EXPECT_EQ(ring.producer_resets(), 1u);
+  EXPECT_EQ(ring.overflow_count(), 1u);
+  std::uint64_t x = 0;
+  ASSERT_TRUE(ring.try_pop(x));
+  EXPECT_EQ(x, 7u);
+  EXPECT_FALSE(ring.try_pop(x));
+}
+
+TEST(SpscRingCorruptPeer, DiscardAllOnAGarbageHeadResetsAndReturnsZero) {
+  SpscRing<std::uint64_t, 8> ring;
+  ASSERT_TRUE(ring.try_push(1));
+  poke(ring, ring.head_offset(), ~0ull - 3);
+  bool reset = false;
+  EXPECT_EQ(ring.discard_all(&reset), 0u);
+  EXPECT_TRUE(reset);
+  EXPECT_EQ(ring.size_approx(), 0u);
+}
+
+TEST(SpscRingCorruptPeer, RandomIndicesNeverYieldMoreThanNAndAlwaysRecover) {
+  SpscRing<std::uint64_t, 16> ring;
+  std::uint64_t state = 12345;
+  auto next = [&] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return state;
+  };
+  std::array<std::uint64_t, 64> out{};
+  for (int round = 0; round < 10'000; ++round) {
+    poke(ring, next() % 2 == 0 ? ring.head_offset() : ring.tail_offset(), next() >> (next() % 64));
+    for (int k = 0; k < 3; ++k) (void)ring.try_push(static_cast<std::uint64_t>(round));
+    const std::size_t n = ring.try_pop_n(out.data(), out.size());
+    ASSERT_LE(n, 16u);
+    // After one more push and pop the pair is consistent again: what is pushed comes out.
+    (void)ring.try_pop_n(out.data(), out.size());
+    ASSERT_TRUE(ring.try_push(1'000'000u + static_cast<std::uint64_t>(round)) || ring.size_approx() == 16u);
+    std::size_t got = ring.try_pop_n(out.data(), out.size());
+    ASSERT_GE(got, 1u) << "round " << round;
+    ASSERT_EQ(out[got - 1], 1'000'000u + static_cast<std::uint64_t>(round)) << "round " << round;
+  }
+}
+
 }  // namespace
 }  // namespace lancet

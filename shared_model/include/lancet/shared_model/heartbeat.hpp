@@ -22,11 +22,14 @@ class Heartbeat {
   [[nodiscard]] std::int64_t last_ns() const noexcept { return t_ns_.load(std::memory_order_acquire); }
   [[nodiscard]] std::uint64_t count() const noexcept { return count_.load(std::memory_order_relaxed); }
   [[nodiscard]] std::int32_t pid() const noexcept { return pid_.load(std::memory_order_relaxed); }
-  /// True when a beat is no older than timeout_ns at now_ns. Real-time safe.
+  /// True when a beat is no older than timeout_ns at now_ns. A beat from the future (more than
+  /// kFutureSlackNs ahead of now_ns: the writer stamps its own earlier clock reading, so only a
+  /// corrupted segment gets there) is not fresh. Real-time safe.
   [[nodiscard]] bool fresh(std::int64_t now_ns, std::int64_t timeout_ns) const noexcept {
     const std::int64_t t = last_ns();
-    return t != 0 && now_ns - t <= timeout_ns;
+    return t != 0 && t - now_ns <= kFutureSlackNs && now_ns - t <= timeout_ns;
   }
+  static constexpr std::int64_t kFutureSlackNs = 5'000'000;
 
  private:
   std::atomic<std::int64_t> t_ns_{0};

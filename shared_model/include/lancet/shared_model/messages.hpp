@@ -5,6 +5,7 @@
 // the tissue unless stated. A change to any of these types changes the layout hash
 // (shared_state.hpp) so that a mismatched peer refuses to attach.
 
+#include <cstddef>
 #include <cstdint>
 #include <type_traits>
 
@@ -104,7 +105,7 @@ struct Command {
   CommandKind kind;
   ToolMode mode;             ///< kSetToolMode
   std::uint16_t material_id; ///< kSetMaterial
-  std::uint32_t reserved0;
+  std::uint32_t check;       ///< command_check(*this): garbage in the ring is never taken for a command
   MaterialParams material;   ///< kSetMaterial
 };
 
@@ -165,6 +166,31 @@ struct StylusTarget {
   std::uint32_t buttons;     ///< bit i = button i pressed
 };
 
+/// What the arm's bus has done so far, by kind (device::IoCounters on the wire).
+struct BusCounters {
+  std::uint64_t reads, writes, ok;
+  std::uint64_t timeouts, crc_errors, protocol_errors, disconnects, device_faults;
+  std::uint64_t glitches;        ///< implausible encoder readings
+  std::uint64_t stale_replies;   ///< late replies recognised and discarded
+  std::uint64_t faults;          ///< times the arm entered its fault state
+  std::uint64_t reconnects;      ///< lost links reopened
+  std::int64_t max_io_ns;        ///< slowest read or write (ns)
+};
+
+/// What lancet-rt rejected or repaired of what its peers wrote into the segment (counts since
+/// start). A sane viz never causes any of these.
+struct SegmentHealth {
+  std::uint64_t ring_resets;        ///< command ring indices found impossible and reset
+  std::uint64_t commands_rejected;  ///< commands that failed validation (unknown kind, bad check, ...)
+  std::uint64_t commands_deferred;  ///< ticks that left commands queued because the per-tick cap was hit
+  std::uint64_t patches_rejected;   ///< TissuePatches that failed validation (kept the previous one)
+  std::uint64_t targets_rejected;   ///< StylusTargets that failed validation
+  std::uint64_t sample_ring_resets; ///< ToolSample ring indices found impossible and reset
+};
+
+/// Fixed text on the wire, always NUL-terminated by its writer (readers check).
+inline constexpr std::size_t kStatusTextSize = 112;
+
 /// lancet-rt → anyone (seqlock): live figures of the servo loop, for the viz overlay, lancetctl
 /// and test rigs.
 struct RtStatus {
@@ -193,7 +219,33 @@ struct RtStatus {
   std::uint32_t device_state;      ///< the arm's lifecycle (device::Lifecycle; 0 with the built-in stylus)
   std::uint32_t device_fault_cause;///< device::IoStatus that tripped its fault (0: none)
   std::uint64_t device_errors;     ///< ticks at zero force because the arm could not be read or written
+  std::uint32_t has_arm;           ///< 1 when lancet-rt drives an arm from a config (0: built-in stylus)
+  std::uint32_t link_lost;         ///< 1 while the arm's bus link is down (lancet-rt reconnects on its own)
+  std::int32_t fault_node;         ///< node, unit or joint the fault names (-1: the bus or none)
+  std::uint32_t fault_code;        ///< the backend's code for it (CANopen EMCY code, drive status bits, ...)
+  char fault_text[kStatusTextSize];///< the fault in words ("" when none)
+  char error_text[kStatusTextSize];///< the arm's last error of any kind, in words ("" when none)
+  BusCounters bus;                 ///< the arm's bus counters
+  std::uint32_t watchdog_reason;   ///< rt::Watchdog::Reason of the trip (0: none)
+  std::uint32_t rearm_pending;     ///< 1 while a requested re-arm is under way
+  std::uint64_t rearms;            ///< re-arms done (watchdog and arm)
+  std::uint64_t rearm_failures;    ///< re-arms of the arm that failed (rearm_text says why)
+  std::uint64_t operator_requests; ///< re-arm requests taken from lancetctl (OperatorRequest)
+  char rearm_text[kStatusTextSize];///< outcome of the last re-arm of the arm ("" when none)
+  SegmentHealth health;            ///< what lancet-rt rejected of its peers' writes
 };
+
+/// An operator's request to lancet-rt outside the viz (lancetctl rearm), through its own seqlock
+/// so that it never shares the viz's single-producer command ring. Garbage is never a request:
+/// check must equal operator_request_check(*this).
+struct OperatorRequest {
+  std::uint64_t seq;         ///< the requester's counter: a new seq is a new request
+  std::int64_t t_ns;         ///< CLOCK_MONOTONIC when asked (ns); older than 2 s is ignored
+  std::uint32_t kind;        ///< 1: re-arm
+  std::int32_t pid;          ///< who asked
+  std::uint64_t check;       ///< operator_request_check(*this)
+};
+inline constexpr std::uint32_t kOperatorRearm = 1;
 
 #define LANCET_ASSERT_WIRE_TYPE(T)                                                        \
   static_assert(std::is_trivially_copyable_v<T>, #T " must be trivially copyable");       \
@@ -209,6 +261,9 @@ LANCET_ASSERT_WIRE_TYPE(VoxelBrick);
 LANCET_ASSERT_WIRE_TYPE(TissuePatch);
 LANCET_ASSERT_WIRE_TYPE(StylusTarget);
 LANCET_ASSERT_WIRE_TYPE(RtStatus);
+LANCET_ASSERT_WIRE_TYPE(BusCounters);
+LANCET_ASSERT_WIRE_TYPE(SegmentHealth);
+LANCET_ASSERT_WIRE_TYPE(OperatorRequest);
 #undef LANCET_ASSERT_WIRE_TYPE
 
 }  // namespace lancet

@@ -51,7 +51,9 @@ class Seqlock {
 
   /// Single writer. Publishes v; never waits. Real-time safe, O(sizeof(T)).
   void write(const T& v) noexcept {
-    const std::uint64_t s = seq_.load(std::memory_order_relaxed);
+    // Even between writes; an odd value here means someone else wrote the counter (a corrupted
+    // segment): start from the even value below it, so readers are not locked out for good.
+    const std::uint64_t s = seq_.load(std::memory_order_relaxed) & ~std::uint64_t{1};
     seq_.store(s + 1, std::memory_order_relaxed);
     // Release on every word: whoever reads a word of this write also sees the odd s + 1 above.
     const auto* src = reinterpret_cast<const unsigned char*>(&v);

@@ -20,7 +20,8 @@
 namespace lancet {
 
 /// Bump when the meaning of a field changes without changing the layout.
-inline constexpr std::uint64_t kProtocolVersion = 1;
+/// 2: Command::check (was reserved0) must match wire::command_check.
+inline constexpr std::uint64_t kProtocolVersion = 2;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -35,6 +36,7 @@ struct SharedState {
   Seqlock<RtStatus> rt_status;                        ///< rt → anyone
   Heartbeat rt_heartbeat;                             ///< written by lancet-rt every tick
   Heartbeat viz_heartbeat;                            ///< written by lancet-viz every frame
+  Seqlock<OperatorRequest> operator_request;          ///< lancetctl → rt (one operator at a time)
 };
 static_assert(std::is_standard_layout_v<SharedState>);
 
@@ -74,11 +76,15 @@ constexpr std::uint64_t shared_layout_hash() {
   h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
   h = fold(h, sizeof(RtStatus), offsetof(RtStatus, missed), offsetof(RtStatus, wake_p99_ns),
            offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
-           offsetof(RtStatus, force_zero_ns));
+           offsetof(RtStatus, force_zero_ns), offsetof(RtStatus, device_state), offsetof(RtStatus, has_arm),
+           offsetof(RtStatus, fault_text), offsetof(RtStatus, error_text), offsetof(RtStatus, bus), offsetof(RtStatus, rearms),
+           offsetof(RtStatus, rearm_text), offsetof(RtStatus, health), sizeof(BusCounters), sizeof(SegmentHealth),
+           kStatusTextSize);
+  h = fold(h, sizeof(OperatorRequest), offsetof(OperatorRequest, kind), offsetof(OperatorRequest, check));
   h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
            offsetof(SharedState, rt_status), offsetof(SharedState, rt_heartbeat),
-           offsetof(SharedState, viz_heartbeat));
+           offsetof(SharedState, viz_heartbeat), offsetof(SharedState, operator_request));
   return h;
 }
 inline constexpr std::uint64_t kSharedLayoutHash = shared_layout_hash();

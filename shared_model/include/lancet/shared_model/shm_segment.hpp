@@ -90,8 +90,15 @@ class ShmSegment {
   [[nodiscard]] bool locked() const noexcept { return locked_; }
   /// Degraded steps and recoveries during create/open, one line each, for the log.
   [[nodiscard]] const std::vector<std::string>& notes() const noexcept { return notes_; }
-  /// True while the creating process is still running (for an opener: is the peer alive?).
+  /// True while the creating process is still running (for an opener: is the peer alive?). Uses
+  /// the creator's pid and start time as they were when the segment was made or opened, so a peer
+  /// that later scribbles over the header cannot make another process look like the creator.
   [[nodiscard]] bool creator_alive() const;
+  /// The creator's pid as it was when the segment was made or opened (not re-read from the header).
+  [[nodiscard]] std::int32_t creator_pid() const noexcept { return creator_pid_; }
+  /// Creator: marks the header closed and removes the name now (only if it still names this
+  /// segment), keeping the mapping: for an exit that cannot wait for every user of the mapping.
+  void unlink_name() noexcept;
   /// True when the name now refers to a different segment than the one mapped (the creator left
   /// and another started): the opener should reopen.
   [[nodiscard]] bool replaced() const;
@@ -106,6 +113,8 @@ class ShmSegment {
   bool creator_ = false;
   bool locked_ = false;
   std::uint64_t inode_ = 0;
+  std::int32_t creator_pid_ = 0;
+  std::uint64_t creator_start_ticks_ = 0;
   std::vector<std::string> notes_;
 };
 

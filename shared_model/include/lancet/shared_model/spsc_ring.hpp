@@ -11,6 +11,12 @@
 //   (the rigtorp/SPSCQueue design).
 // - A push into a full ring never blocks: it fails, returns false, and is counted in
 //   overflow_count(), which either side (or a monitor) can read.
+// - The other side is untrusted: it lives in another process, and anything that can write the
+//   segment can write garbage into its index. A sane pair always has 0 <= head - tail <= N; each
+//   side checks that against the other's index, and when it does not hold, resets its OWN index
+//   to the other's (the ring is then empty), counts the reset (resets_seen on that side) and
+//   tells the caller. Neither side ever loops on, or reads more than N slots because of, a value
+//   the other side wrote. Slot contents are the caller's to validate.
 //
 // Thread contract: exactly one producer thread calls try_push; exactly one consumer thread calls
 // try_pop / try_pop_n / discard_all. Every member function is real-time safe: no allocation, no
@@ -45,12 +51,20 @@ class SpscRing {
   SpscRing& operator=(SpscRing&&) = delete;
 
   /// Producer only. Copies v into the ring. Returns false (and counts an overflow) when the ring
-  /// is full; never blocks. Real-time safe.
-  [[nodiscard]] bool try_push(const T& v) noexcept {
-    const std::uint64_t head = head_.load(std::memory_order_relaxed);
+  /// is full; never blocks. When the consumer's index is impossible (ahead of head, or more than N
+  /// behind) the producer restarts from it, sets *reset (when given) and pushes into the then empty
+  /// ring. Real-time safe.
+  [[nodiscard]] bool try_push(const T& v, bool* reset = nullptr) noexcept {
+    std::uint64_t head = head_.load(std::memory_order_relaxed);
     if (head - tail_cache_ >= N) {
       tail_cache_ = tail_.load(std::memory_order_acquire);
-      if (head - tail_cache_ >= N) {
+      const std::uint64_t used = head - tail_cache_;
+      if (used > N) {
+        head = tail_cache_;
+        head_.store(head, std::memory_order_release);
+        producer_resets_.store(producer_resets_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+        if (reset != nullptr) *reset = true;
+      } else if (used == N) {
         overflows_.store(overflows_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
         return false;
       }
@@ -64,16 +78,20 @@ class SpscRing {
   [[nodiscard]] bool try_pop(T& out) noexcept { return try_pop_n(&out, 1) == 1; }
 
   /// Consumer only. Pops up to max elements into out[0..max) in FIFO order and returns how many.
-  /// One acquire load and one release store for the whole batch. Real-time safe, O(max).
-  [[nodiscard]] std::size_t try_pop_n(T* out, std::size_t max) noexcept {
+  /// One acquire load and one release store for the whole batch. When the producer's index is
+  /// impossible (behind tail, or more than N ahead) the consumer skips to it, sets *reset (when
+  /// given) and returns 0. Real-time safe, O(min(max, N)).
+  [[nodiscard]] std::size_t try_pop_n(T* out, std::size_t max, bool* reset = nullptr) noexcept {
     const std::uint64_t tail = tail_.load(std::memory_order_relaxed);
     std::uint64_t avail = head_cache_ - tail;
-    if (avail < max) {
+    if (avail < max || avail > N) {
       head_cache_ = head_.load(std::memory_order_acquire);
       avail = head_cache_ - tail;
     }
-    // A corrupted peer could publish head < tail or head > tail + N; never read past N slots.
-    avail = std::min<std::uint64_t>(avail, N);
+    if (avail > N) {  // head < tail or head > tail + N: not something a sane producer publishes
+      skip_to_head(reset);
+      return 0;
+    }
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(avail, max));
     if (n == 0) return 0;
     const std::size_t first = static_cast<std::size_t>(tail & kMask);
@@ -86,10 +104,14 @@ class SpscRing {
 
   /// Consumer only. Drops everything currently queued (e.g. the backlog a consumer finds when it
   /// attaches late) and returns how many elements were dropped. Real-time safe.
-  std::size_t discard_all() noexcept {
+  std::size_t discard_all(bool* reset = nullptr) noexcept {
     const std::uint64_t tail = tail_.load(std::memory_order_relaxed);
     head_cache_ = head_.load(std::memory_order_acquire);
-    const std::uint64_t n = std::min<std::uint64_t>(head_cache_ - tail, N);
+    const std::uint64_t n = head_cache_ - tail;
+    if (n > N) {
+      skip_to_head(reset);
+      return 0;
+    }
     tail_.store(tail + n, std::memory_order_release);
     return static_cast<std::size_t>(n);
   }
@@ -106,18 +128,35 @@ class SpscRing {
   [[nodiscard]] std::uint64_t pushed_count() const noexcept { return head_.load(std::memory_order_acquire); }
   /// Any thread. Pushes refused because the ring was full.
   [[nodiscard]] std::uint64_t overflow_count() const noexcept { return overflows_.load(std::memory_order_relaxed); }
+  /// Any thread. Times the producer / the consumer found the other's index impossible and reset
+  /// its own (a corrupted segment; never happens between sane peers). Informational: these
+  /// counters live in the segment too, so each side also counts through the `reset` flags.
+  [[nodiscard]] std::uint64_t producer_resets() const noexcept { return producer_resets_.load(std::memory_order_relaxed); }
+  [[nodiscard]] std::uint64_t consumer_resets() const noexcept { return consumer_resets_.load(std::memory_order_relaxed); }
   static constexpr std::size_t capacity() noexcept { return N; }
+  /// Byte offsets of the producer's and the consumer's index inside the ring, for tests and fuzzers
+  /// that play a corrupted peer.
+  static constexpr std::size_t head_offset() noexcept { return offsetof(SpscRing, head_); }
+  static constexpr std::size_t tail_offset() noexcept { return offsetof(SpscRing, tail_); }
 
  private:
   static constexpr std::uint64_t kMask = N - 1;
 
-  // Producer-written line: head and the overflow counter.
+  void skip_to_head(bool* reset) noexcept {
+    tail_.store(head_cache_, std::memory_order_release);
+    consumer_resets_.store(consumer_resets_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+    if (reset != nullptr) *reset = true;
+  }
+
+  // Producer-written line: head and the overflow and reset counters.
   alignas(kCacheLine) std::atomic<std::uint64_t> head_{0};
   std::atomic<std::uint64_t> overflows_{0};
+  std::atomic<std::uint64_t> producer_resets_{0};
   // Producer-private line: its cached copy of the consumer's index.
   alignas(kCacheLine) std::uint64_t tail_cache_{0};
   // Consumer-written line.
   alignas(kCacheLine) std::atomic<std::uint64_t> tail_{0};
+  std::atomic<std::uint64_t> consumer_resets_{0};
   // Consumer-private line: its cached copy of the producer's index.
   alignas(kCacheLine) std::uint64_t head_cache_{0};
   // Value-initialised: a default-constructed ring is fully defined (construction happens once, at

@@ -1,0 +1,138 @@
+#include "app/supervisor.hpp"
+
+#include <cinttypes>
+#include <cstdio>
+
+#include "device/device.hpp"
+#include "rt/watchdog.hpp"
+
+namespace lancet::app {
+
+namespace {
+
+std::string fmt(const char* f, auto... args) {
+  char buf[512];
+  std::snprintf(buf, sizeof buf, f, args...);
+  return buf;
+}
+
+bool faulted(const RtStatus& s) { return s.device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault); }
+
+}  // namespace
+
+std::string describe_arm(const RtStatus& st) {
+  if (st.has_arm == 0) return "built-in simulated stylus";
+  const auto state = static_cast<device::Lifecycle>(st.device_state);
+  std::string s = device::to_string(state);
+  if (state == device::Lifecycle::kFault) {
+    s += fmt(" (%s)", device::to_string(static_cast<device::IoStatus>(st.device_fault_cause)));
+    if (st.fault_text[0] != '\0') s += std::string(": ") + st.fault_text;
+    if (st.fault_node >= 0) s += fmt(" [node %d]", st.fault_node);
+    if (st.fault_code != 0) s += fmt(" [code 0x%04" PRIX32 "]", st.fault_code);
+  }
+  if (st.link_lost != 0) s += "; bus link lost (reconnecting)";
+  return s;
+}
+
+std::string describe_bus(const BusCounters& b) {
+  return fmt("%llu reads, %llu writes, %llu timeouts, %llu crc, %llu protocol, %llu disconnects, %llu drive faults, "
+             "%llu glitches, %llu stale replies, %llu faults, %llu reconnects, slowest I/O %.0f us",
+             static_cast<unsigned long long>(b.reads), static_cast<unsigned long long>(b.writes),
+             static_cast<unsigned long long>(b.timeouts), static_cast<unsigned long long>(b.crc_errors),
+             static_cast<unsigned long long>(b.protocol_errors), static_cast<unsigned long long>(b.disconnects),
+             static_cast<unsigned long long>(b.device_faults), static_cast<unsigned long long>(b.glitches),
+             static_cast<unsigned long long>(b.stale_replies), static_cast<unsigned long long>(b.faults),
+             static_cast<unsigned long long>(b.reconnects), static_cast<double>(b.max_io_ns) / 1e3);
+}
+
+RtSupervisor::RtSupervisor(RtServo& servo, SupervisorParams params, std::int64_t start_ns)
+    : servo_(servo), params_(std::move(params)), start_ns_(start_ns), tick_seen_at_ns_(start_ns) {}
+
+std::vector<std::string> RtSupervisor::poll(std::int64_t now_ns) {
+  std::vector<std::string> out;
+  if (servo_.supervise(now_ns)) {
+    // The outcome is announced from the status (below) once the servo has taken the device back.
+  }
+  RtStatus st{};
+  if (servo_.read_status(st) == ReadStatus::kOk) {
+    if (have_) compare(last_, st, now_ns, out);
+    if (!have_ && st.has_arm != 0 && faulted(st)) out.push_back("FAULT on " + params_.arm_name + ": " + describe_arm(st));
+    last_ = st;
+    have_ = true;
+  }
+  // Is the servo still ticking?
+  if (have_ && last_.tick != tick_seen_) {
+    tick_seen_ = last_.tick;
+    tick_seen_at_ns_ = now_ns;
+  }
+  const std::int64_t allowed = params_.stall_timeout_ns + (tick_seen_ == 0 ? params_.first_tick_grace_ns : 0);
+  if (!stalled_ && now_ns - tick_seen_at_ns_ > allowed) {
+    stalled_ = true;
+    out.push_back(fmt("SERVO STALLED: no tick for %.0f ms (last tick %llu): ending lancet-rt; the arm's own watchdog "
+                      "takes its torque off",
+                      static_cast<double>(now_ns - tick_seen_at_ns_) / 1e6, static_cast<unsigned long long>(tick_seen_)));
+  }
+  return out;
+}
+
+void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t now_ns, std::vector<std::string>& out) {
+  const std::string& arm = params_.arm_name;
+  if (b.has_arm != 0) {
+    if (!faulted(a) && faulted(b)) {
+      out.push_back("FAULT on " + arm + ": " + describe_arm(b) + ". Force held at zero until re-armed: lancetctl rearm --rt " +
+                    params_.shm_name + " (or W in the viz)");
+    }
+    if (faulted(a) && !faulted(b)) out.push_back(arm + " re-armed: " + describe_arm(b));
+    if (a.link_lost == 0 && b.link_lost != 0) {
+      link_lost_at_ns_ = now_ns;
+      reconnect_failures_ = 0;
+      out.push_back(arm + ": bus link lost; reconnecting every second (the arm stays faulted until re-armed)");
+    }
+    if (b.bus.reconnects > a.bus.reconnects) {
+      out.push_back(fmt("%s: bus link back after %.1f s; re-arm to resume: lancetctl rearm --rt %s", arm.c_str(),
+                        static_cast<double>(now_ns - link_lost_at_ns_) / 1e9, params_.shm_name.c_str()));
+    } else if (b.link_lost != 0 && std::string_view(b.rearm_text) != std::string_view(a.rearm_text) && b.rearm_text[0] != '\0') {
+      // A reconnect attempt failed with a new reason: say it once, not every second.
+      ++reconnect_failures_;
+      out.push_back(arm + ": reconnect failed: " + b.rearm_text);
+    }
+    if (b.rearm_failures > a.rearm_failures) out.push_back(arm + ": re-arm failed: " + b.rearm_text);
+  }
+  if (a.watchdog_tripped == 0 && b.watchdog_tripped != 0) {
+    out.push_back(fmt("WATCHDOG TRIPPED (%s): force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
+                      rt::to_string(static_cast<rt::Watchdog::Reason>(b.watchdog_reason)), params_.shm_name.c_str()));
+  }
+  if (a.watchdog_tripped != 0 && b.watchdog_tripped == 0) out.push_back("watchdog re-armed");
+  if (b.operator_requests > a.operator_requests) out.push_back("re-arm requested by an operator (lancetctl rearm)");
+  if (a.viz_alive == 0 && b.viz_alive != 0) out.push_back("lancet-viz is publishing tissue: force enabled");
+  if (a.viz_alive != 0 && b.viz_alive == 0) out.push_back("lancet-viz stopped beating: fading the force out");
+
+  // Rate-limited summaries.
+  if (now_ns < next_summary_ns_) return;
+  const SegmentHealth& h = b.health;
+  const SegmentHealth& r = health_reported_;
+  const std::uint64_t rej = h.commands_rejected - r.commands_rejected, pat = h.patches_rejected - r.patches_rejected,
+                      tar = h.targets_rejected - r.targets_rejected, rr = h.ring_resets - r.ring_resets,
+                      sr = h.sample_ring_resets - r.sample_ring_resets, def = h.commands_deferred - r.commands_deferred;
+  bool said = false;
+  if (rej + pat + tar + rr + sr + def > 0) {
+    const char* why = servo_.data().last_reject.load(std::memory_order_relaxed);
+    out.push_back(fmt("shared segment: rejected %llu commands, %llu patches, %llu stylus targets; reset the command ring "
+                      "%llu and the sample ring %llu times; %llu ticks left commands queued (last: %s)",
+                      static_cast<unsigned long long>(rej), static_cast<unsigned long long>(pat),
+                      static_cast<unsigned long long>(tar), static_cast<unsigned long long>(rr),
+                      static_cast<unsigned long long>(sr), static_cast<unsigned long long>(def),
+                      why != nullptr ? why : "-"));
+    health_reported_ = h;
+    said = true;
+  }
+  if (b.bus.glitches > glitches_reported_) {
+    out.push_back(fmt("%s: %llu encoder glitches (last: %s)", arm.c_str(),
+                      static_cast<unsigned long long>(b.bus.glitches - glitches_reported_), b.error_text));
+    glitches_reported_ = b.bus.glitches;
+    said = true;
+  }
+  if (said) next_summary_ns_ = now_ns + params_.summary_interval_ns;
+}
+
+}  // namespace lancet::app

@@ -1,0 +1,218 @@
+// wire::check: what a peer wrote into the segment is checked before use. Valid messages pass;
+// each kind of damage (not finite, out of range, unknown enum, capacity exceeded, from the future,
+// unterminated or unprintable text, a check word that does not match) is caught; random bytes
+// never pass for a command or an operator request.
+
+#include "lancet/shared_model/validate.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <random>
+
+namespace lancet::wire {
+namespace {
+
+constexpr std::int64_t kNow = 50'000'000'000;
+constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+
+Command good_command() {
+  Command c{};
+  c.seq = 3;
+  c.t_ns = kNow;
+  c.kind = CommandKind::kSetToolMode;
+  c.mode = ToolMode::kDrill;
+  seal(c);
+  return c;
+}
+
+std::unique_ptr<TissuePatch> good_patch() {
+  auto p = std::make_unique<TissuePatch>();
+  p->t_ns = kNow - 1'000'000;
+  p->radius = 0.02;
+  p->n_triangles = 2;
+  p->triangles[0] = {{{0, 0, 0}, {0.01f, 0, 0}, {0, 0.01f, 0}}, 1, kTriangleOnCutEdge};
+  p->triangles[1] = {{{0, 0, 0}, {0.01f, 0.01f, 0}, {0, 0.01f, 0}}, 2, 0};
+  p->blade.direction = {1, 0, 0};
+  p->brick.valid = 1;
+  p->brick.dim = kBrickDim;
+  p->brick.spacing = {0.0005, 0.0005, 0.001};
+  return p;
+}
+
+TEST(WireCheck, ValidMessagesPass) {
+  EXPECT_EQ(check(good_command()), nullptr);
+  EXPECT_EQ(check(*good_patch(), kNow), nullptr);
+  StylusTarget t{};
+  t.t_ns = kNow;
+  t.active = 1;
+  t.target.position = {0.01, -0.02, 0.03};
+  EXPECT_EQ(check(t, kNow), nullptr);
+  ToolSample s{};
+  s.n_joints = 3;
+  s.events = event::kRupture | event::kFault;
+  s.stage = Stage::kDrilling;
+  EXPECT_EQ(check(s), nullptr);
+  RtStatus st{};
+  st.period_ns = 1'000'000;
+  st.force_scale = 1;
+  st.device_state = 3;
+  std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
+  EXPECT_EQ(check(st), nullptr);
+  OperatorRequest r{};
+  r.seq = 9;
+  r.t_ns = kNow;
+  r.kind = kOperatorRearm;
+  seal(r);
+  EXPECT_EQ(check(r, kNow), nullptr);
+}
+
+TEST(WireCheck, CommandsMustBeSealedKnownAndPhysical) {
+  Command c = good_command();
+  c.mode = ToolMode::kProbe;  // changed after sealing
+  EXPECT_NE(check(c), nullptr);
+  c = good_command();
+  c.mode = static_cast<ToolMode>(9);
+  seal(c);
+  EXPECT_NE(check(c), nullptr);
+  c = good_command();
+  c.kind = static_cast<CommandKind>(77);
+  seal(c);
+  EXPECT_NE(check(c), nullptr);
+  c = good_command();
+  c.kind = CommandKind::kSetMaterial;
+  c.material_id = 1;
+  c.material.stiffness = 800;
+  seal(c);
+  EXPECT_EQ(check(c), nullptr);
+  c.material.damping = kNan;
+  seal(c);
+  EXPECT_NE(check(c), nullptr);
+  c.material.damping = 1;
+  c.material_id = 200;
+  seal(c);
+  EXPECT_NE(check(c), nullptr);
+}
+
+TEST(WireCheck, RandomBytesNeverPassForACommandOrAnOperatorRequest) {
+  std::mt19937_64 rng(11);
+  int passed = 0;
+  for (int i = 0; i < 200'000; ++i) {
+    Command c;
+    OperatorRequest r;
+    for (auto* p : {static_cast<void*>(&c), static_cast<void*>(&r)}) {
+      const std::size_t n = p == &c ? sizeof c : sizeof r;
+      for (std::size_t k = 0; k < n; ++k) static_cast<unsigned char*>(p)[k] = static_cast<unsigned char>(rng());
+    }
+    passed += check(c) == nullptr;
+    passed += check(r, kNow) == nullptr;
+  }
+  EXPECT_EQ(passed, 0);
+}
+
+TEST(WireCheck, PatchDamageIsCaught) {
+  auto p = good_patch();
+  p->n_triangles = kPatchCapacity + 1;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->triangles[1].v[2].y = std::numeric_limits<float>::infinity();
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->triangles[0].v[0].x = 1e6f;  // a kilometre away
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->triangles[0].material = 999;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->triangles[0].flags = 0x8000;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->t_ns = kNow + 1'000'000'000;  // from the future: would never go stale
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->t_ns = 0;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->brick.dim = 300;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->brick.spacing.z = -1;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->cut.opening_width = kNan;
+  EXPECT_NE(check(*p, kNow), nullptr);
+  p = good_patch();
+  p->blade.normal = {3, 0, 0};
+  EXPECT_NE(check(*p, kNow), nullptr);
+  // Triangles past n_triangles are not the patch: garbage there is fine.
+  p = good_patch();
+  p->triangles[5].v[0].x = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(check(*p, kNow), nullptr);
+}
+
+TEST(WireCheck, SampleAndStatusDamageIsCaughtBeforeAnythingIsPrinted) {
+  ToolSample s{};
+  s.n_joints = 9;
+  EXPECT_NE(check(s), nullptr);
+  s = ToolSample{};
+  s.n_joints = 2;
+  s.q[1] = kNan;
+  EXPECT_NE(check(s), nullptr);
+  s = ToolSample{};
+  s.force = {3e142, 0, 0};
+  EXPECT_NE(check(s), nullptr);
+  s = ToolSample{};
+  s.stage = static_cast<Stage>(40);
+  EXPECT_NE(check(s), nullptr);
+  s = ToolSample{};
+  s.tool.orientation = {0, 0, 0, 0};
+  EXPECT_NE(check(s), nullptr);
+
+  RtStatus st{};
+  st.period_ns = 1'000'000;
+  st.force = {std::numeric_limits<double>::infinity(), 0, 0};  // what lancet-viz printed as "inf"
+  EXPECT_NE(check(st), nullptr);
+  st.force = {};
+  st.force_scale = 1.5;
+  EXPECT_NE(check(st), nullptr);
+  st.force_scale = 1;
+  std::memset(st.fault_text, 'A', sizeof st.fault_text);  // no terminator
+  EXPECT_NE(check(st), nullptr);
+  std::strcpy(st.fault_text, "\x1b[2Jgotcha");  // a terminal escape
+  EXPECT_NE(check(st), nullptr);
+  st.fault_text[0] = '\0';
+  st.device_state = 9;
+  EXPECT_NE(check(st), nullptr);
+  st.device_state = 0;
+  st.period_ns = 0;
+  EXPECT_NE(check(st), nullptr);
+}
+
+TEST(WireCheck, TargetsAndRequestsFromTheFutureOrStaleAreCaught) {
+  StylusTarget t{};
+  t.active = 1;
+  t.t_ns = kNow + 10 * kFutureSlackNs;
+  EXPECT_NE(check(t, kNow), nullptr);
+  t.t_ns = kNow;
+  t.active = 2;
+  EXPECT_NE(check(t, kNow), nullptr);
+  t.active = 1;
+  t.target.position.z = kNan;
+  EXPECT_NE(check(t, kNow), nullptr);
+  OperatorRequest r{};
+  r.seq = 1;
+  r.t_ns = kNow + 10 * kFutureSlackNs;
+  r.kind = kOperatorRearm;
+  seal(r);
+  EXPECT_NE(check(r, kNow), nullptr);
+  r.t_ns = kNow;
+  r.kind = 5;
+  seal(r);
+  EXPECT_NE(check(r, kNow), nullptr);
+}
+
+}  // namespace
+}  // namespace lancet::wire
