@@ -213,6 +213,10 @@ int main(int argc, char** argv) {
                  "after a signal, a stall or --duration, wait this long for the servo thread to stop before leaving "
                  "without it")
       ->check(CLI::Range(10.0, 60000.0))->capture_default_str();
+  double inject_stall_s = 0;
+  cli.add_option("--inject-stall-s", inject_stall_s,
+                 "testing: block the servo thread for good this many seconds after start (exercises the stall path)")
+      ->check(CLI::PositiveNumber)->group("Testing");
   std::string config_path, trajectory_path;
   cli.add_option("--trajectory", trajectory_path,
                  "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm) instead of the built-in script");
@@ -319,7 +323,15 @@ int main(int argc, char** argv) {
   std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
     servo.set_fifo(lancet::rt::current_thread_is_fifo());
-    loop.run([&servo](const lancet::rt::TickContext& ctx) { servo.tick(ctx); }, g_stop);
+    const std::int64_t stall_at = inject_stall_s > 0 ? lancet::monotonic_ns() + lancet::seconds_to_ns(inject_stall_s) : 0;
+    loop.run(
+        [&servo, stall_at](const lancet::rt::TickContext& ctx) {
+          if (stall_at != 0 && ctx.woke_ns >= stall_at) {
+            for (;;) pause();  // a tick that never returns: what a hung bus call or a bug looks like
+          }
+          servo.tick(ctx);
+        },
+        g_stop);
     loop_done.store(true, std::memory_order_release);
   });
   for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
@@ -349,10 +361,7 @@ int main(int argc, char** argv) {
       ended_by = "stall";
       g_stop.store(true);
     }
-    if (g_stop.load(std::memory_order_relaxed) && stop_asked_ns == 0) {
-      stop_asked_ns = now;
-      if (const int sig = g_signal.load(std::memory_order_relaxed); sig != 0 && !stalled) ended_by = signal_name(sig);
-    }
+    if (g_stop.load(std::memory_order_relaxed) && stop_asked_ns == 0) stop_asked_ns = now;
     // --duration is the loop's own end; should the loop not get there, it is enforced here too.
     if (duration > 0 && stop_asked_ns == 0 && now - started_ns > lancet::seconds_to_ns(duration) + loop_params.period_ns * 100) {
       stop_asked_ns = now;
@@ -375,6 +384,7 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   }
 
+  if (const int sig = g_signal.load(std::memory_order_relaxed); sig != 0 && !stalled) ended_by = signal_name(sig);
   StatsInput stats;
   stats.arm_name = arm ? arm->name() : "";
   stats.ended_by = ended_by;

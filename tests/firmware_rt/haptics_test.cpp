@@ -540,6 +540,54 @@ TEST(Safety, NaNGuardClampSlewAndStaleFade) {
   EXPECT_EQ(apply_safety(fp, fd, {0, 0, 4}, {}, {}, 200'000'000, 0.001, ev).z, 0);
 }
 
+// The slew limit bounds the change of the force vector per tick, whatever its direction: on each
+// axis alone, on a diagonal, and on reversals (where the change is twice the magnitude).
+TEST(Safety, SlewLimitHoldsOnEveryAxisAndOnReversals) {
+  SafetyParams sp;
+  sp.max_force = 5;
+  sp.max_slew = 1000;  // 1 N per 1 ms tick
+  sp.passivity = false;
+  constexpr double dt = 0.001, lim = 1000 * dt;
+  const Vec3 axes[] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {-1, 0, 0}, {0, -1, 0}, {0, 0, -1}, normalized(Vec3{1, -2, 2})};
+  for (const Vec3& a : axes) {
+    SafetyData sd;
+    std::uint32_t ev = 0;
+    Vec3 prev{};
+    // Up to 5 N along the axis: 1 N a tick, in the axis's direction only.
+    for (int i = 1; i <= 8; ++i) {
+      const Vec3 f = apply_safety(sp, sd, 100.0 * a, {}, {}, 0, dt, ev);
+      EXPECT_LE(norm(f - prev), lim + 1e-12) << "axis (" << a.x << ", " << a.y << ", " << a.z << ") tick " << i;
+      EXPECT_NEAR(norm(f), std::min(5.0, static_cast<double>(i)), 1e-9);
+      EXPECT_NEAR(norm(cross(f, a)), 0, 1e-9) << "no sideways component";
+      prev = f;
+    }
+    // A reversal: +5 N to −5 N asked at once. It takes ten ticks, through zero, never faster.
+    int ticks = 0;
+    while (norm(prev + 5.0 * a) > 1e-9 && ticks < 100) {
+      const Vec3 f = apply_safety(sp, sd, -5.0 * a, {}, {}, 0, dt, ev);
+      ASSERT_LE(norm(f - prev), lim + 1e-12) << "reversal tick " << ticks;
+      prev = f;
+      ++ticks;
+    }
+    EXPECT_EQ(ticks, 10) << "a reversal of 10 N at 1 N per tick";
+    // A sideways swing of a held 5 N force by 90 degrees: the chord is limited too.
+    const Vec3 side = normalized(cross(a, std::abs(a.z) < 0.9 ? Vec3{0, 0, 1} : Vec3{1, 0, 0}));
+    for (int i = 0; i < 20; ++i) {
+      const Vec3 f = apply_safety(sp, sd, 5.0 * side, {}, {}, 0, dt, ev);
+      ASSERT_LE(norm(f - prev), lim + 1e-12) << "swing tick " << i;
+      prev = f;
+    }
+    EXPECT_GE(sd.slew_limits, 20u) << "ramp, reversal and swing were all limited";
+  }
+  // With the limit off, a reversal is immediate (the test above can fail).
+  SafetyParams off = sp;
+  off.max_slew = 0;
+  SafetyData sd;
+  std::uint32_t ev = 0;
+  (void)apply_safety(off, sd, {5, 0, 0}, {}, {}, 0, dt, ev);
+  EXPECT_NEAR(apply_safety(off, sd, {-5, 0, 0}, {}, {}, 0, dt, ev).x, -5, 1e-12);
+}
+
 TEST(Safety, AMillionRandomTicksGiveFiniteForcesWithinTheClamp) {
   const auto p = plane(0, 0.05f, 2);
   HapticModel m = test_model(3000);

@@ -188,9 +188,13 @@ TEST(RtServoArm, AGlitchingEncoderIsCountedZeroesTheForceAndRepeatedGlitchesFaul
   for (int i = 0; i < 50; ++i) rig.tick();
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive) << "one glitch is not a fault";
   EXPECT_GT(norm(rig.servo->data().force), 0.3);
-  // Glitch after glitch: a fault, with the joint named.
+  // Glitch after glitch: a fault, with the joint named. The fault path allocates nothing either.
   rig.arm->inject_encoder_offset(1, 4 * rig.config.joints[1].counts_per_rev, 3);
-  for (int i = 0; i < 5; ++i) rig.tick();
+  {
+    lancet::test::MallocGuard guard;
+    for (int i = 0; i < 5; ++i) rig.tick();
+    EXPECT_EQ(guard.count(), 0u);
+  }
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kFault);
   EXPECT_EQ(rig.arm->fault_cause(), device::IoStatus::kImplausible);
   EXPECT_EQ(rig.arm->fault_detail().node, 1);

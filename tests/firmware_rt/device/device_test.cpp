@@ -349,3 +349,92 @@ TEST(SimArm, DeactivateLeavesZeroTorque) {
 }
 
 }  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Encoder plausibility, fault details, reconnect
+
+Plausibility sim_plausibility(const arm::ArmConfig& c) {
+  Plausibility p;
+  p.n = 3;
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    p.max_speed[uj] = c.joints[uj].max_speed;
+    p.resolution[uj] = std::abs(arm::joint_position_from_counts(c.joints[uj], 1) - arm::joint_position_from_counts(c.joints[uj], 0));
+  }
+  return p;
+}
+
+TEST(DevicePlausibility, AJumpBeyondTheJointsSpeedIsAGlitchNotData) {
+  const arm::ArmConfig cfg = sim_config();
+  EXPECT_NEAR(cfg.joints[0].max_speed, 1800 * M_PI / 180, 1e-9) << "the default max_speed_deg_s";
+  auto a = active_arm();
+  a->set_plausibility(sim_plausibility(cfg));
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  const double q0 = s.q[0];
+  a->inject_encoder_offset(0, cfg.joints[0].counts_per_rev, 1);  // a motor revolution in one read
+  JointState g = s;
+  EXPECT_EQ(a->read(g), IoStatus::kImplausible);
+  EXPECT_EQ(a->counters().glitches, 1u);
+  EXPECT_EQ(a->last_error().status, IoStatus::kImplausible);
+  EXPECT_EQ(a->last_error().node, 0);
+  EXPECT_NE(std::string(a->last_error().c_str()).find("joint 0 encoder jumped"), std::string::npos) << a->last_error().c_str();
+  // The next good reading is judged against the last plausible one, not the glitch.
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  EXPECT_NEAR(s.q[0], q0, 1e-3);
+  EXPECT_EQ(a->state(), Lifecycle::kActive);
+  // Small real motion (a few counts) is never a glitch.
+  a->inject_encoder_offset(1, 2, 1);
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+}
+
+TEST(DevicePlausibility, RepeatedGlitchesFaultTheArmButGoodReadsDrainTheBucket) {
+  const arm::ArmConfig cfg = sim_config();
+  FaultPolicy policy;
+  policy.max_glitches = 3;
+  policy.glitch_leak_reads = 100;
+  auto a = active_arm(policy);
+  a->set_plausibility(sim_plausibility(cfg));
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  // Two glitches, each followed by 100 good reads: drained, no fault.
+  for (int round = 0; round < 5; ++round) {
+    a->inject_encoder_offset(2, 10 * cfg.joints[2].counts_per_rev, 1);
+    EXPECT_EQ(a->read(s), IoStatus::kImplausible);
+    for (int i = 0; i < 100; ++i) ASSERT_EQ(a->read(s), IoStatus::kOk);
+  }
+  EXPECT_EQ(a->state(), Lifecycle::kActive);
+  // Three close together: a fault, with the glitch as its cause.
+  a->inject_encoder_offset(2, 10 * cfg.joints[2].counts_per_rev, 3);
+  (void)a->read(s);
+  (void)a->read(s);
+  EXPECT_EQ(a->read(s), IoStatus::kFault);
+  EXPECT_EQ(a->state(), Lifecycle::kFault);
+  EXPECT_EQ(a->fault_cause(), IoStatus::kImplausible);
+  EXPECT_EQ(a->fault_detail().node, 2);
+  EXPECT_EQ(a->counters().glitches, 8u);
+  // A re-arm clears it; the reference starts afresh (the arm may have moved while faulted).
+  ASSERT_TRUE(a->rearm().ok());
+  EXPECT_EQ(a->fault_detail().status, IoStatus::kOk);
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+}
+
+TEST(DeviceFaultDetail, AnErrorWithoutWordsIsNamedByItsStatus) {
+  auto a = active_arm();
+  a->inject(IoStatus::kDisconnected, 1);
+  JointState s;
+  EXPECT_EQ(a->read(s), IoStatus::kFault);
+  EXPECT_EQ(a->fault_detail().status, IoStatus::kDisconnected);
+  EXPECT_STREQ(a->fault_detail().c_str(), "disconnected");
+  EXPECT_TRUE(a->link_lost());
+  // The sim backend cannot reconnect: an honest error, and the arm stays faulted.
+  const Outcome r = a->reconnect();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error->code, ErrorCode::kUnsupported);
+  EXPECT_NE(r.error->message.find("reconnect is not supported"), std::string::npos) << r.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kFault);
+  ASSERT_TRUE(a->rearm().ok());
+  EXPECT_FALSE(a->link_lost());
+  const Outcome not_faulted = a->reconnect();
+  EXPECT_FALSE(not_faulted.ok()) << "reconnect is for a faulted device only";
+}

@@ -1,0 +1,135 @@
+// The real lancet-rt against what can go wrong around it: every ending signal ends it promptly with
+// its stats written and its segment removed; a servo thread that stops ticking ends the process
+// within a bounded time; eight bytes written into a ring index of the live segment (the attack that
+// once froze the servo for good) are counted and survived, and --duration is honoured.
+
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <sys/mman.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <string>
+
+#include "lancet/shared_model/shared_state.hpp"
+#include "lancet/shared_model/validate.hpp"
+#include "process.hpp"  // tests/support
+
+namespace lancet {
+namespace {
+
+using namespace std::chrono_literals;
+using test::Child;
+using test::json_number;
+using test::read_file;
+
+const std::string kRt = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-rt";
+
+class RtRobustness : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    const std::string name = std::string(info->name()).substr(0, 40);
+    dir_ = std::filesystem::temp_directory_path() / ("lancet-rob-" + std::to_string(getpid()) + "-" + name);
+    std::filesystem::create_directories(dir_);
+    shm_ = "/lancet-rob-" + std::to_string(getpid()) + "-" + name;
+  }
+  void TearDown() override {
+    shm_unlink(shm_.c_str());
+    if (!HasFailure()) std::filesystem::remove_all(dir_);
+  }
+  std::string path(const std::string& f) const { return (dir_ / f).string(); }
+  bool segment_exists() const {
+    const int fd = shm_open(shm_.c_str(), O_RDONLY, 0);
+    if (fd < 0) return errno != ENOENT;
+    close(fd);
+    return true;
+  }
+  std::unique_ptr<Child> start_rt(std::vector<std::string> extra) {
+    std::vector<std::string> argv{kRt, "--shm", shm_, "-q", "--no-rt", "--stats", path("rt.json")};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    auto rt = std::make_unique<Child>(argv, path("rt.log"));
+    for (int i = 0; i < 500 && !SharedChannel::open(shm_); ++i) std::this_thread::sleep_for(10ms);
+    return rt;
+  }
+  /// The newest status that passes the checks (lancet-rt's tick counter), or 0.
+  static std::uint64_t tick_of(const SharedState& s) {
+    RtStatus st{};
+    if (s.rt_status.try_read(st) != ReadStatus::kOk || wire::check(st) != nullptr) return 0;
+    return st.tick;
+  }
+
+  std::filesystem::path dir_;
+  std::string shm_;
+};
+
+TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegmentRemoved) {
+  for (const auto& [sig, name] : {std::pair{SIGINT, "SIGINT"}, std::pair{SIGTERM, "SIGTERM"}, std::pair{SIGHUP, "SIGHUP"}}) {
+    SCOPED_TRACE(name);
+    std::filesystem::remove(path("rt.json"));
+    auto rt = start_rt({});
+    ASSERT_TRUE(segment_exists());
+    std::this_thread::sleep_for(300ms);
+    const auto t0 = std::chrono::steady_clock::now();
+    rt->signal(sig);
+    const auto st = rt->wait_exit(5s);
+    ASSERT_TRUE(st.has_value()) << "still running 5 s after " << name << "\n" << read_file(path("rt.log"));
+    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    EXPECT_LT(took, 2.0) << "bounded: the loop ends at its next tick";
+    EXPECT_TRUE(WIFEXITED(*st) && WEXITSTATUS(*st) == 0) << read_file(path("rt.log"));
+    const std::string stats = read_file(path("rt.json"));
+    EXPECT_NE(stats.find(std::string("\"ended_by\": \"") + name + "\""), std::string::npos) << stats;
+    EXPECT_NE(stats.find("\"clean_exit\": true"), std::string::npos) << stats;
+    EXPECT_FALSE(segment_exists()) << "the segment must be removed";
+  }
+}
+
+TEST_F(RtRobustness, AServoThreadThatStopsTickingEndsTheProcessWithinABoundedTime) {
+  auto rt = start_rt({"--inject-stall-s", "0.5", "--stall-timeout-ms", "300", "--shutdown-grace-ms", "300"});
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto st = rt->wait_exit(10s);
+  ASSERT_TRUE(st.has_value()) << "a stalled servo must not keep lancet-rt alive\n" << read_file(path("rt.log"));
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(took, 0.5 + 0.3 + 0.3 + 2.0) << "stall + timeout + grace, with room for a loaded machine";
+  ASSERT_TRUE(WIFEXITED(*st)) << read_file(path("rt.log"));
+  EXPECT_EQ(WEXITSTATUS(*st), 4) << "left without the stuck thread\n" << read_file(path("rt.log"));
+  const std::string log = read_file(path("rt.log"));
+  EXPECT_NE(log.find("SERVO STALLED: no tick for"), std::string::npos) << log;
+  EXPECT_NE(log.find("leaving without it"), std::string::npos) << log;
+  const std::string stats = read_file(path("rt.json"));
+  EXPECT_NE(stats.find("\"ended_by\": \"stall\""), std::string::npos) << stats;
+  EXPECT_NE(stats.find("\"clean_exit\": false"), std::string::npos) << stats;
+  EXPECT_GT(json_number(stats, "ticks").value_or(0), 100) << stats;
+  EXPECT_FALSE(segment_exists()) << "the segment must be removed even then";
+}
+
+TEST_F(RtRobustness, EightBytesIntoARingIndexAreCountedAndTheServoTicksOnToItsDuration) {
+  auto rt = start_rt({"--duration", "3"});
+  auto ch = SharedChannel::open(shm_);
+  ASSERT_TRUE(ch.ok()) << ch.error().message;
+  SharedState& s = ch.value().state();
+  std::this_thread::sleep_for(300ms);
+  // The attack from the report: eight bytes into the producer index of the command ring.
+  auto* ring = reinterpret_cast<unsigned char*>(&s.commands);
+  const std::uint64_t garbage = 0x4141414141414141ull;
+  std::memcpy(ring + s.commands.head_offset(), &garbage, sizeof garbage);
+  const std::uint64_t before = tick_of(s);
+  std::this_thread::sleep_for(500ms);
+  const std::uint64_t after = tick_of(s);
+  EXPECT_GT(after, before + 100) << "the servo keeps ticking (it used to spin in the command drain for good)";
+  // And again, the other way round: the consumer's index far ahead.
+  std::memcpy(ring + s.commands.tail_offset(), &garbage, sizeof garbage);
+  std::memcpy(ring + s.commands.head_offset(), &before, sizeof before);
+  const auto st = rt->wait_exit(8s);
+  ASSERT_TRUE(st.has_value()) << "--duration 3 must be honoured\n" << read_file(path("rt.log"));
+  EXPECT_TRUE(WIFEXITED(*st) && WEXITSTATUS(*st) == 0) << read_file(path("rt.log"));
+  const std::string stats = read_file(path("rt.json"));
+  EXPECT_GE(json_number(stats, "ring_resets").value_or(0), 1) << stats;
+  EXPECT_NE(stats.find("\"ended_by\": \"duration\""), std::string::npos) << stats;
+  EXPECT_NE(read_file(path("rt.log")).find("shared segment: rejected"), std::string::npos) << "announced on stderr";
+}
+
+}  // namespace
+}  // namespace lancet
