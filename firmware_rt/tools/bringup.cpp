@@ -244,7 +244,18 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
     const double t = std::chrono::duration<double>(Clock::now() - start).count();
     RtStatus st{};
     const ReadStatus r = shared.rt_status.try_read(st);
-    if (r == ReadStatus::kOk) {
+    const std::int64_t now_ns = monotonic_ns();
+    if (shared.rt_heartbeat.count() > 0 && !shared.rt_heartbeat.fresh(now_ns, 200'000'000)) {
+      // A status that stopped changing says nothing about the arm now: say that instead.
+      const std::int64_t last = shared.rt_heartbeat.last_ns();
+      if (last == 0 || !ch.value().segment().creator_alive()) {
+        std::fprintf(out, "%8.3f s  lancet-rt has stopped (pid %d)\n", t, ch.value().segment().creator_pid());
+        std::fflush(out);
+        return 1;
+      }
+      std::fprintf(out, "%8.3f s  lancet-rt is NOT TICKING: last heartbeat %.0f ms ago; its last status is not the arm's state\n", t,
+                   static_cast<double>(now_ns - last) / 1e6);
+    } else if (r == ReadStatus::kOk) {
       // What lancet-rt wrote is checked before any of it is printed.
       if (const char* bad = wire::check(st)) {
         ++rejected;

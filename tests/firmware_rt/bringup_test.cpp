@@ -146,6 +146,12 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   EXPECT_EQ(code2, 0);
   EXPECT_NE(out2.find("status rejected (rt_status.force: not finite or above 1000 N)"), std::string::npos) << out2;
   EXPECT_EQ(out2.find("e+142"), std::string::npos) << out2;
+  // A lancet-rt whose servo stopped ticking: its last status is not presented as the arm's state.
+  ch.value().state().rt_heartbeat.beat(monotonic_ns() - 2'000'000'000, static_cast<std::int32_t>(getpid()));
+  const auto [code3, out3] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f); });
+  EXPECT_EQ(code3, 0);
+  EXPECT_NE(out3.find("lancet-rt is NOT TICKING: last heartbeat"), std::string::npos) << out3;
+  EXPECT_EQ(out3.find("arm fault"), std::string::npos) << out3;
 }
 
 TEST_F(Bringup, RearmShowsTheFaultAsksAndSendsASealedRequest) {
