@@ -1,0 +1,196 @@
+// The fault workflow an integrator sees, end to end with the real programs: lancet-armsim serves
+// the Modbus TCP arm, lancet-rt drives it, lancetctl re-arms it.
+//   - encoder glitches are counted and announced; a rare glitch is survived, repeated ones fault
+//     the arm, with the joint named;
+//   - the bus going away is announced at once with its cause, lancet-rt reconnects on its own when
+//     the arm comes back, the arm stays at zero force until `lancetctl rearm --rt SHM --yes`, and
+//     every step is in lancet-rt's stderr and --stats.
+
+#include <gtest/gtest.h>
+#include <sys/mman.h>
+
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <string>
+#include <thread>
+
+#include "lancet/shared_model/shared_state.hpp"
+#include "lancet/shared_model/validate.hpp"
+#include "process.hpp"
+
+namespace lancet {
+namespace {
+
+using namespace std::chrono_literals;
+using test::Child;
+using test::json_number;
+using test::read_file;
+
+const std::string kBin = std::string(LANCET_BINARY_DIR);
+const std::string kSrc = std::string(LANCET_SOURCE_DIR);
+
+class FaultWorkflow : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    const std::string name = std::string(info->name()).substr(0, 40);
+    dir_ = std::filesystem::temp_directory_path() / ("lancet-faults-" + std::to_string(getpid()) + "-" + name);
+    std::filesystem::create_directories(dir_);
+    shm_ = "/lancet-faults-" + std::to_string(getpid()) + "-" + name;
+  }
+  void TearDown() override {
+    shm_unlink(shm_.c_str());
+    if (!HasFailure()) std::filesystem::remove_all(dir_);
+  }
+  std::string path(const std::string& f) const { return (dir_ / f).string(); }
+
+  /// lancet-armsim on `port` (0: any; the port it took is returned through port_out).
+  std::unique_ptr<Child> start_armsim(const std::string& port, std::vector<std::string> extra, const std::string& log,
+                                      std::string& port_out) {
+    std::vector<std::string> argv{kBin + "/firmware_rt/lancet-armsim", kSrc + "/hw_configs/modbus_tcp_arm.toml", "--port", port,
+                                  "--hand", "hold", "--duration", "60"};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    auto sim = std::make_unique<Child>(argv, path(log));
+    port_out.clear();
+    for (int i = 0; i < 500 && port_out.empty(); ++i) {
+      std::smatch m;
+      const std::string text = read_file(path(log));
+      if (std::regex_search(text, m, std::regex("127\\.0\\.0\\.1:([0-9]+)"))) port_out = m[1].str();
+      std::this_thread::sleep_for(10ms);
+    }
+    return sim;
+  }
+  /// The shipped config pointed at `port`, with timeouts and a drive watchdog that suit a busy VM.
+  std::string write_config(const std::string& port) {
+    std::string cfg = read_file(kSrc + "/hw_configs/modbus_tcp_arm.toml");
+    cfg = std::regex_replace(cfg, std::regex("\nport = [0-9]+"), "\nport = " + port);
+    cfg = std::regex_replace(cfg, std::regex("\nresponse_timeout_ms = [0-9.]+"), "\nresponse_timeout_ms = 20");
+    cfg = std::regex_replace(cfg, std::regex("\nwatchdog_period_ms = [0-9.]+"), "\nwatchdog_period_ms = 500");
+    std::ofstream(path("arm.toml")) << cfg;
+    return path("arm.toml");
+  }
+  std::unique_ptr<Child> start_rt(const std::string& config, double duration) {
+    auto rt = std::make_unique<Child>(std::vector<std::string>{kBin + "/firmware_rt/lancet-rt", "--config", config, "--shm", shm_,
+                                                               "--duration", std::to_string(duration), "--no-rt", "-q", "--stats",
+                                                               path("rt.json")},
+                                      path("rt.log"));
+    for (int i = 0; i < 500 && !SharedChannel::open(shm_); ++i) std::this_thread::sleep_for(10ms);
+    return rt;
+  }
+  /// Waits until lancet-rt's stderr says `text`.
+  bool wait_log(const std::string& text, std::chrono::milliseconds timeout) {
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < end) {
+      if (read_file(path("rt.log")).find(text) != std::string::npos) return true;
+      std::this_thread::sleep_for(20ms);
+    }
+    return false;
+  }
+  /// lancet-rt's status (checked), polled until pred holds or the timeout.
+  template <class Pred>
+  bool wait_status(Pred pred, std::chrono::milliseconds timeout, RtStatus& st) {
+    auto ch = SharedChannel::open(shm_);
+    if (!ch) return false;
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < end) {
+      if (ch.value().state().rt_status.try_read(st) == ReadStatus::kOk && wire::check(st) == nullptr && pred(st)) return true;
+      std::this_thread::sleep_for(10ms);
+    }
+    return false;
+  }
+
+  std::filesystem::path dir_;
+  std::string shm_;
+};
+
+constexpr std::uint32_t kActive = 2, kFault = 3;  // device::Lifecycle
+
+TEST_F(FaultWorkflow, EncoderGlitchesAreCountedAndAnnouncedAndRepeatedOnesFaultTheArm) {
+  std::string port;
+  // One reply in five hundred carries a glitch: counted and announced, never a fault.
+  auto rare = start_armsim("0", {"--encoder-glitch", "0.002", "--seed", "3"}, "armsim1.log", port);
+  ASSERT_FALSE(port.empty()) << read_file(path("armsim1.log"));
+  auto rt = start_rt(write_config(port), 3);
+  ASSERT_TRUE(rt->wait_exit(20s).has_value()) << read_file(path("rt.log"));
+  std::string log = read_file(path("rt.log")), stats = read_file(path("rt.json"));
+  EXPECT_GT(json_number(stats, "glitches").value_or(0), 0) << stats;
+  EXPECT_NE(log.find("encoder glitches (last: joint"), std::string::npos) << log;
+  EXPECT_EQ(log.find("FAULT"), std::string::npos) << "a rare glitch is not a fault\n" << log;
+  EXPECT_NE(stats.find("\"state\": \"active\""), std::string::npos) << stats;
+  rare->signal(SIGTERM);
+  (void)rare->wait_exit(5s);
+
+  // One in ten: the bucket fills and the arm faults at once, the cause and the joint said.
+  auto often = start_armsim("0", {"--encoder-glitch", "0.1", "--seed", "4"}, "armsim2.log", port);
+  ASSERT_FALSE(port.empty()) << read_file(path("armsim2.log"));
+  rt = start_rt(write_config(port), 2);
+  ASSERT_TRUE(rt->wait_exit(20s).has_value()) << read_file(path("rt.log"));
+  log = read_file(path("rt.log"));
+  stats = read_file(path("rt.json"));
+  EXPECT_NE(log.find("FAULT on modbus arm"), std::string::npos) << log;
+  EXPECT_NE(log.find("fault (encoder glitch): joint"), std::string::npos) << log;
+  EXPECT_NE(log.find("lancetctl rearm --rt " + shm_), std::string::npos) << log;
+  EXPECT_NE(stats.find("\"state\": \"fault\""), std::string::npos) << stats;
+  EXPECT_NE(stats.find("\"fault_cause\": \"encoder glitch\""), std::string::npos) << stats;
+  EXPECT_GE(json_number(stats, "glitches").value_or(0), 3) << stats;
+  often->signal(SIGTERM);
+  (void)often->wait_exit(5s);
+}
+
+TEST_F(FaultWorkflow, ALostBusIsReconnectedAndTheArmWaitsForAnExplicitRearmFromLancetctl) {
+  std::string port;
+  auto sim = start_armsim("0", {}, "armsim1.log", port);
+  ASSERT_FALSE(port.empty()) << read_file(path("armsim1.log"));
+  auto rt = start_rt(write_config(port), 30);
+  RtStatus st{};
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kActive && s.tick > 200; }, 10s, st))
+      << read_file(path("rt.log"));
+
+  // The arm's box dies.
+  kill(sim->pid(), SIGKILL);
+  (void)sim->wait_exit(5s);
+  ASSERT_TRUE(wait_log("FAULT on modbus arm", 5s)) << read_file(path("rt.log"));
+  EXPECT_TRUE(wait_log("bus link lost; reconnecting", 2s)) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kFault && s.link_lost == 1; }, 5s, st));
+  EXPECT_EQ(st.force.x, 0.0);
+  EXPECT_EQ(st.force.y, 0.0);
+  EXPECT_EQ(st.force.z, 0.0);
+  EXPECT_GE(st.bus.disconnects + st.bus.timeouts, 1u);
+
+  // It comes back on the same port: lancet-rt reconnects by itself, but does not re-arm.
+  std::string port2;
+  auto sim2 = start_armsim(port, {}, "armsim2.log", port2);
+  ASSERT_EQ(port2, port) << read_file(path("armsim2.log"));
+  ASSERT_TRUE(wait_log("bus link back after", 10s)) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.link_lost == 0; }, 5s, st));
+  std::this_thread::sleep_for(500ms);
+  ASSERT_TRUE(wait_status([](const RtStatus&) { return true; }, 1s, st));
+  EXPECT_EQ(st.device_state, kFault) << "a reconnect never re-arms";
+  EXPECT_GE(st.bus.reconnects, 1u);
+
+  // The operator re-arms from the command line.
+  Child ctl({kBin + "/firmware_rt/lancetctl", "rearm", "--rt", shm_, "--yes", "--timeout", "10"}, path("rearm.log"));
+  const auto ctl_code = ctl.wait_exit(20s);
+  const std::string ctl_out = read_file(path("rearm.log"));
+  ASSERT_TRUE(ctl_code.has_value() && WIFEXITED(*ctl_code)) << ctl_out;
+  EXPECT_EQ(WEXITSTATUS(*ctl_code), 0) << ctl_out;
+  EXPECT_NE(ctl_out.find("arm: fault ("), std::string::npos) << "the fault is shown first\n" << ctl_out;
+  EXPECT_NE(ctl_out.find("rearm: re-armed: arm active"), std::string::npos) << ctl_out;
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kActive; }, 5s, st));
+  EXPECT_TRUE(wait_log("re-arm requested by an operator", 2s));
+  EXPECT_TRUE(wait_log("re-armed: active", 2s)) << read_file(path("rt.log"));
+
+  rt->signal(SIGTERM);
+  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  const std::string stats = read_file(path("rt.json"));
+  EXPECT_GE(json_number(stats, "reconnects").value_or(0), 1) << stats;
+  EXPECT_GE(json_number(stats, "rearms").value_or(0), 1) << stats;
+  EXPECT_GE(json_number(stats, "operator_requests").value_or(0), 1) << stats;
+  EXPECT_NE(stats.find("\"state\": \"active\""), std::string::npos) << stats;
+  sim2->signal(SIGTERM);
+  (void)sim2->wait_exit(5s);
+}
+
+}  // namespace
+}  // namespace lancet
