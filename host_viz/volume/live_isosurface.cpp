@@ -40,6 +40,7 @@ Result<std::unique_ptr<LiveIsosurface>> LiveIsosurface::create(const Volume& vol
   } catch (const std::length_error& e) {
     return Error{ErrorCode::kInvalid, e.what()};
   }
+  if (auto finite = detail::check_finite_vertices(s); !finite) return finite.error();
   live->refused_ = fill_openmesh(s, live->mesh_);
   // Headroom, so that drilling does not regrow OpenMesh's arrays (a copy of the whole mesh) or
   // rehash the edge map in the middle of an interaction.

@@ -482,6 +482,13 @@ Result<FieldStorage> prepare_field(const Volume& volume, const IsoOptions& optio
                                           std::to_string(d[2]) + " hold " + std::to_string(volume.voxel_count()) + " voxels, data has " +
                                           std::to_string(volume.data.size())};
   if (!std::isfinite(options.iso)) return Error{ErrorCode::kInvalid, "marching cubes: isovalue must be finite, found " + std::to_string(options.iso)};
+  // A zero, negative or NaN spacing (or a singular direction) would make every normal NaN.
+  const double det = index_frame(volume).det;
+  if (!(volume.spacing.x > 0 && volume.spacing.y > 0 && volume.spacing.z > 0) || !is_finite(volume.spacing) || !(std::abs(det) > 0) ||
+      !std::isfinite(det))
+    return Error{ErrorCode::kInvalid, "marching cubes: expected 3 positive finite spacings (m) and an invertible direction, found spacing " +
+                                          std::to_string(volume.spacing.x) + " " + std::to_string(volume.spacing.y) + " " +
+                                          std::to_string(volume.spacing.z)};
   if (!labels.empty() && labels.size() != volume.voxel_count())
     return Error{ErrorCode::kInvalid, "marching cubes: label volume has " + std::to_string(labels.size()) + " entries, expected " +
                                           std::to_string(volume.voxel_count()) + " (one per voxel)"};
@@ -502,7 +509,17 @@ Result<FieldStorage> prepare_field(const Volume& volume, const IsoOptions& optio
   if (st.grid.node(g[0] - 1, g[1] - 1, g[2] - 1) >= std::numeric_limits<std::uint32_t>::max())
     return Error{ErrorCode::kInvalid, "marching cubes: grid has more than 2^32 nodes"};
   if (pad != 0 || copy) {
-    const float bg = options.pad_value ? *options.pad_value : *std::min_element(volume.data.begin(), volume.data.end());
+    float bg = 0;
+    if (options.pad_value) {
+      bg = *options.pad_value;
+    } else {
+      // The smallest finite value: a NaN or infinite voxel must not become the whole border.
+      bool any = false;
+      for (float x : volume.data) {
+        if (std::isfinite(x) && (!any || x < bg)) bg = x, any = true;
+      }
+      if (!any) return Error{ErrorCode::kInvalid, "marching cubes: no voxel is finite (all NaN or infinite)"};
+    }
     st.values.assign(static_cast<std::size_t>(st.grid.node(g[0] - 1, g[1] - 1, g[2] - 1)) + 1, bg);
     if (!labels.empty()) st.labels.assign(st.values.size(), 0);
     for (int k = 0; k < d[2]; ++k)
@@ -528,6 +545,29 @@ McField field_view(const FieldStorage& st, const Volume& volume, const IsoOption
   return f;
 }
 
+Result<bool> check_finite_vertices(const IsoSurface& surface) {
+  std::size_t bad = 0, first = 0;
+  for (std::size_t v = 0; v < surface.positions.size(); ++v) {
+    const Vec3f& p = surface.positions[v];
+    bool ok = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
+    if (!surface.normals.empty()) {
+      const Vec3f& n = surface.normals[v];
+      ok = ok && std::isfinite(n.x) && std::isfinite(n.y) && std::isfinite(n.z);
+    }
+    if (!ok && bad++ == 0) first = v;
+  }
+  if (bad == 0) return true;
+  const IsoGrid& g = surface.grid;
+  const std::uint64_t node = surface.edge_key[first] / 3;
+  const auto nx = static_cast<std::uint64_t>(g.dims[0]), ny = static_cast<std::uint64_t>(g.dims[1]);
+  const long long i = static_cast<long long>(node % nx) - g.pad, j = static_cast<long long>((node / nx) % ny) - g.pad,
+                  k = static_cast<long long>(node / (nx * ny)) - g.pad;
+  return Error{ErrorCode::kInvalid, "marching cubes: the volume has NaN or infinite voxels on the surface: " + std::to_string(bad) +
+                                        " vertices are not finite, the first on the grid edge from voxel (" + std::to_string(i) + ", " +
+                                        std::to_string(j) + ", " + std::to_string(k) +
+                                        "); replace those voxels first (replace_nonfinite in volume/nonfinite.hpp)"};
+}
+
 }  // namespace detail
 
 Result<IsoSurface> extract_isosurface(const Volume& volume, const IsoOptions& options, std::span<const std::uint8_t> labels) {
@@ -540,6 +580,7 @@ Result<IsoSurface> extract_isosurface(const Volume& volume, const IsoOptions& op
   } catch (const std::length_error& e) {
     return Error{ErrorCode::kInvalid, e.what()};
   }
+  if (auto finite = detail::check_finite_vertices(out); !finite) return finite.error();
   return out;
 }
 

@@ -40,7 +40,7 @@ struct MaterialThreshold {
 struct IsoOptions {
   float iso = 0;
   bool pad_border = false;         ///< close the surface at the volume's edge (see above)
-  std::optional<float> pad_value;  ///< background for pad_border; default: the volume's minimum
+  std::optional<float> pad_value;  ///< background for pad_border; default: the volume's smallest finite value
   int threads = 0;                 ///< 0: one per hardware thread
   bool normals = true;             ///< per-vertex normals from the volume's gradient
   std::vector<MaterialThreshold> materials;
@@ -77,7 +77,10 @@ struct IsoSurface {
 
 /// Extracts the isosurface. labels (optional): a material id per voxel, laid out like
 /// volume.data; it overrides options.materials. Errors: an empty or too small volume, a label
-/// array of the wrong size, a non-finite isovalue, or more than 2^32 vertices or cubes.
+/// array of the wrong size, a non-finite isovalue, more than 2^32 vertices or cubes, or NaN or
+/// infinite voxels where the surface passes (a vertex or normal that would not be finite; the
+/// message names the voxel; volume/nonfinite.hpp counts and replaces them). The default pad_value
+/// is the smallest finite value.
 [[nodiscard]] Result<IsoSurface> extract_isosurface(const Volume& volume, const IsoOptions& options,
                                                     std::span<const std::uint8_t> labels = {});
 

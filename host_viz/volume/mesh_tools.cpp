@@ -25,6 +25,9 @@ Error io_error(const std::string& path, const char* what) {
   return Error{ErrorCode::kSystem, path + ": " + what + ": " + std::strerror(errno)};
 }
 
+// File units per metre.
+double metres_to(LengthUnit unit) { return unit == LengthUnit::kMetre ? 1.0 : 1000.0; }
+
 // Output numbering of the live (not deleted) vertices; -1 for deleted ones.
 std::vector<std::int64_t> live_vertex_numbers(const IsoMesh& mesh, std::size_t& count) {
   std::vector<std::int64_t> number(mesh.n_vertices(), -1);
@@ -78,19 +81,22 @@ MeshStats mesh_stats(const IsoMesh& mesh) {
   return s;
 }
 
-Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path) {
+const char* unit_name(LengthUnit unit) noexcept { return unit == LengthUnit::kMetre ? "m" : "mm"; }
+
+Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path, LengthUnit unit) {
   File f(std::fopen(path.c_str(), "wb"));
   if (!f) return io_error(path, "cannot open for writing");
   std::size_t nv = 0;
   const auto number = live_vertex_numbers(mesh, nv);
   std::size_t nf = 0;
   for ([[maybe_unused]] auto face : mesh.faces()) ++nf;
+  const double scale = metres_to(unit);
   std::fprintf(f.get(),
-               "ply\nformat binary_little_endian 1.0\ncomment Lancet isosurface, metres\n"
+               "ply\nformat binary_little_endian 1.0\ncomment Lancet isosurface\ncomment units %s\n"
                "element vertex %zu\nproperty float x\nproperty float y\nproperty float z\n"
                "property float nx\nproperty float ny\nproperty float nz\nproperty uchar material\n"
                "element face %zu\nproperty list uchar int vertex_indices\nend_header\n",
-               nv, nf);
+               unit_name(unit), nv, nf);
   std::vector<unsigned char> buf;
   buf.reserve(nv * 25 + nf * 13);
   const auto put = [&](const void* p, std::size_t n) {
@@ -100,7 +106,8 @@ Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path) {
   for (auto v : mesh.vertices()) {
     const auto& p = mesh.point(v);
     const auto& n = mesh.normal(v);
-    const float xyz[6] = {p[0], p[1], p[2], n[0], n[1], n[2]};
+    const float xyz[6] = {static_cast<float>(p[0] * scale), static_cast<float>(p[1] * scale), static_cast<float>(p[2] * scale),
+                          n[0], n[1], n[2]};
     put(xyz, sizeof xyz);
     const std::uint8_t m = mesh.material(v);
     put(&m, 1);
@@ -118,15 +125,18 @@ Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path) {
   return nf;
 }
 
-Result<std::size_t> write_obj(const IsoMesh& mesh, const std::string& path) {
+Result<std::size_t> write_obj(const IsoMesh& mesh, const std::string& path, LengthUnit unit) {
   File f(std::fopen(path.c_str(), "w"));
   if (!f) return io_error(path, "cannot open for writing");
   std::size_t nv = 0;
   const auto number = live_vertex_numbers(mesh, nv);
-  std::fprintf(f.get(), "# Lancet isosurface, metres; %zu vertices\n", nv);
+  const double scale = metres_to(unit);
+  std::fprintf(f.get(), "# Lancet isosurface; %zu vertices\n# units: %s\n", nv, unit_name(unit));
   for (auto v : mesh.vertices()) {
     const auto& p = mesh.point(v);
-    std::fprintf(f.get(), "v %.9g %.9g %.9g\n", double(p[0]), double(p[1]), double(p[2]));
+    // The float positions scaled in double, printed with a float's precision.
+    std::fprintf(f.get(), "v %.9g %.9g %.9g\n", double(static_cast<float>(p[0] * scale)), double(static_cast<float>(p[1] * scale)),
+                 double(static_cast<float>(p[2] * scale)));
   }
   for (auto v : mesh.vertices()) {
     const auto& n = mesh.normal(v);

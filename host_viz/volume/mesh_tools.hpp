@@ -1,6 +1,7 @@
 #pragma once
 // Checks and files for IsoMesh: topology and size figures (watertight, manifold, genus, area,
-// enclosed volume, degenerate faces) and PLY / OBJ output so a person can inspect a surface.
+// enclosed volume, degenerate faces) and PLY / OBJ output (millimetres by default) so a person
+// can inspect a surface.
 // Deleted elements (after local re-extraction) are skipped everywhere.
 
 #include <cstddef>
@@ -31,9 +32,21 @@ struct MeshStats {
 
 [[nodiscard]] MeshStats mesh_stats(const IsoMesh& mesh);
 
-/// Binary little-endian PLY with positions, normals and a uchar "material" per vertex.
-[[nodiscard]] Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path);
-/// Wavefront OBJ with positions and normals (materials are not representable per vertex).
-[[nodiscard]] Result<std::size_t> write_obj(const IsoMesh& mesh, const std::string& path);
+/// The length unit of a mesh file's positions. IsoMesh holds metres; files default to millimetres,
+/// the unit 3D Slicer, ITK and VTK pipelines for medical data expect.
+enum class LengthUnit : std::uint8_t { kMillimetre, kMetre };
+
+/// "mm" or "m", as written in the files' unit comments.
+[[nodiscard]] const char* unit_name(LengthUnit unit) noexcept;
+
+/// Binary little-endian PLY with positions (in `unit`), normals and a uchar "material" per vertex.
+/// The header says the unit: `comment units mm` (or `m`). Returns the number of faces written; a
+/// file that cannot be written is a kSystem error naming it.
+[[nodiscard]] Result<std::size_t> write_ply(const IsoMesh& mesh, const std::string& path,
+                                            LengthUnit unit = LengthUnit::kMillimetre);
+/// Wavefront OBJ with positions (in `unit`) and normals (materials are not representable per
+/// vertex). The first lines say the unit: `# units: mm` (or `m`).
+[[nodiscard]] Result<std::size_t> write_obj(const IsoMesh& mesh, const std::string& path,
+                                            LengthUnit unit = LengthUnit::kMillimetre);
 
 }  // namespace lancet::volume

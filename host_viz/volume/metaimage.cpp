@@ -107,6 +107,7 @@ struct Layout {
   std::string data_path;
   std::uint64_t data_start = 0;  // offset in data_path where the data (or the HeaderSize skip) begins
   bool attached = false;         // data_path is the header file itself (LOCAL)
+  bool headerless = false;       // load_raw: no header, so messages speak of dims, not DimSize
 };
 
 std::uint64_t voxel_count(const std::array<int, 3>& d) {
@@ -242,10 +243,11 @@ Result<std::vector<unsigned char>> read_voxel_bytes(const std::string& header_pa
       }
       const std::uint64_t found = after_header - skip;
       if (found != expected) {
-        return invalid(where + ": data size mismatch: expected " + std::to_string(expected) + " bytes (DimSize " +
-                       std::to_string(layout.dims[0]) + "×" + std::to_string(layout.dims[1]) + "×" +
-                       std::to_string(layout.dims[2]) + " × " + std::to_string(layout.elem.bytes) + " bytes of " +
-                       layout.elem.name + "), found " + std::to_string(found));
+        const std::string dims = std::to_string(layout.dims[0]) + "×" + std::to_string(layout.dims[1]) + "×" + std::to_string(layout.dims[2]);
+        return invalid(where + ": data size mismatch: expected " + std::to_string(expected) + " bytes (" +
+                       (layout.headerless ? dims + " voxels × " + std::to_string(layout.elem.bytes) + " byte(s) each"
+                                          : "DimSize " + dims + " × " + std::to_string(layout.elem.bytes) + " bytes of " + layout.elem.name) +
+                       "), found " + std::to_string(found));
       }
       offset = layout.data_start + skip;
     }
@@ -472,6 +474,17 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
     if (!(std::abs(det) > 1e-6)) return h.field_error(*f, "an invertible 3×3 direction matrix");
   }
   if (const auto* f = h.find({"AnatomicalOrientation"})) out.anatomical_orientation = std::string(trim(f->second.value));
+  if (const auto* f = h.find({"Modality"})) {
+    static constexpr std::pair<std::string_view, std::string_view> kModalities[] = {
+        {"MET_MOD_CT", "CT"}, {"MET_MOD_MR", "MR"}, {"MET_MOD_NM", "NM"}, {"MET_MOD_US", "US"}, {"MET_MOD_OTHER", ""}, {"MET_MOD_UNKNOWN", ""}};
+    const std::string_view m = trim(f->second.value);
+    const auto* it = std::find_if(std::begin(kModalities), std::end(kModalities), [&](const auto& e) { return e.first == m; });
+    if (it == std::end(kModalities)) {
+      return h.field_error(*f, "one of MET_MOD_CT, MET_MOD_MR, MET_MOD_NM, MET_MOD_US, MET_MOD_OTHER, MET_MOD_UNKNOWN");
+    }
+    v.modality = std::string(it->second);
+    if (v.modality == "CT") v.value_unit = "HU";
+  }
 
   // Where the data is.
   const auto* file_f = h.find({"ElementDataFile"});
@@ -528,6 +541,7 @@ Result<Volume> load_raw(const std::string& path, std::array<int, 3> dims, VoxelT
     }
     layout.big_endian = big_endian;
     layout.data_path = path;
+    layout.headerless = true;
     auto bytes = read_voxel_bytes(path, layout, progress);
     if (!bytes) return bytes.error();
     Volume v;

@@ -33,7 +33,8 @@ struct MetaImage {
 /// Offset/Position/Origin and TransformMatrix/Orientation/Rotation. Lengths in the file are mm;
 /// the Volume holds metres. TransformMatrix is read as MetaIO/ITK write it: the k-th group of three
 /// numbers is the world direction of index axis k, so Volume::position() maps index → world.
-/// value_unit is "raw". Refuses NDims ≠ 3, ElementNumberOfChannels ≠ 1, ASCII data, file lists
+/// Modality (MET_MOD_CT, MET_MOD_MR, ...) sets Volume::modality; value_unit is "HU" for
+/// MET_MOD_CT, else "raw". Refuses NDims ≠ 3, ElementNumberOfChannels ≠ 1, ASCII data, file lists
 /// and more than kMaxVoxels voxels. Unknown fields are ignored.
 /// `progress` (may be empty) is called a few dozen times with 0..1 while reading/converting.
 [[nodiscard]] Result<MetaImage> load_metaimage_with_info(const std::string& path, const Progress& progress = {});

@@ -484,10 +484,13 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
     }
     v.spacing = Vec3{s[0] * kMm, s[1] * kMm, s[2] * kMm};
   }
+  // pynrrd writes space directions (and origin) without a space or space dimension line; teem
+  // refuses such a file, we take the space dimension from the vectors (3 numbers each) and say so.
+  const Field* inferred_from = nullptr;
   if (dirs_f) {
-    if (!has_space) return h.error(*dirs_f, "a 'space:' or 'space dimension:' line before space directions");
     const auto vecs = parse_vectors(dirs_f->value, 3);
     if (!vecs) return h.error(*dirs_f, "3 vectors '(x,y,z)' of finite numbers");
+    if (!has_space) inferred_from = dirs_f;
     std::array<double, 3> len{};
     for (std::size_t a = 0; a < 3; ++a) {
       const auto& d = (*vecs)[a];
@@ -502,10 +505,15 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
     v.spacing = Vec3{len[0] * kMm, len[1] * kMm, len[2] * kMm};
   }
   if (const Field* f = h.find({"space origin"})) {
-    if (!has_space) return h.error(*f, "a 'space:' or 'space dimension:' line before space origin");
     const auto o = parse_vectors(f->value, 1);
     if (!o) return h.error(*f, "one vector '(x,y,z)' of finite numbers");
+    if (!has_space && inferred_from == nullptr) inferred_from = f;
     v.origin = Vec3{(*o)[0][0] * kMm, (*o)[0][1] * kMm, (*o)[0][2] * kMm};
+  }
+  if (inferred_from != nullptr) {
+    v.warnings.push_back(path + ":" + std::to_string(inferred_from->line) + ": " + inferred_from->name +
+                         ": no 'space:' or 'space dimension:' line (as pynrrd writes it; teem refuses such a file): "
+                         "took 'space dimension: 3' from its vectors of 3 numbers");
   }
 
   // Skips.

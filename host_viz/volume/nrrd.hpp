@@ -17,7 +17,9 @@ namespace lancet::volume {
 /// integer spelling and float/double (values become floats; source_type is the nearest VoxelType:
 /// u8, i16 for int8/int16, u16, f32 for the rest), `endian:` little/big (required for multi-byte
 /// types), `dimension: 3`, `sizes:`, `spacings:` or `space directions:` (vector length = spacing,
-/// unit vector = column of Volume::direction) with `space origin:`, `byte skip:` (-1 = data at the
+/// unit vector = column of Volume::direction) with `space origin:` (without a `space:` or
+/// `space dimension:` line, as pynrrd writes them, the space dimension is taken from the vectors
+/// and Volume::warnings says so), `byte skip:` (-1 = data at the
 /// end of each raw file; for gzip the skip applies to the inflated stream), `line skip:`.
 /// Lengths are taken as mm (`space units:` other than mm are refused) and stored in metres. The
 /// `space:` name (e.g. left-posterior-superior) is checked to be 3-D but not kept: direction and

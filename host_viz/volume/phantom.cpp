@@ -45,6 +45,7 @@ Phantom make_phantom(const PhantomParams& p) {
   v.origin = {-0.5 * (p.dims[0] - 1) * p.spacing, -0.5 * (p.dims[1] - 1) * p.spacing, -0.5 * (p.dims[2] - 1) * p.spacing};
   v.source_type = VoxelType::kF32;
   v.value_unit = "HU";
+  v.modality = "CT";  // a simulated CT
   v.data.resize(v.voxel_count());
   ph.material.resize(v.voxel_count());
   const double half_len = 0.5 * (p.dims[2] - 1) * p.spacing;

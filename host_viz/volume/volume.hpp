@@ -1,7 +1,7 @@
 #pragma once
 // Volume: a 3-D scalar image (CT) as every part of host_viz/volume uses it. Values are floats
-// (HU when the source says so, else the file's raw values), x fastest; geometry is in metres.
-// Allocating; not for the real-time path.
+// (HU when the source says the scan is CT, else the file's values), x fastest; geometry is in
+// metres. Allocating; not for the real-time path.
 
 #include <array>
 #include <cstddef>
@@ -22,8 +22,12 @@ struct Volume {
   Vec3 origin{};                                    ///< m, world position of voxel (0, 0, 0)'s centre
   std::array<double, 9> direction{1, 0, 0, 0, 1, 0, 0, 0, 1};  ///< row-major 3×3: column a = world direction of axis a
   VoxelType source_type = VoxelType::kF32;          ///< what the file stored
-  std::string value_unit = "raw";                   ///< "HU" when values are Hounsfield units
+  std::string value_unit = "raw";                   ///< "HU" when values are Hounsfield units (CT only), else "raw"
+  std::string modality;                             ///< "CT", "MR", ... when the file says (DICOM Modality, MetaImage Modality); else empty
   std::vector<float> data;                          ///< nx·ny·nz values, x fastest
+  /// What the loader noticed and accepted (files it skipped, fields it inferred), one sentence
+  /// each naming the file; the library never prints them, a program shows them to its user.
+  std::vector<std::string> warnings;
 
   [[nodiscard]] std::size_t voxel_count() const noexcept {
     return static_cast<std::size_t>(dims[0]) * static_cast<std::size_t>(dims[1]) * static_cast<std::size_t>(dims[2]);

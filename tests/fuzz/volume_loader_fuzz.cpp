@@ -34,6 +34,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       (std::filesystem::temp_directory_path() /
        ("lancet_" + std::string(kFormat) + "_fuzz_" + std::to_string(::getpid()) + "." + kFormat))
           .string();
+  // Removed when the process exits normally (libFuzzer's -max_total_time, the replay's end).
+  static const struct Cleanup {
+    ~Cleanup() { std::remove(path.c_str()); }
+  } cleanup;
   {
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
     out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(size));

@@ -139,5 +139,9 @@ struct FieldStorage {
 /// Marching cubes over the whole field into out (whose grid is set), on thread_count slabs
 /// (0: one per hardware thread). Throws std::length_error past 2^32 vertices or triangles.
 void extract_field(const McField& f, IsoSurface& out, int thread_count);
+/// An error when a vertex position or normal of `surface` is not finite (a NaN or infinite voxel
+/// at a crossing edge), naming the voxel; checks the vertices, not the voxels, so it costs
+/// O(vertices) after an extraction.
+[[nodiscard]] Result<bool> check_finite_vertices(const IsoSurface& surface);
 
 }  // namespace lancet::volume::detail

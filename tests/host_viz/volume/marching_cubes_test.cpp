@@ -241,6 +241,11 @@ TEST(MarchingCubes, BadInputIsAClearError) {
   Volume thin;
   thin.dims = {1, 5, 5};
   thin.data.assign(25, 1.0f);
+  // No spacing (all zero) would give NaN normals: refused.
+  auto flat = extract_isosurface(thin, opt(0.5f, true, 0.0f));
+  ASSERT_FALSE(flat.ok());
+  EXPECT_NE(flat.error().message.find("positive finite spacings"), std::string::npos) << flat.error().message;
+  thin.spacing = {1e-3, 1e-3, 1e-3};
   EXPECT_FALSE(extract_isosurface(thin, IsoOptions{}).ok());
   EXPECT_TRUE(extract_isosurface(thin, opt(0.5f, true, 0.0f)).ok());
   auto unsorted = extract_isosurface(thin, opt(0, true, {}, 0, {{5, 1}, {1, 2}}));

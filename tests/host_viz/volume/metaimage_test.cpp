@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "shared_data.hpp"
 #include "temp_files.hpp"
 
 #include <algorithm>
@@ -26,15 +27,6 @@ namespace lancet::volume {
 namespace {
 
 namespace fs = std::filesystem;
-
-const std::string kVolumes = std::string(LANCET_SOURCE_DIR) + "/../shared/data/volumes";
-
-// Fails (never skips) when the shared data folder is missing: CI has it beside the checkout.
-void require_data() {
-  ASSERT_TRUE(fs::is_directory(kVolumes))
-      << "The real test volumes are missing: expected the folder " << kVolumes
-      << " (shared/data/volumes beside the repository checkout; see shared/data/volumes/SOURCES.md).";
-}
 
 struct Stats {
   float min = 0, max = 0;
@@ -69,7 +61,7 @@ constexpr RealCase kReal[] = {
 };
 
 TEST(MetaImageReal, EveryMhdLoadsWithPinnedGeometryAndValues) {
-  ASSERT_NO_FATAL_FAILURE(require_data());
+  LANCET_SHARED_VOLUMES_OR_RETURN(kVolumes);
   for (const RealCase& c : kReal) {
     SCOPED_TRACE(c.file);
     int calls = 0;
@@ -101,7 +93,7 @@ TEST(MetaImageReal, EveryMhdLoadsWithPinnedGeometryAndValues) {
 }
 
 TEST(MetaImageReal, Lidc2OrientationAndOrigin) {
-  ASSERT_NO_FATAL_FAILURE(require_data());
+  LANCET_SHARED_VOLUMES_OR_RETURN(kVolumes);
   auto r = load_metaimage_with_info(kVolumes + "/chest_ct_lidc2/LIDC2_256x256x133_uint8.mhd");
   ASSERT_TRUE(r.ok()) << r.error().message;
   const Volume& v = r.value().volume;
@@ -121,7 +113,7 @@ TEST(MetaImageReal, Lidc2OrientationAndOrigin) {
 }
 
 TEST(MetaImageReal, CompressedLidc2MhaEqualsTheRawMhd) {
-  ASSERT_NO_FATAL_FAILURE(require_data());
+  LANCET_SHARED_VOLUMES_OR_RETURN(kVolumes);
   int calls = 0;
   auto mha = load_metaimage_with_info(kVolumes + "/chest_ct_lidc2/LIDC2.mha", [&](double) { ++calls; });
   ASSERT_TRUE(mha.ok()) << mha.error().message;
@@ -181,6 +173,27 @@ TEST_F(MetaImageFiles, BigEndianInt16) {
   auto raw_le = load_raw(raw, {3, 2, 2}, VoxelType::kI16, Vec3{1e-3, 1e-3, 1e-3}, false);
   ASSERT_TRUE(raw_le.ok());
   EXPECT_EQ(raw_le.value().data[4], 11265.0f);  // 300 = 0x012C read as 0x2C01
+}
+
+// Values are Hounsfield units only when the header says the scan is CT.
+TEST_F(MetaImageFiles, ModalitySetsTheValueUnit) {
+  const std::string head = "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementType = MET_SHORT\n";
+  const std::string data = "ElementDataFile = LOCAL\n" + bytes_of(kI16Values, false);
+  auto plain = load_metaimage(write("plain.mha", head + data));
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_EQ(plain.value().value_unit, "raw");
+  EXPECT_EQ(plain.value().modality, "");
+  auto ct = load_metaimage(write("ct.mha", head + "Modality = MET_MOD_CT\n" + data));
+  ASSERT_TRUE(ct.ok()) << ct.error().message;
+  EXPECT_EQ(ct.value().value_unit, "HU");
+  EXPECT_EQ(ct.value().modality, "CT");
+  auto mr = load_metaimage(write("mr.mha", head + "Modality = MET_MOD_MR\n" + data));
+  ASSERT_TRUE(mr.ok()) << mr.error().message;
+  EXPECT_EQ(mr.value().value_unit, "raw");
+  EXPECT_EQ(mr.value().modality, "MR");
+  auto bad = load_metaimage(write("bad.mha", head + "Modality = CT\n" + data));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().message.find("bad.mha:5: Modality: expected one of MET_MOD_CT"), std::string::npos) << bad.error().message;
 }
 
 TEST_F(MetaImageFiles, Float32AndDoubleAndOtherTypes) {
