@@ -686,53 +686,215 @@ SimBusConfig parse_sim(Section& s) {
   return c;
 }
 
-const std::initializer_list<Choice<FieldType>> kAllTypes = {
-    {"u8", FieldType::kU8}, {"i8", FieldType::kI8},   {"u16", FieldType::kU16},
-    {"i16", FieldType::kI16}, {"u32", FieldType::kU32}, {"i32", FieldType::kI32}};
-const std::initializer_list<Choice<FieldType>> kSignedTypes = {
-    {"i8", FieldType::kI8}, {"i16", FieldType::kI16}, {"i32", FieldType::kI32}};
-const std::initializer_list<Choice<FieldType>> kUnsignedTypes = {
-    {"u8", FieldType::kU8}, {"u16", FieldType::kU16}, {"u32", FieldType::kU32}};
-const std::initializer_list<Choice<FieldType>> kRegTypes = {
-    {"u16", FieldType::kU16}, {"i16", FieldType::kI16}, {"u32", FieldType::kU32}, {"i32", FieldType::kI32}};
-const std::initializer_list<Choice<FieldType>> kRegSignedTypes = {{"i16", FieldType::kI16}, {"i32", FieldType::kI32}};
-const std::initializer_list<Choice<FieldType>> kRegUnsignedTypes = {{"u16", FieldType::kU16}, {"u32", FieldType::kU32}};
+// --- USB report fields and Modbus register entries (shared layout keys) ----------------------
 
-struct ReportSpec {
+const std::initializer_list<Choice<FieldType>> kUsbNumberTypes = {
+    {"u8", FieldType::kU8},   {"i8", FieldType::kI8},   {"u16", FieldType::kU16}, {"i16", FieldType::kI16},
+    {"u32", FieldType::kU32}, {"i32", FieldType::kI32}, {"f32", FieldType::kF32}};
+const std::initializer_list<Choice<FieldType>> kUsbSetpointTypes = {
+    {"i8", FieldType::kI8}, {"i16", FieldType::kI16}, {"i32", FieldType::kI32}, {"f32", FieldType::kF32}};
+const std::initializer_list<Choice<FieldType>> kUsbWordTypes = {{"u8", FieldType::kU8}, {"u16", FieldType::kU16}, {"u32", FieldType::kU32}};
+const std::initializer_list<Choice<FieldType>> kRegNumberTypes = {
+    {"u16", FieldType::kU16}, {"i16", FieldType::kI16}, {"u32", FieldType::kU32}, {"i32", FieldType::kI32}, {"f32", FieldType::kF32}};
+const std::initializer_list<Choice<FieldType>> kRegSetpointTypes = {{"i16", FieldType::kI16}, {"i32", FieldType::kI32}, {"f32", FieldType::kF32}};
+const std::initializer_list<Choice<FieldType>> kRegWordTypes = {{"u16", FieldType::kU16}, {"u32", FieldType::kU32}};
+const std::initializer_list<Choice<ByteOrder>> kByteOrders = {{"little", ByteOrder::kLittle}, {"big", ByteOrder::kBig}};
+const std::initializer_list<Choice<bool>> kWordOrders = {{"high_first", true}, {"low_first", false}};
+
+/// What else a field takes besides its place and type.
+enum class Extra : std::uint8_t {
+  kNone,        // a raw word (buttons, heartbeat)
+  kScale,       // a quantity: scale and bias
+  kBits,        // the status word: bits = { ready, fault, enabled, estop, comm_lost }
+  kEnable,      // on and off values
+  kFaultReset,  // the value that resets a fault
+};
+
+struct FieldSpec {
   std::string_view key;
   bool required;
   bool per_joint;
-  bool has_lsb;
+  bool written;  // Modbus: must be a holding register
+  Extra extra;
   std::initializer_list<Choice<FieldType>> types;
 };
 
-// One report (in or out) of the USB section: size, optional report ID, its fields.
-void parse_usb_report(Section& usb, std::string_view key, std::span<const ReportSpec> specs, std::uint32_t& size,
-                      std::optional<std::uint8_t>& report_id, std::span<std::optional<ReportField>> fields,
-                      const Context& ctx) {
+/// A key this schema had before and what took its place: reported at the key, with the way to
+/// write it now (the key counts as known, so it is not also reported as unknown).
+void replaced_key(Section& s, std::string_view key, const std::string& now) {
+  if (const toml::node* n = s.get(key)) {
+    s.sink().add(n->source(), s.field(key), now, describe(*n), "\"" + std::string(key) + "\" was replaced: " + now);
+  }
+}
+
+/// The largest raw word of an unsigned field type.
+std::int64_t word_max(FieldType t) {
+  return t == FieldType::kU8 ? 0xFF : t == FieldType::kU16 ? 0xFFFF : std::int64_t{0xFFFF'FFFF};
+}
+
+/// The old `control` entry (bit 0 enable, bit 1 fault reset) became `enable` and `fault_reset`:
+/// the error writes them out with the old entry's place (`where` is "table = ..., address = N" or
+/// "offset = N").
+void replaced_control(Section& r, bool modbus) {
+  const toml::node* n = r.has("control") ? r.get("control") : nullptr;
+  if (n == nullptr) return;
+  std::string place = modbus ? "table = \"holding\", address = N" : "offset = N";
+  std::string type = modbus ? "u16" : "u8";
+  if (const auto* t = n->as_table()) {
+    const char* key = modbus ? "address" : "offset";
+    if (const auto v = t->get(key) ? t->get(key)->value<std::int64_t>() : std::nullopt)
+      place = modbus ? "table = \"holding\", address = " + num(*v) : "offset = " + num(*v);
+    if (const auto v = t->get("type") ? t->get("type")->value<std::string>() : std::nullopt) type = *v;
+  }
+  const std::string head = "{ " + place + ", type = \"" + type + "\", ";
+  replaced_key(r, "control", "enable = " + head + "on = 1, off = 0 } and fault_reset = " + head + "value = 2 } (the old control bits 0 and 1)");
+}
+
+/// `lsb_ma = X` (mA per count) became `scale = X / 1000` (A per count): the error says the number.
+void replaced_lsb_ma(Section& f) {
+  const toml::node* n = f.has("lsb_ma") ? f.get("lsb_ma") : nullptr;
+  if (n == nullptr) return;
+  std::string now = "scale = A per count (lsb_ma = 1.0 is scale = 0.001)";
+  if (const auto v = n->value<double>(); v && std::isfinite(*v)) now = "scale = " + num(*v * 1e-3) + " (A per count; lsb_ma was mA per count)";
+  replaced_key(f, "lsb_ma", now);
+}
+
+/// scale (> 0) and bias (finite) of a quantity field: physical = scale · raw + bias.
+void parse_scale(Section& f, double& scale, double& bias) {
+  scale = f.number("scale", kOpt, kPositive).value_or(1);
+  bias = f.number("bias", kOpt, kAny).value_or(0);
+}
+
+/// `bits = { name = BIT, name = { bit = BIT, active_low = true }, … }` of a status word `width` bits wide.
+StatusBits parse_status_bits(Section& f, int width) {
+  StatusBits out;
+  if (!f.has("bits")) {
+    f.missing("bits", "bits = { ... }: which bits of the word mean what (ready, fault, enabled, estop, comm_lost; "
+                      "e.g. bits = { fault = 0, enabled = 1 }, the fixed meaning before this key)");
+    (void)f.get("bits");
+    return out;
+  }
+  const toml::table* t = f.table("bits", kReq);
+  if (t == nullptr) return out;
+  Section bs(f.sink(), *t, f.field("bits"));
+  const std::pair<std::string_view, StatusBit StatusBits::*> names[] = {
+      {"ready", &StatusBits::ready}, {"fault", &StatusBits::fault}, {"enabled", &StatusBits::enabled},
+      {"estop", &StatusBits::estop}, {"comm_lost", &StatusBits::comm_lost}};
+  const std::string expected = "a bit number 0.." + std::to_string(width - 1) + ", or { bit = N, active_low = true }";
+  struct Named {
+    std::string_view name;
+    int bit;
+    toml::source_region where;
+  };
+  std::vector<Named> used;
+  for (const auto& [name, member] : names) {
+    const toml::node* n = bs.get(name);
+    if (n == nullptr) continue;
+    StatusBit b;
+    if (n->is_integer()) {
+      if (auto v = read_integer(f.sink(), *n, bs.field(name), 0, width - 1)) b.bit = static_cast<int>(*v);
+    } else if (const auto* bt = n->as_table()) {
+      Section e(f.sink(), *bt, bs.field(name));
+      if (auto v = e.integer("bit", kReq, 0, width - 1)) b.bit = static_cast<int>(*v);
+      b.active_low = e.boolean("active_low", kOpt).value_or(false);
+      e.finish();
+    } else {
+      f.sink().add(n->source(), bs.field(name), expected, describe(*n));
+    }
+    if (!b.mapped()) continue;
+    used.push_back({name, b.bit, n->source()});
+    out.*member = b;
+  }
+  // Two names on one bit: reported at the later one in the file.
+  std::stable_sort(used.begin(), used.end(), [](const Named& a, const Named& b) {
+    return std::pair(a.where.begin.line, a.where.begin.column) < std::pair(b.where.begin.line, b.where.begin.column);
+  });
+  for (std::size_t i = 0; i < used.size(); ++i) {
+    for (std::size_t k = 0; k < i; ++k) {
+      if (used[k].bit == used[i].bit) {
+        f.sink().add(used[i].where, bs.field(used[i].name), "a bit not used by " + bs.field(used[k].name), "bit " + std::to_string(used[i].bit));
+        break;
+      }
+    }
+  }
+  bs.finish();
+  return out;
+}
+
+/// An enable / fault-reset word: an integer that fits the field's unsigned type.
+std::optional<std::uint32_t> word_value(Section& f, std::string_view key, std::optional<FieldType> type) {
+  const std::int64_t hi = type ? word_max(*type) : std::int64_t{0xFFFF'FFFF};
+  const auto v = f.integer(key, kReq, 0, hi, true);
+  return v ? std::optional<std::uint32_t>(static_cast<std::uint32_t>(*v)) : std::nullopt;
+}
+
+/// The keys of one field that say what its value means, by spec: scale and bias, status bits,
+/// enable on / off, the fault-reset value. `width` is the field's width in bits, when known.
+struct FieldMeaning {
+  double scale = 1, bias = 0;
+  StatusBits bits;
+  std::uint32_t on = 1, off = 0, value = 0;
+};
+
+FieldMeaning parse_meaning(Section& f, const FieldSpec& spec, std::optional<FieldType> type) {
+  FieldMeaning m;
+  switch (spec.extra) {
+    case Extra::kNone: break;
+    case Extra::kScale: parse_scale(f, m.scale, m.bias); break;
+    case Extra::kBits: m.bits = parse_status_bits(f, type ? 8 * field_size(*type) : 32); break;
+    case Extra::kEnable: {
+      const auto on = word_value(f, "on", type);
+      const auto off = word_value(f, "off", type);
+      if (on && off && *on == *off)
+        f.sink().add(f.where("off"), f.field("off"), "a value other than on (" + num(std::int64_t{*on}, true) + ")", "the same value");
+      m.on = on.value_or(1);
+      m.off = off.value_or(0);
+      break;
+    }
+    case Extra::kFaultReset: m.value = word_value(f, "value", type).value_or(0); break;
+  }
+  return m;
+}
+
+// --- [bus.usb] ---------------------------------------------------------------------------------
+
+struct UsbField {
+  ReportField field;
+  FieldMeaning meaning;
+  std::vector<Extent> extents;
+};
+
+// One report (in or out) of the USB section: size, optional report ID, its fields; a fault reset
+// at exactly the enable's bytes (fields[reset_at], fields[enable_at]) shares them on purpose.
+void parse_usb_report(Section& usb, std::string_view key, std::span<const FieldSpec> specs, ByteOrder default_order,
+                      std::uint32_t& size, std::optional<std::uint8_t>& report_id, std::span<std::optional<UsbField>> fields,
+                      const Context& ctx, std::optional<std::size_t> enable_at = {}, std::optional<std::size_t> reset_at = {}) {
   const toml::table* t = usb.table(key, kReq);
   if (t == nullptr) return;
   Section r(usb.sink(), *t, usb.field(key));
   const auto sz = r.integer("size", kReq, 1, 1024);
   size = static_cast<std::uint32_t>(sz.value_or(0));
   if (auto id = r.integer("report_id", kOpt, 1, 255)) report_id = static_cast<std::uint8_t>(*id);
-  std::vector<Extent> extents;
-  if (report_id) extents.push_back({r.field("report_id"), 0, 1, r.where("report_id")});
   const int count = ctx.n.value_or(1);
   for (std::size_t i = 0; i < specs.size(); ++i) {
-    const ReportSpec& spec = specs[i];
+    const FieldSpec& spec = specs[i];
     const toml::table* ft = r.table(spec.key, spec.required ? kReq : kOpt);
     if (ft == nullptr) continue;
     Section f(usb.sink(), *ft, r.field(spec.key));
-    ReportField rf;
+    UsbField uf;
     const auto off = f.integer("offset", kReq, 0, 1023);
     const auto type = f.choice<FieldType>("type", kReq, spec.types);
-    if (spec.has_lsb) rf.lsb = f.number("lsb_ma", kReq, kPositive).value_or(1) * 1e-3;
+    uf.field.byte_order = f.choice<ByteOrder>("byte_order", kOpt, kByteOrders).value_or(default_order);
+    uf.meaning = parse_meaning(f, spec, type);
+    if (spec.extra == Extra::kScale) {
+      uf.field.scale = uf.meaning.scale;
+      uf.field.bias = uf.meaning.bias;
+      replaced_lsb_ma(f);
+    }
     f.finish();
     if (!off || !type) continue;
-    rf.offset = static_cast<std::uint32_t>(*off);
-    rf.type = *type;
-    fields[i] = rf;
+    uf.field.offset = static_cast<std::uint32_t>(*off);
+    uf.field.type = *type;
     const std::int64_t bytes = field_size(*type) * (spec.per_joint ? count : 1);
     if (sz && *off + bytes > *sz) {
       usb.sink().add(f.where("offset"), f.field("offset"),
@@ -740,10 +902,50 @@ void parse_usb_report(Section& usb, std::string_view key, std::span<const Report
                          num(bytes) + " bytes" + (spec.per_joint ? ", one value per joint" : "") + ")",
                      "bytes " + num(*off) + ".." + num(*off + bytes - 1));
     }
-    extents.push_back({f.field("offset"), *off, *off + bytes, f.where("offset")});
+    uf.extents.push_back({f.field("offset"), *off, *off + bytes, f.where("offset")});
+    fields[i] = std::move(uf);
+  }
+  if (key == "out_report") {
+    replaced_control(r, false);
+    if (!r.has("current_command") && !r.has("torque_command")) {
+      r.missing("current_command", "current_command = { offset, type, scale } (A per count) or torque_command = { ... } "
+                                   "(N·m per count), one value per joint");
+    } else if (r.has("current_command") && r.has("torque_command")) {
+      usb.sink().add(r.where("torque_command"), r.field("torque_command"), "only one of current_command and torque_command", "both");
+    }
   }
   r.finish();
+  std::vector<Extent> extents;
+  if (report_id) extents.push_back({r.field("report_id"), 0, 1, r.where("report_id")});
+  const bool shared = enable_at && reset_at && fields[*enable_at] && fields[*reset_at] &&
+                      fields[*enable_at]->field.offset == fields[*reset_at]->field.offset &&
+                      fields[*enable_at]->field.type == fields[*reset_at]->field.type;
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    if (!fields[i] || (shared && i == *reset_at)) continue;
+    extents.insert(extents.end(), fields[i]->extents.begin(), fields[i]->extents.end());
+  }
   check_overlaps(usb.sink(), std::move(extents), "bytes");
+}
+
+/// `drive_watchdog_ms` of a bus section: required to make sense only with a heartbeat; 0 is off;
+/// otherwise at least 10 ms and four times the bus's own timeout (a few late replies never trip it).
+double parse_drive_watchdog(Section& s, bool has_heartbeat, const std::string& heartbeat_field, double timeout_s) {
+  const auto ms = s.integer("drive_watchdog_ms", kOpt, 0, 65'535);
+  if (!has_heartbeat) {
+    if (ms && *ms > 0)
+      s.sink().add(s.where("drive_watchdog_ms"), s.field("drive_watchdog_ms"), "a " + heartbeat_field + " for the drive to watch",
+                   "no heartbeat in the map", "drive_watchdog_ms needs " + heartbeat_field + " (the value the drive watches)");
+    return 0;
+  }
+  const std::int64_t v = ms.value_or(100);
+  const double floor_ms = std::max(10.0, 4.0 * timeout_s * 1e3);
+  if (ms && v > 0 && static_cast<double>(v) < floor_ms) {
+    s.sink().add(s.where("drive_watchdog_ms"), s.field("drive_watchdog_ms"),
+                 "0 (off) or at least " + num(static_cast<std::int64_t>(std::ceil(floor_ms))) +
+                     " ms (10 ms and 4 bus timeouts: a few late replies must not trip the drive)",
+                 "integer " + num(v));
+  }
+  return static_cast<double>(v) * 1e-3;
 }
 
 UsbBusConfig parse_usb(Section& s, const Context& ctx, std::optional<int>& button_bits) {
@@ -753,42 +955,117 @@ UsbBusConfig parse_usb(Section& s, const Context& ctx, std::optional<int>& butto
   c.interface_number = static_cast<int>(s.integer("interface", kReq, 0, 255).value_or(0));
   c.endpoint_in = static_cast<std::uint8_t>(s.integer("endpoint_in", kReq, 0x81, 0x8F, true).value_or(0x81));
   c.endpoint_out = static_cast<std::uint8_t>(s.integer("endpoint_out", kReq, 0x01, 0x0F, true).value_or(0x01));
-  c.byte_order = s.choice<ByteOrder>("byte_order", kOpt, {{"little", ByteOrder::kLittle}, {"big", ByteOrder::kBig}})
-                     .value_or(ByteOrder::kLittle);
+  c.byte_order = s.choice<ByteOrder>("byte_order", kOpt, kByteOrders).value_or(ByteOrder::kLittle);
   c.timeout = s.number("timeout_ms", kOpt, below(1000)).value_or(2) * 1e-3;
 
-  const ReportSpec in_specs[] = {
-      {"encoder_counts", true, true, false, kAllTypes},
-      {"buttons", false, false, false, kUnsignedTypes},
-      {"status", false, false, false, kUnsignedTypes},
+  const FieldSpec in_specs[] = {
+      {"encoder_counts", true, true, false, Extra::kScale, kUsbNumberTypes},
+      {"buttons", false, false, false, Extra::kNone, kUsbWordTypes},
+      {"status", false, false, false, Extra::kBits, kUsbWordTypes},
   };
-  std::array<std::optional<ReportField>, 3> in{};
-  parse_usb_report(s, "in_report", in_specs, c.in_size, c.in_report_id, in, ctx);
-  if (in[0]) c.encoder_counts = *in[0];
-  c.buttons = in[1];
-  c.status = in[2];
+  std::array<std::optional<UsbField>, 3> in{};
+  parse_usb_report(s, "in_report", in_specs, c.byte_order, c.in_size, c.in_report_id, in, ctx);
+  if (in[0]) c.encoder_counts = in[0]->field;
+  if (in[1]) c.buttons = in[1]->field;
+  if (in[2]) {
+    c.status = in[2]->field;
+    c.status_bits = in[2]->meaning.bits;
+  }
   if (c.buttons) button_bits = 8 * field_size(c.buttons->type);
+  const toml::node* in_node = s.has("in_report") ? s.get("in_report") : nullptr;
+  if (!c.buttons && in_node != nullptr && in_node->is_table() && in_node->as_table()->contains("buttons"))
+    button_bits = 32;  // a broken entry: its own error says what is wrong, the buttons need not
 
-  const ReportSpec out_specs[] = {
-      {"current_command", true, true, true, kSignedTypes},
-      {"control", false, false, false, kUnsignedTypes},
+  const FieldSpec out_specs[] = {
+      {"current_command", false, true, false, Extra::kScale, kUsbSetpointTypes},
+      {"torque_command", false, true, false, Extra::kScale, kUsbSetpointTypes},
+      {"enable", false, false, false, Extra::kEnable, kUsbWordTypes},
+      {"fault_reset", false, false, false, Extra::kFaultReset, kUsbWordTypes},
+      {"heartbeat", false, false, false, Extra::kNone, kUsbWordTypes},
   };
-  std::array<std::optional<ReportField>, 2> out{};
-  parse_usb_report(s, "out_report", out_specs, c.out_size, c.out_report_id, out, ctx);
-  if (out[0]) c.current_command = *out[0];
-  c.control = out[1];
+  std::array<std::optional<UsbField>, 5> out{};
+  parse_usb_report(s, "out_report", out_specs, c.byte_order, c.out_size, c.out_report_id, out, ctx, 2, 3);
+  if (out[0]) c.setpoint = out[0]->field;
+  if (out[1]) {
+    c.setpoint = out[1]->field;
+    c.setpoint_kind = SetpointKind::kTorque;
+  }
+  if (out[2]) {
+    c.enable = out[2]->field;
+    c.enable_on = out[2]->meaning.on;
+    c.enable_off = out[2]->meaning.off;
+  }
+  if (out[3]) {
+    c.fault_reset = out[3]->field;
+    c.fault_reset_value = out[3]->meaning.value;
+  }
+  if (out[4]) c.heartbeat = out[4]->field;
+  c.drive_watchdog = parse_drive_watchdog(s, c.heartbeat.has_value(), "bus.usb.out_report.heartbeat", c.timeout);
   s.finish();
   return c;
 }
 
-struct RegisterSpec {
-  std::string_view key;
-  bool required;
-  bool per_joint;
-  bool written;  // must be a holding register
-  bool has_lsb;
-  std::initializer_list<Choice<FieldType>> types;
+// --- [bus.modbus] ------------------------------------------------------------------------------
+
+struct ModbusEntry {
+  RegisterField field;
+  FieldMeaning meaning;
+  std::vector<Extent> extents;
 };
+
+/// Where an entry's values are: `address = N` (values back to back from N) or, per joint,
+/// `address = [a0, a1, …]` (one address per joint, in any order, not overlapping).
+std::vector<std::uint16_t> parse_addresses(Section& f, const FieldSpec& spec, int count, std::optional<FieldType> type,
+                                           std::vector<Extent>& extents) {
+  std::vector<std::uint16_t> out;
+  const std::int64_t w = type ? field_size(*type) / 2 : 1;
+  const std::string expected = spec.per_joint ? "an address 0..65535, or an array of " + std::to_string(count) +
+                                                    " addresses (one per joint)"
+                                              : "an address 0..65535";
+  const toml::node* n = f.get("address");
+  if (n == nullptr) {
+    f.missing("address", expected);
+    return out;
+  }
+  const std::string key(spec.key);
+  if (const auto* a = n->as_array(); a != nullptr && spec.per_joint) {
+    if (a->size() != static_cast<std::size_t>(count)) {
+      f.sink().add(a->source(), f.field("address"), expected, describe(*a));
+      return {};
+    }
+    bool ok = true;
+    for (std::size_t j = 0; j < a->size(); ++j) {
+      const std::string fj = indexed(f.field("address"), j);
+      const auto v = read_integer(f.sink(), *a->get(j), fj, 0, 65535);
+      if (!v) {
+        ok = false;
+        continue;
+      }
+      if (*v + w > 65536) {
+        f.sink().add(a->get(j)->source(), fj, "registers within 0..65535 (one value takes " + num(w) + ")",
+                     "registers " + num(*v) + ".." + num(*v + w - 1));
+        ok = false;
+        continue;
+      }
+      out.push_back(static_cast<std::uint16_t>(*v));
+      extents.push_back({fj, *v, *v + w, a->get(j)->source()});
+    }
+    if (!ok) out.clear();
+    return out;
+  }
+  const auto v = read_integer(f.sink(), *n, f.field("address"), 0, 65535);
+  if (!v) return out;
+  const int values = spec.per_joint ? count : 1;
+  const std::int64_t regs = w * values;
+  if (*v + regs > 65536) {
+    f.sink().add(n->source(), f.field("address"), "registers within 0..65535 (" + key + " takes " + num(regs) + ")",
+                 "registers " + num(*v) + ".." + num(*v + regs - 1));
+    return out;
+  }
+  for (int j = 0; j < values; ++j) out.push_back(static_cast<std::uint16_t>(*v + j * w));
+  extents.push_back({f.field("address"), *v, *v + regs, n->source()});
+  return out;
+}
 
 ModbusBusConfig parse_modbus(Section& s, const Context& ctx, std::optional<int>& button_bits) {
   ModbusBusConfig c;
@@ -815,60 +1092,107 @@ ModbusBusConfig parse_modbus(Section& s, const Context& ctx, std::optional<int>&
   c.unit_id = static_cast<int>(s.integer("unit_id", kReq, 1, 247).value_or(1));
   c.response_timeout = s.number("response_timeout_ms", kOpt, below(10'000)).value_or(5) * 1e-3;
 
+  bool has_heartbeat = false;
   const toml::table* rt = s.table("registers", kReq);
   if (rt != nullptr) {
     Section r(s.sink(), *rt, s.field("registers"));
-    c.registers.high_word_first =
-        r.choice<bool>("word_order", kOpt, {{"high_first", true}, {"low_first", false}}).value_or(true);
-    const RegisterSpec specs[] = {
-        {"encoder_counts", true, true, false, false, kRegTypes},
-        {"current_command", true, true, true, true, kRegSignedTypes},
-        {"status", false, false, false, false, kRegUnsignedTypes},
-        {"buttons", false, false, false, false, kRegUnsignedTypes},
-        {"control", false, false, true, false, kRegUnsignedTypes},
-        {"heartbeat", false, false, true, false, kRegUnsignedTypes},
+    const bool hwf = r.choice<bool>("word_order", kOpt, kWordOrders).value_or(true);
+    const ByteOrder bo = r.choice<ByteOrder>("byte_order", kOpt, kByteOrders).value_or(ByteOrder::kBig);
+    const FieldSpec specs[] = {
+        {"encoder_counts", true, true, false, Extra::kScale, kRegNumberTypes},
+        {"current_command", false, true, true, Extra::kScale, kRegSetpointTypes},
+        {"torque_command", false, true, true, Extra::kScale, kRegSetpointTypes},
+        {"status", false, false, false, Extra::kBits, kRegWordTypes},
+        {"buttons", false, false, false, Extra::kNone, kRegWordTypes},
+        {"enable", false, false, true, Extra::kEnable, kRegWordTypes},
+        {"fault_reset", false, false, true, Extra::kFaultReset, kRegWordTypes},
+        {"heartbeat", false, false, true, Extra::kNone, kRegWordTypes},
+        {"watchdog_timeout", false, false, true, Extra::kScale, kRegWordTypes},
     };
-    std::array<std::optional<RegisterField>, std::size(specs)> fields{};
-    std::vector<Extent> input, holding;
+    enum : std::size_t { kEncoders, kCurrent, kTorque, kStatus, kButtons, kEnable, kFaultReset, kHeartbeat, kWatchdogTimeout };
+    std::array<std::optional<ModbusEntry>, std::size(specs)> fields{};
+    std::array<RegisterTable, std::size(specs)> tables{};
     const int count = ctx.n.value_or(1);
     for (std::size_t i = 0; i < std::size(specs); ++i) {
-      const RegisterSpec& spec = specs[i];
+      const FieldSpec& spec = specs[i];
       const toml::table* ft = r.table(spec.key, spec.required ? kReq : kOpt);
       if (ft == nullptr) continue;
       Section f(s.sink(), *ft, r.field(spec.key));
-      RegisterField rf;
+      ModbusEntry e;
       const auto table = spec.written
                              ? f.choice<RegisterTable>("table", kReq, {{"holding", RegisterTable::kHolding}})
                              : f.choice<RegisterTable>("table", kReq, {{"input", RegisterTable::kInput}, {"holding", RegisterTable::kHolding}});
-      const auto address = f.integer("address", kReq, 0, 65535);
       const auto type = f.choice<FieldType>("type", kReq, spec.types);
-      if (spec.has_lsb) rf.lsb = f.number("lsb_ma", kReq, kPositive).value_or(1) * 1e-3;
-      f.finish();
-      if (!table || !address || !type) continue;
-      rf.table = *table;
-      rf.address = static_cast<std::uint16_t>(*address);
-      rf.type = *type;
-      fields[i] = rf;
-      const std::int64_t regs = (field_size(*type) / 2) * (spec.per_joint ? count : 1);
-      if (*address + regs > 65536) {
-        s.sink().add(f.where("address"), f.field("address"),
-                     "registers within 0..65535 (" + std::string(spec.key) + " takes " + num(regs) + ")",
-                     "registers " + num(*address) + ".." + num(*address + regs - 1));
+      e.field.address = parse_addresses(f, spec, count, type, e.extents);
+      e.field.high_word_first = f.choice<bool>("word_order", kOpt, kWordOrders).value_or(hwf);
+      e.field.byte_order = f.choice<ByteOrder>("byte_order", kOpt, kByteOrders).value_or(bo);
+      e.meaning = parse_meaning(f, spec, type);
+      e.field.scale = e.meaning.scale;
+      e.field.bias = e.meaning.bias;
+      if (spec.extra == Extra::kScale) {
+        replaced_lsb_ma(f);
+        replaced_key(f, "offset", "bias (physical = scale * raw + bias; the register is `address`)");
       }
-      (*table == RegisterTable::kInput ? input : holding)
-          .push_back({f.field("address"), *address, *address + regs, f.where("address")});
+      f.finish();
+      if (!table || !type || e.field.address.empty()) continue;
+      e.field.table = *table;
+      e.field.type = *type;
+      tables[i] = *table;
+      fields[i] = std::move(e);
+    }
+    replaced_control(r, true);
+    if (!r.has("current_command") && !r.has("torque_command")) {
+      r.missing("current_command", "current_command = { table = \"holding\", address, type, scale } (A per count) or "
+                                   "torque_command = { ... } (N·m per count), one value per joint");
+    } else if (r.has("current_command") && r.has("torque_command")) {
+      s.sink().add(r.where("torque_command"), r.field("torque_command"), "only one of current_command and torque_command", "both");
     }
     r.finish();
+    // Overlaps per table; a fault reset written to the enable register itself is meant.
+    const auto& en = fields[kEnable];
+    const auto& fr = fields[kFaultReset];
+    const bool shared = en && fr && en->field.table == fr->field.table && en->field.address == fr->field.address &&
+                        en->field.type == fr->field.type;
+    std::vector<Extent> input, holding;
+    for (std::size_t i = 0; i < fields.size(); ++i) {
+      if (!fields[i] || (shared && i == kFaultReset)) continue;
+      auto& dst = tables[i] == RegisterTable::kInput ? input : holding;
+      dst.insert(dst.end(), fields[i]->extents.begin(), fields[i]->extents.end());
+    }
     check_overlaps(s.sink(), std::move(input), "input registers");
     check_overlaps(s.sink(), std::move(holding), "holding registers");
-    if (fields[0]) c.registers.encoder_counts = *fields[0];
-    if (fields[1]) c.registers.current_command = *fields[1];
-    c.registers.status = fields[2];
-    c.registers.buttons = fields[3];
-    c.registers.control = fields[4];
-    c.registers.heartbeat = fields[5];
-    if (fields[3]) button_bits = 8 * field_size(fields[3]->type);
+
+    ModbusRegisterMap& m = c.registers;
+    if (fields[kEncoders]) m.encoder_counts = fields[kEncoders]->field;
+    if (fields[kCurrent]) m.setpoint = fields[kCurrent]->field;
+    if (fields[kTorque]) {
+      m.setpoint = fields[kTorque]->field;
+      m.setpoint_kind = SetpointKind::kTorque;
+    }
+    if (fields[kStatus]) {
+      m.status = fields[kStatus]->field;
+      m.status_bits = fields[kStatus]->meaning.bits;
+    }
+    if (fields[kButtons]) {
+      m.buttons = fields[kButtons]->field;
+      button_bits = 8 * field_size(m.buttons->type);
+    } else if (rt->contains("buttons")) {
+      button_bits = 32;  // a broken entry: its own error says what is wrong, the buttons need not
+    }
+    if (en) {
+      m.enable = en->field;
+      m.enable_on = en->meaning.on;
+      m.enable_off = en->meaning.off;
+    }
+    if (fr) {
+      m.fault_reset = fr->field;
+      m.fault_reset_value = fr->meaning.value;
+    }
+    if (fields[kHeartbeat]) m.heartbeat = fields[kHeartbeat]->field;
+    if (fields[kWatchdogTimeout]) m.watchdog_timeout = fields[kWatchdogTimeout]->field;
+    has_heartbeat = rt->contains("heartbeat");
   }
+  c.drive_watchdog = parse_drive_watchdog(s, has_heartbeat, "bus.modbus.registers.heartbeat", c.response_timeout);
   s.finish();
   return c;
 }
@@ -966,6 +1290,35 @@ CanopenBusConfig parse_canopen(Section& s, const Context& ctx, bool has_buttons,
                .value_or(Cia402Mode::kCyclicSyncTorque);
   c.sync_period = s.number("sync_period_us", kOpt, Range{100, 100'000}).value_or(1000) * 1e-6;
   c.heartbeat_period = s.number("heartbeat_ms", kOpt, Range{0, 65'535}).value_or(100) * 1e-3;
+  // 0x1006 takes whole µs, and cyclic synchronous mode writes the period to 0x60C2 as value · 10^index s
+  // with value 1..255: 1000 µs is 1 · 10^-3, 2500 µs is 25 · 10^-4, 333 µs has no exact form.
+  if (const toml::node* sp = s.has("sync_period_us") ? s.get("sync_period_us") : nullptr) {
+    const double us = c.sync_period * 1e6;
+    std::int64_t mantissa = std::llround(us);
+    if (std::abs(us - static_cast<double>(mantissa)) > 1e-6) {
+      s.sink().add(sp->source(), s.field("sync_period_us"), "a whole number of microseconds (0x1006 is in µs)", describe(*sp));
+    } else if (c.mode == Cia402Mode::kCyclicSyncTorque) {
+      while (mantissa % 10 == 0 && mantissa > 0) mantissa /= 10;
+      if (mantissa > 255) {
+        s.sink().add(sp->source(), s.field("sync_period_us"),
+                     "a period 0x60C2 (interpolation time) can express exactly: value · 10^index s with value 1..255 "
+                     "(e.g. 1000, 2500, 250, 125)", describe(*sp));
+      }
+    }
+  }
+  c.master_node_id = static_cast<int>(s.integer("master_node_id", kOpt, 1, 127).value_or(127));
+  const std::optional<std::int64_t> watchdog_ms = s.integer("drive_watchdog_ms", kOpt, 0, 65'535);
+  c.drive_watchdog = static_cast<double>(watchdog_ms.value_or(100)) * 1e-3;
+  if (watchdog_ms && *watchdog_ms > 0) {
+    // The master's heartbeat goes out every drive_watchdog_ms / 4, from the servo tick: at least a SYNC period.
+    const double floor_ms = std::max(10.0, 4.0 * c.sync_period * 1e3);
+    if (static_cast<double>(*watchdog_ms) < floor_ms) {
+      s.sink().add(s.where("drive_watchdog_ms"), s.field("drive_watchdog_ms"),
+                   "0 (off) or at least " + num(static_cast<std::int64_t>(std::ceil(floor_ms))) +
+                       " ms (10 ms and 4 SYNC periods: the master's heartbeat goes out every drive_watchdog_ms / 4)",
+                   "integer " + num(*watchdog_ms));
+    }
+  }
 
   const std::string ids_expected = ctx.n ? "an array of " + std::to_string(*ctx.n) + " node ids (one per joint)"
                                          : "an array of node ids (one per joint)";
@@ -982,6 +1335,10 @@ CanopenBusConfig parse_canopen(Section& s, const Context& ctx, bool has_buttons,
       }
       c.node_ids.push_back(static_cast<int>(*id));
     }
+  }
+  if (std::find(c.node_ids.begin(), c.node_ids.end(), c.master_node_id) != c.node_ids.end()) {
+    s.sink().add(s.where("master_node_id"), s.field("master_node_id"), "a node id that no drive uses (the host's own)",
+                 "integer " + num(std::int64_t{c.master_node_id}) + (s.has("master_node_id") ? "" : " (the default), one of node_ids"));
   }
   if (auto b = s.integer("buttons_node", kOpt, 1, 127)) {
     c.buttons_node = static_cast<int>(*b);
@@ -1252,7 +1609,8 @@ int field_size(FieldType t) noexcept {
     case FieldType::kU16:
     case FieldType::kI16: return 2;
     case FieldType::kU32:
-    case FieldType::kI32: return 4;
+    case FieldType::kI32:
+    case FieldType::kF32: return 4;
   }
   return 1;
 }

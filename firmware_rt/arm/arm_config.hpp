@@ -72,8 +72,8 @@ struct ActuatorConfig {
   [[nodiscard]] double continuous_torque() const noexcept { return torque_constant * continuous_current; }  ///< N·m, motor shaft
 };
 
-/// Binary field types of USB reports and Modbus registers.
-enum class FieldType : std::uint8_t { kU8, kI8, kU16, kI16, kU32, kI32 };
+/// Binary field types of USB reports and Modbus registers (kF32: IEEE 754 single precision).
+enum class FieldType : std::uint8_t { kU8, kI8, kU16, kI16, kU32, kI32, kF32 };
 /// Size of one value of the type in bytes.
 [[nodiscard]] int field_size(FieldType t) noexcept;
 
@@ -86,12 +86,43 @@ struct SimBusConfig {
 
 enum class ByteOrder : std::uint8_t { kLittle, kBig };
 
+/// One named bit of a device's status word: active when it reads 1, or 0 when active_low.
+struct StatusBit {
+  int bit = -1;             ///< 0..word width − 1; −1: not mapped
+  bool active_low = false;
+  [[nodiscard]] bool mapped() const noexcept { return bit >= 0; }
+  /// Whether the bit is mapped and active in `word`. Real-time safe.
+  [[nodiscard]] bool active(std::uint32_t word) const noexcept {
+    return bit >= 0 && bit < 32 && (((word >> bit) & 1u) != 0) != active_low;
+  }
+};
+
+/// The bits of a status word the USB and Modbus drivers act on, each optional (`bits = {...}` in
+/// the config). While the driver has the drives enabled, an active fault, estop or comm_lost, or
+/// an inactive ready or enabled, is a device fault (read() → kDeviceFault, named in the fault
+/// detail); activate() and rearm() wait for them to settle.
+struct StatusBits {
+  StatusBit ready;      ///< the drive is ready to run (powered, no fault)
+  StatusBit fault;      ///< the drive has faulted; latched until a fault reset
+  StatusBit enabled;    ///< the drive is enabled (follows the setpoints)
+  StatusBit estop;      ///< an emergency stop is pressed
+  StatusBit comm_lost;  ///< the drive's own watchdog tripped: the host's heartbeat stopped
+};
+
+/// What a setpoint field carries, in physical units (physical = scale · raw + bias).
+enum class SetpointKind : std::uint8_t {
+  kCurrent,  ///< motor current, A (`current_command`)
+  kTorque,   ///< motor torque at the motor shaft (before the gear), N·m (`torque_command`)
+};
+
 /// A field of a USB report: byte offset into the report (the report ID byte, when there is one,
 /// is byte 0). Per-joint fields hold joint_count consecutive values.
 struct ReportField {
   std::uint32_t offset = 0;
   FieldType type = FieldType::kU8;
-  double lsb = 1;  ///< physical units per count where the field carries a quantity (A for currents)
+  ByteOrder byte_order = ByteOrder::kLittle;  ///< of this field's bytes ([bus.usb] byte_order unless the field says)
+  double scale = 1;  ///< physical = scale · raw + bias (encoders: counts; setpoints: A or N·m)
+  double bias = 0;
 };
 
 struct UsbBusConfig {
@@ -99,41 +130,60 @@ struct UsbBusConfig {
   int interface_number = 0;          ///< 0..255
   std::uint8_t endpoint_in = 0x81;   ///< interrupt IN, 0x81..0x8F
   std::uint8_t endpoint_out = 0x01;  ///< interrupt OUT, 0x01..0x0F
-  ByteOrder byte_order = ByteOrder::kLittle;
+  ByteOrder byte_order = ByteOrder::kLittle;  ///< the default of the fields
   double timeout = 0.002;            ///< s, per transfer
+  /// s: the device's own watchdog, when the OUT report has a heartbeat: the device goes torque-free
+  /// when the heartbeat stops changing this long (the device's firmware setting; 0: off).
+  double drive_watchdog = 0;
   // device → host
   std::uint32_t in_size = 0;                 ///< bytes
   std::optional<std::uint8_t> in_report_id;  ///< byte 0 when present
-  ReportField encoder_counts;                ///< per joint, integer type
+  ReportField encoder_counts;                ///< per joint: counts = scale · raw + bias
   std::optional<ReportField> buttons, status;
+  StatusBits status_bits;                    ///< meaning of the status field's bits
   // host → device
   std::uint32_t out_size = 0;
   std::optional<std::uint8_t> out_report_id;
-  ReportField current_command;               ///< per joint, signed type, lsb in A
-  std::optional<ReportField> control;        ///< bit 0: enable
+  ReportField setpoint;                      ///< per joint: A or N·m (setpoint_kind) = scale · raw + bias
+  SetpointKind setpoint_kind = SetpointKind::kCurrent;
+  std::optional<ReportField> enable;         ///< written in every OUT report: enable_on / enable_off
+  std::uint32_t enable_on = 1, enable_off = 0;
+  std::optional<ReportField> fault_reset;    ///< one report with fault_reset_value on rearm / activate
+  std::uint32_t fault_reset_value = 0;
+  std::optional<ReportField> heartbeat;      ///< counts up by one in every OUT report (wraps)
 };
 
 enum class ModbusTransport : std::uint8_t { kTcp, kRtu };
 enum class RegisterTable : std::uint8_t { kInput, kHolding };
 enum class Parity : std::uint8_t { kNone, kEven, kOdd };
 
-/// A value in the Modbus register space: 16-bit types take one register, 32-bit types two.
-/// Per-joint entries hold joint_count consecutive values.
+/// A value (or one per joint) in the Modbus register space: 16-bit types take one register,
+/// 32-bit types (u32, i32, f32) two.
 struct RegisterField {
   RegisterTable table = RegisterTable::kInput;
-  std::uint16_t address = 0;
-  FieldType type = FieldType::kU16;  ///< u16, i16, u32, i32
-  double lsb = 1;                    ///< physical units per count (A for current_command)
+  /// Protocol address (0-based) of each value: one per joint for per-joint entries (the loader
+  /// expands `address = N` to N, N + w, N + 2w, … with w the registers per value), else one.
+  std::vector<std::uint16_t> address;
+  FieldType type = FieldType::kU16;       ///< u16, i16, u32, i32, f32
+  bool high_word_first = true;            ///< 32-bit values: the register with the high half first
+  ByteOrder byte_order = ByteOrder::kBig; ///< bytes within each register (big: the Modbus standard)
+  double scale = 1;  ///< physical = scale · raw + bias (encoders: counts; setpoints: A or N·m; watchdog: ms)
+  double bias = 0;
 };
 
 struct ModbusRegisterMap {
-  bool high_word_first = true;              ///< word order of 32-bit values
-  RegisterField encoder_counts;             ///< per joint, read
-  RegisterField current_command;            ///< per joint, holding, written
-  std::optional<RegisterField> status;      ///< read
-  std::optional<RegisterField> buttons;     ///< read
-  std::optional<RegisterField> control;     ///< holding, written; bit 0: enable
-  std::optional<RegisterField> heartbeat;   ///< holding, written every tick (device watchdog)
+  RegisterField encoder_counts;             ///< per joint, read: counts = scale · raw + bias
+  RegisterField setpoint;                   ///< per joint, holding, written: A or N·m (setpoint_kind)
+  SetpointKind setpoint_kind = SetpointKind::kCurrent;
+  std::optional<RegisterField> status;      ///< read; its bits' meaning in status_bits
+  StatusBits status_bits;
+  std::optional<RegisterField> buttons;     ///< read, the raw button word
+  std::optional<RegisterField> enable;      ///< holding: enable_on while active, enable_off otherwise
+  std::uint32_t enable_on = 1, enable_off = 0;
+  std::optional<RegisterField> fault_reset; ///< holding: fault_reset_value written to clear a fault
+  std::uint32_t fault_reset_value = 0;
+  std::optional<RegisterField> heartbeat;   ///< holding, counts up by one on every write (wraps)
+  std::optional<RegisterField> watchdog_timeout;  ///< holding, written at activation: drive_watchdog (ms) = scale · raw + bias
 };
 
 struct ModbusBusConfig {
@@ -147,6 +197,9 @@ struct ModbusBusConfig {
   int stop_bits = 1;              ///< rtu, 1 or 2
   int unit_id = 1;                ///< 1..247
   double response_timeout = 0.005;  ///< s
+  /// s: the drives' watchdog on the heartbeat register: they go torque-free and latch a fault
+  /// when it stops changing this long while enabled (0: off; 0 too when the map has no heartbeat).
+  double drive_watchdog = 0;
   ModbusRegisterMap registers;
 };
 
@@ -184,8 +237,12 @@ struct CanopenBusConfig {
   int bitrate = 1'000'000;      ///< bit/s
   std::vector<int> node_ids;    ///< one per joint, 1..127, unique
   Cia402Mode mode = Cia402Mode::kCyclicSyncTorque;
-  double sync_period = 0.001;   ///< s
+  double sync_period = 0.001;   ///< s, a whole number of µs (0x1006); in cst mode one 0x60C2 can express
   double heartbeat_period = 0.1;  ///< s, consumer heartbeat expected from each node; 0: off
+  int master_node_id = 127;     ///< this host's node id on the bus (its heartbeat: 0x700 + it), 1..127, not in node_ids
+  /// s, the drive-side watchdog: each drive's heartbeat consumer time for the master (0x1016:1, whole
+  /// ms); the master sends its heartbeat every drive_watchdog / 4. 0: off (no consumer, no heartbeat).
+  double drive_watchdog = 0.1;
   Cia402Objects objects;
   std::vector<PdoConfig> rpdos;   ///< host → node
   std::vector<PdoConfig> tpdos;   ///< node → host

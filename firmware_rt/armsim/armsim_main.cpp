@@ -42,17 +42,39 @@ sigset_t block_stop_signals() {
   return set;
 }
 
+// The CAN options: the interface and what the nodes get wrong on purpose.
+struct CanOptions {
+  std::string iface;               ///< --can: instead of the config's interface
+  std::int64_t tpdo_delay_us = 0;  ///< --tpdo-delay-us: every TPDO this long after its SYNC
+  std::string refuse_mode;         ///< --refuse-mode NODE:MODE: the node keeps its mode when 0x6060 asks for MODE
+};
+
 // CANopen: the arm's CiA 402 nodes on a SocketCAN interface (vcan where the kernel has CAN). The
 // hand follows the script, holds or lets go; --disconnect-after silences every node (an unplugged
-// bus).
-int serve_can(lancet::arm::ArmConfig config, const std::string& iface, const ServerOptions& o, double duration) {
-  if (!iface.empty()) config.canopen->interface_name = iface;
-  auto nodes = lancet::armsim::CanopenNodeSet::start(config);
+// bus). What the nodes do on their own (a lost master heartbeat) is said on stderr as it happens,
+// and each node's state and counts when it ends.
+int serve_can(lancet::arm::ArmConfig config, const CanOptions& can, const ServerOptions& o, double duration) {
+  if (!can.iface.empty()) config.canopen->interface_name = can.iface;
+  int refuse_node = 0, refuse_mode = 0;
+  if (!can.refuse_mode.empty() && (std::sscanf(can.refuse_mode.c_str(), "%d:%d", &refuse_node, &refuse_mode) != 2 ||
+                                   refuse_mode < -128 || refuse_mode > 127)) {
+    std::fprintf(stderr, "lancet-armsim: --refuse-mode: expected NODE:MODE (e.g. 2:10), found '%s'\n", can.refuse_mode.c_str());
+    return 2;
+  }
+  // Blocked before the nodes' thread starts, so that it inherits the mask.
+  const sigset_t stop_signals = block_stop_signals();
+  lancet::armsim::CanopenNodeSet::Options node_options;
+  node_options.tpdo_delay_us = can.tpdo_delay_us;
+  node_options.on_event = [](const std::string& line) {
+    std::fprintf(stderr, "lancet-armsim: %s\n", line.c_str());
+    std::fflush(stderr);
+  };
+  auto nodes = lancet::armsim::CanopenNodeSet::start(config, node_options);
   if (!nodes.ok()) {
     std::fprintf(stderr, "lancet-armsim: %s\n", nodes.error().message.c_str());
     return 2;
   }
-  const sigset_t stop_signals = block_stop_signals();
+  if (refuse_node != 0) nodes.value()->set_refused_mode(refuse_node, static_cast<std::int8_t>(refuse_mode));
   std::printf("lancet-armsim: serving '%s' on CAN %s (%zu nodes)\n", config.name.c_str(), config.canopen->interface_name.c_str(),
               config.canopen->node_ids.size());
   std::fflush(stdout);
@@ -82,6 +104,16 @@ int serve_can(lancet::arm::ArmConfig config, const std::string& iface, const Ser
     if (sig == SIGINT || sig == SIGTERM) break;
   }
   std::fprintf(stderr, "lancet-armsim: %s\n", sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "done");
+  for (int id : config.canopen->node_ids) {
+    const auto v = nodes.value()->node(id);
+    std::fprintf(stderr,
+                 "lancet-armsim: node %d: NMT 0x%02X, statusword 0x%04X, mode %d, %llu SDO requests (%llu downloads), %llu NMT "
+                 "commands, %llu SYNCs, %llu master heartbeats heard, %llu lost, last EMCY 0x%04X\n",
+                 id, v.nmt, v.statusword, v.mode, static_cast<unsigned long long>(v.sdo_requests),
+                 static_cast<unsigned long long>(v.sdo_downloads), static_cast<unsigned long long>(v.nmt_commands),
+                 static_cast<unsigned long long>(v.syncs), static_cast<unsigned long long>(v.master_heartbeats),
+                 static_cast<unsigned long long>(v.heartbeat_losses), v.last_emcy);
+  }
   return 0;
 }
 
@@ -105,6 +137,10 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cli.add_option("--drop-replies", o.faults.drop_replies, "probability of leaving a request unanswered")->check(CLI::Range(0.0, 1.0));
   cli.add_option("--delay-us", o.faults.delay_us, "send every reply this many microseconds late")->check(CLI::Range(0, 60'000'000));
+  cli.add_option("--delay-probability", o.faults.delay_probability,
+                 "Modbus: delay only this fraction of the replies by --delay-us (now and then, as a loaded host would)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
   cli.add_option("--corrupt", o.faults.corrupt, "probability of flipping a byte of a reply (TCP: a framing byte; RTU: caught by the CRC)")
       ->check(CLI::Range(0.0, 1.0));
   cli.add_option("--disconnect-after", o.disconnect_after, "close the clients' sockets after this many seconds (TCP; 0: never)")
@@ -115,8 +151,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1.0));
   cli.add_option("--seed", o.seed, "seed of the fault injection")->capture_default_str();
   cli.add_option("--duration", duration, "seconds to run; 0: until SIGINT or SIGTERM")->check(CLI::NonNegativeNumber);
-  std::string can_iface;
-  cli.add_option("--can", can_iface, "for a canopen config: emulate its CiA 402 nodes on this SocketCAN interface (default: the config's)");
+  CanOptions can;
+  cli.add_option("--can", can.iface, "for a canopen config: emulate its CiA 402 nodes on this SocketCAN interface (default: the config's)");
+  cli.add_option("--tpdo-delay-us", can.tpdo_delay_us, "CAN: every node sends its TPDOs this many microseconds after the SYNC")
+      ->check(CLI::Range(0, 1'000'000));
+  cli.add_option("--refuse-mode", can.refuse_mode,
+                 "CAN: NODE:MODE, that node takes a write of MODE to 0x6060 but stays in its mode (0x6061 tells)");
   CLI11_PARSE(cli, argc, argv);
 
   auto mode = lancet::armsim::parse_hand_mode(hand);
@@ -130,7 +170,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "lancet-armsim: %s\n", config.error().message.c_str());
     return 2;
   }
-  if (config.value().backend == lancet::arm::Backend::kCanopen) return serve_can(config.value(), can_iface, o, duration);
+  if (config.value().backend == lancet::arm::Backend::kCanopen) return serve_can(config.value(), can, o, duration);
   auto server = ArmServer::create(config.value(), o);
   if (!server.ok()) {
     std::fprintf(stderr, "%s\n", server.error().message.c_str());
@@ -163,20 +203,29 @@ int main(int argc, char** argv) {
 
   const std::int64_t end = duration > 0 ? mono_ns() + static_cast<std::int64_t>(duration * 1e9) : 0;
   int sig = 0;
+  std::uint64_t trips = 0;
   while (end == 0 || mono_ns() < end) {
-    const timespec poll_interval{0, 100'000'000};
+    const timespec poll_interval{0, 20'000'000};
     sig = sigtimedwait(&stop_signals, nullptr, &poll_interval);
     if (sig == SIGINT || sig == SIGTERM) break;
+    // Say it when the drive-side watchdog acts: the host stopped writing the heartbeat.
+    const auto now = s.snapshot();
+    if (now.stats.watchdog_trips > trips) {
+      trips = now.stats.watchdog_trips;
+      std::fprintf(stderr, "lancet-armsim: watchdog: heartbeat lost after %.1f ms (limit %g ms), drives torque-free; status 0x%04X until a fault reset\n",
+                   now.stats.last_trip_silence_ms, now.watchdog_ms, now.status);
+    }
   }
   s.stop();
   const auto snap = s.snapshot();
   std::fprintf(stderr,
                "lancet-armsim: %s after %llu physics steps; %llu requests, %llu replies (%llu dropped, %llu delayed, %llu corrupted, "
-               "%llu glitches), %llu connections, %llu forced disconnects\n",
+               "%llu glitches), %llu connections, %llu forced disconnects, %llu watchdog trips\n",
                sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "done", static_cast<unsigned long long>(snap.steps),
                static_cast<unsigned long long>(snap.stats.requests), static_cast<unsigned long long>(snap.stats.replies),
                static_cast<unsigned long long>(snap.stats.dropped), static_cast<unsigned long long>(snap.stats.delayed),
                static_cast<unsigned long long>(snap.stats.corrupted), static_cast<unsigned long long>(snap.stats.glitches),
-               static_cast<unsigned long long>(snap.stats.connections), static_cast<unsigned long long>(snap.stats.forced_disconnects));
+               static_cast<unsigned long long>(snap.stats.connections), static_cast<unsigned long long>(snap.stats.forced_disconnects),
+               static_cast<unsigned long long>(snap.stats.watchdog_trips));
   return 0;
 }

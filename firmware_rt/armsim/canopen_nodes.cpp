@@ -90,6 +90,7 @@ Result<std::unique_ptr<CanopenNodeSet>> CanopenNodeSet::start(const arm::ArmConf
     Emu& e = s->nodes_[static_cast<std::size_t>(j)];
     e.id = bus.node_ids[static_cast<std::size_t>(j)];
     e.joint = j;
+    e.tpdo_delay_ns = std::max<std::int64_t>(0, options.tpdo_delay_us) * 1000;
     s->reset_application(e);
     s->reset_communication(e);
     e.nmt = 0x7F;
@@ -127,6 +128,8 @@ void CanopenNodeSet::run() {
         }
         wait_ns = std::min(wait_ns, e.next_heartbeat_ns - now);
       }
+      wait_ns = std::min(wait_ns, check_consumers(now));
+      wait_ns = std::min(wait_ns, send_delayed(now));
     }
     pollfd p[2] = {{fd_, POLLIN, 0}, {stop_fd_, POLLIN, 0}};
     timespec ts{};
@@ -171,6 +174,75 @@ void CanopenNodeSet::send_emcy(Emu& e, std::uint16_t code, std::uint8_t reg) {
   put(d, code, 2);
   d[2] = reg;
   send(0x080u + static_cast<std::uint32_t>(e.id), d, 8);
+  ++e.emcys;
+  e.last_emcy = code;
+}
+
+void CanopenNodeSet::on_heartbeat(int producer, std::int64_t now) {
+  for (int j = 0; j < n_; ++j) {
+    Emu& e = nodes_[static_cast<std::size_t>(j)];
+    // An unplugged node hears nothing; a consumer entry with node id or time 0 is off (CiA 301).
+    if (e.silent || (e.consumer & 0xFFFF) == 0 || static_cast<int>((e.consumer >> 16) & 0x7F) != producer) continue;
+    if (e.consumer_armed) e.max_gap_ms = std::max(e.max_gap_ms, static_cast<double>(now - e.producer_seen_ns) * 1e-6);
+    e.consumer_armed = true;
+    e.producer_seen_ns = now;
+    ++e.master_heartbeats;
+  }
+}
+
+std::int64_t CanopenNodeSet::check_consumers(std::int64_t now) {
+  std::int64_t wait = 5'000'000;
+  for (int j = 0; j < n_; ++j) {
+    Emu& e = nodes_[static_cast<std::size_t>(j)];
+    if (!e.consumer_armed) continue;
+    const std::int64_t limit = static_cast<std::int64_t>(e.consumer & 0xFFFF) * 1'000'000;
+    const std::int64_t late = now - e.producer_seen_ns;
+    if (late <= limit) {
+      wait = std::min(wait, limit - late + 1);
+      continue;
+    }
+    // Heartbeat event: disarmed until the producer is heard again; EMCY 0x8130 with the
+    // communication bit; a drive in operation enabled applies its abort connection option.
+    e.consumer_armed = false;
+    ++e.heartbeat_losses;
+    e.last_loss_ms = static_cast<double>(late) * 1e-6;
+    const bool enabled = e.drive == Drive::kEnabled;
+    const char* reaction = "drive not enabled, no reaction";
+    if (enabled) {
+      switch (e.abort_option) {
+        case 1: e.drive = Drive::kFault, reaction = "torque off, fault (0x6007 = 1)"; break;
+        case 2: e.drive = Drive::kSwitchOnDisabled, reaction = "torque off, disable voltage (0x6007 = 2)"; break;
+        case 3: e.drive = Drive::kQuickStop, reaction = "torque off, quick stop (0x6007 = 3)"; break;
+        default: reaction = "no action (0x6007 = 0): torque stays on"; break;
+      }
+      if (e.drive != Drive::kEnabled) e.torque_actual = 0;
+    }
+    e.error_register = static_cast<std::uint8_t>(e.error_register | 0x11);  // generic + communication
+    send_emcy(e, 0x8130, e.error_register);
+    if (options_.on_event) {
+      char line[200];
+      std::snprintf(line, sizeof line, "node %d: master heartbeat (0x%03X) lost after %.0f ms (consumer time %u ms): %s, EMCY 0x8130",
+                    e.id, 0x700u + ((e.consumer >> 16) & 0x7F), e.last_loss_ms, e.consumer & 0xFFFF, reaction);
+      options_.on_event(line);
+    }
+  }
+  return wait;
+}
+
+std::int64_t CanopenNodeSet::send_delayed(std::int64_t now) {
+  std::int64_t wait = 5'000'000;
+  int kept = 0;
+  for (int k = 0; k < n_delayed_; ++k) {
+    const Delayed& d = delayed_[static_cast<std::size_t>(k)];
+    if (d.due_ns <= now) {
+      send(d.cob, d.data.data(), d.len);
+    } else {
+      wait = std::min(wait, d.due_ns - now);
+      delayed_[static_cast<std::size_t>(kept++)] = d;
+    }
+  }
+  n_delayed_ = kept;
+  return wait;
 }
 
 void CanopenNodeSet::boot(Emu& e, std::int64_t now) {
@@ -182,6 +254,9 @@ void CanopenNodeSet::boot(Emu& e, std::int64_t now) {
 
 void CanopenNodeSet::reset_communication(Emu& e) {
   e.heartbeat_ms = 0;
+  e.consumer = 0;
+  e.consumer_armed = false;
+  e.cycle_period_us = 0;
   for (int k = 0; k < 4; ++k) {
     const auto uk = static_cast<std::size_t>(k);
     e.tpdo[uk] = Pdo{};
@@ -198,9 +273,13 @@ void CanopenNodeSet::reset_application(Emu& e) {
   e.target_torque = 0;
   e.torque_actual = 0;
   e.mode = 0;
+  e.mode_requested = 0;
   e.max_torque = 1000;
   e.rated_mnm = 1000;
   e.error_register = 0;
+  e.abort_option = 1;  // the CiA 402 default: fault
+  e.ip_value = 1;
+  e.ip_index = -3;
 }
 
 std::uint16_t CanopenNodeSet::statusword(const Emu& e) const {
@@ -300,7 +379,18 @@ std::uint32_t CanopenNodeSet::read_object(Emu& e, std::uint16_t index, std::uint
   switch (index) {
     case 0x1000: return single(options_.device_type, 4);
     case 0x1001: return single(e.error_register, 1);
+    case 0x1006: return single(e.cycle_period_us, 4);
+    case 0x1016:
+      if (sub == 0) return give(1, 1);
+      if (sub == 1) return give(e.consumer, 4);
+      return kAbortNoSub;
     case 0x1017: return single(e.heartbeat_ms, 2);
+    case 0x6007: return single(static_cast<std::uint16_t>(e.abort_option), 2);
+    case 0x60C2:
+      if (sub == 0) return give(2, 1);
+      if (sub == 1) return give(e.ip_value, 1);
+      if (sub == 2) return give(static_cast<std::uint8_t>(e.ip_index), 1);
+      return kAbortNoSub;
     case 0x1018:
       if (sub == 0) return give(4, 1);
       if (sub == 1) return give(options_.vendor_id, 4);
@@ -310,7 +400,7 @@ std::uint32_t CanopenNodeSet::read_object(Emu& e, std::uint16_t index, std::uint
       return kAbortNoSub;
     case 0x6040: return single(e.controlword, 2);
     case 0x6041: return single(statusword(e), 2);
-    case 0x6060: return single(static_cast<std::uint8_t>(e.mode), 1);
+    case 0x6060: return single(static_cast<std::uint8_t>(e.mode_requested), 1);
     case 0x6061: return single(static_cast<std::uint8_t>(e.mode), 1);
     case 0x6064: return single(static_cast<std::uint32_t>(physics_->encoder_counts(e.joint)), 4);
     case 0x6071: return single(static_cast<std::uint16_t>(e.target_torque), 2);
@@ -387,6 +477,33 @@ std::uint32_t CanopenNodeSet::write_object(Emu& e, std::uint16_t index, std::uin
       e.heartbeat_ms = static_cast<std::uint16_t>(v);
       e.next_heartbeat_ns = now + static_cast<std::int64_t>(e.heartbeat_ms) * 1'000'000;
       return 0;
+    case 0x1006:
+      if (!size_ok(4)) return sub != 0 ? kAbortNoSub : kAbortLength;
+      e.cycle_period_us = v;
+      return 0;
+    case 0x1016:
+      if (sub == 0) return kAbortReadOnly;
+      if (sub != 1) return kAbortNoSub;
+      if (bytes != 4) return kAbortLength;
+      if (((v >> 16) & 0x7F) == static_cast<std::uint32_t>(e.id) && (v & 0xFFFF) != 0) return kAbortValue;  // itself
+      e.consumer = v & 0x007FFFFF;
+      e.consumer_armed = false;  // until the producer's next heartbeat
+      e.max_gap_ms = 0;
+      return 0;
+    case 0x6007: {
+      if (!size_ok(2)) return sub != 0 ? kAbortNoSub : kAbortLength;
+      const auto option = static_cast<std::int16_t>(v);
+      if (option > 3) return kAbortValue;
+      e.abort_option = option;
+      return 0;
+    }
+    case 0x60C2:
+      if (sub == 0) return kAbortReadOnly;
+      if (sub > 2) return kAbortNoSub;
+      if (bytes != 1) return kAbortLength;
+      if (sub == 1) e.ip_value = static_cast<std::uint8_t>(v);
+      if (sub == 2) e.ip_index = static_cast<std::int8_t>(v);
+      return 0;
     case 0x6040:
       if (!size_ok(2)) return sub != 0 ? kAbortNoSub : kAbortLength;
       apply_controlword(e, static_cast<std::uint16_t>(v));
@@ -395,7 +512,9 @@ std::uint32_t CanopenNodeSet::write_object(Emu& e, std::uint16_t index, std::uin
       if (!size_ok(1)) return sub != 0 ? kAbortNoSub : kAbortLength;
       const auto m = static_cast<std::int8_t>(v);
       if (m != 0 && m != 4 && m != 10) return kAbortValue;
-      e.mode = m;
+      e.mode_requested = m;
+      // A refused mode is taken (no abort) but not entered: only 0x6061 tells.
+      if (e.refused_mode == 0 || m != e.refused_mode) e.mode = m;
       return 0;
     }
     case 0x6071:
@@ -425,6 +544,7 @@ void CanopenNodeSet::on_sdo(Emu& e, const std::uint8_t* d, std::int64_t now) {
   r[3] = sub;
   std::uint32_t abort = 0;
   if (ccs == 1) {  // initiate download
+    ++e.sdo_downloads;
     if ((d[0] & 0x02) == 0) {
       abort = kAbortCommand;  // segmented: not supported here
     } else {
@@ -475,6 +595,7 @@ void CanopenNodeSet::on_nmt(std::uint8_t cs, int target, std::int64_t now) {
   for (int j = 0; j < n_; ++j) {
     Emu& e = nodes_[static_cast<std::size_t>(j)];
     if ((target != 0 && target != e.id) || e.silent) continue;
+    ++e.nmt_commands;
     switch (cs) {
       case 0x01:
         if (e.nmt != 0x05)
@@ -513,8 +634,9 @@ void CanopenNodeSet::on_sync(std::int64_t now) {
     }
     if (e.nmt == 0x05) {
       // Synchronous RPDOs take effect now.
-      if (e.has_mode) {
-        if (e.pending_mode == 0 || e.pending_mode == 4 || e.pending_mode == 10) e.mode = e.pending_mode;
+      if (e.has_mode && (e.pending_mode == 0 || e.pending_mode == 4 || e.pending_mode == 10)) {
+        e.mode_requested = e.pending_mode;
+        if (e.refused_mode == 0 || e.pending_mode != e.refused_mode) e.mode = e.pending_mode;
       }
       if (e.has_tt) e.target_torque = e.pending_tt;
       if (e.has_cw) apply_controlword(e, e.pending_cw);
@@ -556,8 +678,16 @@ void CanopenNodeSet::on_sync(std::int64_t now) {
         --e.corrupt;
         offset = std::max(0, offset - 1);
       }
-      send(p.cob_id & 0x7FF, d, offset);
       ++e.tpdos;
+      if (e.tpdo_delay_ns > 0 && n_delayed_ < static_cast<int>(delayed_.size())) {
+        Delayed& late = delayed_[static_cast<std::size_t>(n_delayed_++)];
+        late.due_ns = now + e.tpdo_delay_ns;
+        late.cob = p.cob_id & 0x7FF;
+        late.len = static_cast<std::uint8_t>(offset);
+        std::memcpy(late.data.data(), d, sizeof d);
+        continue;
+      }
+      send(p.cob_id & 0x7FF, d, offset);
     }
   }
 }
@@ -574,6 +704,7 @@ void CanopenNodeSet::handle(const void* frame, std::int64_t now) {
     on_sync(now);
     return;
   }
+  if ((cob & 0x780) == 0x700) on_heartbeat(static_cast<int>(cob & 0x7F), now);
   const int id = static_cast<int>(cob & 0x7F);
   Emu* e = find(id);
   if (e == nullptr || e->silent) return;
@@ -619,13 +750,24 @@ void CanopenNodeSet::set_heartbeat_enabled(int node_id, bool on) {
   }
 }
 
-void CanopenNodeSet::inject_fault(int node_id, std::uint16_t error_code, std::uint8_t error_register) {
+void CanopenNodeSet::inject_fault(int node_id, std::uint16_t error_code, std::uint8_t error_register, bool emcy) {
   std::lock_guard<std::mutex> lock(mu_);
   if (Emu* e = find(node_id)) {
     e->drive = Drive::kFault;
+    e->torque_actual = 0;
     e->error_register = error_register;
-    send_emcy(*e, error_code, error_register);
+    if (emcy) send_emcy(*e, error_code, error_register);
   }
+}
+
+void CanopenNodeSet::set_refused_mode(int node_id, std::int8_t mode) {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (Emu* e = find(node_id)) e->refused_mode = mode;
+}
+
+void CanopenNodeSet::set_tpdo_delay_us(int node_id, std::int64_t delay_us) {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (Emu* e = find(node_id)) e->tpdo_delay_ns = std::max<std::int64_t>(0, delay_us) * 1000;
 }
 
 void CanopenNodeSet::set_digital_inputs(int node_id, std::uint32_t inputs) {
@@ -654,9 +796,15 @@ CanopenNodeSet::NodeView CanopenNodeSet::node(int node_id) const {
   v.target_torque = e->target_torque;
   v.torque_actual = e->torque_actual;
   v.mode = e->mode;
+  v.mode_requested = e->mode_requested;
   v.rated_torque_mnm = e->rated_mnm;
   v.max_torque = e->max_torque;
   v.heartbeat_ms = e->heartbeat_ms;
+  v.consumer = e->consumer;
+  v.abort_option = e->abort_option;
+  v.cycle_period_us = e->cycle_period_us;
+  v.ip_value = e->ip_value;
+  v.ip_index = e->ip_index;
   for (std::size_t k = 0; k < 4; ++k) {
     v.tpdo[k] = {e->tpdo[k].cob_id, e->tpdo[k].type, e->tpdo[k].count, e->tpdo[k].map};
     v.rpdo[k] = {e->rpdo[k].cob_id, e->rpdo[k].type, e->rpdo[k].count, e->rpdo[k].map};
@@ -667,6 +815,14 @@ CanopenNodeSet::NodeView CanopenNodeSet::node(int node_id) const {
   v.sdo_requests = e->sdo_requests;
   v.fault_resets = e->fault_resets;
   v.heartbeats = e->heartbeats;
+  v.sdo_downloads = e->sdo_downloads;
+  v.nmt_commands = e->nmt_commands;
+  v.master_heartbeats = e->master_heartbeats;
+  v.heartbeat_losses = e->heartbeat_losses;
+  v.last_loss_ms = e->last_loss_ms;
+  v.max_gap_ms = e->max_gap_ms;
+  v.emcys = e->emcys;
+  v.last_emcy = e->last_emcy;
   return v;
 }
 

@@ -6,10 +6,12 @@
 //   NMT          start, stop, enter pre-operational, reset node, reset communication (boot-up
 //                message 0x700 + id [0x00] after a reset and at start)
 //   SDO          expedited upload and download of its object dictionary (0x1000 device type,
-//                0x1001, 0x1017, 0x1018, PDO communication 0x1400/0x1800 and mapping 0x1600/0x1A00
-//                parameters with the CiA 301 rules for changing them, 0x6040 controlword, 0x6041
-//                statusword, 0x6060/0x6061 mode, 0x6064 position actual, 0x6071 target torque,
-//                0x6072 max torque, 0x6076 rated torque, 0x6077 torque actual, 0x60FD digital
+//                0x1001, 0x1006 communication cycle period, 0x1016:1 heartbeat consumer, 0x1017,
+//                0x1018, PDO communication 0x1400/0x1800 and mapping 0x1600/0x1A00 parameters with
+//                the CiA 301 rules for changing them, 0x6007 abort connection option, 0x6040
+//                controlword, 0x6041 statusword, 0x6060 mode (requested) / 0x6061 (display),
+//                0x6064 position actual, 0x6071 target torque, 0x6072 max torque, 0x6076 rated
+//                torque, 0x6077 torque actual, 0x60C2 interpolation time period, 0x60FD digital
 //                inputs, 0x6502); aborts with the CiA 301 codes otherwise
 //   SYNC         applies the RPDO data received since the last SYNC (synchronous RPDOs), advances
 //                the physics, then sends each valid synchronous TPDO (transmission type n: every
@@ -17,15 +19,21 @@
 //   CiA 402      the power state machine driven by the controlword; torque only in operation
 //                enabled, NMT operational and mode 4 or 10: target torque ‰ of 0x6076 (mN·m),
 //                clamped to 0x6072, through the arm config's torque constant, gear and direction
-//   heartbeat    producer, every 0x1017 ms (0: off)
-//   EMCY         on an injected fault (and 0x0000 "error reset" after a fault reset)
+//   heartbeat    producer, every 0x1017 ms (0: off); consumer of the node 0x1016:1 names (the
+//                master): armed by its first heartbeat, it fires when none came for the consumer
+//                time: EMCY 0x8130, and a drive in operation enabled applies 0x6007 at once
+//                (1 fault, 2 disable voltage, 3 quick stop; 0 nothing): torque off
+//   EMCY         on an injected fault, on a heartbeat consumer timeout (and 0x0000 "error reset"
+//                after a fault reset)
 // All nodes share one receive thread and one socket; everything is guarded by one mutex.
 
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 
 #include "arm/arm_config.hpp"
@@ -41,6 +49,11 @@ class CanopenNodeSet {
     std::uint32_t vendor_id = 0x004C4E43;   ///< 0x1018:1
     std::uint32_t device_type = 0x00020192; ///< 0x1000: CiA 402, servo drive
     bool boot_up_at_start = true;           ///< send the boot-up messages when started
+    std::int64_t tpdo_delay_us = 0;         ///< every node sends its TPDOs this long after the SYNC
+    /// Told what the nodes do on their own (a heartbeat consumer timeout), one line each, e.g.
+    /// "node 1: master heartbeat (0x77F) lost after 203 ms (consumer time 200 ms): torque off,
+    /// disable voltage (0x6007 = 2), EMCY 0x8130". Called on the nodes' thread with their lock held.
+    std::function<void(const std::string&)> on_event;
   };
 
   /// Opens a raw socket on config.canopen->interface_name and starts the nodes' thread. kSystem
@@ -60,8 +73,13 @@ class CanopenNodeSet {
   void corrupt_next_tpdos(int node_id, int count);
   /// Heartbeat producer on or off (0x1017 keeps its value).
   void set_heartbeat_enabled(int node_id, bool on);
-  /// A drive fault: the node enters the CiA 402 fault state and sends an EMCY.
-  void inject_fault(int node_id, std::uint16_t error_code, std::uint8_t error_register);
+  /// A drive fault: the node enters the CiA 402 fault state and sends an EMCY (unless `with_emcy`
+  /// is false: then only its statusword tells).
+  void inject_fault(int node_id, std::uint16_t error_code, std::uint8_t error_register, bool with_emcy = true);
+  /// The node takes writes of `mode` to 0x6060 but stays in its mode (0x6061 tells); 0: none refused.
+  void set_refused_mode(int node_id, std::int8_t mode);
+  /// The node sends its TPDOs this long after each SYNC (0: at once).
+  void set_tpdo_delay_us(int node_id, std::int64_t delay_us);
   /// The value of 0x60FD (bits 16..31: general-purpose inputs).
   void set_digital_inputs(int node_id, std::uint32_t inputs);
   /// Power cycle: every object back to its default, boot-up, pre-operational.
@@ -80,11 +98,25 @@ class CanopenNodeSet {
     std::uint16_t statusword = 0, controlword = 0;
     std::int16_t target_torque = 0;   ///< ‰, as last applied at a SYNC
     std::int16_t torque_actual = 0;   ///< ‰, what the motor gives (0 unless enabled)
-    std::int8_t mode = 0;
+    std::int8_t mode = 0;             ///< 0x6061, the mode in effect
+    std::int8_t mode_requested = 0;   ///< 0x6060
     std::uint32_t rated_torque_mnm = 0;
     std::uint16_t max_torque = 0, heartbeat_ms = 0;
+    std::uint32_t consumer = 0;           ///< 0x1016:1: producer node id << 16 | time (ms)
+    std::int16_t abort_option = 0;        ///< 0x6007
+    std::uint32_t cycle_period_us = 0;    ///< 0x1006
+    std::uint8_t ip_value = 0;            ///< 0x60C2:1
+    std::int8_t ip_index = 0;             ///< 0x60C2:2
     std::array<PdoView, 4> tpdo{}, rpdo{};
     std::uint64_t syncs = 0, rpdos = 0, tpdos = 0, sdo_requests = 0, fault_resets = 0, heartbeats = 0;
+    std::uint64_t sdo_downloads = 0;      ///< SDO download requests (writes), taken or not
+    std::uint64_t nmt_commands = 0;       ///< NMT commands addressed to the node (or to all)
+    std::uint64_t master_heartbeats = 0;  ///< heartbeats heard from the consumer's producer
+    double max_gap_ms = 0;                ///< the longest wait between two of them while the consumer was armed
+    std::uint64_t heartbeat_losses = 0;   ///< consumer timeouts
+    double last_loss_ms = 0;              ///< at the last timeout: ms since the producer's last heartbeat
+    std::uint64_t emcys = 0;              ///< EMCY messages sent
+    std::uint16_t last_emcy = 0;          ///< the last one's error code
   };
   [[nodiscard]] NodeView node(int node_id) const;
   /// The physics under the nodes' lock.
@@ -111,13 +143,22 @@ class CanopenNodeSet {
     std::uint16_t controlword = 0;
     std::int16_t target_torque = 0;
     std::int16_t torque_actual = 0;
-    std::int8_t mode = 0;
+    std::int8_t mode = 0;            // in effect (0x6061)
+    std::int8_t mode_requested = 0;  // 0x6060
     std::uint16_t max_torque = 1000;
     std::uint32_t rated_mnm = 1000;
     std::uint16_t heartbeat_ms = 0;
     std::int64_t next_heartbeat_ns = 0;
     std::uint8_t error_register = 0;
     std::uint32_t inputs = 0;
+    // heartbeat consumer (0x1016:1) and what a lost heartbeat does (0x6007)
+    std::uint32_t consumer = 0;
+    bool consumer_armed = false;
+    std::int64_t producer_seen_ns = 0;
+    std::int16_t abort_option = 1;
+    std::uint32_t cycle_period_us = 0;
+    std::uint8_t ip_value = 1;
+    std::int8_t ip_index = -3;
     std::array<Pdo, 4> tpdo{}, rpdo{};
     // synchronous RPDO data, applied at the next SYNC
     bool has_cw = false, has_tt = false, has_mode = false;
@@ -127,8 +168,21 @@ class CanopenNodeSet {
     // injection
     bool silent = false, drop_tpdos = false, heartbeat_on = true;
     int corrupt = 0;
+    std::int8_t refused_mode = 0;
+    std::int64_t tpdo_delay_ns = 0;
     // counters
     std::uint64_t syncs = 0, rpdos = 0, tpdos = 0, sdo_requests = 0, fault_resets = 0, heartbeats = 0;
+    std::uint64_t sdo_downloads = 0, nmt_commands = 0, master_heartbeats = 0, heartbeat_losses = 0, emcys = 0;
+    double last_loss_ms = 0;
+    double max_gap_ms = 0;
+    std::uint16_t last_emcy = 0;
+  };
+  /// A TPDO held back by tpdo_delay_ns.
+  struct Delayed {
+    std::int64_t due_ns = 0;
+    std::uint32_t cob = 0;
+    std::uint8_t len = 0;
+    std::array<std::uint8_t, 8> data{};
   };
 
   CanopenNodeSet(const arm::ArmConfig& config, Options options, std::unique_ptr<device::ArmPhysics> physics);
@@ -150,6 +204,12 @@ class CanopenNodeSet {
   void boot(Emu& e, std::int64_t now);
   void send(std::uint32_t cob, const std::uint8_t* data, int len);
   void send_emcy(Emu& e, std::uint16_t code, std::uint8_t reg);
+  /// A heartbeat from node `producer` (any 0x700 frame): the consumers watching it are (re)armed.
+  void on_heartbeat(int producer, std::int64_t now);
+  /// Consumer timeouts due by `now` (their reaction); returns the ns until the next one could be.
+  std::int64_t check_consumers(std::int64_t now);
+  /// Sends the delayed TPDOs due by `now`; returns the ns until the next one.
+  std::int64_t send_delayed(std::int64_t now);
   [[nodiscard]] Emu* find(int node_id);
   [[nodiscard]] const Emu* find(int node_id) const;
 
@@ -163,6 +223,8 @@ class CanopenNodeSet {
   std::array<Emu, device::kMaxJoints> nodes_{};
   int n_ = 0;
   std::int64_t last_sync_ns_ = 0;
+  std::array<Delayed, 64> delayed_{};
+  int n_delayed_ = 0;
   std::thread thread_;
 };
 

@@ -80,14 +80,21 @@ ArmServer::~ArmServer() {
 device::Outcome ArmServer::init_mapping() {
   const arm::ModbusRegisterMap& map = config_.modbus->registers;
   const int n = physics_->joint_count();
-  high_word_first_ = map.high_word_first;
-  const auto field = [](const arm::RegisterField& f) { return Field{true, f.table, f.address, f.type, f.lsb}; };
+  const auto field = [](const arm::RegisterField& f) {
+    Field out{true, f.table, {}, mb::layout_of(f), f.scale, f.bias};
+    for (std::size_t i = 0; i < f.address.size() && i < out.address.size(); ++i) out.address[i] = f.address[i];
+    return out;
+  };
   encoders_ = field(map.encoder_counts);
-  currents_ = field(map.current_command);
+  setpoints_ = field(map.setpoint);
+  torque_setpoints_ = map.setpoint_kind == arm::SetpointKind::kTorque;
   if (map.status) status_ = field(*map.status);
+  bits_ = map.status_bits;
   if (map.buttons) buttons_ = field(*map.buttons);
-  if (map.control) control_ = field(*map.control);
+  if (map.enable) enable_ = field(*map.enable);
+  if (map.fault_reset) fault_reset_ = field(*map.fault_reset);
   if (map.heartbeat) heartbeat_ = field(*map.heartbeat);
+  if (map.watchdog_timeout) watchdog_timeout_ = field(*map.watchdog_timeout);
 
   // Each table spans from its lowest to its highest mapped register.
   struct Span {
@@ -96,20 +103,22 @@ device::Outcome ArmServer::init_mapping() {
   const auto cover = [&](const Field& f, int values) {
     if (!f.present) return;
     Span& s = f.table == arm::RegisterTable::kInput ? input : holding;
-    s.lo = std::min<unsigned>(s.lo, f.address);
-    s.hi = std::max<unsigned>(s.hi, f.address + static_cast<unsigned>(mb::register_count(f.type) * values));
+    for (int v = 0; v < values; ++v) {
+      const unsigned a = f.address[static_cast<std::size_t>(v)];
+      s.lo = std::min<unsigned>(s.lo, a);
+      s.hi = std::max<unsigned>(s.hi, a + static_cast<unsigned>(mb::register_count(f.layout.type)));
+    }
   };
   cover(encoders_, n);
-  cover(currents_, n);
-  cover(status_, 1);
-  cover(buttons_, 1);
-  cover(control_, 1);
-  cover(heartbeat_, 1);
+  cover(setpoints_, n);
+  for (const Field* f : {&status_, &buttons_, &enable_, &fault_reset_, &heartbeat_, &watchdog_timeout_}) cover(*f, 1);
   const auto start = [](const Span& s) { return s.hi > s.lo ? s.lo : 0u; };
   const auto count = [](const Span& s) { return s.hi > s.lo ? s.hi - s.lo : 0u; };
   mapping_ = modbus_mapping_new_start_address(0, 0, 0, 0, start(holding), count(holding), start(input), count(input));
   if (mapping_ == nullptr)
     return device::Outcome::failure(ErrorCode::kSystem, std::string("lancet-armsim: cannot allocate the register mapping: ") + modbus_strerror(errno));
+  // The enable register starts `off`, the fault reset released.
+  if (enable_.present) put_word(enable_, map.enable_off);
 
   for (int j = 0; j < n; ++j) {
     const auto uj = static_cast<std::size_t>(j);
@@ -129,36 +138,92 @@ device::Outcome ArmServer::init_mapping() {
 // Registers and the drive model (under mu_)
 
 std::uint16_t* ArmServer::reg(const Field& f, int index) const noexcept {
-  const int at = f.address + index * mb::register_count(f.type);
+  const int at = f.address[static_cast<std::size_t>(index)];
   if (f.table == arm::RegisterTable::kInput) return mapping_->tab_input_registers + (at - mapping_->start_input_registers);
   return mapping_->tab_registers + (at - mapping_->start_registers);
 }
 
-std::int64_t ArmServer::get(const Field& f, int index) const noexcept {
+std::uint32_t ArmServer::get_word(const Field& f) const noexcept {
   if (!f.present) return 0;
-  return mb::decode_registers(f.type, high_word_first_, std::span<const std::uint16_t>(reg(f, index), static_cast<std::size_t>(mb::register_count(f.type))));
+  return mb::decode_word(f.layout, std::span<const std::uint16_t>(reg(f), static_cast<std::size_t>(mb::register_count(f.layout.type))));
 }
 
-void ArmServer::put(const Field& f, std::int64_t v, int index) noexcept {
+void ArmServer::put_word(const Field& f, std::uint32_t v) noexcept {
   if (!f.present) return;
-  (void)mb::encode_registers(f.type, high_word_first_, v, std::span<std::uint16_t>(reg(f, index), static_cast<std::size_t>(mb::register_count(f.type))));
+  mb::encode_word(f.layout, v, std::span<std::uint16_t>(reg(f), static_cast<std::size_t>(mb::register_count(f.layout.type))));
+}
+
+double ArmServer::get_value(const Field& f, int index) const noexcept {
+  if (!f.present) return 0;
+  const auto n = static_cast<std::size_t>(mb::register_count(f.layout.type));
+  return f.scale * mb::decode_value(f.layout, std::span<const std::uint16_t>(reg(f, index), n)) + f.bias;
+}
+
+void ArmServer::put_value(const Field& f, double physical, int index) noexcept {
+  if (!f.present) return;
+  const auto n = static_cast<std::size_t>(mb::register_count(f.layout.type));
+  (void)mb::encode_value(f.layout, (physical - f.bias) / f.scale, std::span<std::uint16_t>(reg(f, index), n));
+}
+
+std::uint32_t ArmServer::status_word() const noexcept {
+  std::uint32_t w = 0;
+  const auto set = [&w](const arm::StatusBit& b, bool active) {
+    if (b.mapped() && active != b.active_low) w |= 1u << b.bit;
+  };
+  set(bits_.fault, drive_fault_);
+  set(bits_.comm_lost, comm_lost_);
+  set(bits_.enabled, enabled_);
+  set(bits_.ready, !drive_fault_ && !estop_);
+  set(bits_.estop, estop_);
+  return w;
 }
 
 void ArmServer::apply_control() noexcept {
-  const auto control = control_.present ? static_cast<std::uint32_t>(get(control_)) : mb::kControlEnable;
-  if ((control & mb::kControlFaultReset) != 0 && !fault_sticky_) drive_fault_ = false;
-  enabled_ = (control & mb::kControlEnable) != 0 && !drive_fault_;
-  put(status_, (drive_fault_ ? mb::kStatusDriveFault : 0u) | (enabled_ ? mb::kStatusEnabled : 0u));
+  const arm::ModbusRegisterMap& map = config_.modbus->registers;
+  if (fault_reset_.present && get_word(fault_reset_) == map.fault_reset_value && !fault_sticky_) {
+    drive_fault_ = false;
+    comm_lost_ = false;
+  }
+  const bool on = !enable_.present || get_word(enable_) == map.enable_on;
+  enabled_ = on && !drive_fault_ && !estop_;
+  watch_heartbeat(mono_ns());
+  put_word(status_, status_word());
+}
+
+void ArmServer::watch_heartbeat(std::int64_t now_ns) noexcept {
+  if (!heartbeat_.present) return;
+  const std::uint32_t hb = get_word(heartbeat_);
+  if (hb != hb_last_) {
+    hb_last_ = hb;
+    hb_changed_ns_ = now_ns;
+    if (enabled_) hb_armed_ = true;
+  }
+  if (!enabled_) {
+    hb_armed_ = false;
+    return;
+  }
+  // The watchdog time the drive was given (its register), else the config's.
+  const double ms = watchdog_timeout_.present ? get_value(watchdog_timeout_) : config_.modbus->drive_watchdog * 1e3;
+  if (!hb_armed_ || !(ms > 0) || static_cast<double>(now_ns - hb_changed_ns_) <= ms * 1e6) return;
+  // The host stopped: torque-free now, and a fault that only a fault reset clears.
+  hb_armed_ = false;
+  drive_fault_ = true;
+  comm_lost_ = true;
+  enabled_ = false;
+  for (auto& c : current_) c = 0;
+  ++stats_.watchdog_trips;
+  stats_.last_trip_silence_ms = static_cast<double>(now_ns - hb_changed_ns_) * 1e-6;
+  put_word(status_, status_word());
 }
 
 void ArmServer::publish() noexcept {
   for (int j = 0; j < physics_->joint_count(); ++j) {
     const std::int64_t c = physics_->encoder_counts(j);
     published_[static_cast<std::size_t>(j)] = c;
-    put(encoders_, c, j);
+    put_value(encoders_, static_cast<double>(c), j);
   }
-  put(buttons_, buttons_raw_);
-  put(status_, (drive_fault_ ? mb::kStatusDriveFault : 0u) | (enabled_ ? mb::kStatusEnabled : 0u));
+  put_word(buttons_, buttons_raw_);
+  put_word(status_, status_word());
 }
 
 void ArmServer::step_locked(double dt) noexcept {
@@ -167,7 +232,8 @@ void ArmServer::step_locked(double dt) noexcept {
   cmd.n = physics_->joint_count();
   for (int j = 0; j < cmd.n; ++j) {
     const auto uj = static_cast<std::size_t>(j);
-    current_[uj] = static_cast<double>(get(currents_, j)) * currents_.lsb;
+    const double setpoint = get_value(setpoints_, j);
+    current_[uj] = torque_setpoints_ ? setpoint / config_.actuators[uj].torque_constant : setpoint;
     // The inverse of the driver's mapping: joint torque = current / (current per unit torque).
     cmd.tau[uj] = enabled_ && amps_per_unit_[uj] != 0 ? current_[uj] / amps_per_unit_[uj] : 0.0;
   }
@@ -200,15 +266,19 @@ ArmSnapshot ArmServer::snapshot() const {
     const auto uj = static_cast<std::size_t>(j);
     s.counts[uj] = published_[uj];
     s.q[uj] = physics_->q(j);
-    s.current[uj] = static_cast<double>(get(currents_, j)) * currents_.lsb;
+    const double setpoint = get_value(setpoints_, j);
+    s.current[uj] = torque_setpoints_ ? setpoint / config_.actuators[uj].torque_constant : setpoint;
     s.motor_torque[uj] = physics_->motor_torque(j);
   }
   s.enabled = enabled_;
   s.drive_fault = drive_fault_;
-  s.control = static_cast<std::uint32_t>(get(control_));
-  s.status = static_cast<std::uint32_t>(get(status_));
+  s.comm_lost = comm_lost_;
+  s.estop = estop_;
+  s.control = get_word(enable_);
+  s.status = get_word(status_);
   s.buttons = buttons_raw_;
-  s.heartbeat = static_cast<std::uint32_t>(get(heartbeat_));
+  s.heartbeat = get_word(heartbeat_);
+  s.watchdog_ms = !heartbeat_.present ? 0.0 : watchdog_timeout_.present ? get_value(watchdog_timeout_) : config_.modbus->drive_watchdog * 1e3;
   s.steps = steps_;
   s.tool = physics_->tool_position();
   s.target = target_;
@@ -228,10 +298,16 @@ void ArmServer::set_drive_fault(bool fault, bool sticky) {
   apply_control();
 }
 
+void ArmServer::set_estop(bool pressed) {
+  std::lock_guard lock(mu_);
+  estop_ = pressed;
+  apply_control();
+}
+
 void ArmServer::set_buttons(std::uint32_t raw) {
   std::lock_guard lock(mu_);
   buttons_raw_ = raw;
-  put(buttons_, raw);
+  put_word(buttons_, raw);
 }
 
 void ArmServer::set_pose(std::span<const double> q) {
@@ -386,6 +462,11 @@ void ArmServer::tcp_loop() {
     }
     if (listen_fd_ < 0 && mono_ns() >= relisten_at && !relisten()) relisten_at = mono_ns() + 50'000'000;
 
+    {
+      // The drive-side watchdog runs with or without the physics thread.
+      std::lock_guard lock(mu_);
+      watch_heartbeat(mono_ns());
+    }
     pfds.clear();
     if (listen_fd_ >= 0) pfds.push_back({listen_fd_, POLLIN, 0});
     for (int fd : clients_) pfds.push_back({fd, POLLIN, 0});
@@ -430,6 +511,10 @@ void ArmServer::tcp_loop() {
 void ArmServer::rtu_loop(int fd) {
   std::vector<std::uint8_t> query(MODBUS_RTU_MAX_ADU_LENGTH);
   while (!stop_) {
+    {
+      std::lock_guard lock(mu_);
+      watch_heartbeat(mono_ns());
+    }
     pollfd p{fd, POLLIN, 0};
     if (poll(&p, 1, kPollMs) <= 0) continue;
     if ((p.revents & POLLIN) == 0) {
@@ -454,22 +539,20 @@ bool ArmServer::maybe_glitch(const std::uint8_t* req, int h) {
   if (table != encoders_.table) return false;
   const int addr = (req[h + 1] << 8) | req[h + 2];
   const int nb = (req[h + 3] << 8) | req[h + 4];
-  const int rc = mb::register_count(encoders_.type);
+  const int rc = mb::register_count(encoders_.layout.type);
   const int n = physics_->joint_count();
   // The joints whose registers this request reads.
-  int first = -1, last = -1;
+  int joints[device::kMaxJoints];
+  int k = 0;
   for (int j = 0; j < n; ++j) {
-    const int a = encoders_.address + j * rc;
-    if (a + rc > addr && a < addr + nb) {
-      if (first < 0) first = j;
-      last = j;
-    }
+    const int a = encoders_.address[static_cast<std::size_t>(j)];
+    if (a + rc > addr && a < addr + nb) joints[k++] = j;
   }
-  if (first < 0 || !(uniform() < faults_.encoder_glitch)) return false;
-  const int j = first + static_cast<int>(uniform() * (last - first + 1)) % (last - first + 1);
+  if (k == 0 || !(uniform() < faults_.encoder_glitch)) return false;
+  const int j = joints[static_cast<int>(uniform() * k) % k];
   const std::int64_t size = faults_.glitch_counts != 0 ? faults_.glitch_counts
                                                        : config_.joints[static_cast<std::size_t>(j)].counts_per_rev;
-  put(encoders_, published_[static_cast<std::size_t>(j)] + (uniform() < 0.5 ? -size : size), j);
+  put_value(encoders_, static_cast<double>(published_[static_cast<std::size_t>(j)] + (uniform() < 0.5 ? -size : size)), j);
   ++stats_.glitches;
   return true;
 }
@@ -508,18 +591,19 @@ void ArmServer::send_reply_corrupted(int fd, const std::uint8_t* req, int len, b
 
 void ArmServer::handle_request(int fd, const std::uint8_t* req, int len, int header_length) {
   FaultInjection f;
-  bool drop = false, corrupt = false;
+  bool drop = false, corrupt = false, delay = false;
   {
     std::lock_guard lock(mu_);
     ++stats_.requests;
     f = faults_;
     drop = f.drop_replies > 0 && uniform() < f.drop_replies;
     corrupt = !drop && f.corrupt > 0 && uniform() < f.corrupt;
+    delay = !drop && f.delay_us > 0 && (f.delay_probability >= 1 || uniform() < f.delay_probability);
     if (drop) ++stats_.dropped;
-    if (!drop && f.delay_us > 0) ++stats_.delayed;
+    if (delay) ++stats_.delayed;
   }
   if (drop) return;  // as if the request was lost: not applied, not answered
-  if (f.delay_us > 0) {
+  if (delay) {
     const std::int64_t until = mono_ns() + f.delay_us * 1000;
     while (!stop_ && mono_ns() < until) sleep_ns(std::min<std::int64_t>(until - mono_ns(), 10'000'000));
   }
@@ -534,7 +618,7 @@ void ArmServer::handle_request(int fd, const std::uint8_t* req, int len, int hea
   }
   ++stats_.replies;
   if (glitched)
-    for (int j = 0; j < physics_->joint_count(); ++j) put(encoders_, published_[static_cast<std::size_t>(j)], j);
+    for (int j = 0; j < physics_->joint_count(); ++j) put_value(encoders_, static_cast<double>(published_[static_cast<std::size_t>(j)]), j);
   // Control writes act at once (a fault reset clears the status the client reads next).
   if (is_write(req[header_length])) apply_control();
 }

@@ -10,12 +10,19 @@
 //   server   Modbus TCP on 127.0.0.1 (any number of clients, one request at a time) or Modbus RTU
 //            on an already open file descriptor (a pty master), with optional fault injection.
 //
-// The drive model behind the map's registers (hw_configs/README.md, "Status and control bits"):
-//   control bit 0  enable: the drives follow the current commands only while it is set (a map with
-//                  no control register is always enabled);
-//   control bit 1  fault reset: while set, a latched drive fault is cleared;
-//   status bit 0   drive fault (latched; set_drive_fault() injects one), forces zero torque;
-//   status bit 1   drives enabled.
+// The drive model behind the map's registers (hw_configs/README.md, "[bus.modbus]"):
+//   enable         the drives follow the setpoints only while the enable register holds its `on`
+//                  value (a map with no enable register is always enabled);
+//   fault_reset    while its register holds the fault-reset value, a latched fault is cleared;
+//   heartbeat      the drive-side watchdog: once the heartbeat register changed while enabled, it
+//                  must keep changing; when it stays the same longer than the watchdog time
+//                  (watchdog_timeout's register when the map has one, else the config's
+//                  drive_watchdog_ms; 0: off), the drives go torque-free at once and latch a fault
+//                  with the comm_lost bit (cleared by a fault reset);
+//   status         its named bits (the config's `bits`): fault (latched; set_drive_fault() injects
+//                  one; forces zero torque), comm_lost, enabled, ready (no fault, no e-stop), estop
+//                  (set_estop());
+//   setpoints      current (A) or motor torque (N·m) = scale · raw + bias, as the driver writes them.
 //
 // Not real-time: the server sleeps for injected delays and takes a mutex shared with the physics.
 
@@ -33,6 +40,7 @@
 #include "arm/arm_config.hpp"
 #include "device/arm_physics.hpp"
 #include "device/device.hpp"
+#include "device/modbus_arm.hpp"
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/result.hpp"
 
@@ -51,7 +59,8 @@ enum class HandMode : std::uint8_t {
 /// Faults the server injects into its replies; all off by default.
 struct FaultInjection {
   double drop_replies = 0;    ///< probability [0, 1] that a request gets no reply at all
-  std::int64_t delay_us = 0;  ///< every reply goes out this late (µs)
+  std::int64_t delay_us = 0;  ///< replies go out this late (µs): every one, or those delay_probability picks
+  double delay_probability = 1;  ///< probability [0, 1] that a reply is delayed by delay_us
   double corrupt = 0;         ///< probability [0, 1] that one byte of a reply is flipped: over TCP in
                               ///< the framing (transaction id, function code, byte count: the client
                               ///< sees a protocol error, never a wrong value), over RTU anywhere past
@@ -81,6 +90,8 @@ struct ServerStats {
   std::uint64_t glitches = 0;     ///< replies with an encoder glitch
   std::uint64_t connections = 0;  ///< TCP connections accepted
   std::uint64_t forced_disconnects = 0;  ///< times the clients were cut off on purpose
+  std::uint64_t watchdog_trips = 0;      ///< times the heartbeat watchdog made the drives torque-free
+  double last_trip_silence_ms = 0;       ///< how long the heartbeat had not changed at the last trip
 };
 
 /// A consistent copy of the simulated arm and its registers.
@@ -88,11 +99,14 @@ struct ArmSnapshot {
   int n = 0;
   std::array<std::int64_t, device::kMaxJoints> counts{};    ///< encoder counts as published (no glitch)
   std::array<double, device::kMaxJoints> q{};               ///< rad (m), the true joint positions
-  std::array<double, device::kMaxJoints> current{};         ///< A, the current commands in the registers
+  std::array<double, device::kMaxJoints> current{};         ///< A, the motor currents the setpoint registers ask for
   std::array<double, device::kMaxJoints> motor_torque{};    ///< N·m (N) the motors gave in the last step
-  bool enabled = false;      ///< drives on (control enable and no fault)
+  bool enabled = false;      ///< drives on (enable register `on` and no fault)
   bool drive_fault = false;  ///< latched drive fault
-  std::uint32_t control = 0, status = 0, buttons = 0, heartbeat = 0;  ///< register words, raw
+  bool comm_lost = false;    ///< the heartbeat watchdog tripped (latched with the fault)
+  bool estop = false;        ///< the e-stop is pressed
+  std::uint32_t control = 0, status = 0, buttons = 0, heartbeat = 0;  ///< register words, raw (control: the enable register)
+  double watchdog_ms = 0;    ///< the heartbeat watchdog time in force (0: off)
   std::uint64_t steps = 0;   ///< physics steps so far
   Vec3 tool{}, target{};     ///< m, tool point and hand target (device frame)
   ServerStats stats;
@@ -119,9 +133,11 @@ class ArmServer {
 
   // Test and demo hooks; thread-safe.
   void set_faults(const FaultInjection& faults);
-  /// Latches a drive fault (status bit 0, zero torque) or clears it. A sticky fault ignores the
-  /// fault-reset bit (a drive that will not come back).
+  /// Latches a drive fault (the status' fault bit, zero torque) or clears it. A sticky fault
+  /// ignores the fault reset (a drive that will not come back).
   void set_drive_fault(bool fault, bool sticky = false);
+  /// Presses (or releases) the e-stop: the status' estop bit, zero torque while pressed.
+  void set_estop(bool pressed);
   /// The raw word of the buttons register.
   void set_buttons(std::uint32_t raw);
   /// Puts the arm at q (rad / m) at rest and publishes its encoders.
@@ -134,12 +150,13 @@ class ArmServer {
   void disconnect_clients(double refuse_s);
 
  private:
+  /// One entry of the map: where each of its values is and how it is coded.
   struct Field {
     bool present = false;
     arm::RegisterTable table = arm::RegisterTable::kInput;
-    std::uint16_t address = 0;
-    arm::FieldType type = arm::FieldType::kU16;
-    double lsb = 1;
+    std::array<std::uint16_t, device::kMaxJoints> address{};
+    device::modbus::Layout layout;
+    double scale = 1, bias = 0;
   };
 
   ArmServer(const arm::ArmConfig& config, const ServerOptions& options, std::unique_ptr<device::ArmPhysics> physics);
@@ -157,17 +174,22 @@ class ArmServer {
 
   // Under mu_.
   std::uint16_t* reg(const Field& f, int index = 0) const noexcept;
-  std::int64_t get(const Field& f, int index = 0) const noexcept;
-  void put(const Field& f, std::int64_t v, int index = 0) noexcept;
+  std::uint32_t get_word(const Field& f) const noexcept;
+  void put_word(const Field& f, std::uint32_t v) noexcept;
+  double get_value(const Field& f, int index = 0) const noexcept;  ///< scale · raw + bias
+  void put_value(const Field& f, double physical, int index = 0) noexcept;
+  std::uint32_t status_word() const noexcept;
   void apply_control() noexcept;
+  void watch_heartbeat(std::int64_t now_ns) noexcept;
   void step_locked(double dt) noexcept;
   void publish() noexcept;
   double uniform() noexcept;
 
   arm::ArmConfig config_;
   ServerOptions options_;
-  bool high_word_first_ = true;
-  Field encoders_, currents_, status_, buttons_, control_, heartbeat_;
+  Field encoders_, setpoints_, status_, buttons_, enable_, fault_reset_, heartbeat_, watchdog_timeout_;
+  arm::StatusBits bits_;
+  bool torque_setpoints_ = false;  // setpoints in N·m at the motor (else A)
   std::array<double, device::kMaxJoints> amps_per_unit_{};  // motor A per joint N·m (signed)
 
   mutable std::mutex mu_;
@@ -175,7 +197,11 @@ class ArmServer {
   ::_modbus_mapping_t* mapping_ = nullptr;
   std::array<std::int64_t, device::kMaxJoints> published_{};
   std::array<double, device::kMaxJoints> current_{};
-  bool enabled_ = false, drive_fault_ = false, fault_sticky_ = false;
+  bool enabled_ = false, drive_fault_ = false, fault_sticky_ = false, comm_lost_ = false, estop_ = false;
+  // The heartbeat watchdog: armed by a change while enabled, tripped by none for watchdog time.
+  std::uint32_t hb_last_ = 0;
+  std::int64_t hb_changed_ns_ = 0;
+  bool hb_armed_ = false;
   std::uint32_t buttons_raw_ = 0;
   std::uint64_t steps_ = 0;
   double sim_time_ = 0;

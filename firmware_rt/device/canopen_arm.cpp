@@ -194,6 +194,188 @@ const char* sdo_abort_text(std::uint32_t code) noexcept {
   }
 }
 
+const char* mode_name(std::int8_t mode) noexcept {
+  switch (mode) {
+    case 0: return "no mode";
+    case kModeProfileTorque: return "profile torque";
+    case kModeCyclicSyncTorque: return "cyclic synchronous torque";
+    case 1: return "profile position";
+    case 3: return "profile velocity";
+    case 6: return "homing";
+    case 8: return "cyclic synchronous position";
+    case 9: return "cyclic synchronous velocity";
+    default: return "another mode";
+  }
+}
+
+std::optional<InterpolationPeriod> interpolation_period(std::int64_t period_us) noexcept {
+  if (period_us <= 0) return std::nullopt;
+  std::int64_t value = period_us;
+  int index = -6;
+  while (value % 10 == 0 && index < 0) {
+    value /= 10;
+    ++index;
+  }
+  if (value > 255) return std::nullopt;
+  return InterpolationPeriod{static_cast<std::uint8_t>(value), static_cast<std::int8_t>(index)};
+}
+
+namespace {
+
+struct EmcyEntry {
+  std::uint16_t code;
+  const char* text;
+};
+
+// The common codes of CiA 301 (communication) and CiA 402 / IEC 61800-7 (drives).
+constexpr EmcyEntry kEmcyCodes[] = {
+    {0x0000, "error reset or no error"},
+    {0x1000, "generic error"},
+    {0x2110, "short circuit / earth leakage (input side)"},
+    {0x2120, "earth leakage (input side)"},
+    {0x2130, "short circuit (input side)"},
+    {0x2230, "short circuit / earth leakage (inside the device)"},
+    {0x2300, "current, device output side"},
+    {0x2310, "continuous over-current (output side)"},
+    {0x2311, "continuous over-current no. 1 (output side)"},
+    {0x2312, "continuous over-current no. 2 (output side)"},
+    {0x2320, "short circuit / earth leakage (motor side)"},
+    {0x2330, "earth leakage (motor side)"},
+    {0x2340, "short circuit (motor side)"},
+    {0x3110, "mains over-voltage"},
+    {0x3120, "mains under-voltage"},
+    {0x3130, "mains phase failure"},
+    {0x3210, "DC link over-voltage"},
+    {0x3220, "DC link under-voltage"},
+    {0x3230, "DC link load error"},
+    {0x3310, "output over-voltage"},
+    {0x4110, "excess ambient temperature"},
+    {0x4120, "too low ambient temperature"},
+    {0x4210, "excess device temperature"},
+    {0x4220, "too low device temperature"},
+    {0x4300, "drive temperature"},
+    {0x4310, "drive over-temperature"},
+    {0x4320, "too low drive temperature"},
+    {0x4410, "excess supply temperature"},
+    {0x5111, "control supply ±15 V"},
+    {0x5112, "control supply +24 V"},
+    {0x5113, "control supply +5 V"},
+    {0x5210, "measurement circuit"},
+    {0x5220, "computing circuit"},
+    {0x5400, "power section"},
+    {0x5410, "output stages"},
+    {0x5420, "chopper"},
+    {0x5430, "input stages"},
+    {0x5440, "contactors"},
+    {0x5441, "contactor 1 (manufacturer-specific)"},
+    {0x5450, "fuses"},
+    {0x5530, "flash memory"},
+    {0x6010, "software reset (watchdog)"},
+    {0x6100, "internal software"},
+    {0x6200, "user software"},
+    {0x6300, "data set"},
+    {0x6320, "parameter error"},
+    {0x7110, "brake chopper"},
+    {0x7111, "brake chopper failure"},
+    {0x7112, "brake chopper over-current"},
+    {0x7120, "motor"},
+    {0x7121, "motor blocked"},
+    {0x7122, "motor error or commutation malfunction"},
+    {0x7123, "motor tilted"},
+    {0x7300, "sensor"},
+    {0x7303, "resolver 1 fault"},
+    {0x7304, "resolver 2 fault"},
+    {0x7305, "incremental encoder 1 fault"},
+    {0x7306, "incremental encoder 2 fault"},
+    {0x7310, "speed sensor"},
+    {0x7320, "position sensor"},
+    {0x8100, "communication"},
+    {0x8110, "CAN overrun (objects lost)"},
+    {0x8120, "CAN in error passive mode"},
+    {0x8130, "heartbeat / life guard error"},
+    {0x8140, "recovered from bus off"},
+    {0x8150, "CAN-ID collision"},
+    {0x8200, "protocol error"},
+    {0x8210, "PDO not processed: length error"},
+    {0x8220, "PDO length exceeded"},
+    {0x8240, "unexpected SYNC data length"},
+    {0x8250, "RPDO timeout"},
+    {0x8300, "torque control"},
+    {0x8311, "excess torque"},
+    {0x8312, "difficult start-up"},
+    {0x8313, "standstill torque"},
+    {0x8321, "insufficient torque"},
+    {0x8331, "torque fault"},
+    {0x8400, "velocity / speed controller"},
+    {0x8500, "position controller"},
+    {0x8600, "positioning controller"},
+    {0x8611, "following error"},
+    {0x8612, "reference limit"},
+    {0x8700, "sync controller"},
+    {0x8800, "winding controller"},
+    {0x9000, "external error"},
+    {0xF000, "additional functions"},
+    {0xFF00, "device-specific"},
+};
+
+// Classes by the high byte, then by the high nibble.
+constexpr EmcyEntry kEmcyByteClasses[] = {
+    {0x00, "error reset or no error"},  {0x10, "generic error"},
+    {0x20, "current"},                  {0x21, "current, device input side"},
+    {0x22, "current inside the device"}, {0x23, "current, device output side"},
+    {0x30, "voltage"},                  {0x31, "mains voltage"},
+    {0x32, "voltage inside the device"}, {0x33, "output voltage"},
+    {0x40, "temperature"},              {0x41, "ambient temperature"},
+    {0x42, "device temperature"},       {0x43, "drive temperature"},
+    {0x44, "supply temperature"},       {0x50, "device hardware"},
+    {0x51, "supply"},                   {0x52, "control"},
+    {0x53, "operating unit"},           {0x54, "power section"},
+    {0x55, "data storage"},             {0x60, "device software"},
+    {0x61, "internal software"},        {0x62, "user software"},
+    {0x63, "data set"},                 {0x70, "additional modules"},
+    {0x71, "power"},                    {0x72, "measurement circuit"},
+    {0x73, "sensor"},                   {0x74, "computation circuit"},
+    {0x75, "communication"},            {0x76, "data storage"},
+    {0x80, "monitoring"},               {0x81, "monitoring: communication"},
+    {0x82, "monitoring: protocol error"}, {0x83, "torque control"},
+    {0x84, "velocity / speed controller"}, {0x85, "position controller"},
+    {0x86, "positioning controller"},   {0x87, "sync controller"},
+    {0x88, "winding controller"},       {0x90, "external error"},
+    {0xF0, "additional functions"},     {0xFF, "device-specific"},
+};
+constexpr const char* kEmcyNibbleClasses[16] = {
+    "error reset or no error", "generic error", "current", "voltage", "temperature", "device hardware",
+    "device software", "additional modules", "monitoring", "external error", "reserved class", "reserved class",
+    "reserved class", "reserved class", "reserved class", "additional functions",
+};
+
+}  // namespace
+
+EmcyMeaning emcy_meaning(std::uint16_t code) noexcept {
+  for (const EmcyEntry& e : kEmcyCodes)
+    if (e.code == code) return {e.text, true};
+  for (const EmcyEntry& e : kEmcyByteClasses)
+    if (e.code == (code >> 8)) return {e.text, false};
+  return {kEmcyNibbleClasses[code >> 12], false};
+}
+
+const char* format_emcy(char* buf, std::size_t size, const Emcy& e) noexcept {
+  if (buf == nullptr || size == 0) return buf;
+  const EmcyMeaning m = emcy_meaning(e.error_code);
+  bool by_byte = false;
+  for (const EmcyEntry& c : kEmcyByteClasses) by_byte = by_byte || c.code == (e.error_code >> 8);
+  if (m.specific) {
+    std::snprintf(buf, size, "node %d: EMCY 0x%04X %s, error register 0x%02X", e.node_id, e.error_code, m.text, e.error_register);
+  } else if (by_byte) {
+    std::snprintf(buf, size, "node %d: EMCY 0x%04X (0x%02Xxx %s), error register 0x%02X", e.node_id, e.error_code,
+                  e.error_code >> 8, m.text, e.error_register);
+  } else {
+    std::snprintf(buf, size, "node %d: EMCY 0x%04X (0x%Xxxx %s), error register 0x%02X", e.node_id, e.error_code,
+                  e.error_code >> 12, m.text, e.error_register);
+  }
+  return buf;
+}
+
 }  // namespace canopen
 
 // ---------------------------------------------------------------------------------------------
@@ -221,8 +403,27 @@ Result<std::unique_ptr<CanopenArm>> CanopenArm::create(const arm::ArmConfig& con
                                           std::to_string(config.actuators.size()) + " actuator entries"};
   }
   if (!(bus.sync_period > 0) || !(timing.read_budget_fraction > 0) || !(timing.sdo_timeout > 0) ||
-      !(timing.state_timeout > 0) || !(timing.heartbeat_timeout_factor >= 1)) {
+      !(timing.state_timeout > 0) || !(timing.mode_timeout > 0) || !(timing.heartbeat_timeout_factor >= 1)) {
     return Error{ErrorCode::kInvalid, where + ": bus.canopen: sync period and timeouts must be > 0 (heartbeat factor >= 1)"};
+  }
+  // 0x1006 is whole µs; cyclic synchronous mode also writes the period to 0x60C2.
+  const double period_us = bus.sync_period * 1e6;
+  const auto whole_us = static_cast<std::int64_t>(std::llround(period_us));
+  std::optional<canopen::InterpolationPeriod> interpolation = canopen::interpolation_period(whole_us);
+  if (std::abs(period_us - static_cast<double>(whole_us)) > 1e-6 ||
+      (bus.mode == arm::Cia402Mode::kCyclicSyncTorque && !interpolation)) {
+    return Error{ErrorCode::kInvalid, where + ": bus.canopen.sync_period_us: " + std::to_string(period_us) +
+                                          " µs is not a whole number of µs that 0x60C2 can express (value 1..255 · 10^index s)"};
+  }
+  if (bus.master_node_id < 1 || bus.master_node_id > 127 ||
+      std::find(bus.node_ids.begin(), bus.node_ids.end(), bus.master_node_id) != bus.node_ids.end()) {
+    return Error{ErrorCode::kInvalid, where + ": bus.canopen.master_node_id: expected 1..127 and none of node_ids, found " +
+                                          std::to_string(bus.master_node_id)};
+  }
+  if (!(bus.drive_watchdog >= 0) || bus.drive_watchdog > 65.535 ||
+      (bus.drive_watchdog > 0 && bus.drive_watchdog < 4 * bus.sync_period)) {
+    return Error{ErrorCode::kInvalid, where + ": bus.canopen.drive_watchdog_ms: expected 0 or 4 SYNC periods .. 65535 ms, found " +
+                                          std::to_string(bus.drive_watchdog * 1e3) + " ms"};
   }
 
   std::unique_ptr<CanopenArm> a(new CanopenArm(config, policy, timing));
@@ -312,6 +513,9 @@ Result<std::unique_ptr<CanopenArm>> CanopenArm::create(const arm::ArmConfig& con
   a->sync_period_ns_ = ns_of(bus.sync_period);
   a->read_budget_ns_ = std::max<std::int64_t>(1000, ns_of(bus.sync_period * timing.read_budget_fraction));
   a->heartbeat_timeout_ns_ = bus.heartbeat_period > 0 ? ns_of(bus.heartbeat_period * timing.heartbeat_timeout_factor) : 0;
+  a->sdo_timeout_ns_ = ns_of(timing.sdo_timeout);
+  a->master_heartbeat_ns_ = bus.drive_watchdog > 0 ? ns_of(bus.drive_watchdog / 4) : 0;
+  if (bus.mode == arm::Cia402Mode::kCyclicSyncTorque) a->interpolation_ = interpolation;
   return a;
 }
 
@@ -333,6 +537,26 @@ CanopenArm::~CanopenArm() {
 // ---------------------------------------------------------------------------------------------
 // Frames (real-time safe)
 
+namespace {
+
+// errno in words without allocating (strerror may format into a buffer of its own).
+const char* errno_name(int err) noexcept {
+  const char* d = strerrordesc_np(err);
+  return d != nullptr ? d : "unknown error";
+}
+
+::can_frame sdo_upload_frame(int node_id, std::uint16_t index, std::uint8_t sub) noexcept {
+  ::can_frame f{};
+  f.can_id = canopen::kCobSdoRx + static_cast<std::uint32_t>(node_id);
+  f.len = 8;
+  f.data[0] = 0x40;
+  put_le(f.data + 1, index, 2);
+  f.data[3] = sub;
+  return f;
+}
+
+}  // namespace
+
 void CanopenArm::note(IoStatus s, CanopenEvent::What what, int i, std::uint32_t cob, int err_no, std::int64_t now) noexcept {
   CanopenEvent e{};
   e.status = s;
@@ -348,6 +572,94 @@ void CanopenArm::note(IoStatus s, CanopenEvent::What what, int i, std::uint32_t 
     e.emcy = info.last_emcy;
   }
   last_event_ = e;
+}
+
+void CanopenArm::report(IoStatus s, CanopenEvent::What what, int i, std::uint32_t cob, int err_no, std::int64_t now) noexcept {
+  using W = CanopenEvent::What;
+  note(s, what, i, cob, err_no, now);
+  const CanopenEvent& e = last_event_;
+  const char* bus = bus_.interface_name.c_str();
+  char text[112];
+  std::uint32_t code = 0;
+  switch (what) {
+    case W::kNone: std::snprintf(text, sizeof text, "bus %s: %s", bus, to_string(s)); break;
+    case W::kSocket:
+      code = static_cast<std::uint32_t>(err_no);
+      if (s == IoStatus::kTimeout) {
+        std::snprintf(text, sizeof text, "bus %s: transmit queue full (%s): no node acknowledges frames", bus, errno_name(err_no));
+      } else {
+        std::snprintf(text, sizeof text, "bus %s: socket: %s (errno %d)", bus, errno_name(err_no), err_no);
+      }
+      break;
+    case W::kBusOff: std::snprintf(text, sizeof text, "bus %s: the CAN controller went bus-off (wiring, termination, bitrate?)", bus); break;
+    case W::kNotSetUp: std::snprintf(text, sizeof text, "bus %s: the nodes are not set up since the link was lost (reconnect pending)", bus); break;
+    case W::kHeartbeatLost: {
+      code = cob;
+      const NodeInfo& info = nodes_[static_cast<std::size_t>(i)].info;
+      std::snprintf(text, sizeof text, "node %d: heartbeat 0x%03X overdue: none for %.0f ms (every %.0f ms)", e.node_id, cob,
+                    static_cast<double>(now - info.last_heartbeat_ns) * 1e-6, bus_.heartbeat_period * 1e3);
+      break;
+    }
+    case W::kNotOperational:
+      code = static_cast<std::uint32_t>(e.nmt);
+      if (nodes_[static_cast<std::size_t>(i)].boot_seen) {
+        std::snprintf(text, sizeof text, "node %d: boot-up message (0x%03X): the node rebooted", e.node_id, cob);
+      } else {
+        std::snprintf(text, sizeof text, "node %d: NMT %s (heartbeat 0x%03X): it left operational", e.node_id, canopen::to_string(e.nmt), cob);
+      }
+      break;
+    case W::kEmcy:
+      code = e.emcy.error_code;
+      (void)canopen::format_emcy(text, sizeof text, e.emcy);
+      break;
+    case W::kFaultBit:
+      code = e.statusword;
+      std::snprintf(text, sizeof text, "node %d: statusword 0x%04X has the fault bit ('%s')", e.node_id, e.statusword,
+                    canopen::to_string(canopen::cia402_state(e.statusword)));
+      break;
+    case W::kNotEnabled:
+      code = e.statusword;
+      std::snprintf(text, sizeof text, "node %d: left operation enabled: now '%s' (statusword 0x%04X)", e.node_id,
+                    canopen::to_string(canopen::cia402_state(e.statusword)), e.statusword);
+      break;
+    case W::kBadLength: {
+      code = cob;
+      const int number = static_cast<int>(((cob & 0x780u) - 0x080u) / 0x100u);
+      int want = -1;
+      for (int k = 0; k < n_tpdos_; ++k)
+        if (tpdos_[static_cast<std::size_t>(k)].number == number) want = tpdos_[static_cast<std::size_t>(k)].size;
+      std::snprintf(text, sizeof text, "node %d: frame 0x%03X has %u bytes, its mapping %d", e.node_id, cob,
+                    nodes_[static_cast<std::size_t>(i)].bad_len, want);
+      break;
+    }
+    case W::kMissingTpdo: {
+      code = cob;
+      const int number = static_cast<int>(((cob & 0x780u) - 0x080u) / 0x100u);
+      int divider = 1;
+      std::uint64_t since = 0;
+      for (int k = 0; k < n_tpdos_; ++k) {
+        if (tpdos_[static_cast<std::size_t>(k)].number != number) continue;
+        divider = tpdos_[static_cast<std::size_t>(k)].divider;
+        since = sync_count_ - nodes_[static_cast<std::size_t>(i)].tpdo_sync[static_cast<std::size_t>(k)];
+      }
+      if (divider == 1) {
+        std::snprintf(text, sizeof text, "node %d: TPDO%d (0x%03X) missing: not within %.2f ms of the SYNC", e.node_id, number, cob,
+                      static_cast<double>(read_budget_ns_) * 1e-6);
+      } else {
+        std::snprintf(text, sizeof text, "node %d: TPDO%d (0x%03X, every %d SYNCs) missing for %llu SYNCs", e.node_id, number, cob,
+                      divider, static_cast<unsigned long long>(since));
+      }
+      break;
+    }
+  }
+  note_error(s, e.node_id > 0 ? e.node_id : -1, code, text);
+}
+
+IoStatus CanopenArm::report_send_failure(IoStatus s) noexcept {
+  const bool dead = socket_failed_;
+  const IoStatus status = dead ? IoStatus::kDisconnected : s;
+  report(status, CanopenEvent::What::kSocket, -1, last_event_.cob_id, dead ? socket_errno_ : last_event_.err_no, monotonic_ns());
+  return status;
 }
 
 IoStatus CanopenArm::send(const ::can_frame& f) noexcept {
@@ -384,6 +696,48 @@ void CanopenArm::send_nmt(canopen::NmtCommand cmd, int node_id) noexcept {
   (void)send(f);
 }
 
+void CanopenArm::produce_heartbeat(std::int64_t now) noexcept {
+  if (master_heartbeat_ns_ <= 0 || fd_ < 0 || now < next_master_heartbeat_ns_) return;
+  ::can_frame f{};
+  f.can_id = canopen::kCobHeartbeat + static_cast<std::uint32_t>(bus_.master_node_id);
+  f.len = 1;
+  f.data[0] = static_cast<std::uint8_t>(canopen::NmtState::kOperational);
+  // Not through send(): a failure here is the socket's or the queue's, and the SYNC or SDO request
+  // that follows reports it. Until one goes out, every drain tries again.
+  if (::write(fd_, &f, sizeof f) != static_cast<ssize_t>(sizeof f)) return;
+  ++master_heartbeats_;
+  next_master_heartbeat_ns_ += master_heartbeat_ns_;
+  if (next_master_heartbeat_ns_ <= now) next_master_heartbeat_ns_ = now + master_heartbeat_ns_;
+}
+
+void CanopenArm::wait_frames(std::int64_t deadline) noexcept {
+  const std::int64_t now = monotonic_ns();
+  std::int64_t until = deadline;
+  if (producing_ && master_heartbeat_ns_ > 0) {
+    until = std::min(until, next_master_heartbeat_ns_);
+    // A heartbeat that could not go out is retried at the next drain, not in a busy loop.
+    if (until <= now) until = std::min(deadline, now + 200'000);
+  }
+  if (until <= now) return;
+  pollfd p{fd_, POLLIN, 0};
+  const timespec ts = to_timespec(until - now);
+  if (::ppoll(&p, 1, &ts, nullptr) < 0 && errno != EINTR) {
+    socket_failed_ = true;
+    socket_errno_ = errno;
+  }
+}
+
+void CanopenArm::take_position(Node& nd, std::int32_t raw) noexcept {
+  if (nd.have_position) {
+    // Unwrap the 32-bit counter: the difference taken modulo 2^32 is the motion since last time.
+    nd.counts += static_cast<std::int32_t>(static_cast<std::uint32_t>(raw) - static_cast<std::uint32_t>(nd.last_raw));
+  } else {
+    nd.counts = raw;
+    nd.have_position = true;
+  }
+  nd.last_raw = raw;
+}
+
 void CanopenArm::handle(const ::can_frame& f, std::int64_t now) noexcept {
   if ((f.can_id & CAN_ERR_FLAG) != 0) {
     if ((f.can_id & CAN_ERR_BUSOFF) != 0) bus_off_ = true;
@@ -401,6 +755,7 @@ void CanopenArm::handle(const ::can_frame& f, std::int64_t now) noexcept {
       if (f.len < 3) {
         nd.bad_length = true;
         nd.bad_cob = cob;
+        nd.bad_len = f.len;
         return;
       }
       canopen::Emcy e{};
@@ -425,21 +780,12 @@ void CanopenArm::handle(const ::can_frame& f, std::int64_t now) noexcept {
         if (f.len != p.size) {
           nd.bad_length = true;
           nd.bad_cob = cob;
+          nd.bad_len = f.len;
           return;
         }
         if (p.statusword.present) nd.info.statusword = static_cast<std::uint16_t>(get_le(f.data + p.statusword.offset, 2));
         if (p.inputs.present) nd.inputs = get_le(f.data + p.inputs.offset, 4);
-        if (p.position.present) {
-          const auto raw = static_cast<std::int32_t>(get_le(f.data + p.position.offset, 4));
-          if (nd.have_position) {
-            // Unwrap the 32-bit counter: the difference taken modulo 2^32 is the motion since last time.
-            nd.counts += static_cast<std::int32_t>(static_cast<std::uint32_t>(raw) - static_cast<std::uint32_t>(nd.last_raw));
-          } else {
-            nd.counts = raw;
-            nd.have_position = true;
-          }
-          nd.last_raw = raw;
-        }
+        if (p.position.present) take_position(nd, static_cast<std::int32_t>(get_le(f.data + p.position.offset, 4)));
         nd.tpdo_sync[static_cast<std::size_t>(k)] = sync_count_;
         // Only an operational node sends PDOs: this overrides a heartbeat sent before it started
         // (frames of one node arrive in order, so a later heartbeat still says what follows).
@@ -469,6 +815,7 @@ void CanopenArm::handle(const ::can_frame& f, std::int64_t now) noexcept {
 }
 
 bool CanopenArm::drain(std::int64_t now) noexcept {
+  if (producing_) produce_heartbeat(now);
   for (int k = 0; k < kMaxFramesPerDrain; ++k) {
     ::can_frame f{};
     const ssize_t r = ::read(fd_, &f, sizeof f);
@@ -496,48 +843,41 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
   ++sync_count_;
   const std::int64_t deadline = cycle_t_ns_ + wait_ns;
   for (;;) {
-    std::int64_t now = monotonic_ns();
-    if (!drain(now)) return IoStatus::kDisconnected;
+    if (!drain(monotonic_ns())) return IoStatus::kDisconnected;
     bool all = true;
     for (int j = 0; j < n_ && all; ++j) {
       const Node& nd = nodes_[static_cast<std::size_t>(j)];
       all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
     }
     if (all) return IoStatus::kOk;
-    now = monotonic_ns();
-    if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
-    pollfd p{fd_, POLLIN, 0};
-    const timespec ts = to_timespec(deadline - now);
-    if (::ppoll(&p, 1, &ts, nullptr) < 0 && errno != EINTR) {
-      socket_failed_ = true;
-      socket_errno_ = errno;
-      return IoStatus::kDisconnected;
-    }
+    if (monotonic_ns() >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
+    wait_frames(deadline);
+    if (socket_failed_) return IoStatus::kDisconnected;
   }
 }
 
 IoStatus CanopenArm::evaluate(std::int64_t now, bool require_enabled) noexcept {
   using W = CanopenEvent::What;
   if (socket_failed_) {
-    note(IoStatus::kDisconnected, W::kSocket, -1, 0, socket_errno_, now);
+    report(IoStatus::kDisconnected, W::kSocket, -1, 0, socket_errno_, now);
     return IoStatus::kDisconnected;
   }
   if (bus_off_) {
-    note(IoStatus::kDisconnected, W::kBusOff, -1, 0, 0, now);
+    report(IoStatus::kDisconnected, W::kBusOff, -1, 0, 0, now);
     return IoStatus::kDisconnected;
   }
   for (int j = 0; j < n_; ++j) {
     Node& nd = nodes_[static_cast<std::size_t>(j)];
     if (nd.emcy_pending) {
       nd.emcy_pending = false;
-      note(IoStatus::kDeviceFault, W::kEmcy, j, canopen::kCobEmcy + static_cast<std::uint32_t>(nd.info.node_id), 0, now);
+      report(IoStatus::kDeviceFault, W::kEmcy, j, canopen::kCobEmcy + static_cast<std::uint32_t>(nd.info.node_id), 0, now);
       return IoStatus::kDeviceFault;
     }
   }
   for (int j = 0; j < n_; ++j) {
     const Node& nd = nodes_[static_cast<std::size_t>(j)];
     if ((nd.info.statusword & canopen::kSwFault) != 0) {
-      note(IoStatus::kDeviceFault, W::kFaultBit, j, 0, 0, now);
+      report(IoStatus::kDeviceFault, W::kFaultBit, j, 0, 0, now);
       return IoStatus::kDeviceFault;
     }
   }
@@ -545,18 +885,18 @@ IoStatus CanopenArm::evaluate(std::int64_t now, bool require_enabled) noexcept {
     const Node& nd = nodes_[static_cast<std::size_t>(j)];
     const std::uint32_t hb_cob = canopen::kCobHeartbeat + static_cast<std::uint32_t>(nd.info.node_id);
     if (heartbeat_timeout_ns_ > 0 && now - nd.info.last_heartbeat_ns > heartbeat_timeout_ns_) {
-      note(IoStatus::kDisconnected, W::kHeartbeatLost, j, hb_cob, 0, now);
+      report(IoStatus::kDisconnected, W::kHeartbeatLost, j, hb_cob, 0, now);
       return IoStatus::kDisconnected;
     }
     if (nd.boot_seen || (nd.info.nmt != canopen::NmtState::kOperational && nd.info.nmt != canopen::NmtState::kUnknown)) {
-      note(IoStatus::kDisconnected, W::kNotOperational, j, hb_cob, 0, now);
+      report(IoStatus::kDisconnected, W::kNotOperational, j, hb_cob, 0, now);
       return IoStatus::kDisconnected;
     }
   }
   for (int j = 0; j < n_; ++j) {
     const Node& nd = nodes_[static_cast<std::size_t>(j)];
     if (nd.bad_length) {
-      note(IoStatus::kProtocolError, W::kBadLength, j, nd.bad_cob, 0, now);
+      report(IoStatus::kProtocolError, W::kBadLength, j, nd.bad_cob, 0, now);
       return IoStatus::kProtocolError;
     }
   }
@@ -573,7 +913,7 @@ IoStatus CanopenArm::evaluate(std::int64_t now, bool require_enabled) noexcept {
         missing = sync_count_ - tracking_since_ > slack && sync_count_ - nd.tpdo_sync[static_cast<std::size_t>(k)] > slack;
       }
       if (missing) {
-        note(IoStatus::kTimeout, W::kMissingTpdo, j, canopen::tpdo_cob_id(p.number, nd.info.node_id), 0, now);
+        report(IoStatus::kTimeout, W::kMissingTpdo, j, canopen::tpdo_cob_id(p.number, nd.info.node_id), 0, now);
         return IoStatus::kTimeout;
       }
     }
@@ -582,7 +922,7 @@ IoStatus CanopenArm::evaluate(std::int64_t now, bool require_enabled) noexcept {
     for (int j = 0; j < n_; ++j) {
       const Node& nd = nodes_[static_cast<std::size_t>(j)];
       if (canopen::cia402_state(nd.info.statusword) != canopen::Cia402State::kOperationEnabled) {
-        note(IoStatus::kDeviceFault, W::kNotEnabled, j, 0, 0, now);
+        report(IoStatus::kDeviceFault, W::kNotEnabled, j, 0, 0, now);
         return IoStatus::kDeviceFault;
       }
     }
@@ -627,15 +967,9 @@ void CanopenArm::restart_tracking(std::int64_t now) noexcept {
   }
 }
 
-IoStatus CanopenArm::on_read(JointState& out) noexcept {
-  if (!pdo_running_) return IoStatus::kNotActive;
-  IoStatus s = exchange(read_budget_ns_);
-  if (s == IoStatus::kOk) s = evaluate(monotonic_ns(), state() == Lifecycle::kActive);
-  if (s == IoStatus::kDisconnected || s == IoStatus::kDeviceFault) send_zero_torque();  // both trip kFault at once
-  if (s != IoStatus::kOk) return s;
-
+void CanopenArm::fill_state(JointState& out, std::int64_t t_ns) noexcept {
   out.n = n_;
-  const double dt = prev_good_t_ns_ > 0 ? static_cast<double>(cycle_t_ns_ - prev_good_t_ns_) * 1e-9 : 0.0;
+  const double dt = prev_good_t_ns_ > 0 ? static_cast<double>(t_ns - prev_good_t_ns_) * 1e-9 : 0.0;
   out.status = 0;
   for (int j = 0; j < n_; ++j) {
     const auto uj = static_cast<std::size_t>(j);
@@ -649,9 +983,102 @@ IoStatus CanopenArm::on_read(JointState& out) noexcept {
     if ((sw & canopen::kSwFault) != 0) out.status |= 1u << (8 + j);
     if ((sw & canopen::kSwWarning) != 0) out.status |= 1u << (16 + j);
   }
-  prev_good_t_ns_ = cycle_t_ns_;
+  prev_good_t_ns_ = t_ns;
   const std::uint32_t raw = nodes_[static_cast<std::size_t>(buttons_joint_)].inputs;
   out.buttons = pressed_buttons(config_.buttons, raw);
+}
+
+CanopenArm::SdoReply CanopenArm::sdo_request(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub,
+                                            bool upload) noexcept {
+  using K = SdoReply::Kind;
+  Node& nd = nodes_[static_cast<std::size_t>(i)];
+  socket_failed_ = false;
+  if (!drain(monotonic_ns())) return {K::kSocket, 0};
+  nd.sdo_reply = false;
+  if (send(request) != IoStatus::kOk) return {K::kSocket, 0};
+  const std::int64_t deadline = monotonic_ns() + sdo_timeout_ns_;
+  for (;;) {
+    if (!drain(monotonic_ns())) return {K::kSocket, 0};
+    if (nd.sdo_reply) {
+      nd.sdo_reply = false;
+      const std::uint8_t* d = nd.sdo_data.data();
+      const bool same = get_le(d + 1, 2) == index && d[3] == sub;
+      if (same && d[0] == 0x80) return {K::kAbort, get_le(d + 4, 4)};
+      if (same && !upload && d[0] == 0x60) return {K::kOk, 0};
+      if (same && upload && (d[0] & 0xE0) == 0x40) {
+        if ((d[0] & 0x02) == 0) return {K::kSegmented, 0};
+        const int bytes = (d[0] & 0x01) != 0 ? 4 - ((d[0] >> 2) & 0x03) : 4;
+        return {K::kOk, get_le(d + 4, bytes)};
+      }
+      // Anything else is not the answer to this request (a late one): keep waiting.
+    }
+    if (monotonic_ns() >= deadline) return {K::kTimeout, 0};
+    wait_frames(deadline);
+    if (socket_failed_) return {K::kSocket, 0};
+  }
+}
+
+IoStatus CanopenArm::sdo_read(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t& value) noexcept {
+  using K = SdoReply::Kind;
+  const NodeInfo& info = nodes_[static_cast<std::size_t>(i)].info;
+  const SdoReply r = sdo_request(i, sdo_upload_frame(info.node_id, index, sub), index, sub, true);
+  char text[112];
+  switch (r.kind) {
+    case K::kOk: value = r.value; return IoStatus::kOk;
+    case K::kAbort:
+      std::snprintf(text, sizeof text, "node %d: SDO upload 0x%04X:%02X aborted: 0x%08X %s", info.node_id, index, sub, r.value,
+                    canopen::sdo_abort_text(r.value));
+      note_error(IoStatus::kProtocolError, info.node_id, r.value, text);
+      return IoStatus::kProtocolError;
+    case K::kSegmented:
+      std::snprintf(text, sizeof text, "node %d: SDO upload 0x%04X:%02X: a segmented answer (this driver does expedited only)",
+                    info.node_id, index, sub);
+      note_error(IoStatus::kProtocolError, info.node_id, 0, text);
+      return IoStatus::kProtocolError;
+    case K::kTimeout:
+      std::snprintf(text, sizeof text, "node %d: no SDO reply to upload 0x%04X:%02X within %.0f ms%s", info.node_id, index, sub,
+                    static_cast<double>(sdo_timeout_ns_) * 1e-6,
+                    info.nmt == canopen::NmtState::kStopped ? " (its heartbeat says NMT stopped: no SDO then)" : "");
+      note_error(IoStatus::kTimeout, info.node_id, static_cast<std::uint32_t>(index) << 8 | sub, text);
+      return IoStatus::kTimeout;
+    case K::kSocket: break;
+  }
+  return report_send_failure(IoStatus::kTimeout);
+}
+
+IoStatus CanopenArm::observe(JointState& out) noexcept {
+  const arm::Cia402Objects& o = bus_.objects;
+  const std::int64_t t0 = monotonic_ns();
+  for (int j = 0; j < n_; ++j) {
+    Node& nd = nodes_[static_cast<std::size_t>(j)];
+    std::uint32_t sw = 0, pos = 0;
+    if (const IoStatus s = sdo_read(j, o.statusword, 0, sw); s != IoStatus::kOk) return s;
+    if (const IoStatus s = sdo_read(j, o.position_actual, 0, pos); s != IoStatus::kOk) return s;
+    nd.info.statusword = static_cast<std::uint16_t>(sw);
+    take_position(nd, static_cast<std::int32_t>(pos));
+  }
+  if (!config_.buttons.empty()) {
+    std::uint32_t inputs = 0;
+    if (const IoStatus s = sdo_read(buttons_joint_, o.digital_inputs, 0, inputs); s != IoStatus::kOk) return s;
+    nodes_[static_cast<std::size_t>(buttons_joint_)].inputs = inputs;
+  }
+  fill_state(out, t0);
+  return IoStatus::kOk;
+}
+
+IoStatus CanopenArm::on_read(JointState& out) noexcept {
+  if (!pdo_running_) {
+    // Inactive: observe by SDO, moving nothing. In fault with no bus set up (a reconnect that did
+    // not get through yet): nothing to read, and the link is still lost.
+    if (state() == Lifecycle::kInactive) return observe(out);
+    report(IoStatus::kDisconnected, CanopenEvent::What::kNotSetUp, -1, 0, 0, monotonic_ns());
+    return IoStatus::kDisconnected;
+  }
+  IoStatus s = exchange(read_budget_ns_);
+  s = s != IoStatus::kOk ? report_send_failure(s) : evaluate(monotonic_ns(), state() == Lifecycle::kActive);
+  if (s == IoStatus::kDisconnected || s == IoStatus::kDeviceFault) send_zero_torque();  // both trip kFault at once
+  if (s != IoStatus::kOk) return s;
+  fill_state(out, cycle_t_ns_);
   return IoStatus::kOk;
 }
 
@@ -663,7 +1090,8 @@ IoStatus CanopenArm::on_write(const JointCommand& cmd) noexcept {
     const double tau = j < cmd.n ? cmd.tau[uj] : 0.0;
     info.target_torque = canopen::torque_per_mille(config_.joints[uj], config_.actuators[uj], info.rated_torque_mnm, info.max_torque, tau);
   }
-  return send_rpdos();
+  const IoStatus s = send_rpdos();
+  return s == IoStatus::kOk ? s : report_send_failure(s);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -736,47 +1164,31 @@ Outcome CanopenArm::open_socket() {
   return Outcome::success();
 }
 
+
 Result<std::uint32_t> CanopenArm::sdo_transfer(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
                                                const std::string& what) {
-  Node& nd = nodes_[static_cast<std::size_t>(i)];
+  using K = SdoReply::Kind;
+  const Node& nd = nodes_[static_cast<std::size_t>(i)];
   const std::string who = "node " + std::to_string(nd.info.node_id) + ": SDO " + what;
-  (void)drain(monotonic_ns());
-  nd.sdo_reply = false;
-  socket_failed_ = false;
-  if (send(request) != IoStatus::kOk) {
-    return Error{ErrorCode::kSystem, name() + ": " + who + ": cannot send: " + errno_text(last_event_.err_no)};
-  }
-  const std::int64_t deadline = monotonic_ns() + ns_of(timing_.sdo_timeout);
-  for (;;) {
-    (void)drain(monotonic_ns());
-    if (socket_failed_) return Error{ErrorCode::kSystem, name() + ": " + who + ": " + errno_text(socket_errno_)};
-    if (nd.sdo_reply) {
-      nd.sdo_reply = false;
-      const std::uint8_t* d = nd.sdo_data.data();
-      const bool same = get_le(d + 1, 2) == index && d[3] == sub;
-      if (same && d[0] == 0x80) {
-        const std::uint32_t code = get_le(d + 4, 4);
-        return Error{ErrorCode::kInvalid, name() + ": " + who + ": aborted with " + hex(code, 8) + " (" + canopen::sdo_abort_text(code) + ")"};
-      }
-      if (same && !upload && d[0] == 0x60) return std::uint32_t{0};
-      if (same && upload && (d[0] & 0xE0) == 0x40) {
-        if ((d[0] & 0x02) == 0) {
-          return Error{ErrorCode::kInvalid, name() + ": " + who + ": the node answered with a segmented transfer, which this driver does not do"};
-        }
-        const int bytes = (d[0] & 0x01) != 0 ? 4 - ((d[0] >> 2) & 0x03) : 4;
-        return get_le(d + 4, bytes);
-      }
-      // Anything else is not the answer to this request (a late one): keep waiting.
-    }
-    const std::int64_t now = monotonic_ns();
-    if (now >= deadline) break;
-    pollfd p{fd_, POLLIN, 0};
-    const timespec ts = to_timespec(deadline - now);
-    (void)::ppoll(&p, 1, &ts, nullptr);
+  const SdoReply r = sdo_request(i, request, index, sub, upload);
+  switch (r.kind) {
+    case K::kOk: return r.value;
+    case K::kAbort:
+      return Error{ErrorCode::kInvalid, name() + ": " + who + ": aborted with " + hex(r.value, 8) + " (" + canopen::sdo_abort_text(r.value) + ")"};
+    case K::kSegmented:
+      return Error{ErrorCode::kInvalid, name() + ": " + who + ": the node answered with a segmented transfer, which this driver does not do"};
+    case K::kSocket:
+      if (socket_failed_) return Error{ErrorCode::kSystem, name() + ": " + who + ": " + errno_text(socket_errno_)};
+      return Error{ErrorCode::kSystem, name() + ": " + who + ": cannot send: " + errno_text(last_event_.err_no)};
+    case K::kTimeout: break;
   }
   std::string msg = name() + ": node " + std::to_string(nd.info.node_id) + " does not answer: SDO " + what + " got no reply within " +
                     ms_text(timing_.sdo_timeout);
-  if (!nd.boot_seen && nd.info.heartbeats == 0) msg += " (it sent no boot-up or heartbeat either)";
+  if (nd.info.nmt == canopen::NmtState::kStopped) {
+    msg += " (its heartbeat says NMT stopped, a state without SDO: power-cycle it or send it NMT pre-operational)";
+  } else if (!nd.boot_seen && nd.info.heartbeats == 0) {
+    msg += " (it sent no boot-up or heartbeat either)";
+  }
   msg += "; check the node id, its power, the wiring, the bitrate (" + std::to_string(bus_.bitrate) + " bit/s) and the termination";
   return Error{ErrorCode::kSystem, std::move(msg)};
 }
@@ -795,12 +1207,7 @@ Outcome CanopenArm::sdo_download(int i, std::uint16_t index, std::uint8_t sub, s
 }
 
 Result<std::uint32_t> CanopenArm::sdo_upload(int i, std::uint16_t index, std::uint8_t sub) {
-  ::can_frame f{};
-  f.can_id = canopen::kCobSdoRx + static_cast<std::uint32_t>(nodes_[static_cast<std::size_t>(i)].info.node_id);
-  f.len = 8;
-  f.data[0] = 0x40;
-  put_le(f.data + 1, index, 2);
-  f.data[3] = sub;
+  const ::can_frame f = sdo_upload_frame(nodes_[static_cast<std::size_t>(i)].info.node_id, index, sub);
   return sdo_transfer(i, f, index, sub, true, "upload " + object_name(index, sub));
 }
 
@@ -811,30 +1218,53 @@ void CanopenArm::wait_boot_ups(double timeout_s, std::uint32_t node_mask) {
     bool all = true;
     for (int j = 0; j < n_; ++j)
       if ((node_mask & (1u << j)) != 0 && !nodes_[static_cast<std::size_t>(j)].boot_seen) all = false;
-    const std::int64_t now = monotonic_ns();
-    if (all || now >= deadline) return;
-    pollfd p{fd_, POLLIN, 0};
-    const timespec ts = to_timespec(deadline - now);
-    (void)::ppoll(&p, 1, &ts, nullptr);
+    if (all || monotonic_ns() >= deadline) return;
+    wait_frames(deadline);
   }
 }
 
-Outcome CanopenArm::configure_node(int i) {
+Outcome CanopenArm::identify_node(int i) {
   Node& nd = nodes_[static_cast<std::size_t>(i)];
-  const std::string node_name = "node " + std::to_string(nd.info.node_id);
   auto type = sdo_upload(i, 0x1000, 0);
   if (!type.ok()) return Outcome{type.error()};
   if ((type.value() & 0xFFFF) != 402) {
-    return Outcome::failure(ErrorCode::kMismatch, name() + ": " + node_name + ": device type (0x1000) is " + hex(type.value(), 8) +
-                                                      ", not a CiA 402 drive (402 = 0x0192 in the low 16 bits)");
+    return Outcome::failure(ErrorCode::kMismatch, name() + ": node " + std::to_string(nd.info.node_id) + ": device type (0x1000) is " +
+                                                      hex(type.value(), 8) + ", not a CiA 402 drive (402 = 0x0192 in the low 16 bits)");
   }
   auto vendor = sdo_upload(i, 0x1018, 1);
   if (!vendor.ok()) return Outcome{vendor.error()};
   nd.info.vendor_id = vendor.value();
+  return Outcome::success();
+}
 
-  const auto& o = bus_.objects;
+Outcome CanopenArm::set_mode(int i) {
+  Node& nd = nodes_[static_cast<std::size_t>(i)];
   const std::int8_t mode = bus_.mode == arm::Cia402Mode::kCyclicSyncTorque ? canopen::kModeCyclicSyncTorque : canopen::kModeProfileTorque;
+  if (Outcome r = sdo_download(i, 0x6060, 0, static_cast<std::uint8_t>(mode), 1); !r.ok()) return r;
+  // A drive may take a moment to switch; one that cannot says so only in 0x6061.
+  const std::int64_t deadline = monotonic_ns() + ns_of(timing_.mode_timeout);
+  for (;;) {
+    auto shown = sdo_upload(i, 0x6061, 0);
+    if (!shown.ok()) return Outcome{shown.error()};
+    nd.info.mode_display = static_cast<std::int8_t>(shown.value());
+    if (nd.info.mode_display == mode) return Outcome::success();
+    if (monotonic_ns() >= deadline) break;
+    sleep_until(monotonic_ns() + 1'000'000);
+  }
+  return Outcome::failure(ErrorCode::kMismatch,
+                          name() + ": node " + std::to_string(nd.info.node_id) + ": modes of operation display (0x6061) reads " +
+                              std::to_string(nd.info.mode_display) + " (" + canopen::mode_name(nd.info.mode_display) +
+                              ") after modes of operation (0x6060) = " + std::to_string(mode) + " (" + canopen::mode_name(mode) +
+                              ") for " + ms_text(timing_.mode_timeout) +
+                              ": the drive refused the mode; check its supported drive modes (0x6502) and the config's mode");
+}
+
+Outcome CanopenArm::configure_node(int i) {
+  Node& nd = nodes_[static_cast<std::size_t>(i)];
+  if (Outcome o = identify_node(i); !o.ok()) return o;
+  const auto& o = bus_.objects;
   const auto hb_ms = static_cast<std::uint32_t>(std::lround(bus_.heartbeat_period * 1e3));
+  const auto period_us = static_cast<std::uint32_t>(std::llround(bus_.sync_period * 1e6));
   struct Write {
     std::uint16_t index;
     std::uint8_t sub;
@@ -845,16 +1275,27 @@ Outcome CanopenArm::configure_node(int i) {
   const Write basics[] = {
       {o.controlword, 0, canopen::kCwDisableVoltage, 2},
       {o.target_torque, 0, 0, 2},
-      {0x1017, 0, hb_ms, 2},  // producer heartbeat time (ms)
-      {0x6060, 0, static_cast<std::uint8_t>(mode), 1},
-      {0x6076, 0, nd.info.rated_torque_mnm, 4},  // motor rated torque (mN·m): the unit of 0x6071
-      {0x6072, 0, static_cast<std::uint16_t>(nd.info.max_torque), 2},  // max torque (‰)
+      {0x1017, 0, hb_ms, 2},      // producer heartbeat time (ms)
+      {0x1006, 0, period_us, 4},  // communication cycle period (µs): the SYNC the drive can expect
   };
   for (const Write& w : basics) {
     if (Outcome r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
   }
   nd.info.controlword = canopen::kCwDisableVoltage;
   nd.info.target_torque = 0;
+  if (interpolation_) {
+    // Interpolation time period (cyclic synchronous modes): value · 10^index s, the SYNC period.
+    if (Outcome r = sdo_download(i, 0x60C2, 1, interpolation_->value, 1); !r.ok()) return r;
+    if (Outcome r = sdo_download(i, 0x60C2, 2, static_cast<std::uint8_t>(interpolation_->index), 1); !r.ok()) return r;
+  }
+  if (Outcome r = set_mode(i); !r.ok()) return r;
+  const Write torques[] = {
+      {0x6076, 0, nd.info.rated_torque_mnm, 4},                         // motor rated torque (mN·m): the unit of 0x6071
+      {0x6072, 0, static_cast<std::uint16_t>(nd.info.max_torque), 2},  // max torque (‰)
+  };
+  for (const Write& w : torques) {
+    if (Outcome r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
+  }
 
   // PDOs (CiA 301): invalidate, transmission type, clear the mapping, map, count, validate. The
   // PDO numbers the config does not use are left invalid.
@@ -879,6 +1320,15 @@ Outcome CanopenArm::configure_node(int i) {
       if (Outcome r = sdo_download(i, comm, 1, cob, 4); !r.ok()) return r;
     }
   }
+
+  // The drive-side watchdog: the reaction first (disable voltage: torque-free at once), then the
+  // consumer, which starts watching at the master's next heartbeat (the master is producing).
+  if (master_heartbeat_ns_ > 0) {
+    const auto watchdog_ms = static_cast<std::uint32_t>(std::llround(bus_.drive_watchdog * 1e3));
+    if (Outcome r = sdo_download(i, 0x6007, 0, static_cast<std::uint16_t>(canopen::kAbortConnectionDisableVoltage), 2); !r.ok()) return r;
+    if (Outcome r = sdo_download(i, 0x1016, 1, static_cast<std::uint32_t>(bus_.master_node_id) << 16 | watchdog_ms, 4); !r.ok()) return r;
+    nd.consumer_set = true;
+  }
   auto sw = sdo_upload(i, o.statusword, 0);
   if (!sw.ok()) return Outcome{sw.error()};
   nd.info.statusword = static_cast<std::uint16_t>(sw.value());
@@ -899,6 +1349,7 @@ void CanopenArm::start_nodes(std::uint32_t node_mask) {
   }
   pdo_running_ = true;
 }
+
 
 template <class NextCw, class Done>
 Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& goal) {
@@ -943,12 +1394,7 @@ Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& g
   }
 }
 
-Outcome CanopenArm::on_configure() {
-  if (Outcome o = open_socket(); !o.ok()) return o;
-  pdo_running_ = false;
-  sync_count_ = 0;
-  bus_off_ = false;
-  const std::uint32_t all = (1u << n_) - 1;
+void CanopenArm::reset_nodes() noexcept {
   for (int j = 0; j < n_; ++j) {
     Node& nd = nodes_[static_cast<std::size_t>(j)];
     const NodeInfo keep = nd.info;
@@ -956,7 +1402,38 @@ Outcome CanopenArm::on_configure() {
     nd.info.node_id = keep.node_id;
     nd.info.rated_torque_mnm = keep.rated_torque_mnm;
     nd.info.max_torque = keep.max_torque;
+    nd.info.vendor_id = keep.vendor_id;
   }
+}
+
+Outcome CanopenArm::on_configure() {
+  if (Outcome o = open_socket(); !o.ok()) return o;
+  pdo_running_ = false;
+  producing_ = false;
+  sync_count_ = 0;
+  master_heartbeats_ = 0;
+  bus_off_ = false;
+  reset_nodes();
+  restart_tracking(monotonic_ns());
+  // Observe only: what each node is, and its state. No download, no NMT command.
+  (void)drain(monotonic_ns());
+  for (int j = 0; j < n_; ++j) {
+    if (Outcome o = identify_node(j); !o.ok()) return o;
+    auto sw = sdo_upload(j, bus_.objects.statusword, 0);
+    if (!sw.ok()) return Outcome{sw.error()};
+    nodes_[static_cast<std::size_t>(j)].info.statusword = static_cast<std::uint16_t>(sw.value());
+  }
+  return Outcome::success();
+}
+
+Outcome CanopenArm::setup_bus() {
+  pdo_running_ = false;
+  bus_off_ = false;
+  reset_nodes();
+  const std::uint32_t all = (1u << n_) - 1;
+  // The master's heartbeat from now on: each drive's consumer starts at the first one after 0x1016.
+  producing_ = master_heartbeat_ns_ > 0;
+  next_master_heartbeat_ns_ = monotonic_ns();
   (void)drain(monotonic_ns());
   // Reset communication: every node comes back pre-operational with its default PDOs and says so.
   for (int j = 0; j < n_; ++j) send_nmt(canopen::NmtCommand::kResetCommunication, nodes_[static_cast<std::size_t>(j)].info.node_id);
@@ -998,7 +1475,6 @@ Outcome CanopenArm::on_configure() {
     if (missing.empty()) break;
     if (monotonic_ns() >= deadline) {
       missing.pop_back();
-      pdo_running_ = false;
       return fail("after NMT start and SYNC:" + missing + " (check the nodes' PDO support and that they went operational)");
     }
     sleep_until(t0 + sync_period_ns_);
@@ -1007,14 +1483,41 @@ Outcome CanopenArm::on_configure() {
   return Outcome::success();
 }
 
-Outcome CanopenArm::on_activate() {
-  if (!pdo_running_) {
-    start_nodes((1u << n_) - 1);
-    restart_tracking(monotonic_ns());
+Outcome CanopenArm::stop_bus() {
+  Outcome result = Outcome::success();
+  if (pdo_running_) {
+    send_zero_torque();
+    result = drive_states([](std::uint16_t, std::uint16_t) { return canopen::kCwShutdown; },
+                          [](std::uint16_t sw) {
+                            const auto s = canopen::cia402_state(sw);
+                            return s == canopen::Cia402State::kSwitchOnDisabled || s == canopen::Cia402State::kReadyToSwitchOn ||
+                                   s == canopen::Cia402State::kFault || s == canopen::Cia402State::kNotReadyToSwitchOn;
+                          },
+                          "a disabled state (shutdown)");
+    for (int j = 0; j < n_; ++j) send_nmt(canopen::NmtCommand::kEnterPreOperational, nodes_[static_cast<std::size_t>(j)].info.node_id);
+    pdo_running_ = false;
   }
-  bus_off_ = false;
-  for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
-  return enable_drives("operation enabled");
+  // A master that stops on purpose turns the drives' watchdog off first: no heartbeat error behind.
+  for (int j = 0; j < n_; ++j) {
+    Node& nd = nodes_[static_cast<std::size_t>(j)];
+    if (!nd.consumer_set) continue;
+    nd.consumer_set = false;
+    if (Outcome r = sdo_download(j, 0x1016, 1, 0, 4); !r.ok() && result.ok()) result = r;
+  }
+  producing_ = false;
+  restart_tracking(monotonic_ns());
+  return result;
+}
+
+Outcome CanopenArm::on_activate() {
+  Outcome o = setup_bus();
+  if (o.ok()) {
+    for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
+    o = enable_drives("operation enabled");
+  }
+  // Back to observing: drives shut down, their watchdog off, no heartbeat.
+  if (!o.ok()) (void)stop_bus();
+  return o;
 }
 
 // Every drive through the CiA 402 state machine to operation enabled; zero torque on failure.
@@ -1038,6 +1541,13 @@ Outcome CanopenArm::enable_drives(const char* goal) {
 Outcome CanopenArm::on_rearm() {
   bus_off_ = false;
   socket_failed_ = false;
+  // No bus set up (a reconnect did not get through): set it up first, drives disabled.
+  if (!pdo_running_) {
+    if (fd_ < 0) {
+      if (Outcome o = open_socket(); !o.ok()) return o;
+    }
+    if (Outcome o = setup_bus(); !o.ok()) return o;
+  }
   send_zero_torque();
   // Every node must answer; one that rebooted or left operational is configured again.
   std::uint32_t restart = 0;
@@ -1058,20 +1568,23 @@ Outcome CanopenArm::on_rearm() {
   return enable_drives("operation enabled after a fault reset");
 }
 
-Outcome CanopenArm::on_deactivate() {
-  if (!pdo_running_) return Outcome::success();
-  send_zero_torque();
-  Outcome o = drive_states([](std::uint16_t, std::uint16_t) { return canopen::kCwShutdown; },
-                           [](std::uint16_t sw) {
-                             const auto s = canopen::cia402_state(sw);
-                             return s == canopen::Cia402State::kSwitchOnDisabled || s == canopen::Cia402State::kReadyToSwitchOn ||
-                                    s == canopen::Cia402State::kFault || s == canopen::Cia402State::kNotReadyToSwitchOn;
-                           },
-                           "a disabled state (shutdown)");
-  for (int j = 0; j < n_; ++j) send_nmt(canopen::NmtCommand::kEnterPreOperational, nodes_[static_cast<std::size_t>(j)].info.node_id);
+Outcome CanopenArm::on_reconnect() {
   pdo_running_ = false;
-  return o;
+  producing_ = false;
+  if (Outcome o = open_socket(); !o.ok()) return o;
+  socket_failed_ = false;
+  socket_errno_ = 0;
+  // The whole set-up again (a node may have lost power, or its watchdog fired meanwhile); each
+  // drive gets controlword 0 and zero torque and stays disabled: only rearm() enables.
+  if (Outcome o = setup_bus(); !o.ok()) {
+    producing_ = false;
+    return o;
+  }
+  for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
+  return Outcome::success();
 }
+
+Outcome CanopenArm::on_deactivate() { return stop_bus(); }
 
 // ---------------------------------------------------------------------------------------------
 
@@ -1083,10 +1596,13 @@ std::string CanopenArm::describe(const CanopenEvent& e) const {
     case W::kNone: return s + ": nothing went wrong yet";
     case W::kSocket: return s + ": socket: " + errno_text(e.err_no);
     case W::kBusOff: return s + ": the CAN controller went bus-off";
+    case W::kNotSetUp: return s + ": the nodes are not set up since the link was lost (reconnect pending)";
     case W::kHeartbeatLost: return s + ":" + node + ": heartbeat (" + hex(e.cob_id, 3) + ") overdue";
     case W::kNotOperational: return s + ":" + node + " is " + canopen::to_string(e.nmt) + " (it rebooted or was stopped)";
-    case W::kEmcy:
-      return s + ":" + node + ": EMCY error code " + hex(e.emcy.error_code, 4) + ", error register " + hex(e.emcy.error_register, 2);
+    case W::kEmcy: {
+      char buf[160];
+      return s + ": " + canopen::format_emcy(buf, sizeof buf, e.emcy);
+    }
     case W::kFaultBit: return s + ":" + node + ": statusword " + hex(e.statusword, 4) + " has the fault bit";
     case W::kNotEnabled:
       return s + ":" + node + " left operation enabled: '" + canopen::to_string(canopen::cia402_state(e.statusword)) + "' (statusword " +

@@ -2,26 +2,50 @@
 // CanopenArm: a haptic arm whose joints are CiA 402 servo drives on one CAN bus, one node per
 // joint, driven through a SocketCAN raw socket with the PDO map of the arm's config
 // ([bus.canopen] in hw_configs/*.toml; schema and behaviour in hw_configs/README.md). The host is
-// the NMT master and the SYNC producer.
+// the NMT master, the SYNC producer and, while active, a heartbeat producer the drives watch.
 //
-//   configure()  open the socket on the interface; per node: NMT reset communication (wait for the
-//                boot-up), check the device type (0x1000: a CiA 402 drive), read the vendor id
-//                (0x1018:1), SDO-download controlword 0 and target torque 0 (a drive left enabled
-//                is switched off), the heartbeat time (0x1017), mode of operation (0x6060),
-//                rated torque (0x6076, mN·m), max torque (0x6072, ‰) and the PDO communication and
-//                mapping parameters, read the statusword; NMT start; one SYNC to check that every
-//                node's TPDOs arrive
-//   activate()   the CiA 402 state machine through the controlword in the RPDOs, SYNC by SYNC at
-//                the sync period (shutdown → switch on → enable operation; a drive in fault gets
-//                a fault reset first), until every statusword says operation enabled
-//   read()       drain, SYNC, then wait (ppoll, at most a fraction of the sync period) for this
+//   configure()  observe only: open the socket on the interface; per node, by SDO upload, check the
+//                device type (0x1000: a CiA 402 drive), read the vendor id (0x1018:1) and the
+//                statusword. Nothing is written and no NMT command is sent: the drives' NMT and
+//                CiA 402 states stay as they were (lancetctl probe, monitor and calibrate only
+//                configure and read, so they can never switch a drive on)
+//   read() while inactive: SDO uploads per node (statusword, position actual, the buttons node's
+//                digital inputs); no SYNC, no PDOs. Bounded by (2 n + 1) × the SDO timeout
+//   activate()   the bus set-up, then the CiA 402 state machine. Per node: NMT reset communication
+//                (wait for the boot-up), SDO-download controlword 0 and target torque 0 (a drive
+//                left enabled is switched off), the producer heartbeat time (0x1017), the
+//                communication cycle period (0x1006, µs = the sync period), in cst mode the
+//                interpolation time period (0x60C2:1 value, :2 index), the mode of operation (0x6060,
+//                read back from 0x6061: a mismatch fails naming both), rated torque (0x6076, mN·m),
+//                max torque (0x6072, ‰), the PDO communication and mapping parameters, and the
+//                drive-side watchdog (abort connection option 0x6007 = 2 "disable voltage", then the
+//                heartbeat consumer 0x1016:1 = master node id << 16 | drive_watchdog ms); NMT start;
+//                SYNCs until every node's TPDOs (and heartbeat) arrive. Then SYNC by SYNC at the sync
+//                period with the controlword in the RPDOs (shutdown → switch on → enable operation;
+//                a drive in fault gets a fault reset first) until every statusword says operation
+//                enabled. A failed activation leaves the bus as deactivate() does
+//   read()       drain (sending the master's heartbeat when due), SYNC, then wait (ppoll, at most a fraction of the sync period) for this
 //                cycle's TPDOs of every node: position actual (0x6064), statusword (0x6041),
 //                digital inputs (0x60FD); decodes EMCY and heartbeats on the way
 //   write()      joint torques → target torque (0x6071, ‰ of 0x6076) in each node's RPDO, right
 //                after the SYNC of the same cycle; the drives apply it at the next SYNC
-//   deactivate() zero torque, controlword shutdown until no drive is enabled, NMT pre-operational
+//   deactivate() zero torque, controlword shutdown until no drive is enabled, NMT pre-operational,
+//                the drives' heartbeat consumer off (0x1016:1 = 0), then the master's heartbeat stops
 //   rearm()      a node that rebooted or left operational is configured again and started; then a
 //                fault reset (controlword bit 7) and enable again
+//   reconnect()  (in fault, after a disconnect) reopen the socket, then the bus set-up of activate()
+//                with the drives left disabled (controlword 0, zero torque): only rearm() enables
+//
+// The drive-side watchdog. From activate() to deactivate() (and in fault) the master sends its own
+// heartbeat (COB-ID 0x700 + master_node_id, state operational) every drive_watchdog / 4: read()
+// sends one when due, before its SYNC (one frame, no allocation, no wait), and so do the set-up
+// steps while they wait. When it stops for drive_watchdog (lancet-rt stalled, killed, the cable
+// pulled) each drive applies 0x6007 = 2, disable voltage: its power stage goes off at once and the
+// motor turns freely (CiA 402 transition to switch on disabled), and it sends EMCY 0x8130. Not 1
+// (fault: the drive first runs its fault reaction 0x605E, often a braking ramp, under power) nor 3
+// (quick stop: brakes actively). Back on the bus, the master sees the EMCY (and the drive no longer
+// enabled) as a device fault; rearm() enables the drive again. drive_watchdog = 0: no consumer,
+// no heartbeat of the master, 0x6007 left as the drive has it.
 //
 // read() and write() are real-time safe: no allocation, no exceptions, and each blocks at most
 // for the read budget (CanopenTiming::read_budget_fraction × sync period) in ppoll(); the socket is
@@ -34,9 +58,11 @@
 //   kProtocolError a TPDO arrived with the wrong length
 //   kTimeout       a TPDO of this cycle did not arrive within the budget (a TPDO sent every nth
 //                  SYNC: none for 2n + 1 SYNCs)
-// When read() reports kDisconnected or kDeviceFault (both trip kFault at once) it sends zero
-// torque at once, before the next write(). After deactivate() the nodes are pre-operational and
-// send no PDOs: read() then returns kNotActive until activate().
+// Each error is described for the operator (Device::note_error → last_error(), fault_detail()):
+// the node id and what happened, e.g. "node 1: EMCY 0x2310 continuous over-current (output side),
+// error register 0x03", "node 3: heartbeat 0x703 overdue: none for 212 ms (every 50 ms)",
+// "node 2: statusword 0x0218 has the fault bit". When read() reports kDisconnected or kDeviceFault
+// (both trip kFault at once) it sends zero torque at once, before the next write().
 //
 // JointState.status packs the drives' statuswords: bit j = node j operation enabled, bit 8 + j =
 // node j fault, bit 16 + j = node j warning (statusword bit 7). JointState.buttons: bit i = config
@@ -46,6 +72,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "arm/arm_config.hpp"
@@ -125,6 +152,24 @@ inline constexpr std::uint16_t kCwFaultReset = 0x0080;  ///< acts on the rising 
 /// CiA 402 modes of operation (0x6060).
 inline constexpr std::int8_t kModeProfileTorque = 4;
 inline constexpr std::int8_t kModeCyclicSyncTorque = 10;
+/// The CiA 402 name of a mode of operation ("cyclic synchronous torque", "no mode" for 0…);
+/// "another mode" for codes not listed (manufacturer-specific, reserved).
+[[nodiscard]] const char* mode_name(std::int8_t mode) noexcept;
+
+/// Abort connection option code (0x6007) the driver writes: disable voltage. The drive's power
+/// stage goes off at once when it loses the master's heartbeat (see the header comment).
+inline constexpr std::int16_t kAbortConnectionDisableVoltage = 2;
+/// The EMCY error code of a heartbeat consumer timeout (CiA 301: life guard or heartbeat error).
+inline constexpr std::uint16_t kEmcyHeartbeat = 0x8130;
+
+/// 0x60C2, the interpolation time period: value · 10^index s.
+struct InterpolationPeriod {
+  std::uint8_t value = 0;  ///< 0x60C2:1, 1..255
+  std::int8_t index = 0;   ///< 0x60C2:2, the power of ten, −6..0
+};
+/// The period of `period_us` µs as 0x60C2 writes it, with the largest index that is exact
+/// (1000 → {1, −3}, 2500 → {25, −4}); nullopt when no value ≤ 255 is exact (333) or period_us ≤ 0.
+[[nodiscard]] std::optional<InterpolationPeriod> interpolation_period(std::int64_t period_us) noexcept;
 
 /// The drive state a statusword encodes.
 [[nodiscard]] Cia402State cia402_state(std::uint16_t statusword) noexcept;
@@ -159,6 +204,20 @@ struct Emcy {
 /// A few words on an SDO abort code (CiA 301, 7.2.4.3.17); "unknown abort code" otherwise.
 [[nodiscard]] const char* sdo_abort_text(std::uint32_t code) noexcept;
 
+/// What an EMCY error code means (CiA 301 and the CiA 402 drive codes): `text` names the code
+/// itself when it is a common one (`specific`), else its class ("current, device output side" for
+/// 0x23xx, "monitoring: communication" for 0x81xx…). 0x0000 is "error reset or no error".
+struct EmcyMeaning {
+  const char* text = "";
+  bool specific = false;
+};
+[[nodiscard]] EmcyMeaning emcy_meaning(std::uint16_t code) noexcept;
+
+/// One line for an EMCY: "node 1: EMCY 0x2310 continuous over-current (output side), error register
+/// 0x03"; a code known by its class only: "node 1: EMCY 0x2399 (0x23xx current, device output
+/// side), error register 0x03". Truncated to `size` − 1 characters; returns `buf`. Real-time safe.
+const char* format_emcy(char* buf, std::size_t size, const Emcy& e) noexcept;
+
 }  // namespace canopen
 
 // ---------------------------------------------------------------------------------------------
@@ -170,6 +229,7 @@ struct CanopenTiming {
   double boot_timeout = 1.0;             ///< s, to wait for the boot-up messages after NMT reset communication
   double state_timeout = 1.0;            ///< s, for the drives to reach (activate, rearm) or leave (deactivate) operation enabled
   double heartbeat_timeout_factor = 2.0; ///< a node's heartbeat is overdue after this many heartbeat periods
+  double mode_timeout = 0.1;             ///< s, for 0x6061 to show the mode written to 0x6060 (activate)
 };
 
 /// What went wrong last on the bus (real-time safe to update and to copy).
@@ -184,6 +244,7 @@ struct CanopenEvent {
   std::int64_t t_ns = 0;
   enum class What : std::uint8_t {
     kNone, kSocket, kBusOff, kHeartbeatLost, kNotOperational, kEmcy, kFaultBit, kNotEnabled, kBadLength, kMissingTpdo,
+    kNotSetUp,  ///< in fault with no bus set up (a reconnect has not got through yet)
   } what = What::kNone;
 };
 
@@ -199,6 +260,11 @@ class CanopenArm final : public Device {
 
   [[nodiscard]] int joint_count() const noexcept override { return n_; }
   [[nodiscard]] const std::string& interface_name() const noexcept { return bus_.interface_name; }
+  /// Whether the nodes are set up and exchanging PDOs (activate() to deactivate(), and in fault);
+  /// false after configure(): read() then observes by SDO.
+  [[nodiscard]] bool pdos_running() const noexcept { return pdo_running_; }
+  /// Heartbeats the master has sent (COB-ID 0x700 + master_node_id) since configure().
+  [[nodiscard]] std::uint64_t master_heartbeats() const noexcept { return master_heartbeats_; }
 
   /// What the driver knows of one node (joint j), real-time safe to read between ticks.
   struct NodeInfo {
@@ -209,6 +275,7 @@ class CanopenArm final : public Device {
     std::uint32_t rated_torque_mnm = 0;         ///< written to 0x6076
     std::int16_t max_torque = 0;                ///< ‰, written to 0x6072 (the peak torque)
     std::uint32_t vendor_id = 0;                ///< 0x1018:1
+    std::int8_t mode_display = 0;               ///< 0x6061 as read back at activation
     canopen::NmtState nmt = canopen::NmtState::kUnknown;  ///< from the last heartbeat / boot-up
     std::int64_t last_heartbeat_ns = 0;
     std::uint64_t tpdos = 0, emcys = 0, heartbeats = 0;
@@ -227,6 +294,7 @@ class CanopenArm final : public Device {
   Outcome on_activate() override;
   Outcome on_deactivate() override;
   Outcome on_rearm() override;
+  Outcome on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -256,6 +324,8 @@ class CanopenArm final : public Device {
     bool emcy_pending = false;                 ///< a non-zero EMCY not yet reported by read()
     bool bad_length = false;
     std::uint32_t bad_cob = 0;
+    std::uint8_t bad_len = 0;                  ///< bytes of the frame with the wrong length
+    bool consumer_set = false;                 ///< 0x1016:1 written: the drive watches the master's heartbeat
     bool boot_seen = false;                    ///< a boot-up since the last (re)configuration
     // SDO client
     bool sdo_reply = false;
@@ -266,13 +336,34 @@ class CanopenArm final : public Device {
 
   CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
 
+  /// The outcome of one expedited SDO request (no allocation).
+  struct SdoReply {
+    enum class Kind : std::uint8_t { kOk, kAbort, kTimeout, kSocket, kSegmented } kind = Kind::kTimeout;
+    std::uint32_t value = 0;  ///< the uploaded value (kOk), the abort code (kAbort)
+  };
+
   // Socket and frames (real-time safe).
   [[nodiscard]] IoStatus send(const ::can_frame& f) noexcept;
   [[nodiscard]] IoStatus send_sync() noexcept;
   void send_nmt(canopen::NmtCommand cmd, int node_id) noexcept;
   void handle(const ::can_frame& f, std::int64_t now) noexcept;
-  /// Reads every frame waiting (at most a bounded number). false: the socket failed.
+  /// Reads every frame waiting (at most a bounded number), first sending the master's heartbeat
+  /// when it is due. false: the socket failed.
   bool drain(std::int64_t now) noexcept;
+  /// The master's heartbeat, when producing and due (one frame; errors are left to the next SYNC).
+  void produce_heartbeat(std::int64_t now) noexcept;
+  /// ppoll() for a frame until `deadline`, or until the master's next heartbeat is due.
+  void wait_frames(std::int64_t deadline) noexcept;
+  /// One expedited SDO upload or download to joint i's node, waiting at most the SDO timeout.
+  SdoReply sdo_request(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload) noexcept;
+  /// read() while inactive: one SDO upload, any failure described (note_error) and returned.
+  [[nodiscard]] IoStatus sdo_read(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t& value) noexcept;
+  /// read() while inactive: the statusword, position and inputs by SDO (see the header comment).
+  [[nodiscard]] IoStatus observe(JointState& out) noexcept;
+  /// JointState from the nodes' decoded values; `t_ns`: when they were sampled.
+  void fill_state(JointState& out, std::int64_t t_ns) noexcept;
+  /// The position actual just received (PDO or SDO): unwrapped into nd.counts.
+  static void take_position(Node& nd, std::int32_t raw) noexcept;
   /// drain, SYNC, collect until every node's TPDOs of this cycle are in or the wait ends.
   [[nodiscard]] IoStatus exchange(std::int64_t wait_ns) noexcept;
   /// The status of the cycle just exchanged (see the header comment for the order).
@@ -280,7 +371,12 @@ class CanopenArm final : public Device {
   /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).
   [[nodiscard]] IoStatus send_rpdos(bool all = false) noexcept;
   void send_zero_torque() noexcept;
+  /// Records the event (last_event()) without reporting it.
   void note(IoStatus s, CanopenEvent::What what, int node_index, std::uint32_t cob, int err_no, std::int64_t now) noexcept;
+  /// note(), and describes it to the Device (note_error) as the error read() / write() returns.
+  void report(IoStatus s, CanopenEvent::What what, int node_index, std::uint32_t cob, int err_no, std::int64_t now) noexcept;
+  /// A failed exchange() or send: the socket (kDisconnected) or a full transmit queue (kTimeout).
+  [[nodiscard]] IoStatus report_send_failure(IoStatus s) noexcept;
 
   // Configure-time steps (may allocate); failures name the interface, the node and the object.
   Outcome open_socket();
@@ -290,8 +386,20 @@ class CanopenArm final : public Device {
   Result<std::uint32_t> sdo_transfer(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
                                      const std::string& what);
   void wait_boot_ups(double timeout_s, std::uint32_t node_mask);
+  /// Device type (must be CiA 402) and vendor id, by SDO upload.
+  Outcome identify_node(int i);
   Outcome configure_node(int i);
+  /// 0x6060 = the config's mode, then 0x6061 until it shows it (mode_timeout).
+  Outcome set_mode(int i);
   void start_nodes(std::uint32_t node_mask);
+  /// activate() and reconnect(): every node reset, configured (drives disabled, zero torque),
+  /// started; returns once every node's TPDOs (and heartbeat) arrive.
+  Outcome setup_bus();
+  /// deactivate(), and a failed activate(): drives shut down, NMT pre-operational, the drives'
+  /// heartbeat consumer off, then the master's heartbeat stops.
+  Outcome stop_bus();
+  /// Every node's decoding state back to "nothing heard", keeping what create() computed.
+  void reset_nodes() noexcept;
   /// Runs paced SYNC cycles, each node's controlword from `next_cw`, zero torque, until `done`
   /// holds for every node or the timeout; the error names the nodes that did not get there.
   template <class NextCw, class Done>
@@ -314,6 +422,12 @@ class CanopenArm final : public Device {
   std::int64_t sync_period_ns_ = 1'000'000;
   std::int64_t read_budget_ns_ = 500'000;
   std::int64_t heartbeat_timeout_ns_ = 0;  ///< 0: no heartbeat consumer
+  std::int64_t sdo_timeout_ns_ = 100'000'000;
+  std::int64_t master_heartbeat_ns_ = 0;   ///< the master's heartbeat period (drive_watchdog / 4); 0: none
+  std::int64_t next_master_heartbeat_ns_ = 0;
+  bool producing_ = false;                 ///< the master's heartbeat goes out (set-up to deactivate)
+  std::uint64_t master_heartbeats_ = 0;
+  std::optional<canopen::InterpolationPeriod> interpolation_;  ///< 0x60C2 (cst mode)
   std::uint64_t sync_count_ = 0;
   std::uint64_t tracking_since_ = 0;     ///< SYNC count when TPDO tracking (re)started
   std::int64_t cycle_t_ns_ = 0;          ///< when this cycle's SYNC went out

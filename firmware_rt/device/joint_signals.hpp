@@ -1,10 +1,12 @@
 #pragma once
 // What every bus backend derives the same way from what its arm reports: joint velocities from
-// successive encoder positions, and the config's buttons from the device's raw button word.
-// Real-time safe: no allocation, no exceptions.
+// successive encoder positions, the config's buttons from the device's raw button word, and what a
+// status word's named bits say is wrong with the drives. Real-time safe: no allocation, no exceptions.
 
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstdint>
 #include <limits>
 #include <numbers>
@@ -67,6 +69,35 @@ class VelocityEstimator {
     if (level != b.active_low) pressed |= 1u << i;
   }
   return pressed;
+}
+
+/// What a status word's named bits (arm::StatusBits) say is wrong with the drives, in words an
+/// integrator can act on, written to out (always NUL-terminated): "status 0x0005: fault (bit 2),
+/// not ready (bit 0 low)". An active fault, estop or comm_lost is always a problem; an inactive
+/// ready or enabled only when `drives_on` (the driver has enabled the drives). Returns the number of
+/// problems (0: out holds "status 0x…" alone). Real-time safe (snprintf into the caller's buffer).
+inline int describe_status(const arm::StatusBits& bits, std::uint32_t word, bool drives_on, char* out, std::size_t size) noexcept {
+  if (size == 0) return 0;
+  int n = std::snprintf(out, size, "status 0x%04X", static_cast<unsigned>(word));
+  int problems = 0;
+  const auto add = [&](const arm::StatusBit& b, bool want_active, const char* what) {
+    if (!b.mapped() || b.active(word) != want_active) return;
+    // The level the bit reads now: active-high bits read high when active, active-low ones low.
+    const bool reads_high = want_active != b.active_low;
+    const std::size_t at = n < 0 ? size : std::min(size, static_cast<std::size_t>(n));
+    const int k = std::snprintf(out + at, size - at, "%s%s (bit %d%s)", problems == 0 ? ": " : ", ", what, b.bit,
+                                reads_high ? (b.active_low ? " high" : "") : " low");
+    if (k > 0) n += k;
+    ++problems;
+  };
+  add(bits.fault, true, "fault");
+  add(bits.estop, true, "e-stop");
+  add(bits.comm_lost, true, "communication lost");
+  if (drives_on) {
+    add(bits.ready, false, "not ready");
+    add(bits.enabled, false, "not enabled");
+  }
+  return problems;
 }
 
 }  // namespace lancet::device

@@ -8,6 +8,7 @@
 #include <time.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -21,6 +22,8 @@ namespace {
 constexpr std::int64_t kFirstReportWindowNs = 200'000'000;
 // How long teardown waits for a cancelled transfer to come back.
 constexpr std::int64_t kCancelWaitNs = 100'000'000;
+// How long activate / rearm wait for the status bits to settle.
+constexpr std::int64_t kSettleNs = 200'000'000;
 
 std::string hex4(unsigned v) {
   char b[8];
@@ -64,20 +67,36 @@ std::int64_t type_max(arm::FieldType t) noexcept {
     case arm::FieldType::kI8: return std::numeric_limits<std::int8_t>::max();
     case arm::FieldType::kU16: return std::numeric_limits<std::uint16_t>::max();
     case arm::FieldType::kI16: return std::numeric_limits<std::int16_t>::max();
-    case arm::FieldType::kU32: return std::numeric_limits<std::uint32_t>::max();
+    case arm::FieldType::kU32:
+    case arm::FieldType::kF32: return std::numeric_limits<std::uint32_t>::max();
     case arm::FieldType::kI32: return std::numeric_limits<std::int32_t>::max();
   }
   return 0;
 }
 
-// One value of a report field at p (field_size(t) bytes), sign-extended for signed types.
-std::int64_t read_field(const std::uint8_t* p, arm::FieldType t, arm::ByteOrder order) noexcept {
+// The field's bytes at p as an unsigned number, most significant first per its byte order.
+std::uint32_t read_bits(const std::uint8_t* p, arm::FieldType t, arm::ByteOrder order) noexcept {
   const int size = arm::field_size(t);
-  std::uint64_t u = 0;
+  std::uint32_t u = 0;
   for (int i = 0; i < size; ++i) {
     const int k = order == arm::ByteOrder::kBig ? i : size - 1 - i;  // most significant first
     u = (u << 8) | p[k];
   }
+  return u;
+}
+
+void write_bits(std::uint8_t* p, arm::FieldType t, arm::ByteOrder order, std::uint32_t u) noexcept {
+  const int size = arm::field_size(t);
+  for (int i = 0; i < size; ++i) {
+    const int k = order == arm::ByteOrder::kBig ? size - 1 - i : i;  // least significant first
+    p[k] = static_cast<std::uint8_t>(u & 0xFFu);
+    u >>= 8;
+  }
+}
+
+// One integer value of a report field at p, sign-extended for signed types (not for kF32).
+std::int64_t read_field(const std::uint8_t* p, arm::FieldType t, arm::ByteOrder order) noexcept {
+  const std::uint32_t u = read_bits(p, t, order);
   switch (t) {
     case arm::FieldType::kI8: return static_cast<std::int8_t>(u);
     case arm::FieldType::kI16: return static_cast<std::int16_t>(u);
@@ -86,15 +105,17 @@ std::int64_t read_field(const std::uint8_t* p, arm::FieldType t, arm::ByteOrder 
   }
 }
 
-// Writes v (already inside the type's range) as one value of type t at p.
-void write_field(std::uint8_t* p, arm::FieldType t, arm::ByteOrder order, std::int64_t v) noexcept {
-  const int size = arm::field_size(t);
-  auto u = static_cast<std::uint64_t>(v);
-  for (int i = 0; i < size; ++i) {
-    const int k = order == arm::ByteOrder::kBig ? size - 1 - i : i;  // least significant first
-    p[k] = static_cast<std::uint8_t>(u & 0xFFu);
-    u >>= 8;
+// Writes raw as one value of type t at p: integers rounded and clamped to the type's range (NaN:
+// 0), f32 as the nearest float. Returns the value written.
+double write_value(std::uint8_t* p, arm::FieldType t, arm::ByteOrder order, double raw) noexcept {
+  if (t == arm::FieldType::kF32) {
+    const float f = std::isfinite(raw) ? static_cast<float>(std::clamp(raw, -3.0e38, 3.0e38)) : 0.0F;
+    write_bits(p, t, order, std::bit_cast<std::uint32_t>(f));
+    return f;
   }
+  const double v = std::isnan(raw) ? 0.0 : std::clamp(std::nearbyint(raw), static_cast<double>(type_min(t)), static_cast<double>(type_max(t)));
+  write_bits(p, t, order, static_cast<std::uint32_t>(static_cast<std::uint64_t>(static_cast<std::int64_t>(v)) & 0xFFFF'FFFFu));
+  return v;
 }
 
 // raw − last on the circle of the field's width, as a signed step (the shorter way round).
@@ -127,6 +148,7 @@ UsbArm::UsbArm(const arm::ArmConfig& config, FaultPolicy policy)
   in_.buffer.assign(usb_.in_size, 0);
   out_.buffer.assign(usb_.out_size, 0);
   if (usb_.out_report_id) out_.buffer[0] = *usb_.out_report_id;
+  enable_word_ = usb_.enable_off;
 }
 
 Result<std::unique_ptr<UsbArm>> UsbArm::create(const arm::ArmConfig& config, FaultPolicy policy) {
@@ -141,20 +163,28 @@ Result<std::unique_ptr<UsbArm>> UsbArm::create(const arm::ArmConfig& config, Fau
                                           " joints, " + std::to_string(config.actuators.size()) + " actuators)"};
   const auto& u = *config.usb;
   std::string bad;
+  const auto word = [](const std::optional<arm::ReportField>& f) {
+    return !f || f->type == arm::FieldType::kU8 || f->type == arm::FieldType::kU16 || f->type == arm::FieldType::kU32;
+  };
   if (u.in_size < 1 || u.out_size < 1) bad = "report sizes must be at least 1 byte";
   else if (!fits(u.encoder_counts, n, u.in_size)) bad = "bus.usb.in_report.encoder_counts does not fit in the report";
   else if (u.buttons && !fits(*u.buttons, 1, u.in_size)) bad = "bus.usb.in_report.buttons does not fit in the report";
   else if (u.status && !fits(*u.status, 1, u.in_size)) bad = "bus.usb.in_report.status does not fit in the report";
-  else if (!fits(u.current_command, n, u.out_size)) bad = "bus.usb.out_report.current_command does not fit in the report";
-  else if (u.control && !fits(*u.control, 1, u.out_size)) bad = "bus.usb.out_report.control does not fit in the report";
-  else if (!(u.current_command.lsb > 0)) bad = "bus.usb.out_report.current_command.lsb_ma must be > 0";
+  else if (!fits(u.setpoint, n, u.out_size)) bad = "bus.usb.out_report setpoint (current_command / torque_command) does not fit in the report";
+  else if (u.enable && !fits(*u.enable, 1, u.out_size)) bad = "bus.usb.out_report.enable does not fit in the report";
+  else if (u.fault_reset && !fits(*u.fault_reset, 1, u.out_size)) bad = "bus.usb.out_report.fault_reset does not fit in the report";
+  else if (u.heartbeat && !fits(*u.heartbeat, 1, u.out_size)) bad = "bus.usb.out_report.heartbeat does not fit in the report";
+  else if (!word(u.buttons) || !word(u.status) || !word(u.enable) || !word(u.fault_reset) || !word(u.heartbeat))
+    bad = "bus.usb: buttons, status, enable, fault_reset and heartbeat must be u8, u16 or u32";
+  else if (!(u.setpoint.scale > 0) || !(u.encoder_counts.scale > 0) || !std::isfinite(u.setpoint.bias) || !std::isfinite(u.encoder_counts.bias))
+    bad = "bus.usb: scale must be > 0 and bias finite";
   else if (!(u.timeout > 0)) bad = "bus.usb.timeout_ms must be > 0";
   if (!bad.empty()) return Error{ErrorCode::kInvalid, where + ": " + bad};
   return std::unique_ptr<UsbArm>(new UsbArm(config, policy));
 }
 
 UsbArm::~UsbArm() {
-  if (handle_ != nullptr && claimed_ && !lost_ && enabled_) (void)send_control(false);
+  if (handle_ != nullptr && claimed_ && !lost_ && enable_word_ != usb_.enable_off) (void)send_report(usb_.enable_off, false, "the disable report");
   close_device();
   // A transfer still in flight after close_device() belongs to libusb until it is called back:
   // leak it rather than free memory libusb may still write (does not happen with a live bus).
@@ -170,7 +200,7 @@ void UsbArm::set_velocity_cutoff_hz(double hz) noexcept { velocity_.set_cutoff_h
 void UsbArm::reset_estimator() noexcept {
   have_sample_ = false;
   last_raw_.fill(0);
-  counts_.fill(0);
+  raw_.fill(0);
   velocity_.reset();
 }
 
@@ -305,16 +335,62 @@ void UsbArm::close_device() noexcept {
   handle_ = nullptr;
 }
 
-Outcome UsbArm::send_control(bool enable) {
-  enabled_ = enable;
-  encode_out(nullptr, enable);
+Outcome UsbArm::send_report(std::uint32_t enable_word, bool reset, const char* what) {
+  enable_word_ = enable_word;
+  encode_out(nullptr, enable_word, reset);
   IoStatus s = transfer(out_, usb_.endpoint_out);
   if (s == IoStatus::kOk && out_.actual_length != static_cast<int>(usb_.out_size)) s = IoStatus::kProtocolError;
   if (s == IoStatus::kOk) return Outcome::success();
   return Outcome::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
-                          name() + ": sending the " + (enable ? "enable" : "disable") + " report (zero currents) to " +
-                              location(bus_number_, address_) + " failed: " + to_string(s) +
-                              (s == IoStatus::kTimeout ? " after " + std::to_string(timeout_ms_) + " ms" : std::string()));
+                          name() + ": sending " + what + " (zero currents) to " + location(bus_number_, address_) + " failed: " +
+                              to_string(s) + (s == IoStatus::kTimeout ? " after " + std::to_string(timeout_ms_) + " ms" : std::string()) +
+                              (detail_[0] != '\0' ? std::string(" (") + detail_ + ")" : std::string()));
+}
+
+Outcome UsbArm::read_report(const std::string& what) {
+  IoStatus s = transfer(in_, usb_.endpoint_in);
+  if (s == IoStatus::kOk && in_.actual_length != static_cast<int>(usb_.in_size)) s = IoStatus::kProtocolError;
+  if (s == IoStatus::kOk && usb_.in_report_id && in_.buffer[0] != *usb_.in_report_id) s = IoStatus::kProtocolError;
+  if (s == IoStatus::kOk) return Outcome::success();
+  return Outcome::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
+                          name() + ": " + what + ": no well-formed IN report from " + location(bus_number_, address_) + " (" + to_string(s) + ")");
+}
+
+std::uint32_t UsbArm::status_in_report() const noexcept {
+  return usb_.status ? read_bits(in_.buffer.data() + usb_.status->offset, usb_.status->type, usb_.status->byte_order) : 0u;
+}
+
+Outcome UsbArm::enable_drives(const std::string& step, bool always_reset) {
+  const arm::StatusBits& bits = usb_.status_bits;
+  const auto faulted = [&](std::uint32_t w) { return bits.fault.active(w) || bits.comm_lost.active(w) || bits.estop.active(w); };
+  Outcome o = usb_.status ? read_report(step + ": reading the status") : Outcome::success();
+  if (!o.ok()) return o;
+  if (usb_.fault_reset && (always_reset || faulted(status_in_report()))) {
+    o = send_report(usb_.enable_off, true, "the fault-reset report");
+    if (!o.ok()) return o;
+  }
+  o = send_report(usb_.enable_on, false, "the enable report");
+  drives_on_ = o.ok();
+  // The firmware may take a report or two to leave its fault or enable: give it kSettleNs.
+  const std::int64_t give_up = monotonic_ns() + kSettleNs;
+  char text[112];
+  while (o.ok() && usb_.status) {
+    o = read_report(step + ": reading the status");
+    if (!o.ok()) break;
+    const std::uint32_t word = status_in_report();
+    if (describe_status(bits, word, true, text, sizeof text) == 0) break;
+    if (monotonic_ns() >= give_up) {
+      o = Outcome::failure(ErrorCode::kNotReady, name() + ": " + step + (faulted(word) ? ": the device still reports a fault after the fault reset ("
+                                                                                        : ": the device is not ready after the enable (") +
+                                                     text + ")");
+      break;
+    }
+  }
+  if (!o.ok()) {
+    drives_on_ = false;
+    (void)send_report(usb_.enable_off, false, "the disable report");  // best effort: stay disabled
+  }
+  return o;
 }
 
 // --------------------------------------------------------------------------------------------
@@ -376,29 +452,42 @@ Outcome UsbArm::on_activate() {
                                                      " again: " + libusb_strerror(r));
     claimed_ = true;
   }
-  return send_control(true);
+  return enable_drives("activate", false);
 }
 
 Outcome UsbArm::on_deactivate() {
+  drives_on_ = false;
   if (handle_ == nullptr || lost_) {
-    enabled_ = false;
+    enable_word_ = usb_.enable_off;
     return Outcome::success();  // nothing left to drive
   }
   // The interface stays claimed: read() works while inactive (probing, monitoring); it is
   // released when the UsbArm goes.
-  return claimed_ ? send_control(false) : Outcome::success();
+  return claimed_ ? send_report(usb_.enable_off, false, "the disable report") : Outcome::success();
 }
 
 Outcome UsbArm::on_rearm() {
   reset_estimator();
   if (handle_ != nullptr && !lost_ && claimed_) {
-    Outcome o = send_control(true);
+    Outcome o = enable_drives("rearm", true);
     // Only a bus error (gone, I/O) is worth a reopen; a timeout or a bad reply is reported.
     if (o.ok() || o.error->code != ErrorCode::kNotFound) return o;
   }
   Outcome o = reopen();
   if (!o.ok()) return o;
-  return send_control(true);
+  return enable_drives("rearm", true);
+}
+
+Outcome UsbArm::on_reconnect() {
+  // Open the arm wherever it is now (it may have come back at a new address) and keep its drives
+  // off: zero currents, enable `off`, until rearm().
+  drives_on_ = false;
+  reset_estimator();
+  Outcome o = reopen();
+  if (o.ok()) o = send_report(usb_.enable_off, false, "the disable report");
+  if (o.ok()) o = read_report("reconnect");
+  if (!o.ok()) lost_ = true;  // the next reconnect opens it again
+  return o;
 }
 
 // --------------------------------------------------------------------------------------------
@@ -430,7 +519,11 @@ IoStatus UsbArm::finish_in_flight(Slot& slot) noexcept {
 }
 
 IoStatus UsbArm::transfer(Slot& slot, unsigned char endpoint) noexcept {
-  if (slot.in_flight && finish_in_flight(slot) != IoStatus::kOk) return lost_ ? IoStatus::kDisconnected : IoStatus::kTimeout;
+  detail_ = "";
+  if (slot.in_flight && finish_in_flight(slot) != IoStatus::kOk) {
+    detail_ = lost_ ? "the device is gone" : "the previous transfer has not come back yet";
+    return lost_ ? IoStatus::kDisconnected : IoStatus::kTimeout;
+  }
   slot.completed = 0;
   slot.actual_length = 0;
   const int r = libusb_submit_transfer(slot.transfer);
@@ -448,6 +541,7 @@ IoStatus UsbArm::transfer(Slot& slot, unsigned char endpoint) noexcept {
     pump_until(slot, monotonic_ns() + margin);
     if (slot.in_flight) {
       ++stats_.cancelled_late;
+      detail_ = lost_ ? "the device is gone" : "no reply, and the cancelled transfer did not come back";
       return lost_ ? IoStatus::kDisconnected : IoStatus::kTimeout;
     }
   }
@@ -459,55 +553,93 @@ IoStatus UsbArm::status_from_completion(Slot& slot, unsigned char endpoint) noex
   switch (slot.status) {
     case LIBUSB_TRANSFER_COMPLETED: return IoStatus::kOk;
     case LIBUSB_TRANSFER_TIMED_OUT:
-    case LIBUSB_TRANSFER_CANCELLED: return IoStatus::kTimeout;
-    case LIBUSB_TRANSFER_NO_DEVICE: lost_ = true; return IoStatus::kDisconnected;
-    case LIBUSB_TRANSFER_ERROR: return IoStatus::kDisconnected;  // LIBUSB_ERROR_IO
-    case LIBUSB_TRANSFER_OVERFLOW: return IoStatus::kProtocolError;
+    case LIBUSB_TRANSFER_CANCELLED: detail_ = "no reply within the transfer timeout"; return IoStatus::kTimeout;
+    case LIBUSB_TRANSFER_NO_DEVICE: lost_ = true; detail_ = "the device is gone (unplugged?)"; return IoStatus::kDisconnected;
+    case LIBUSB_TRANSFER_ERROR: detail_ = "transfer error (I/O on the bus)"; return IoStatus::kDisconnected;
+    case LIBUSB_TRANSFER_OVERFLOW: detail_ = "the device sent more than the report size"; return IoStatus::kProtocolError;
     case LIBUSB_TRANSFER_STALL: {
       ++stats_.clear_halts;
       const int r = libusb_clear_halt(handle_, endpoint);
-      if (r == 0) return IoStatus::kProtocolError;
+      if (r == 0) {
+        detail_ = "the endpoint stalled (halt cleared)";
+        return IoStatus::kProtocolError;
+      }
       if (r == LIBUSB_ERROR_NO_DEVICE) lost_ = true;
+      detail_ = "the endpoint stalled and its halt cannot be cleared";
       return IoStatus::kDisconnected;
     }
-    default: return IoStatus::kProtocolError;
+    default: detail_ = "unexpected transfer status"; return IoStatus::kProtocolError;
   }
 }
 
 IoStatus UsbArm::status_from_error(int e) noexcept {
+  detail_ = libusb_strerror(e);  // a static string
   switch (e) {
     case LIBUSB_ERROR_TIMEOUT:
     case LIBUSB_ERROR_BUSY: return IoStatus::kTimeout;
-    case LIBUSB_ERROR_NO_DEVICE: lost_ = true; return IoStatus::kDisconnected;
+    case LIBUSB_ERROR_NO_DEVICE:
+      lost_ = true;
+      detail_ = "the device is gone (unplugged?)";
+      return IoStatus::kDisconnected;
     case LIBUSB_ERROR_IO:
     case LIBUSB_ERROR_PIPE: return IoStatus::kDisconnected;
     default: return IoStatus::kProtocolError;
   }
 }
 
-void UsbArm::encode_out(const JointCommand* cmd, bool enable) noexcept {
-  const arm::ReportField& f = usb_.current_command;
+IoStatus UsbArm::io_error(IoStatus s, unsigned char endpoint, const char* what) noexcept {
+  char text[112];
+  std::snprintf(text, sizeof text, "bus %03u address %03u, %s 0x%02x: %s", static_cast<unsigned>(bus_number_), static_cast<unsigned>(address_),
+                (endpoint & LIBUSB_ENDPOINT_IN) != 0 ? "IN" : "OUT", static_cast<unsigned>(endpoint), what);
+  note_error(s, -1, endpoint, text);
+  return s;
+}
+
+void UsbArm::encode_out(const JointCommand* cmd, std::uint32_t enable_word, bool reset) noexcept {
+  const arm::ReportField& f = usb_.setpoint;
   const int size = arm::field_size(f.type);
-  const double lo = static_cast<double>(type_min(f.type)), hi = static_cast<double>(type_max(f.type));
+  const bool torque = usb_.setpoint_kind == arm::SetpointKind::kTorque;
+  std::uint8_t* b = out_.buffer.data();
   for (int j = 0; j < n_; ++j) {
     const auto uj = static_cast<std::size_t>(j);
+    const arm::ActuatorConfig& act = config_.actuators[uj];
     double tau = cmd != nullptr && j < cmd->n ? cmd->tau[uj] : 0.0;
     if (!std::isfinite(tau)) tau = 0.0;
-    const double peak = config_.actuators[uj].peak_current;
-    const double amps = std::clamp(arm::motor_current_for_joint_torque(config_.joints[uj], config_.actuators[uj], tau), -peak, peak);
-    const double counts = std::clamp(std::nearbyint(amps / f.lsb), lo, hi);
-    write_field(out_.buffer.data() + f.offset + static_cast<std::size_t>(j * size), f.type, usb_.byte_order, static_cast<std::int64_t>(counts));
+    double amps = arm::motor_current_for_joint_torque(config_.joints[uj], act, tau);
+    if (!std::isfinite(amps)) amps = 0;
+    amps = std::clamp(amps, -act.peak_current, act.peak_current);
+    const double physical = torque ? amps * act.torque_constant : amps;
+    (void)write_value(b + f.offset + static_cast<std::size_t>(j * size), f.type, f.byte_order, (physical - f.bias) / f.scale);
   }
-  if (usb_.control) write_field(out_.buffer.data() + usb_.control->offset, usb_.control->type, usb_.byte_order, enable ? 1 : 0);
+  // A fault reset shares the enable field, or has its own (released to 0 in every other report).
+  const bool shared = usb_.enable && usb_.fault_reset && usb_.enable->offset == usb_.fault_reset->offset;
+  if (usb_.enable) write_bits(b + usb_.enable->offset, usb_.enable->type, usb_.enable->byte_order, reset && shared ? usb_.fault_reset_value : enable_word);
+  if (usb_.fault_reset && !shared)
+    write_bits(b + usb_.fault_reset->offset, usb_.fault_reset->type, usb_.fault_reset->byte_order, reset ? usb_.fault_reset_value : 0u);
+  if (usb_.heartbeat) {
+    // Counts up in every OUT report and wraps within the field: the device's keep-alive.
+    ++heartbeat_;
+    const int bits = 8 * arm::field_size(usb_.heartbeat->type);
+    if (bits < 32) heartbeat_ &= (1u << bits) - 1u;
+    write_bits(b + usb_.heartbeat->offset, usb_.heartbeat->type, usb_.heartbeat->byte_order, heartbeat_);
+  }
 }
 
 IoStatus UsbArm::on_read(JointState& out) noexcept {
-  if (handle_ == nullptr || lost_ || !claimed_) return IoStatus::kDisconnected;
+  if (handle_ == nullptr || lost_ || !claimed_) return io_error(IoStatus::kDisconnected, usb_.endpoint_in, "the device is not open (it went away)");
   const IoStatus s = transfer(in_, usb_.endpoint_in);
-  if (s != IoStatus::kOk) return s;
-  if (in_.actual_length != static_cast<int>(usb_.in_size)) return IoStatus::kProtocolError;
+  if (s != IoStatus::kOk) return io_error(s, usb_.endpoint_in, detail_);
+  if (in_.actual_length != static_cast<int>(usb_.in_size)) {
+    char what[64];
+    std::snprintf(what, sizeof what, "short report: %d of %u bytes", in_.actual_length, static_cast<unsigned>(usb_.in_size));
+    return io_error(IoStatus::kProtocolError, usb_.endpoint_in, what);
+  }
   const std::uint8_t* b = in_.buffer.data();
-  if (usb_.in_report_id && b[0] != *usb_.in_report_id) return IoStatus::kProtocolError;
+  if (usb_.in_report_id && b[0] != *usb_.in_report_id) {
+    char what[64];
+    std::snprintf(what, sizeof what, "report id %u, expected %u", static_cast<unsigned>(b[0]), static_cast<unsigned>(*usb_.in_report_id));
+    return io_error(IoStatus::kProtocolError, usb_.endpoint_in, what);
+  }
 
   // The report is well formed: decode it and update the estimator.
   const arm::ReportField& ef = usb_.encoder_counts;
@@ -516,28 +648,54 @@ IoStatus UsbArm::on_read(JointState& out) noexcept {
   out.n = n_;
   for (int j = 0; j < n_; ++j) {
     const auto uj = static_cast<std::size_t>(j);
-    const std::int64_t raw = read_field(b + ef.offset + static_cast<std::size_t>(j * size), ef.type, usb_.byte_order);
-    counts_[uj] = have_sample_ ? counts_[uj] + wrapped_delta(raw, last_raw_[uj], ef.type) : raw;
-    last_raw_[uj] = raw;
-    out.q[uj] = arm::joint_position_from_counts(config_.joints[uj], counts_[uj]);
-    out.counts[uj] = counts_[uj];
+    const std::uint8_t* p = b + ef.offset + static_cast<std::size_t>(j * size);
+    double raw = 0;
+    if (ef.type == arm::FieldType::kF32) {
+      const float f = std::bit_cast<float>(read_bits(p, ef.type, ef.byte_order));
+      raw = std::isfinite(f) ? f : 0.0;
+    } else {
+      // A narrow counter that wraps is unwrapped (the first report after a reset is taken as is).
+      const std::int64_t r = read_field(p, ef.type, ef.byte_order);
+      raw_[uj] = have_sample_ ? raw_[uj] + wrapped_delta(r, last_raw_[uj], ef.type) : r;
+      last_raw_[uj] = r;
+      raw = static_cast<double>(raw_[uj]);
+    }
+    const double c = std::clamp(ef.scale * raw + ef.bias, -9.0e15, 9.0e15);
+    const auto whole = static_cast<std::int64_t>(std::llround(c));
+    const auto& jc = config_.joints[uj];
+    // Exact for whole counts; a scaled encoder keeps its fraction of a count.
+    out.q[uj] = arm::joint_position_from_counts(jc, whole) +
+                (c - static_cast<double>(whole)) * (arm::joint_position_from_counts(jc, 1) - arm::joint_position_from_counts(jc, 0));
+    out.counts[uj] = whole;
   }
   velocity_.update(n_, out.q, t, out.qd);
   have_sample_ = true;
 
   std::uint32_t word = 0;
-  if (usb_.buttons) word = static_cast<std::uint32_t>(read_field(b + usb_.buttons->offset, usb_.buttons->type, usb_.byte_order));
+  if (usb_.buttons) word = read_bits(b + usb_.buttons->offset, usb_.buttons->type, usb_.buttons->byte_order);
   out.buttons = pressed_buttons(config_.buttons, word);
-  out.status = usb_.status ? static_cast<std::uint32_t>(read_field(b + usb_.status->offset, usb_.status->type, usb_.byte_order)) : 0u;
-  return (out.status & 1u) != 0 ? IoStatus::kDeviceFault : IoStatus::kOk;
+  out.status = status_in_report();
+  if (usb_.status && drives_on_) {
+    char text[112];
+    if (describe_status(usb_.status_bits, out.status, true, text, sizeof text) > 0) {
+      note_error(IoStatus::kDeviceFault, -1, out.status, text);
+      return IoStatus::kDeviceFault;
+    }
+  }
+  return IoStatus::kOk;
 }
 
 IoStatus UsbArm::on_write(const JointCommand& cmd) noexcept {
-  if (handle_ == nullptr || lost_ || !claimed_) return IoStatus::kDisconnected;
-  encode_out(&cmd, enabled_);
+  if (handle_ == nullptr || lost_ || !claimed_) return io_error(IoStatus::kDisconnected, usb_.endpoint_out, "the device is not open (it went away)");
+  encode_out(&cmd, enable_word_, false);
   const IoStatus s = transfer(out_, usb_.endpoint_out);
-  if (s == IoStatus::kOk && out_.actual_length != static_cast<int>(usb_.out_size)) return IoStatus::kProtocolError;
-  return s;
+  if (s != IoStatus::kOk) return io_error(s, usb_.endpoint_out, detail_);
+  if (out_.actual_length != static_cast<int>(usb_.out_size)) {
+    char what[64];
+    std::snprintf(what, sizeof what, "the device took %d of %u bytes", out_.actual_length, static_cast<unsigned>(usb_.out_size));
+    return io_error(IoStatus::kProtocolError, usb_.endpoint_out, what);
+  }
+  return IoStatus::kOk;
 }
 
 }  // namespace lancet::device

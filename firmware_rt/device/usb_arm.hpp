@@ -6,21 +6,33 @@
 //                endpoints of the configured direction, open, detach a kernel driver (usbhid) if
 //                one is bound, claim the interface, allocate both transfers (their buffers are
 //                allocated once, at create()), and wait up to 200 ms for one well-formed IN report.
-//   activate()   one OUT report: zero currents, enable bit set (when the layout has `control`).
-//   read()       one interrupt IN transfer of in_size bytes → counts, q, q̇, buttons, status
-//                (also while inactive: the interface stays claimed from configure() on).
-//   write()      τ → motor current (clamped to the actuator's peak current) → counts of
-//                `current_command.lsb` (clamped to the field's type), one interrupt OUT transfer.
-//   deactivate() zero currents, enable off (the interface stays claimed for read(); it is
+//   activate()   (a fault reset report when the status names a fault,) one OUT report with zero
+//                setpoints and enable `on`, then IN reports until the status bits settle (ready,
+//                enabled, no fault; ≤ 200 ms, else disabled again with the bits named).
+//   read()       one interrupt IN transfer of in_size bytes → counts (scale · raw + bias), q, q̇,
+//                buttons, status (also while inactive: the interface stays claimed from
+//                configure() on).
+//   write()      τ → motor current (clamped to the actuator's peak current) → setpoint as current
+//                (A) or motor torque (N·m), raw = (physical − bias) / scale (clamped to the
+//                field's type), enable `on`, heartbeat + 1; one interrupt OUT transfer.
+//   deactivate() zero setpoints, enable `off` (the interface stays claimed for read(); it is
 //                released, and a detached kernel driver re-attached, when the UsbArm is destroyed).
 //   rearm()      reopen the device if it went away (it may come back at a new bus address) or
-//                the bus failed, re-claim, enable; a device that is still there is only enabled.
+//                the bus failed, re-claim; a fault-reset report, enable, wait for the status.
+//   reconnect()  (fault only) reopen the device wherever it is now and send zero setpoints with
+//                enable `off`: the drives stay off until rearm().
+//
+// Every OUT report carries the heartbeat field (when the layout has one), one more than the last:
+// the firmware's keep-alive, which makes the arm torque-free when it stops changing for the
+// device's watchdog time (bus.usb.drive_watchdog_ms).
 //
 // IoStatus from libusb: a transfer timeout → kTimeout; LIBUSB_ERROR_NO_DEVICE, LIBUSB_ERROR_IO, or
 // a stalled endpoint whose halt cannot be cleared → kDisconnected (trips kFault at once); a short
-// report, a wrong report id, an overflow or a stall that was cleared → kProtocolError; bit 0 of the
-// device's `status` field set → kDeviceFault (the report's values are still delivered, with the
-// status word). On any other error `out` is left untouched: no value from a bad report is used.
+// report, a wrong report id, an overflow or a stall that was cleared → kProtocolError; while the
+// drives are enabled, the status' named bits (fault, e-stop, comm_lost; not ready, not enabled) →
+// kDeviceFault (the report's values are still delivered, with the status word). On any other error
+// `out` is left untouched: no value from a bad report is used. Every error is described with
+// note_error(): the bus address, the endpoint and what happened.
 //
 // Encoder counts are unwrapped across the field's range (a narrow incremental counter that wraps
 // keeps q continuous); the first report after configure(), activate() or rearm() is taken as is. q̇ is the finite
@@ -84,6 +96,7 @@ class UsbArm final : public Device {
   Outcome on_activate() override;
   Outcome on_deactivate() override;
   Outcome on_rearm() override;
+  Outcome on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -104,13 +117,17 @@ class UsbArm final : public Device {
   Outcome open_and_claim();   // find, open, detach, claim, check endpoints, bind the transfers
   Outcome reopen();           // close, fresh libusb context, open_and_claim()
   void close_device() noexcept;  // cancel what is in flight, release, close (context kept)
-  Outcome send_control(bool enable);  // zero currents, enable bit as given; not real-time
+  Outcome send_report(std::uint32_t enable_word, bool reset, const char* what);  // zero setpoints; not real-time
+  Outcome read_report(const std::string& what);  // one well-formed IN report; not real-time
+  Outcome enable_drives(const std::string& step, bool always_reset);
+  [[nodiscard]] std::uint32_t status_in_report() const noexcept;  // of the last IN report
   IoStatus transfer(Slot& slot, unsigned char endpoint) noexcept;  // submit and wait, bounded
   IoStatus finish_in_flight(Slot& slot) noexcept;                   // drain a late completion
   void pump_until(Slot& slot, std::int64_t deadline_ns) noexcept;
   IoStatus status_from_completion(Slot& slot, unsigned char endpoint) noexcept;
   IoStatus status_from_error(int libusb_error) noexcept;
-  void encode_out(const JointCommand* cmd, bool enable) noexcept;
+  IoStatus io_error(IoStatus s, unsigned char endpoint, const char* what) noexcept;  // note_error, then s
+  void encode_out(const JointCommand* cmd, std::uint32_t enable_word, bool reset) noexcept;
   void reset_estimator() noexcept;
 
   arm::ArmConfig config_;
@@ -126,11 +143,14 @@ class UsbArm final : public Device {
   bool lost_ = false;             ///< the device went away: only a reopen helps
   std::uint8_t bus_number_ = 0, address_ = 0;
   Slot in_, out_;
-  bool enabled_ = false;          ///< what the enable bit of every OUT report says
+  std::uint32_t enable_word_ = 0;  ///< what the enable field of every OUT report says (on / off)
+  std::uint32_t heartbeat_ = 0;    ///< the heartbeat field of the last OUT report
+  bool drives_on_ = false;         ///< enabled by activate() / rearm(): the status bits are enforced
+  const char* detail_ = "";        ///< what the last transfer error was, in words (a static string)
 
   // Estimator state (per joint).
-  bool have_sample_ = false;  ///< counts_ continue from a previous report (unwrapping)
-  std::array<std::int64_t, kMaxJoints> last_raw_{}, counts_{};
+  bool have_sample_ = false;  ///< raw_ continues from a previous report (unwrapping)
+  std::array<std::int64_t, kMaxJoints> last_raw_{}, raw_{};  ///< the field's last value; unwrapped
   /// 200 Hz low-pass; after a 50 ms gap (a pause, a fault) it restarts at zero.
   VelocityEstimator velocity_{200.0, 50'000'000};
 

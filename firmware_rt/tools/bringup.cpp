@@ -156,7 +156,9 @@ int run_probe(const std::string& path, std::FILE* out) {
   device::JointState s{};
   const device::IoStatus st = dev.read(s);
   if (st != device::IoStatus::kOk) {
-    std::fprintf(out, "read failed: %s\n", device::to_string(st));
+    const device::FaultDetail& why = dev.last_error();
+    std::fprintf(out, "read failed: %s%s%s\n", device::to_string(st), why.status != device::IoStatus::kOk ? ": " : "",
+                 why.status != device::IoStatus::kOk ? why.c_str() : "");
     return 1;
   }
   print_state(*a, s, out);
@@ -183,7 +185,9 @@ int run_monitor(const std::string& path, double duration_s, double rate_hz, std:
     const double t = std::chrono::duration<double>(Clock::now() - start).count();
     if (st != device::IoStatus::kOk) {
       ++failures;
-      std::fprintf(out, "%8.3f s  read: %s\n", t, device::to_string(st));
+      const device::FaultDetail& why = dev.last_error();
+      std::fprintf(out, "%8.3f s  read: %s%s%s\n", t, device::to_string(st), why.status != device::IoStatus::kOk ? ": " : "",
+                   why.status != device::IoStatus::kOk ? why.c_str() : "");
     } else {
       const Vec3 p = a->kin->position(std::span<const double>(s.q.data(), static_cast<std::size_t>(s.n)));
       std::fprintf(out, "%8.3f s  q", t);

@@ -136,7 +136,17 @@ TEST(ArmConfig, BusSectionsLoad) {
   ASSERT_TRUE(u.in_report_id.has_value());
   EXPECT_EQ(*u.in_report_id, 1);
   EXPECT_EQ(u.encoder_counts.type, FieldType::kI32);
-  EXPECT_NEAR(u.current_command.lsb, 0.001, 1e-15);
+  EXPECT_NEAR(u.setpoint.scale, 0.001, 1e-15);
+  EXPECT_EQ(u.setpoint_kind, SetpointKind::kCurrent);
+  ASSERT_TRUE(u.heartbeat.has_value());
+  EXPECT_EQ(u.heartbeat->offset, 8u);
+  EXPECT_NEAR(u.drive_watchdog, 0.05, 1e-15);
+  EXPECT_EQ(u.status_bits.fault.bit, 0);
+  EXPECT_EQ(u.status_bits.comm_lost.bit, 1);
+  EXPECT_FALSE(u.status_bits.ready.mapped());
+  ASSERT_TRUE(u.enable && u.fault_reset);
+  EXPECT_EQ(u.enable->offset, u.fault_reset->offset);
+  EXPECT_EQ(u.fault_reset_value, 2u);
   ASSERT_TRUE(u.buttons.has_value());
   EXPECT_EQ(u.buttons->offset, 13u);
 
@@ -148,10 +158,17 @@ TEST(ArmConfig, BusSectionsLoad) {
   EXPECT_EQ(m.host, "127.0.0.1");
   EXPECT_EQ(m.port, 1502);
   EXPECT_EQ(m.unit_id, 1);
-  EXPECT_NEAR(m.response_timeout, 0.0008, 1e-15);
-  EXPECT_EQ(m.registers.current_command.table, RegisterTable::kHolding);
+  EXPECT_GT(m.response_timeout, 0.0);  // set from a measurement; see the file's comment
+  EXPECT_NEAR(m.drive_watchdog, 0.1, 1e-15);
+  EXPECT_EQ(m.registers.setpoint.table, RegisterTable::kHolding);
+  EXPECT_EQ(m.registers.setpoint.address, (std::vector<std::uint16_t>{0, 1, 2}));
+  EXPECT_NEAR(m.registers.setpoint.scale, 0.001, 1e-15);
+  EXPECT_EQ(m.registers.encoder_counts.address, (std::vector<std::uint16_t>{0, 2, 4}));
   ASSERT_TRUE(m.registers.heartbeat.has_value());
-  EXPECT_EQ(m.registers.heartbeat->address, 4);
+  EXPECT_EQ(m.registers.heartbeat->address, std::vector<std::uint16_t>{4});
+  EXPECT_EQ(m.registers.status_bits.enabled.bit, 1);
+  EXPECT_EQ(m.registers.enable_on, 1u);
+  EXPECT_EQ(m.registers.fault_reset_value, 2u);
   EXPECT_EQ(mb.value().kinematics.links.size(), 3u);
   EXPECT_NEAR(mb.value().kinematics.links[0].alpha, std::numbers::pi / 2, 1e-15);
   EXPECT_NEAR(mb.value().kinematics.links[0].d, 0.12, 1e-15);
@@ -225,8 +242,8 @@ baud = 9600
 unit_id = 300
 [bus.modbus.registers]
 encoder_counts = { table = "input", address = 0, type = "i32" }
-status = { table = "input", address = 4, type = "u16" }
-current_command = { table = "input", address = 0, type = "i16" }
+status = { table = "input", address = 4, type = "u16", bits = { fault = 0 } }
+current_command = { table = "input", address = 0, type = "i16", lsb_ma = 1 }
 
 [bus.canopen]
 interface = "can0"
@@ -267,8 +284,8 @@ TEST(ArmConfig, BrokenConfigReportsEveryErrorWithLineAndField) {
       {37, "bus.modbus.baud"},                         // RTU key with TCP transport
       {38, "bus.modbus.unit_id"},
       {41, "bus.modbus.registers.status.address"},     // overlaps encoder_counts
-      {42, "bus.modbus.registers.current_command.lsb_ma"},
       {42, "bus.modbus.registers.current_command.table"},
+      {42, "bus.modbus.registers.current_command.lsb_ma"},  // replaced by scale
       {44, "bus.canopen"},                             // not the backend's section
       {48, "safety.max_force_n"},
       {49, "safety.max_joint_torque_nm"},
@@ -346,7 +363,7 @@ TEST_F(OneError, UnknownKeyEverywhere) {
   t = replaced(sim_, "[bus.sim]\n", "[bus.sim]\nmass_kg = 1\n");
   expect_one(check(t), line_of(t, "mass_kg"), "bus.sim.mass_kg", "unknown key");
   t = replaced(modbus_, "type = \"u16\" }", "type = \"u16\", scale = 2 }");
-  expect_one(check(t), line_of(t, "scale = 2"), "bus.modbus.registers.status.scale", "unknown key");
+  expect_one(check(t), line_of(t, "scale = 2"), "bus.modbus.registers.buttons.scale", "unknown key");
   t = replaced(canopen_, "{ index = 0x6071, subindex = 0, bits = 16 }", "{ index = 0x6071, subindex = 0, bits = 16, sub = 1 }");
   expect_one(check(t), line_of(t, "sub = 1"), "bus.canopen.rpdo[0].entries[1].sub", "unknown key");
   t = replaced(sim_, "[safety]\n", "[safety]\nmax_velocity = 1\n");
@@ -435,7 +452,7 @@ TEST_F(OneError, JointCountMismatches) {
   // current_command takes 4 holding registers (0..3) and runs into control.
   EXPECT_EQ(fields, (std::vector<std::string>{"joints", "actuators", "bus.modbus.registers.status.address",
                                               "bus.modbus.registers.buttons.address",
-                                              "bus.modbus.registers.control.address", "safety.max_joint_torque_nm"}))
+                                              "bus.modbus.registers.enable.address", "safety.max_joint_torque_nm"}))
       << dump(r);
   EXPECT_EQ(r.errors[0].line, line_of(t, "[[joints]]"));
   EXPECT_EQ(r.errors[0].expected, "4 [[joints]] entries (one per joint of the kinematic model)");
@@ -462,12 +479,12 @@ TEST_F(OneError, ModbusChecks) {
   // Duplicate register address in the same table; the same address in the other table is fine.
   t = replaced(modbus_, "heartbeat = { table = \"holding\", address = 4,", "heartbeat = { table = \"holding\", address = 3,");
   expect_one(check(t), line_of(t, "heartbeat = "), "bus.modbus.registers.heartbeat.address",
-             "not used by bus.modbus.registers.control.address");
+             "not used by bus.modbus.registers.enable.address");
   t = replaced(modbus_, "status = { table = \"input\", address = 6,", "status = { table = \"holding\", address = 6,");
   EXPECT_TRUE(check(t).ok()) << dump(check(t));
   // A 32-bit value at the top of the register space overruns it.
-  t = replaced(modbus_, "status = { table = \"input\", address = 6, type = \"u16\" }",
-               "status = { table = \"input\", address = 65535, type = \"u32\" }");
+  t = replaced(modbus_, "status = { table = \"input\", address = 6, type = \"u16\",",
+               "status = { table = \"input\", address = 65535, type = \"u32\",");
   expect_one(check(t), line_of(t, "65535"), "bus.modbus.registers.status.address", "0..65535");
   // Commands must go to holding registers.
   t = replaced(modbus_, "current_command = { table = \"holding\"", "current_command = { table = \"input\"");
@@ -529,8 +546,183 @@ TEST_F(OneError, UsbChecks) {
   expect_one(check(t), line_of(t, "current_command = "), "bus.usb.out_report.current_command.offset",
              "report_id");
   // Commands are signed.
-  t = replaced(usb_, "type = \"i16\", lsb_ma", "type = \"u16\", lsb_ma");
+  t = replaced(usb_, "type = \"i16\", scale", "type = \"u16\", scale");
   expect_one(check(t), line_of(t, "current_command = "), "bus.usb.out_report.current_command.type");
+}
+
+TEST(ArmConfig, AForeignModbusMapLoads) {
+  // The map the device tests cross-check against a pymodbus server (its comment says how it is foreign).
+  auto r = load_arm_config(std::string(LANCET_SOURCE_DIR) + "/tests/firmware_rt/device/data/foreign_modbus_arm.toml");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const ModbusBusConfig& b = *r.value().modbus;
+  const ModbusRegisterMap& m = b.registers;
+  EXPECT_EQ(m.encoder_counts.address, (std::vector<std::uint16_t>{10, 20, 30}));
+  EXPECT_EQ(m.encoder_counts.type, FieldType::kI32);
+  EXPECT_FALSE(m.encoder_counts.high_word_first);
+  EXPECT_EQ(m.encoder_counts.byte_order, ByteOrder::kLittle);
+  EXPECT_DOUBLE_EQ(m.encoder_counts.scale, 0.25);
+  EXPECT_DOUBLE_EQ(m.encoder_counts.bias, 1000.0);
+  EXPECT_EQ(m.setpoint_kind, SetpointKind::kTorque);
+  EXPECT_EQ(m.setpoint.type, FieldType::kF32);
+  EXPECT_TRUE(m.setpoint.high_word_first) << "its own word_order over the map's";
+  EXPECT_EQ(m.setpoint.address, (std::vector<std::uint16_t>{100, 104, 108}));
+  EXPECT_EQ(m.status_bits.ready.bit, 0);
+  EXPECT_EQ(m.status_bits.fault.bit, 2);
+  EXPECT_FALSE(m.status_bits.fault.active_low);
+  EXPECT_EQ(m.status_bits.estop.bit, 5);
+  EXPECT_TRUE(m.status_bits.estop.active_low);
+  EXPECT_FALSE(m.status_bits.enabled.mapped());
+  EXPECT_EQ(m.enable_on, 0x000Fu);
+  EXPECT_EQ(m.enable_off, 0x0006u);
+  EXPECT_EQ(m.fault_reset_value, 0x0080u);
+  ASSERT_TRUE(m.watchdog_timeout.has_value());
+  EXPECT_DOUBLE_EQ(m.watchdog_timeout->scale, 10.0);
+  EXPECT_NEAR(b.drive_watchdog, 0.8, 1e-15);
+  // The status bits read as the config says.
+  EXPECT_TRUE(m.status_bits.estop.active(0x0000));
+  EXPECT_FALSE(m.status_bits.estop.active(0x0020));
+  EXPECT_TRUE(m.status_bits.fault.active(0x0004));
+}
+
+TEST_F(OneError, ModbusRegisterMapChecks) {
+  // Per-joint addresses: one per joint, each value's registers apart from the others'.
+  std::string t = replaced(modbus_, "encoder_counts = { table = \"input\", address = 0,", "encoder_counts = { table = \"input\", address = [0, 20],");
+  expect_one(check(t), line_of(t, "encoder_counts = "), "bus.modbus.registers.encoder_counts.address", "an array of 3 addresses");
+  t = replaced(modbus_, "encoder_counts = { table = \"input\", address = 0,", "encoder_counts = { table = \"input\", address = [20, 21, 30],");
+  expect_one(check(t), line_of(t, "encoder_counts = "), "bus.modbus.registers.encoder_counts.address[1]",
+             "not used by bus.modbus.registers.encoder_counts.address[0] (20..21)");
+  t = replaced(modbus_, "encoder_counts = { table = \"input\", address = 0,", "encoder_counts = { table = \"input\", address = [20, 40, 30],");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(modbus_, "buttons = { table = \"input\", address = 7,", "buttons = { table = \"input\", address = [7],");
+  expect_one(check(t), line_of(t, "buttons = "), "bus.modbus.registers.buttons.address", "0..65535");
+  // Setpoints: exactly one of current_command and torque_command.
+  t = replaced(modbus_, "current_command = {", "torque_command = {");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(modbus_, "current_command = { table = \"holding\", address = 0, type = \"i16\", scale = 0.001 }",
+               "current_command = { table = \"holding\", address = 0, type = \"i16\", scale = 0.001 }\n"
+               "torque_command = { table = \"holding\", address = 10, type = \"f32\" }");
+  expect_one(check(t), line_of(t, "torque_command"), "bus.modbus.registers.torque_command", "only one of current_command and torque_command");
+  t = replaced(modbus_, "current_command = { table = \"holding\", address = 0, type = \"i16\", scale = 0.001 }   # A per count; 3 joints: 0..2\n", "");
+  expect_one(check(t), line_of(t, "[bus.modbus.registers]"), "bus.modbus.registers.current_command", "torque_command");
+  t = replaced(modbus_, "type = \"i16\", scale = 0.001", "type = \"i16\", scale = 0");
+  expect_one(check(t), line_of(t, "scale = 0 "), "bus.modbus.registers.current_command.scale", "> 0");
+  t = replaced(modbus_, "type = \"i16\", scale = 0.001", "type = \"u16\", scale = 0.001");
+  expect_one(check(t), line_of(t, "\"u16\", scale"), "bus.modbus.registers.current_command.type", "\"i16\", \"i32\", \"f32\"");
+  // Encoders may be floats, with a bias; status words may not.
+  t = replaced(modbus_, "address = 0, type = \"i32\" }", "address = 0, type = \"f32\", scale = 4, bias = -12.5 }");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(modbus_, "address = 6, type = \"u16\",", "address = 6, type = \"f32\",");
+  expect_one(check(t), line_of(t, "\"f32\""), "bus.modbus.registers.status.type", "\"u16\", \"u32\"");
+  // Word and byte order, per map and per entry.
+  t = replaced(modbus_, "byte_order = \"big\"", "byte_order = \"middle\"");
+  expect_one(check(t), line_of(t, "\"middle\""), "bus.modbus.registers.byte_order", "\"little\", \"big\"");
+  t = replaced(modbus_, "address = 0, type = \"i32\" }", "address = 0, type = \"i32\", word_order = \"low_first\", byte_order = \"little\" }");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+}
+
+TEST_F(OneError, ModbusStatusBitsChecks) {
+  std::string t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { faults = 0, enabled = 1 }");
+  expect_one(check(t), line_of(t, "faults"), "bus.modbus.registers.status.bits.faults", "did you mean \"fault\"?");
+  t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { fault = 16 }");
+  expect_one(check(t), line_of(t, "fault = 16"), "bus.modbus.registers.status.bits.fault", "0..15");
+  t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { fault = 2, ready = 2 }");
+  expect_one(check(t), line_of(t, "ready = 2"), "bus.modbus.registers.status.bits.ready", "not used by bus.modbus.registers.status.bits.fault");
+  t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { ready = { bit = 0, active_low = true }, estop = { bit = 3 } }");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { estop = { bit = 3, active_low = 1 } }");
+  expect_one(check(t), line_of(t, "active_low = 1"), "bus.modbus.registers.status.bits.estop.active_low", "true or false");
+  t = replaced(modbus_, "bits = { fault = 0, enabled = 1, comm_lost = 2 }", "bits = { estop = \"five\" }");
+  expect_one(check(t), line_of(t, "\"five\""), "bus.modbus.registers.status.bits.estop", "{ bit = N, active_low = true }");
+  // A status word without its bits' meaning is an error: a fixed meaning is how faults were missed.
+  t = replaced(modbus_, ", bits = { fault = 0, enabled = 1, comm_lost = 2 }", "");
+  expect_one(check(t), line_of(t, "status = "), "bus.modbus.registers.status.bits", "which bits of the word mean what");
+  // 32-bit status words take bits up to 31.
+  t = replaced(modbus_, "type = \"u16\", bits = { fault = 0, enabled = 1, comm_lost = 2 }", "type = \"u32\", bits = { fault = 31 }");
+  t = replaced(t, "buttons = { table = \"input\", address = 7,", "buttons = { table = \"input\", address = 8,");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+}
+
+TEST_F(OneError, ModbusEnableResetWatchdogChecks) {
+  std::string t = replaced(modbus_, "on = 1, off = 0", "on = 1, off = 1");
+  expect_one(check(t), line_of(t, "off = 1"), "bus.modbus.registers.enable.off", "a value other than on");
+  t = replaced(modbus_, "on = 1, off = 0", "on = 0x10000, off = 0");
+  expect_one(check(t), line_of(t, "0x10000"), "bus.modbus.registers.enable.on", "0x0000..0xFFFF");
+  t = replaced(modbus_, "on = 1, off = 0", "on = 1");
+  expect_one(check(t), line_of(t, "enable = "), "bus.modbus.registers.enable.off", "missing");
+  // A fault reset of its own place is fine; one that overlaps something else is not.
+  t = replaced(modbus_, "fault_reset = { table = \"holding\", address = 3,", "fault_reset = { table = \"holding\", address = 9,");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(modbus_, "fault_reset = { table = \"holding\", address = 3,", "fault_reset = { table = \"holding\", address = 4,");
+  expect_one(check(t), line_of(t, "heartbeat = "), "bus.modbus.registers.heartbeat.address", "not used by bus.modbus.registers.fault_reset.address");
+  t = replaced(modbus_, "fault_reset = { table = \"holding\", address = 3, type = \"u16\"", "fault_reset = { table = \"holding\", address = 3, type = \"u32\"");
+  const ConfigReport r = check(t);
+  ASSERT_EQ(r.errors.size(), 2u) << dump(r);  // not the enable's place exactly: it overlaps it, and the heartbeat
+  EXPECT_EQ(r.errors[0].field, "bus.modbus.registers.fault_reset.address") << dump(r);
+  EXPECT_NE(r.errors[0].message.find("not used by bus.modbus.registers.enable.address"), std::string::npos) << dump(r);
+  t = replaced(modbus_, "fault_reset = { table = \"holding\"", "fault_reset = { table = \"input\"");
+  expect_one(check(t), line_of(t, "fault_reset = "), "bus.modbus.registers.fault_reset.table", "\"holding\"");
+  // The drive-side watchdog: needs a heartbeat, 0 is off, else at least 4 response timeouts.
+  t = replaced(modbus_, "drive_watchdog_ms = 100", "drive_watchdog_ms = 0");
+  EXPECT_TRUE(check(t).ok());
+  t = replaced(modbus_, "drive_watchdog_ms = 100", "drive_watchdog_ms = 15");
+  expect_one(check(t), line_of(t, "drive_watchdog_ms"), "bus.modbus.drive_watchdog_ms", "at least");
+  t = replaced(modbus_, "heartbeat = { table = \"holding\", address = 4, type = \"u16\" }\n", "");
+  expect_one(check(t), line_of(t, "drive_watchdog_ms"), "bus.modbus.drive_watchdog_ms", "needs bus.modbus.registers.heartbeat");
+  t = replaced(modbus_, "heartbeat = { table = \"holding\", address = 4, type = \"u16\" }\n",
+               "heartbeat = { table = \"holding\", address = 4, type = \"u16\" }\nwatchdog_timeout = { table = \"holding\", address = 5, type = \"u16\", scale = 0.1 }\n");
+  auto loaded = load_arm_config_text(t, "t.toml");
+  ASSERT_TRUE(loaded.ok()) << loaded.error().message;
+  EXPECT_DOUBLE_EQ(loaded.value().modbus->registers.watchdog_timeout->scale, 0.1);
+}
+
+TEST_F(OneError, OldModbusAndUsbKeysSayWhatReplacedThem) {
+  // lsb_ma (mA per count) became scale (A per count); the message gives the number.
+  std::string t = replaced(modbus_, "type = \"i16\", scale = 0.001 }", "type = \"i16\", lsb_ma = 2.5 }");
+  expect_one(check(t), line_of(t, "lsb_ma"), "bus.modbus.registers.current_command.lsb_ma", "\"lsb_ma\" was replaced: scale = 0.0025");
+  t = replaced(usb_, "type = \"i16\", scale = 0.001 }", "type = \"i16\", lsb_ma = 1.0 }");
+  expect_one(check(t), line_of(t, "lsb_ma"), "bus.usb.out_report.current_command.lsb_ma", "scale = 0.001");
+  // control (bit 0 enable, bit 1 fault reset) became enable and fault_reset, written out.
+  t = replaced(modbus_, "enable = { table = \"holding\", address = 3, type = \"u16\", on = 1, off = 0 }\n"
+                        "fault_reset = { table = \"holding\", address = 3, type = \"u16\", value = 2 }",
+               "control = { table = \"holding\", address = 3, type = \"u16\" }");
+  expect_one(check(t), line_of(t, "control = "), "bus.modbus.registers.control",
+             "enable = { table = \"holding\", address = 3, type = \"u16\", on = 1, off = 0 } and fault_reset = { table = \"holding\", "
+             "address = 3, type = \"u16\", value = 2 }");
+  t = replaced(usb_, "enable = { offset = 7, type = \"u8\", on = 1, off = 0 }\nfault_reset = { offset = 7, type = \"u8\", value = 2 }",
+               "control = { offset = 7, type = \"u8\" }");
+  expect_one(check(t), line_of(t, "control = "), "bus.usb.out_report.control", "enable = { offset = 7, type = \"u8\", on = 1, off = 0 }");
+  // The value offset is `bias` (a Modbus entry's place is its address).
+  t = replaced(modbus_, "address = 0, type = \"i32\" }", "address = 0, type = \"i32\", offset = 5 }");
+  expect_one(check(t), line_of(t, "offset = 5"), "bus.modbus.registers.encoder_counts.offset", "bias");
+}
+
+TEST_F(OneError, UsbLayoutChecks) {
+  // Floats, scales, biases and byte order per field; torque setpoints.
+  std::string t = replaced(usb_, "encoder_counts = { offset = 1, type = \"i32\" }",
+                           "encoder_counts = { offset = 1, type = \"f32\", byte_order = \"big\", scale = 2, bias = -5 }");
+  t = replaced(t, "current_command = { offset = 1, type = \"i16\", scale = 0.001 }", "torque_command = { offset = 20, type = \"f32\", scale = 0.001 }");
+  auto loaded = load_arm_config_text(t, "t.toml");
+  ASSERT_TRUE(loaded.ok()) << loaded.error().message;
+  const UsbBusConfig& u = *loaded.value().usb;
+  EXPECT_EQ(u.encoder_counts.type, FieldType::kF32);
+  EXPECT_EQ(u.encoder_counts.byte_order, ByteOrder::kBig);
+  EXPECT_EQ(u.buttons->byte_order, ByteOrder::kLittle) << "the section's byte order";
+  EXPECT_DOUBLE_EQ(u.encoder_counts.bias, -5.0);
+  EXPECT_EQ(u.setpoint_kind, SetpointKind::kTorque);
+  EXPECT_EQ(u.setpoint.offset, 20u);
+  // Status bits, enable values and the heartbeat fit their field.
+  t = replaced(usb_, "bits = { fault = 0, comm_lost = 1 }", "bits = { fault = 8 }");
+  expect_one(check(t), line_of(t, "fault = 8"), "bus.usb.in_report.status.bits.fault", "0..7");
+  t = replaced(usb_, "on = 1, off = 0", "on = 256, off = 0");
+  expect_one(check(t), line_of(t, "on = 256"), "bus.usb.out_report.enable.on", "0x0000..0x00FF");
+  t = replaced(usb_, "heartbeat = { offset = 8, type = \"u8\" }", "heartbeat = { offset = 7, type = \"u8\" }");
+  expect_one(check(t), line_of(t, "heartbeat = "), "bus.usb.out_report.heartbeat.offset", "not used by bus.usb.out_report.enable.offset");
+  t = replaced(usb_, "fault_reset = { offset = 7,", "fault_reset = { offset = 9,");
+  EXPECT_TRUE(check(t).ok()) << dump(check(t));
+  t = replaced(usb_, "heartbeat = { offset = 8, type = \"u8\" }                # counts up in every OUT report\n", "");
+  expect_one(check(t), line_of(t, "drive_watchdog_ms"), "bus.usb.drive_watchdog_ms", "needs bus.usb.out_report.heartbeat");
+  t = replaced(usb_, "drive_watchdog_ms = 50", "drive_watchdog_ms = 5");
+  expect_one(check(t), line_of(t, "drive_watchdog_ms"), "bus.usb.drive_watchdog_ms", "at least 10 ms");
 }
 
 TEST_F(OneError, SafetyChecks) {

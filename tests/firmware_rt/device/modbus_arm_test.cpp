@@ -18,6 +18,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -57,10 +58,17 @@ const std::string kTcpConfig = std::string(LANCET_SOURCE_DIR) + "/hw_configs/mod
 const std::string kSimConfig = std::string(LANCET_SOURCE_DIR) + "/hw_configs/sim_3dof.toml";
 const std::string kArmsim = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-armsim";
 const std::string kPymodbusScript = std::string(LANCET_SOURCE_DIR) + "/tests/firmware_rt/device/pymodbus_arm.py";
+// A map unlike any shipped one: per-joint registers apart, f32 torque setpoints, swapped bytes,
+// low words first, bit 0 = ready, bit 2 = fault, an active-low e-stop (see the file's comment).
+const std::string kForeignConfig = std::string(LANCET_SOURCE_DIR) + "/tests/firmware_rt/device/data/foreign_modbus_arm.toml";
 
 // Functional tests use a generous response timeout (sanitizer builds on two shared cores); the
-// shipped 0.8 ms is for the real loop.
+// shipped one is for the real loop.
 constexpr double kTimeout = 0.05;
+
+// The shipped map's status bits and enable values (hw_configs/modbus_tcp_arm.toml).
+constexpr std::uint32_t kFaultBit = 1u << 0, kEnabledBit = 1u << 1, kCommLostBit = 1u << 2;
+constexpr std::uint32_t kEnableOn = 1, kEnableOff = 0;
 
 arm::ArmConfig load(const std::string& path) {
   auto c = arm::load_arm_config(path);
@@ -68,15 +76,19 @@ arm::ArmConfig load(const std::string& path) {
   return c.ok() ? c.value() : arm::ArmConfig{};
 }
 
+// The shipped config at `port`; the drive-side watchdog off unless a test is about it (a test that
+// pauses between writes would otherwise see the drives go torque-free).
 arm::ArmConfig tcp_config(int port, double timeout = kTimeout) {
   arm::ArmConfig c = load(kTcpConfig);
   c.modbus->port = port;
   c.modbus->response_timeout = timeout;
+  c.modbus->drive_watchdog = 0;
   return c;
 }
 
 arm::ArmConfig rtu_config(const std::string& device, double timeout = kTimeout) {
   arm::ArmConfig c = load(kTcpConfig);
+  c.modbus->drive_watchdog = 0;
   c.modbus->transport = arm::ModbusTransport::kRtu;
   c.modbus->host.clear();
   c.modbus->device = device;
@@ -118,13 +130,15 @@ JointCommand torques(double t0, double t1, double t2) {
 /// Joint torque of one current lsb on joint j (N·m).
 double torque_lsb(const arm::ArmConfig& c, int j) {
   const auto uj = static_cast<std::size_t>(j);
-  return c.modbus->registers.current_command.lsb / std::abs(arm::motor_current_for_joint_torque(c.joints[uj], c.actuators[uj], 1.0));
+  return c.modbus->registers.setpoint.scale / std::abs(arm::motor_current_for_joint_torque(c.joints[uj], c.actuators[uj], 1.0));
 }
 
 /// A TCP server on an ephemeral port and a ModbusArm pointed at it (not configured yet).
 struct TcpRig {
   explicit TcpRig(const ServerOptions& o = quiet_options(), FaultPolicy policy = {}, double timeout = kTimeout) {
-    server = make_server(load(kTcpConfig), o);
+    arm::ArmConfig served = load(kTcpConfig);
+    served.modbus->drive_watchdog = 0;
+    server = make_server(served, o);
     if (!server) return;
     auto p = server->start_tcp(0);
     EXPECT_TRUE(p.ok()) << (p.ok() ? "" : p.error().message);
@@ -221,45 +235,75 @@ std::string describe(const IoCounters& c) {
 
 TEST(ModbusCodec, RegisterCountsAndWordOrder) {
   using arm::FieldType;
+  using modbus::Layout;
   EXPECT_EQ(modbus::register_count(FieldType::kU16), 1);
   EXPECT_EQ(modbus::register_count(FieldType::kI16), 1);
   EXPECT_EQ(modbus::register_count(FieldType::kU32), 2);
   EXPECT_EQ(modbus::register_count(FieldType::kI32), 2);
+  EXPECT_EQ(modbus::register_count(FieldType::kF32), 2);
   std::uint16_t r[2] = {};
-  modbus::encode_registers(FieldType::kI32, true, -2, r);
+  const Layout i32{FieldType::kI32, true, false}, u32{FieldType::kU32, true, false}, u32_low{FieldType::kU32, false, false};
+  modbus::encode_value(i32, -2, r);
   EXPECT_EQ(r[0], 0xFFFF);
   EXPECT_EQ(r[1], 0xFFFE);
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, true, r), -2);
-  modbus::encode_registers(FieldType::kU32, true, 0x12345678, r);
+  EXPECT_EQ(modbus::decode_value(i32, r), -2);
+  modbus::encode_value(u32, 0x12345678, r);
   EXPECT_EQ(r[0], 0x1234);
   EXPECT_EQ(r[1], 0x5678);
-  modbus::encode_registers(FieldType::kU32, false, 0x12345678, r);
+  modbus::encode_value(u32_low, 0x12345678, r);
   EXPECT_EQ(r[0], 0x5678);
   EXPECT_EQ(r[1], 0x1234);
-  EXPECT_EQ(modbus::decode_registers(FieldType::kU32, false, r), 0x12345678);
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, false, r), 0x12345678);
+  EXPECT_EQ(modbus::decode_value(u32_low, r), 0x12345678);
+  EXPECT_EQ(modbus::decode_word(u32_low, r), 0x12345678u);
   r[0] = 0x8000;
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), -32768);
-  EXPECT_EQ(modbus::decode_registers(FieldType::kU16, true, r), 32768);
-  for (std::int64_t v : {-2147483648LL, -1LL, 0LL, 1LL, 300000LL, 2147483647LL})
-    for (bool hwf : {true, false}) {
-      modbus::encode_registers(FieldType::kI32, hwf, v, r);
-      EXPECT_EQ(modbus::decode_registers(FieldType::kI32, hwf, r), v);
-    }
+  EXPECT_EQ(modbus::decode_value({FieldType::kI16, true, false}, r), -32768);
+  EXPECT_EQ(modbus::decode_value({FieldType::kU16, true, false}, r), 32768);
+  for (double v : {-2147483648.0, -1.0, 0.0, 1.0, 300000.0, 2147483647.0})
+    for (bool hwf : {true, false})
+      for (bool swap : {true, false}) {
+        const Layout l{FieldType::kI32, hwf, swap};
+        modbus::encode_value(l, v, r);
+        EXPECT_EQ(modbus::decode_value(l, r), v) << hwf << swap;
+      }
 }
 
-TEST(ModbusCodec, EncodeClampsToTheTypesRange) {
+TEST(ModbusCodec, ByteSwappedRegistersAndFloats) {
   using arm::FieldType;
   std::uint16_t r[2] = {};
-  EXPECT_TRUE(modbus::encode_registers(FieldType::kI16, true, 40000, r));
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), 32767);
-  EXPECT_TRUE(modbus::encode_registers(FieldType::kI16, true, -40000, r));
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI16, true, r), -32768);
-  EXPECT_TRUE(modbus::encode_registers(FieldType::kU16, true, -1, r));
-  EXPECT_EQ(r[0], 0);
-  EXPECT_TRUE(modbus::encode_registers(FieldType::kI32, true, 1LL << 40, r));
-  EXPECT_EQ(modbus::decode_registers(FieldType::kI32, true, r), 2147483647);
-  EXPECT_FALSE(modbus::encode_registers(FieldType::kI16, true, -5, r));
+  // byte_order = "little": each register's two bytes swapped.
+  modbus::encode_word({FieldType::kU16, true, true}, 0x1234, r);
+  EXPECT_EQ(r[0], 0x3412);
+  modbus::encode_value({FieldType::kU32, false, true}, 0x12345678, r);
+  EXPECT_EQ(r[0], 0x7856);  // low half first, bytes swapped
+  EXPECT_EQ(r[1], 0x3412);
+  // f32: IEEE 754 single, in either word order.
+  const float f = 1.5F;  // 0x3FC00000
+  modbus::encode_value({FieldType::kF32, true, false}, f, r);
+  EXPECT_EQ(r[0], 0x3FC0);
+  EXPECT_EQ(r[1], 0x0000);
+  modbus::encode_value({FieldType::kF32, false, true}, -0.1, r);
+  EXPECT_FLOAT_EQ(static_cast<float>(modbus::decode_value({FieldType::kF32, false, true}, r)), -0.1F);
+  EXPECT_EQ(modbus::encode_value({FieldType::kF32, true, false}, 0.1, r), static_cast<double>(0.1F)) << "the value stored is returned";
+}
+
+TEST(ModbusCodec, EncodeRoundsAndClampsToTheTypesRange) {
+  using arm::FieldType;
+  std::uint16_t r[2] = {};
+  bool clamped = false;
+  const modbus::Layout i16{FieldType::kI16, true, false};
+  EXPECT_EQ(modbus::encode_value(i16, 40000, r, &clamped), 32767);
+  EXPECT_TRUE(clamped);
+  EXPECT_EQ(modbus::decode_value(i16, r), 32767);
+  EXPECT_EQ(modbus::encode_value(i16, -40000, r, &clamped), -32768);
+  EXPECT_TRUE(clamped);
+  EXPECT_EQ(modbus::encode_value({FieldType::kU16, true, false}, -1, r, &clamped), 0);
+  EXPECT_TRUE(clamped);
+  EXPECT_EQ(modbus::encode_value({FieldType::kI32, true, false}, 1e12, r, &clamped), 2147483647);
+  EXPECT_EQ(modbus::encode_value(i16, -5.4, r, &clamped), -5);
+  EXPECT_FALSE(clamped);
+  EXPECT_EQ(modbus::encode_value(i16, 2.5, r, &clamped), 2) << "nearest, ties to even";
+  EXPECT_EQ(modbus::encode_value(i16, std::nan(""), r, &clamped), 0);
+  EXPECT_TRUE(clamped);
 }
 
 TEST(ModbusCodec, ErrnoMapsToIoStatus) {
@@ -315,9 +359,10 @@ TEST(ModbusArm, TheShippedMapIsOneReadAndOneWritePerTick) {
 
   // A control register away from the per-tick registers is not written every tick.
   arm::ArmConfig c = tcp_config(1502);
-  c.modbus->registers.heartbeat->address = 3;
-  c.modbus->registers.control->address = 10;
-  c.modbus->registers.buttons->address = 20;
+  c.modbus->registers.heartbeat->address = {3};
+  c.modbus->registers.enable->address = {10};
+  c.modbus->registers.fault_reset->address = {10};
+  c.modbus->registers.buttons->address = {20};
   a = make_arm(c);
   ASSERT_TRUE(a);
   EXPECT_EQ(a->write_transactions(), 1);  // holding 0..3
@@ -427,11 +472,11 @@ TEST(ModbusArmTcp, ActivateEnablesTheDrivesAndDeactivateZeroesAndDisablesThem) {
   ASSERT_TRUE(rig.arm->activate().ok());
   ArmSnapshot snap = rig.server->snapshot();
   EXPECT_TRUE(snap.enabled);
-  EXPECT_EQ(snap.control, modbus::kControlEnable);
+  EXPECT_EQ(snap.control, kEnableOn);
   for (int i = 0; i < 5; ++i) ASSERT_EQ(rig.arm->write(torques(0.2, 0.2, 0.2)), IoStatus::kOk);
   snap = rig.server->snapshot();
   EXPECT_EQ(snap.heartbeat, 5u);  // bumped on every write
-  EXPECT_EQ(snap.control, modbus::kControlEnable);  // held as a level in the same transaction
+  EXPECT_EQ(snap.control, kEnableOn);  // held as a level in the same transaction
   EXPECT_NE(snap.current[0], 0.0);
   ASSERT_TRUE(rig.arm->deactivate().ok());
   rig.server->step_physics(1e-3);
@@ -466,7 +511,7 @@ TEST(ModbusArmTcp, StatusAndButtonsDecode) {
   ASSERT_TRUE(rig.bring_up());
   JointState s;
   ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
-  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+  EXPECT_EQ(s.status, kEnabledBit);
   EXPECT_EQ(s.buttons, 0u);
   // Config buttons: 0 handle_trigger (bit 0), 1 handle_thumb (bit 1), 2 foot_pedal (bit 4).
   rig.server->set_buttons(1u << 4);
@@ -495,16 +540,19 @@ TEST(ModbusArmTcp, ADriveFaultTripsAtOnceAndRearmResetsIt) {
   EXPECT_EQ(rig.arm->read(s), IoStatus::kFault);
   EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDeviceFault);
   EXPECT_EQ(rig.arm->counters().device_faults, 1u);
-  EXPECT_TRUE((s.status & modbus::kStatusDriveFault) != 0);
+  EXPECT_TRUE((s.status & kFaultBit) != 0);
+  // The config's bits, named: the fault itself and what it did to the enable.
+  EXPECT_STREQ(rig.arm->fault_detail().c_str(), "status 0x0001: fault (bit 0), not enabled (bit 1 low)");
+  EXPECT_EQ(rig.arm->fault_detail().code, 0x0001u);
   EXPECT_EQ(rig.arm->write(torques(0.3, 0, 0)), IoStatus::kFault);
   EXPECT_EQ(rig.server->snapshot().current[0], 0.0);  // the fault path sent zero
   ASSERT_TRUE(rig.arm->rearm().ok());
   const ArmSnapshot snap = rig.server->snapshot();
   EXPECT_FALSE(snap.drive_fault);  // the fault-reset bit cleared it
   EXPECT_TRUE(snap.enabled);
-  EXPECT_EQ(snap.control, modbus::kControlEnable);
+  EXPECT_EQ(snap.control, kEnableOn);
   EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
-  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+  EXPECT_EQ(s.status, kEnabledBit);
 }
 
 TEST(ModbusArmTcp, RearmFailsWhileTheDriveKeepsItsFault) {
@@ -660,6 +708,7 @@ TEST(ModbusArmRtu, CorruptRepliesAreCrcErrorsAndNeverAccepted) {
   }
   const IoCounters& c = a->counters();
   std::printf("rtu corrupt replies: %s\n", describe(c).c_str());
+  EXPECT_TRUE(contains(a->last_error().c_str(), pty.path + ": CRC error in the reply to ")) << a->last_error().c_str();
   EXPECT_GT(ok, 100);
   EXPECT_GT(c.crc_errors, 20u);
   // Over RTU every flipped byte is a CRC error: one per corrupted reply, nothing else.
@@ -717,11 +766,18 @@ TEST(ModbusArmFaults, LateRepliesTimeOutWithinABoundAndRearmRecovers) {
     EXPECT_LT(took, 10 * kTimeout) << "a read must give up after about the response timeout";
   }
   EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kTimeout);
-  // The late replies still arrive on the old connection; rearm starts a clean one.
+  EXPECT_TRUE(contains(rig.arm->fault_detail().c_str(), "127.0.0.1:" + std::to_string(rig.port) + ": timed out, no reply within 50 ms to read input registers 0..7"))
+      << rig.arm->fault_detail().c_str();
+  // The late replies still arrive, on the same connection: recognised by their transaction ids,
+  // thrown away and counted, never taken for the answer to rearm's requests.
   rig.server->set_faults({});
   ASSERT_TRUE(eventually([&] { const auto st = rig.server->snapshot().stats; return st.replies >= st.requests; }, 5.0));
   const Outcome r = rig.arm->rearm();
   ASSERT_TRUE(r.ok()) << r.error->message;
+  EXPECT_EQ(rig.arm->counters().stale_replies, 3u);
+  EXPECT_EQ(rig.server->snapshot().stats.connections, 1u) << "no reconnect was needed";
+  const double q[3] = {0.3, -0.2, 0.1};
+  rig.server->set_pose(q);
   const ArmSnapshot truth = rig.server->snapshot();
   for (int i = 0; i < 20; ++i) {
     ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
@@ -745,6 +801,7 @@ TEST(ModbusArmFaults, ADisconnectFaultsAtOnceAndRearmReconnectsWhenTheServerIsBa
   EXPECT_EQ(st, IoStatus::kFault);
   EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDisconnected);
   EXPECT_EQ(rig.arm->counters().disconnects, 1u);
+  EXPECT_TRUE(contains(rig.arm->fault_detail().c_str(), "127.0.0.1:" + std::to_string(rig.port) + ": connection")) << rig.arm->fault_detail().c_str();
   EXPECT_EQ(rig.arm->write(torques(0.1, 0, 0)), IoStatus::kFault);  // best effort, fails fast
   // While the server refuses connections, rearm fails and says where and why.
   const Outcome refused = rig.arm->rearm();
@@ -791,7 +848,7 @@ TEST(ModbusArmFaults, CorruptRepliesAreCountedAndNeverAccepted) {
     if (rig.arm->read(s) == IoStatus::kOk) {
       ++ok;
       for (int j = 0; j < 3; ++j) ASSERT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]);
-      ASSERT_EQ(s.status, modbus::kStatusEnabled);
+      ASSERT_EQ(s.status, kEnabledBit);
     }
     (void)rig.arm->write(torques(0.2, -0.2, 0.1));
   }
@@ -921,12 +978,58 @@ TEST_F(LancetArmsim, ServesRtuOnAnInheritedPty) {
     ASSERT_EQ(a->read(s), IoStatus::kOk);
     ASSERT_EQ(a->write(torques(0, 0, 0)), IoStatus::kOk);
   }
-  EXPECT_EQ(s.status, modbus::kStatusEnabled);
+  EXPECT_EQ(s.status, kEnabledBit);
   ASSERT_TRUE(a->deactivate().ok());
   child.signal(SIGTERM);
   const auto status = child.wait_exit(std::chrono::seconds(5));
   ASSERT_TRUE(status);
   EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 0) << test::read_file(out);
+}
+
+// A measurement, not a check (run it by name with --gtest_also_run_disabled_tests): the time of one
+// Modbus TCP transaction on loopback against the lancet-armsim binary, paced at 1 kHz like the
+// servo, each read() and write() timed apart (the shipped map: one transaction each). The numbers
+// set the shipped response_timeout_ms (hw_configs/modbus_tcp_arm.toml; docs/PERFORMANCE.md).
+TEST_F(LancetArmsim, DISABLED_MeasureLoopbackTransactionLatency) {
+  const std::string out = (dir_ / "armsim.out").string();
+  test::Child child({kArmsim, kTcpConfig, "--port", "0", "--hand", "script"}, out);
+  const auto port = wait_for_port(child, out, 10.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  arm::ArmConfig config = tcp_config(*port, 0.5);  // long enough never to cut a slow one short
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  const char* env = std::getenv("LANCET_LATENCY_TICKS");
+  const int ticks = env != nullptr ? std::atoi(env) : 20000;
+  std::vector<double> reads, writes;
+  reads.reserve(static_cast<std::size_t>(ticks));
+  writes.reserve(static_cast<std::size_t>(ticks));
+  JointState s;
+  auto next = Clock::now();
+  for (int i = -500; i < ticks; ++i) {
+    next += std::chrono::milliseconds(1);
+    std::this_thread::sleep_until(next);
+    auto t0 = Clock::now();
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    auto t1 = Clock::now();
+    ASSERT_EQ(a->write(torques(0.01 * (i % 7 - 3), 0, 0)), IoStatus::kOk);
+    auto t2 = Clock::now();
+    if (i >= 0) {
+      reads.push_back(std::chrono::duration<double, std::micro>(t1 - t0).count());
+      writes.push_back(std::chrono::duration<double, std::micro>(t2 - t1).count());
+    }
+    if (Clock::now() - next > std::chrono::milliseconds(50)) next = Clock::now();  // no catch-up burst
+  }
+  for (auto* v : {&reads, &writes}) {
+    std::sort(v->begin(), v->end());
+    const auto q = [&](double p) { return (*v)[std::min(v->size() - 1, static_cast<std::size_t>(p * static_cast<double>(v->size())))]; };
+    std::printf("[ info     ] %s, %zu transactions at 1 kHz: p50 %.0f us, p99 %.0f us, p99.9 %.0f us, p99.99 %.0f us, max %.0f us\n",
+                v == &reads ? "read (input 0..7)" : "write (holding 0..4)", v->size(), q(0.5), q(0.99), q(0.999), q(0.9999), v->back());
+  }
+  ASSERT_TRUE(a->deactivate().ok());
+  child.signal(SIGTERM);
+  (void)child.wait_exit(std::chrono::seconds(5));
 }
 
 TEST_F(LancetArmsim, RefusesAConfigWithoutARegisterMap) {
@@ -943,7 +1046,7 @@ TEST_F(LancetArmsim, RefusesAConfigWithoutARegisterMap) {
 
 class PymodbusServer : public test::TempDirTest {};
 
-TEST_F(PymodbusServer, ModbusArmReadsAndWritesAForeignServer) {
+TEST_F(PymodbusServer, ModbusArmReadsAndWritesTheShippedMapOnAForeignServer) {
   if (std::system("/usr/bin/python3 -c 'import pymodbus' >/dev/null 2>&1") != 0)
     GTEST_SKIP() << "python3-pymodbus is not installed (apt-get install --no-install-recommends python3-pymodbus)";
   const std::string out = (dir_ / "pymodbus.out").string();
@@ -967,7 +1070,7 @@ TEST_F(PymodbusServer, ModbusArmReadsAndWritesAForeignServer) {
     EXPECT_DOUBLE_EQ(s.q[uj], arm::joint_position_from_counts(config.joints[uj], expected[j]));
   }
   EXPECT_EQ(s.buttons, 0b111u);  // raw 0x13: bits 0, 1, 4
-  EXPECT_EQ(s.status, 0u);
+  EXPECT_EQ(s.status, kEnabledBit);
 
   const JointCommand cmd = torques(0.1, -0.2, 0.05);
   ASSERT_EQ(a->write(cmd), IoStatus::kOk);
@@ -978,13 +1081,13 @@ TEST_F(PymodbusServer, ModbusArmReadsAndWritesAForeignServer) {
   ASSERT_EQ(modbus_connect(peek), 0) << modbus_strerror(errno);
   std::uint16_t regs[5] = {};
   ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5) << modbus_strerror(errno);
-  const double lsb = config.modbus->registers.current_command.lsb;
+  const double lsb = config.modbus->registers.setpoint.scale;
   for (int j = 0; j < 3; ++j) {
     const auto uj = static_cast<std::size_t>(j);
     const double amps = arm::motor_current_for_joint_torque(config.joints[uj], config.actuators[uj], cmd.tau[uj]);
     EXPECT_EQ(static_cast<std::int16_t>(regs[j]), static_cast<std::int16_t>(std::lround(amps / lsb))) << "joint " << j;
   }
-  EXPECT_EQ(regs[3], modbus::kControlEnable);
+  EXPECT_EQ(regs[3], kEnableOn);
   EXPECT_EQ(regs[4], 1u);  // heartbeat: one write so far
   ASSERT_TRUE(a->deactivate().ok());
   ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5);
@@ -994,6 +1097,446 @@ TEST_F(PymodbusServer, ModbusArmReadsAndWritesAForeignServer) {
   modbus_free(peek);
   child.signal(SIGTERM);
   (void)child.wait_exit(std::chrono::seconds(5));
+}
+
+TEST_F(PymodbusServer, ModbusArmReadsWritesAndNamesTheFaultsOfAForeignMap) {
+  if (std::system("/usr/bin/python3 -c 'import pymodbus' >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "python3-pymodbus is not installed (apt-get install --no-install-recommends python3-pymodbus)";
+  const std::string out = (dir_ / "pymodbus.out").string();
+  // Counts as the encoder reports them: 0.25 · raw + 1000 (the last one a quarter count off whole).
+  test::Child child({"/usr/bin/python3", kPymodbusScript, "--config", kForeignConfig, "--port", "0", "--counts", "1500,-2000,300000.25",
+                     "--buttons", "0x201"},
+                    out);
+  const auto port = wait_for_port(child, out, 20.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  arm::ArmConfig config = load(kForeignConfig);
+  config.modbus->port = *port;
+  auto a = make_arm(config, {.max_consecutive_errors = 100});
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a->read_transactions(), 4);   // input 3..4 (status, buttons), 10..11, 20..21, 30..31
+  EXPECT_EQ(a->write_transactions(), 4);  // holding 60..61 (heartbeat), 100..101, 104..105, 108..109
+  const Outcome c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Outcome on = a->activate();
+  ASSERT_TRUE(on.ok()) << on.error->message;
+
+  // Encoders: scale and bias, low word first, bytes swapped; a fraction of a count moves q.
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  const double counts[3] = {1500, -2000, 300000.25};
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    EXPECT_EQ(s.counts[uj], std::llround(counts[j])) << "joint " << j;
+    const auto& jc = config.joints[uj];
+    const double per_count = arm::joint_position_from_counts(jc, 1) - arm::joint_position_from_counts(jc, 0);
+    EXPECT_NEAR(s.q[uj], arm::joint_position_from_counts(jc, 0) + counts[j] * per_count, 1e-12) << "joint " << j;
+  }
+  EXPECT_EQ(s.status, 0x0021u) << "ready (bit 0) and the active-low e-stop released (bit 5 high)";
+  EXPECT_EQ(s.buttons, 0b11u);  // raw 0x201: bits 0 and 9
+
+  // Setpoints: motor torque in mN·m as f32, high word first, bytes swapped; read back with a plain
+  // libmodbus client and decoded here by hand.
+  const JointCommand cmd = torques(0.3, -0.45, 0.05);
+  ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  modbus_t* peek = modbus_new_tcp("127.0.0.1", *port);
+  ASSERT_NE(peek, nullptr);
+  modbus_set_slave(peek, 7);
+  modbus_set_response_timeout(peek, 1, 0);
+  ASSERT_EQ(modbus_connect(peek), 0) << modbus_strerror(errno);
+  const auto swap = [](std::uint16_t r) { return static_cast<std::uint16_t>((r >> 8) | (r << 8)); };
+  const auto holding = [&](int address, int count) {
+    std::vector<std::uint16_t> regs(static_cast<std::size_t>(count));
+    EXPECT_EQ(modbus_read_registers(peek, address, count, regs.data()), count) << modbus_strerror(errno);
+    return regs;
+  };
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    const auto regs = holding(100 + 4 * j, 2);
+    const std::uint32_t bits = (static_cast<std::uint32_t>(swap(regs[0])) << 16) | swap(regs[1]);
+    float mnm = 0;
+    std::memcpy(&mnm, &bits, sizeof mnm);
+    const double amps = arm::motor_current_for_joint_torque(config.joints[uj], config.actuators[uj], cmd.tau[uj]);
+    EXPECT_NEAR(mnm, amps * config.actuators[uj].torque_constant * 1e3, 1e-3) << "joint " << j;
+    EXPECT_NEAR(a->commanded_current(j), amps, 1e-6);
+  }
+  auto hb = holding(60, 2);  // u32, low word first, bytes swapped
+  EXPECT_EQ((static_cast<std::uint32_t>(swap(hb[1])) << 16) | swap(hb[0]), 1u) << "one write so far";
+  EXPECT_EQ(swap(holding(40, 1)[0]), 0x000Fu) << "enable on";
+  EXPECT_EQ(swap(holding(70, 1)[0]), 80u) << "the drive watchdog: 800 ms in 10 ms counts, written at activation";
+
+  // The server raises bit 2: a fault, named by its bit in the fault detail.
+  child.signal(SIGUSR1);
+  IoStatus st = IoStatus::kOk;
+  ASSERT_TRUE(eventually([&] {
+    st = a->read(s);
+    return st != IoStatus::kOk;
+  }, 5.0));
+  EXPECT_EQ(st, IoStatus::kFault);
+  EXPECT_EQ(a->fault_cause(), IoStatus::kDeviceFault);
+  EXPECT_STREQ(a->fault_detail().c_str(), "status 0x0024: fault (bit 2), not ready (bit 0 low)");
+  // rearm writes the fault-reset value to the enable register (0x0080), then enable again.
+  const Outcome r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error->message;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  EXPECT_EQ(s.status, 0x0021u);
+  // The e-stop is active low: pressed, bit 5 reads 0.
+  child.signal(SIGUSR2);
+  ASSERT_TRUE(eventually([&] { return a->read(s) != IoStatus::kOk; }, 5.0));
+  EXPECT_STREQ(a->fault_detail().c_str(), "status 0x0000: e-stop (bit 5 low), not ready (bit 0 low)");
+  child.signal(SIGUSR2);  // released
+  ASSERT_TRUE(eventually([&] { return a->rearm().ok(); }, 5.0));
+  ASSERT_TRUE(a->deactivate().ok());
+  EXPECT_EQ(swap(holding(40, 1)[0]), 0x0006u) << "enable off";
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(holding(100 + 4 * j, 2), (std::vector<std::uint16_t>{0, 0})) << "zero torque";
+  modbus_close(peek);
+  modbus_free(peek);
+  child.signal(SIGTERM);
+  (void)child.wait_exit(std::chrono::seconds(5));
+}
+
+// ---------------------------------------------------------------------------------------------
+// A foreign map against the in-process arm simulator
+
+TEST(ModbusArmForeignMap, TheSimulatorServesItAndTheDriverDrivesItWithoutAllocating) {
+  arm::ArmConfig config = load(kForeignConfig);
+  auto server = make_server(config);
+  ASSERT_TRUE(server);
+  auto p = server->start_tcp(0);
+  ASSERT_TRUE(p.ok()) << p.error().message;
+  config.modbus->port = p.value();
+  config.modbus->response_timeout = kTimeout;
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  EXPECT_FALSE(server->snapshot().enabled);
+  const Outcome on = a->activate();
+  ASSERT_TRUE(on.ok()) << on.error->message;
+  ArmSnapshot snap = server->snapshot();
+  EXPECT_TRUE(snap.enabled);
+  EXPECT_EQ(snap.control, 0x000Fu);
+  EXPECT_DOUBLE_EQ(snap.watchdog_ms, 800.0) << "the simulator takes the watchdog time the driver wrote";
+  const double q[3] = {0.2, -0.4, 0.7};
+  server->set_pose(q);
+  const ArmSnapshot truth = server->snapshot();
+  JointState s;
+  ASSERT_EQ(a->read(s), IoStatus::kOk);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]);
+  // Torque setpoints in f32: the motors give the torque asked for, to float precision.
+  const JointCommand cmd = torques(0.5, -0.25, 0.1);
+  ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  server->step_physics(1e-3);
+  snap = server->snapshot();
+  for (int j = 0; j < 3; ++j) EXPECT_NEAR(snap.motor_torque[static_cast<std::size_t>(j)], cmd.tau[static_cast<std::size_t>(j)], 1e-5);
+  for (int i = 0; i < 100; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(cmd), IoStatus::kOk);
+  }
+  lancet::test::MallocGuard guard;
+  for (int i = 0; i < 500; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(torques(0.001 * (i % 100), -0.1, 0.05)), IoStatus::kOk);
+  }
+  EXPECT_EQ(guard.count(), 0u) << "four reads and four writes per tick, f32 and swapped bytes: nothing allocated";
+}
+
+TEST(ModbusArmForeignMap, ActivateWaitsForReadyAndNamesWhatIsMissing) {
+  arm::ArmConfig config = load(kForeignConfig);
+  auto server = make_server(config);
+  ASSERT_TRUE(server);
+  auto p = server->start_tcp(0);
+  ASSERT_TRUE(p.ok());
+  config.modbus->port = p.value();
+  config.modbus->response_timeout = kTimeout;
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  server->set_estop(true);
+  JointState s;
+  EXPECT_EQ(a->read(s), IoStatus::kOk) << "while the drives are off, the status is reported, not judged";
+  const Outcome o = a->activate();
+  ASSERT_FALSE(o.ok());
+  EXPECT_TRUE(contains(o.error->message, "e-stop (bit 5 low)")) << o.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kInactive);
+  EXPECT_EQ(server->snapshot().control, 0x0006u) << "switched off again";
+  server->set_estop(false);
+  const Outcome again = a->activate();
+  ASSERT_TRUE(again.ok()) << again.error->message;
+  EXPECT_TRUE(server->snapshot().enabled);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Late replies: thrown away and counted, never a false fault
+
+TEST(ModbusArmStale, OccasionalLateRepliesAreDiscardedAndCountedWithoutAFaultOverTcp) {
+  ServerOptions o = quiet_options();
+  o.faults.delay_us = 30'000;  // past the 20 ms timeout, but inside two of them
+  o.faults.delay_probability = 0.01;
+  TcpRig rig(o, {}, 0.02);  // the default policy: 3 errors in a row fault
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.bring_up());
+  JointState s;
+  const auto t0 = Clock::now();
+  int ticks = 0;
+  while (seconds_since(t0) < 2.5) {
+    const IoStatus r = rig.arm->read(s);
+    ASSERT_NE(r, IoStatus::kFault) << describe(rig.arm->counters()) << "; " << rig.arm->fault_detail().c_str();
+    if (r == IoStatus::kOk) {
+      const ArmSnapshot truth = rig.server->snapshot();
+      ASSERT_EQ(s.counts[0], truth.counts[0]) << "a late reply was taken for a fresh one";
+    }
+    ASSERT_NE(rig.arm->write(torques(0.01, 0, 0)), IoStatus::kFault);
+    ++ticks;
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  const IoCounters& c = rig.arm->counters();
+  std::printf("[ info     ] %d ticks with 1%% of the replies 30 ms late (timeout 20 ms): %s, %llu stale replies, slowest %.1f ms\n", ticks,
+              describe(c).c_str(), static_cast<unsigned long long>(c.stale_replies), static_cast<double>(c.max_io_ns) * 1e-6);
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kActive);
+  EXPECT_GT(c.timeouts, 3u) << "the test needs some late replies";
+  EXPECT_EQ(c.protocol_errors, 0u) << "no late reply was matched to a later request";
+  // Every timed-out request's reply came later and was recognised (the last may still be on its way).
+  EXPECT_GE(c.stale_replies + 1, c.timeouts);
+  EXPECT_LE(c.stale_replies, c.timeouts);
+}
+
+TEST(ModbusArmStale, OverRtuALateReplyIsToldApartByItsFunctionCode) {
+  Pty pty;
+  ASSERT_GE(pty.master, 0);
+  const arm::ArmConfig config = rtu_config(pty.path, 0.02);
+  ServerOptions o = quiet_options();
+  o.faults.delay_us = 30'000;
+  o.faults.delay_probability = 0.02;
+  auto server = make_server(config, o);
+  ASSERT_TRUE(server);
+  ASSERT_TRUE(server->start_rtu(pty.master).ok());
+  auto a = make_arm(config);
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  for (int i = 0; i < 600; ++i) {
+    // Reads and writes alternate: a late read reply arrives while the write waits, and the other
+    // way round; their function codes differ.
+    ASSERT_NE(a->read(s), IoStatus::kFault) << describe(a->counters()) << "; " << a->fault_detail().c_str();
+    ASSERT_NE(a->write(torques(0.01, 0, 0)), IoStatus::kFault) << describe(a->counters());
+  }
+  const IoCounters& c = a->counters();
+  std::printf("[ info     ] rtu, 2%% of the replies 30 ms late: %s, %llu stale replies\n", describe(c).c_str(),
+              static_cast<unsigned long long>(c.stale_replies));
+  EXPECT_EQ(a->state(), Lifecycle::kActive);
+  EXPECT_GT(c.timeouts, 3u);
+  EXPECT_GE(c.stale_replies + 1, c.timeouts);
+  EXPECT_EQ(c.protocol_errors + c.crc_errors, 0u);
+  a.reset();
+  server->stop();
+}
+
+TEST(ModbusArmStale, ActivateLeavesNoLateReplyBehind) {
+  TcpRig rig(quiet_options(), {}, 0.02);
+  ASSERT_TRUE(rig.ready());
+  ASSERT_TRUE(rig.arm->configure().ok());
+  // A slow start: the first reads time out (inactive: no fault), their replies come late.
+  FaultInjection late;
+  late.delay_us = 30'000;
+  rig.server->set_faults(late);
+  JointState s;
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(rig.arm->read(s), IoStatus::kTimeout);
+  rig.server->set_faults({});
+  // The late replies are all in the socket before activate sends anything.
+  ASSERT_TRUE(eventually([&] { const auto st = rig.server->snapshot().stats; return st.replies >= st.requests; }, 5.0));
+  const Outcome a = rig.arm->activate();
+  ASSERT_TRUE(a.ok()) << a.error->message;
+  const double q[3] = {-0.3, 0.5, 0.2};
+  rig.server->set_pose(q);
+  const ArmSnapshot truth = rig.server->snapshot();
+  ASSERT_EQ(rig.arm->read(s), IoStatus::kOk);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(s.counts[static_cast<std::size_t>(j)], truth.counts[static_cast<std::size_t>(j)]) << "a fresh reading, not a late one";
+  EXPECT_EQ(rig.arm->counters().stale_replies, 3u);
+  EXPECT_EQ(rig.arm->state(), Lifecycle::kActive);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Errors in words
+
+TEST(ModbusArmFaults, AnExceptionIsNamedWithItsRegisters) {
+  TcpRig rig(quiet_options(), {.max_consecutive_errors = 1});
+  ASSERT_TRUE(rig.ready());
+  // The driver reads a register the simulator does not have.
+  arm::ArmConfig c = rig.config;
+  c.modbus->registers.buttons->address = {50};
+  auto a = make_arm(c, {.max_consecutive_errors = 1});
+  ASSERT_TRUE(a);
+  const Outcome o = a->configure();
+  ASSERT_FALSE(o.ok());
+  EXPECT_TRUE(contains(o.error->message, "exception 0x02 (illegal data address) to read input registers 50..50")) << o.error->message;
+  EXPECT_EQ(a->last_errno(), MODBUS_ENOBASE + 2);
+  EXPECT_EQ(a->last_error().status, IoStatus::kProtocolError);
+  EXPECT_EQ(a->last_error().code, 2u);
+  EXPECT_EQ(a->last_error().node, 1) << "the unit id";
+}
+
+// ---------------------------------------------------------------------------------------------
+// The drive-side watchdog of the simulator
+
+TEST(ModbusArmWatchdog, TheDrivesGoTorqueFreeWhenTheHeartbeatStopsAndStayFaultedUntilReset) {
+  arm::ArmConfig served = load(kTcpConfig);
+  served.modbus->drive_watchdog = 0.1;
+  ServerOptions o = quiet_options();
+  o.physics_rate = 1000;
+  o.hand = HandMode::kHold;
+  auto server = make_server(served, o);
+  ASSERT_TRUE(server);
+  auto p = server->start_tcp(0);
+  ASSERT_TRUE(p.ok());
+  arm::ArmConfig config = served;
+  config.modbus->port = p.value();
+  config.modbus->response_timeout = kTimeout;
+  auto a = make_arm(config, {.max_consecutive_errors = 100});
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  // While the heartbeat counts, nothing happens (0.3 s, three times the watchdog).
+  JointState s;
+  const auto t0 = Clock::now();
+  while (seconds_since(t0) < 0.3) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(torques(0.2, 0, 0)), IoStatus::kOk);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ArmSnapshot snap = server->snapshot();
+  EXPECT_EQ(snap.stats.watchdog_trips, 0u);
+  EXPECT_TRUE(snap.enabled);
+  EXPECT_NE(snap.motor_torque[0], 0.0);
+  // The host stops: torque-free within the watchdog time (loose bound: a loaded machine).
+  const auto stopped = Clock::now();
+  ASSERT_TRUE(eventually([&] { return server->snapshot().stats.watchdog_trips == 1; }, 3.0));
+  const double noticed = seconds_since(stopped);
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));  // a few physics steps
+  snap = server->snapshot();
+  std::printf("[ info     ] watchdog 100 ms: tripped after %.1f ms of silence, seen by the test after %.1f ms\n",
+              snap.stats.last_trip_silence_ms, noticed * 1e3);
+  EXPECT_GE(snap.stats.last_trip_silence_ms, 100.0);
+  EXPECT_LT(snap.stats.last_trip_silence_ms, 600.0);
+  EXPECT_GE(noticed, 0.09);
+  EXPECT_FALSE(snap.enabled);
+  EXPECT_TRUE(snap.comm_lost);
+  EXPECT_TRUE(snap.drive_fault);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(snap.motor_torque[static_cast<std::size_t>(j)], 0.0);
+  EXPECT_EQ(snap.status, kFaultBit | kCommLostBit);
+  // The driver reports it, in the config's words; the fault stays until a fault reset.
+  EXPECT_EQ(a->read(s), IoStatus::kFault);
+  EXPECT_EQ(a->fault_cause(), IoStatus::kDeviceFault);
+  EXPECT_STREQ(a->fault_detail().c_str(), "status 0x0005: fault (bit 0), communication lost (bit 2), not enabled (bit 1 low)");
+  for (int i = 0; i < 50; ++i) (void)a->write(torques(0.2, 0, 0));  // the heartbeat again: still latched
+  EXPECT_TRUE(server->snapshot().comm_lost);
+  const Outcome r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error->message;
+  snap = server->snapshot();
+  EXPECT_TRUE(snap.enabled);
+  EXPECT_FALSE(snap.comm_lost);
+  // Deactivated, the drives are off: a silent heartbeat is no reason to trip.
+  ASSERT_TRUE(a->deactivate().ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_EQ(server->snapshot().stats.watchdog_trips, 1u);
+  a.reset();
+  server->stop();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reconnection
+
+TEST_F(LancetArmsim, AKilledArmsimRestartedOnTheSamePortIsReconnectedAndTheArmStaysOffUntilRearm) {
+  const std::string out = (dir_ / "armsim.out").string();
+  auto child = std::make_unique<test::Child>(std::vector<std::string>{kArmsim, kTcpConfig, "--port", "0", "--hand", "hold"}, out);
+  const auto port = wait_for_port(*child, out, 10.0);
+  ASSERT_TRUE(port) << test::read_file(out);
+  auto a = make_arm(tcp_config(*port, 0.2), {.max_consecutive_errors = 100});
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  JointState s;
+  for (int i = 0; i < 20; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(torques(0.1, 0, 0)), IoStatus::kOk);
+  }
+  // The box dies.
+  child->signal(SIGKILL);
+  ASSERT_TRUE(child->wait_exit(std::chrono::seconds(5)));
+  ASSERT_TRUE(eventually([&] {
+    (void)a->read(s);
+    return a->state() == Lifecycle::kFault;
+  }, 5.0));
+  EXPECT_EQ(a->fault_cause(), IoStatus::kDisconnected);
+  EXPECT_TRUE(a->link_lost());
+  const Outcome down = a->reconnect();
+  ASSERT_FALSE(down.ok());
+  EXPECT_TRUE(contains(down.error->message, "127.0.0.1:" + std::to_string(*port))) << down.error->message;
+  EXPECT_TRUE(contains(down.error->message, "reconnect: cannot connect")) << down.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kFault);
+
+  // It comes back on the same port: reconnect() reopens the link and leaves the drives off.
+  const std::string out2 = (dir_ / "armsim2.out").string();
+  child = std::make_unique<test::Child>(std::vector<std::string>{kArmsim, kTcpConfig, "--port", std::to_string(*port), "--hand", "hold"}, out2);
+  const auto port2 = wait_for_port(*child, out2, 10.0);
+  ASSERT_EQ(port2, port) << test::read_file(out2);
+  Outcome back = Outcome::failure(ErrorCode::kSystem, "not tried");
+  ASSERT_TRUE(eventually([&] {
+    back = a->reconnect();
+    return back.ok();
+  }, 5.0)) << back.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kFault) << "a reconnect never re-arms";
+  EXPECT_FALSE(a->link_lost());
+  EXPECT_EQ(a->counters().reconnects, 1u);
+  EXPECT_EQ(a->read(s), IoStatus::kFault);
+  EXPECT_EQ(a->write(torques(0.5, 0.5, 0.5)), IoStatus::kFault);  // zero torque goes out instead
+  modbus_t* peek = modbus_new_tcp("127.0.0.1", *port);
+  ASSERT_NE(peek, nullptr);
+  modbus_set_response_timeout(peek, 1, 0);
+  ASSERT_EQ(modbus_connect(peek), 0);
+  std::uint16_t regs[5] = {};
+  ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5);
+  EXPECT_EQ(regs[0], 0u);
+  EXPECT_EQ(regs[3], kEnableOff) << "the drives stay off until rearm";
+  // Only rearm resumes.
+  const Outcome r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kActive);
+  ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5);
+  EXPECT_EQ(regs[3], kEnableOn);
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+  modbus_close(peek);
+  modbus_free(peek);
+  ASSERT_TRUE(a->deactivate().ok());
+  child->signal(SIGTERM);
+  (void)child->wait_exit(std::chrono::seconds(5));
+}
+
+TEST(ModbusArmRtu, ReconnectReopensTheSerialDevice) {
+  Pty pty;
+  ASSERT_GE(pty.master, 0);
+  const arm::ArmConfig config = rtu_config(pty.path);
+  auto server = make_server(config);
+  ASSERT_TRUE(server);
+  ASSERT_TRUE(server->start_rtu(pty.master).ok());
+  auto a = make_arm(config, {.max_consecutive_errors = 1});
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  FaultInjection drop;
+  drop.drop_replies = 1.0;
+  server->set_faults(drop);
+  JointState s;
+  EXPECT_EQ(a->read(s), IoStatus::kFault);
+  server->set_faults({});
+  const Outcome o = a->reconnect();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  EXPECT_EQ(a->state(), Lifecycle::kFault);
+  EXPECT_FALSE(server->snapshot().enabled) << "the drives stay off until rearm";
+  ASSERT_TRUE(a->rearm().ok());
+  EXPECT_TRUE(server->snapshot().enabled);
+  EXPECT_EQ(a->read(s), IoStatus::kOk);
+  a.reset();
+  server->stop();
 }
 
 }  // namespace

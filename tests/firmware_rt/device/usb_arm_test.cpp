@@ -36,6 +36,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <deque>
 #include <fstream>
 #include <functional>
@@ -43,6 +44,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "arm/arm_config.hpp"
@@ -76,13 +78,22 @@ std::string read_text(const std::string& path) {
   return ss.str();
 }
 
-arm::ArmConfig usb_config() {
+arm::ArmConfig shipped_usb_config() {
   auto c = arm::load_arm_config(source_path("hw_configs/usb_arm.toml"));
   if (!c.ok()) {
     ADD_FAILURE() << c.error().message;
     return {};
   }
   return std::move(c).value();
+}
+
+// The shipped layout with the emulated firmware's keep-alive watchdog off: most tests pause
+// between reports (reading only, or not at all), which a firmware would rightly take for a stalled
+// host. The watchdog's own test turns it on.
+arm::ArmConfig usb_config() {
+  arm::ArmConfig c = shipped_usb_config();
+  if (c.usb) c.usb->drive_watchdog = 0;
+  return c;
 }
 
 // The same layout, big-endian, 16-bit counters, no report ids, a 16-bit button word.
@@ -92,11 +103,37 @@ arm::ArmConfig big_endian_narrow_config() {
   u.byte_order = ByteOrder::kBig;
   u.in_report_id.reset();
   u.out_report_id.reset();
-  u.encoder_counts = {0, FieldType::kI16, 1};
-  u.buttons = arm::ReportField{6, FieldType::kU16, 1};
-  u.status = arm::ReportField{8, FieldType::kU8, 1};
-  u.current_command = {0, FieldType::kI16, 1e-3};
-  u.control = arm::ReportField{6, FieldType::kU8, 1};
+  u.encoder_counts = {0, FieldType::kI16, ByteOrder::kBig, 1, 0};
+  u.buttons = arm::ReportField{6, FieldType::kU16, ByteOrder::kBig, 1, 0};
+  u.status = arm::ReportField{8, FieldType::kU8, ByteOrder::kBig, 1, 0};
+  u.setpoint = {0, FieldType::kI16, ByteOrder::kBig, 1e-3, 0};
+  u.enable = arm::ReportField{6, FieldType::kU8, ByteOrder::kBig, 1, 0};
+  u.fault_reset = u.enable;
+  return c;
+}
+
+// A layout unlike the shipped one: encoders big-endian in half counts from an offset, f32 motor
+// torque setpoints in mN·m little-endian, a big-endian 16-bit status with bit 3 = ready, bit 7 =
+// fault and an active-low e-stop at bit 0, a control byte 0x0F / 0x06, a fault-reset byte of its
+// own (0x80), a 16-bit heartbeat.
+arm::ArmConfig foreign_config() {
+  arm::ArmConfig c = usb_config();
+  auto& u = *c.usb;
+  u.encoder_counts = {1, FieldType::kI32, ByteOrder::kBig, 0.5, 100.0};
+  u.buttons = arm::ReportField{13, FieldType::kU8, ByteOrder::kLittle, 1, 0};
+  u.status = arm::ReportField{14, FieldType::kU16, ByteOrder::kBig, 1, 0};
+  u.status_bits = {};
+  u.status_bits.ready = {3, false};
+  u.status_bits.fault = {7, false};
+  u.status_bits.estop = {0, true};
+  u.setpoint = {1, FieldType::kF32, ByteOrder::kLittle, 0.001, 0};
+  u.setpoint_kind = arm::SetpointKind::kTorque;
+  u.enable = arm::ReportField{13, FieldType::kU8, ByteOrder::kLittle, 1, 0};
+  u.enable_on = 0x0F;
+  u.enable_off = 0x06;
+  u.fault_reset = arm::ReportField{14, FieldType::kU8, ByteOrder::kLittle, 1, 0};
+  u.fault_reset_value = 0x80;
+  u.heartbeat = arm::ReportField{15, FieldType::kU16, ByteOrder::kBig, 1, 0};
   return c;
 }
 
@@ -119,14 +156,47 @@ void put_field(std::uint8_t* p, FieldType t, ByteOrder o, std::int64_t v) {
   for (int i = 0; i < size; ++i) p[o == ByteOrder::kLittle ? i : size - 1 - i] = static_cast<std::uint8_t>((u >> (8 * i)) & 0xFF);
 }
 
+// A field's value in physical units (scale · raw + bias), f32 included.
+double get_value(const std::uint8_t* p, const arm::ReportField& f) {
+  if (f.type == FieldType::kF32) {
+    const auto bits = static_cast<std::uint32_t>(get_field(p, FieldType::kU32, f.byte_order));
+    float v = 0;
+    std::memcpy(&v, &bits, sizeof v);
+    return f.scale * v + f.bias;
+  }
+  return f.scale * static_cast<double>(get_field(p, f.type, f.byte_order)) + f.bias;
+}
+
+void put_value(std::uint8_t* p, const arm::ReportField& f, double physical) {
+  const double raw = (physical - f.bias) / f.scale;
+  if (f.type == FieldType::kF32) {
+    const auto v = static_cast<float>(raw);
+    std::uint32_t bits = 0;
+    std::memcpy(&bits, &v, sizeof bits);
+    put_field(p, FieldType::kU32, f.byte_order, bits);
+    return;
+  }
+  put_field(p, f.type, f.byte_order, std::llround(raw));
+}
+
+std::uint32_t with_bit(std::uint32_t word, const arm::StatusBit& b, bool active) {
+  if (!b.mapped()) return word;
+  const std::uint32_t m = 1u << b.bit;
+  return active != b.active_low ? word | m : word & ~m;
+}
+
 // ---------------------------------------------------------------------------------------------
 // The emulated arm: usbdevfs ioctls in, ArmPhysics behind them
 
 enum class Corruption { kNone, kShort, kWrongId };
 
 struct EmulatorSnapshot {
-  std::array<std::int64_t, kMaxJoints> current_counts{};  ///< last OUT report, raw
+  std::array<std::int64_t, kMaxJoints> current_counts{};  ///< last OUT report's setpoints, raw (rounded)
+  std::array<double, kMaxJoints> setpoint{};              ///< the same in A or N·m (scale · raw + bias)
   bool enabled = false;
+  std::uint32_t enable_raw = 0, heartbeat = 0;            ///< last OUT report's fields
+  bool tripped = false;                                   ///< the keep-alive watchdog made the arm torque-free (latched)
+  std::uint64_t trips = 0, resets = 0;                    ///< watchdog trips; fault-reset reports
   std::uint64_t out_reports = 0, in_reports = 0, bad_out_reports = 0, discards = 0;
   bool claimed = false, driver_bound = true;
   int driver_detaches = 0;
@@ -198,7 +268,13 @@ class ArmEmulator {
   }
   EmulatorSnapshot snapshot() {
     std::lock_guard lk(m_);
+    poll_watchdog();
     return snap_;
+  }
+  /// The firmware's keep-alive watchdog time (s; 0: off). Default: the config's drive_watchdog.
+  void set_watchdog(double s) {
+    std::lock_guard lk(m_);
+    watchdog_s_ = s;
   }
 
  private:
@@ -360,23 +436,56 @@ class ArmEmulator {
     complete(client, 0, 0);
   }
 
-  // The firmware's side of an OUT report: currents → joint torques → 1 ms of physics.
+  // The firmware's keep-alive: once the heartbeat changed while enabled it must keep changing;
+  // silent for the watchdog time, the arm goes torque-free and latches a fault (comm_lost) until
+  // a fault reset. Checked on every report and snapshot (there is no firmware clock here).
+  void poll_watchdog() {
+    const auto now = std::chrono::steady_clock::now();
+    if (!armed_ || !(watchdog_s_ > 0) || !snap_.enabled) return;
+    if (std::chrono::duration<double>(now - heartbeat_at_).count() <= watchdog_s_) return;
+    armed_ = false;
+    snap_.tripped = true;
+    snap_.enabled = false;
+    ++snap_.trips;
+  }
+
+  // The firmware's side of an OUT report: setpoints → joint torques → 1 ms of physics.
   void consume_out(const std::uint8_t* b, std::size_t len) {
     ++snap_.out_reports;
+    poll_watchdog();
     if (len < usb_.out_size || (usb_.out_report_id && b[0] != *usb_.out_report_id)) {
       ++snap_.bad_out_reports;
       return;
     }
-    const auto& f = usb_.current_command;
+    const auto field = [&](const std::optional<arm::ReportField>& f) {
+      return f ? static_cast<std::uint32_t>(get_field(b + f->offset, f->type, f->byte_order)) : 0u;
+    };
+    if (usb_.fault_reset && field(usb_.fault_reset) == usb_.fault_reset_value) {
+      snap_.tripped = false;
+      ++snap_.resets;
+    }
+    snap_.enable_raw = field(usb_.enable);
+    const bool enabled = (!usb_.enable || snap_.enable_raw == usb_.enable_on) && !snap_.tripped;
+    if (usb_.heartbeat) {
+      const std::uint32_t hb = field(usb_.heartbeat);
+      if (hb != snap_.heartbeat || !enabled) {
+        heartbeat_at_ = std::chrono::steady_clock::now();
+        armed_ = enabled && hb != snap_.heartbeat;
+      }
+      snap_.heartbeat = hb;
+    }
+    const auto& f = usb_.setpoint;
     JointCommand cmd{};
     cmd.n = physics_->joint_count();
-    const bool enabled = !usb_.control || (get_field(b + usb_.control->offset, usb_.control->type, usb_.byte_order) & 1) != 0;
     for (int j = 0; j < cmd.n; ++j) {
       const auto uj = static_cast<std::size_t>(j);
-      const std::int64_t c = get_field(b + f.offset + uj * static_cast<std::size_t>(arm::field_size(f.type)), f.type, usb_.byte_order);
-      snap_.current_counts[uj] = c;
+      const std::uint8_t* p = b + f.offset + uj * static_cast<std::size_t>(arm::field_size(f.type));
+      const double physical = get_value(p, f);
+      snap_.setpoint[uj] = physical;
+      snap_.current_counts[uj] = std::llround((physical - f.bias) / f.scale);
+      const double amps = usb_.setpoint_kind == arm::SetpointKind::kTorque ? physical / cfg_.actuators[uj].torque_constant : physical;
       const double amps_per_nm = arm::motor_current_for_joint_torque(cfg_.joints[uj], cfg_.actuators[uj], 1.0);
-      cmd.tau[uj] = enabled ? static_cast<double>(c) * f.lsb / amps_per_nm : 0.0;
+      cmd.tau[uj] = enabled ? amps / amps_per_nm : 0.0;
     }
     snap_.enabled = enabled;
     physics_->step(cmd, 1e-3);
@@ -385,14 +494,20 @@ class ArmEmulator {
   // An IN report from the physics' encoders; returns the bytes sent.
   std::size_t fill_in(std::uint8_t* b, std::size_t len) {
     ++snap_.in_reports;
+    poll_watchdog();
     std::fill(b, b + len, std::uint8_t{0});
     const std::size_t n = std::min<std::size_t>(len, usb_.in_size);
     if (usb_.in_report_id) b[0] = corrupt_ == Corruption::kWrongId ? static_cast<std::uint8_t>(*usb_.in_report_id + 1) : *usb_.in_report_id;
     const auto& f = usb_.encoder_counts;
     for (int j = 0; j < physics_->joint_count(); ++j)
-      put_field(b + f.offset + static_cast<std::size_t>(j * arm::field_size(f.type)), f.type, usb_.byte_order, physics_->encoder_counts(j));
-    if (usb_.buttons) put_field(b + usb_.buttons->offset, usb_.buttons->type, usb_.byte_order, buttons_);
-    if (usb_.status) put_field(b + usb_.status->offset, usb_.status->type, usb_.byte_order, status_);
+      put_value(b + f.offset + static_cast<std::size_t>(j * arm::field_size(f.type)), f, static_cast<double>(physics_->encoder_counts(j)));
+    if (usb_.buttons) put_field(b + usb_.buttons->offset, usb_.buttons->type, usb_.buttons->byte_order, buttons_);
+    if (usb_.status) {
+      // What the test set, with the watchdog's latched fault on top.
+      std::uint32_t word = status_;
+      if (snap_.tripped) word = with_bit(with_bit(word, usb_.status_bits.fault, true), usb_.status_bits.comm_lost, true);
+      put_field(b + usb_.status->offset, usb_.status->type, usb_.status->byte_order, word);
+    }
     const Corruption c = corrupt_;
     corrupt_ = Corruption::kNone;
     return c == Corruption::kShort ? n / 2 : n;
@@ -407,6 +522,9 @@ class ArmEmulator {
   bool withhold_ = false, vanish_next_in_ = false;
   Corruption corrupt_ = Corruption::kNone;
   std::uint32_t status_ = 0, buttons_ = 0;
+  double watchdog_s_ = usb_.drive_watchdog;
+  bool armed_ = false;
+  std::chrono::steady_clock::time_point heartbeat_at_{};
   std::deque<Urb> pending_, done_;  // withheld IN URBs; URBs ready to reap
   EmulatorSnapshot snap_{};
 };
@@ -683,7 +801,7 @@ TEST_F(UsbArmTest, TorquesArriveAsCurrentsWithinOneLsbAndMoveTheArm) {
   start_active(usb_config());
   ASSERT_FALSE(HasFatalFailure());
   bench_->emu().with_physics([](ArmPhysics& p) { p.set_hand_holding(false); });
-  const double lsb = cfg_.usb->current_command.lsb;
+  const double lsb = cfg_.usb->setpoint.scale;
   JointCommand cmd{};
   cmd.n = 3;
   cmd.tau = {0.05, -0.031, 0.0123};
@@ -722,7 +840,7 @@ TEST_F(UsbArmTest, CurrentsClampToThePeakAndToTheFieldRange) {
   cmd.tau = {1e6, -1e6, std::nan("")};
   ASSERT_EQ(arm_->write(cmd), IoStatus::kOk);
   EmulatorSnapshot s = bench_->emu().snapshot();
-  const double lsb = cfg_.usb->current_command.lsb;
+  const double lsb = cfg_.usb->setpoint.scale;
   const auto peak = static_cast<std::int64_t>(std::llround(cfg_.actuators[0].peak_current / lsb));
   // shoulder has direction −1: a negative torque is a positive current
   EXPECT_EQ(s.current_counts[0], peak);
@@ -732,8 +850,9 @@ TEST_F(UsbArmTest, CurrentsClampToThePeakAndToTheFieldRange) {
   arm_.reset();
   bench_.reset();
   arm::ArmConfig c = usb_config();
-  c.usb->current_command = {1, FieldType::kI8, 0.01};  // 10 mA per count: 2.5 A does not fit in i8
-  c.usb->control = arm::ReportField{4, FieldType::kU8, 1};
+  c.usb->setpoint = {1, FieldType::kI8, ByteOrder::kLittle, 0.01, 0};  // 10 mA per count: 2.5 A does not fit in i8
+  c.usb->enable = arm::ReportField{4, FieldType::kU8, ByteOrder::kLittle, 1, 0};
+  c.usb->fault_reset = c.usb->enable;
   start_active(c);
   ASSERT_FALSE(HasFatalFailure());
   cmd.tau = {1e6, 1e6, 0.0};
@@ -920,6 +1039,160 @@ TEST_F(UsbArmTest, DeactivateZeroesTheCurrentsAndDisablesAndReadingGoesOn) {
   EXPECT_TRUE(bench_->emu().snapshot().claimed);
   EXPECT_TRUE(bench_->emu().snapshot().enabled);
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
+}
+
+// ---------------------------------------------------------------------------------------------
+// A foreign layout, the keep-alive watchdog, reconnection, errors in words
+
+TEST_F(UsbArmTest, AForeignLayoutWithFloatsScalesAndItsOwnBitsAndValues) {
+  start(foreign_config());
+  ASSERT_FALSE(HasFatalFailure());
+  bench_->emu().set_status(0x0009);  // ready (bit 3), the active-low e-stop released (bit 0 high)
+  Outcome o = arm_->configure();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  o = arm_->activate();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  EmulatorSnapshot s = bench_->emu().snapshot();
+  EXPECT_TRUE(s.enabled);
+  EXPECT_EQ(s.enable_raw, 0x0Fu);
+  EXPECT_EQ(s.resets, 0u) << "no fault at activation: no reset";
+
+  // Encoders in half counts from 100, big-endian.
+  const auto counts = place({0.4, -0.3, 0.2});
+  JointState js{};
+  ASSERT_EQ(arm_->read(js), IoStatus::kOk);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(js.counts[static_cast<std::size_t>(j)], counts[static_cast<std::size_t>(j)]) << "joint " << j;
+  EXPECT_EQ(js.status, 0x0009u);
+
+  // Setpoints: motor torque as f32 mN·m; the heartbeat counts one per report.
+  JointCommand cmd{};
+  cmd.n = 3;
+  cmd.tau = {0.02, -0.015, 0.01};
+  const std::uint32_t hb0 = bench_->emu().snapshot().heartbeat;
+  ASSERT_EQ(arm_->write(cmd), IoStatus::kOk);
+  ASSERT_EQ(arm_->write(cmd), IoStatus::kOk);
+  s = bench_->emu().snapshot();
+  EXPECT_EQ(s.heartbeat, hb0 + 2);
+  for (int j = 0; j < 3; ++j) {
+    const auto uj = static_cast<std::size_t>(j);
+    const double amps = arm::motor_current_for_joint_torque(cfg_.joints[uj], cfg_.actuators[uj], cmd.tau[uj]);
+    EXPECT_NEAR(s.setpoint[uj], amps * cfg_.actuators[uj].torque_constant, 1e-7) << "joint " << j;
+  }
+
+  // Bit 7 is this device's fault, named in the fault detail.
+  bench_->emu().set_status(0x0089);
+  EXPECT_EQ(arm_->read(js), IoStatus::kFault);
+  EXPECT_EQ(arm_->fault_cause(), IoStatus::kDeviceFault);
+  EXPECT_STREQ(arm_->fault_detail().c_str(), "status 0x0089: fault (bit 7)");
+  // Cleared at the device: rearm sends one report with the fault-reset byte, then enables.
+  bench_->emu().set_status(0x0009);
+  o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  s = bench_->emu().snapshot();
+  EXPECT_EQ(s.resets, 1u);
+  EXPECT_TRUE(s.enabled);
+  ASSERT_EQ(arm_->read(js), IoStatus::kOk);
+  // The e-stop is active low: pressed, bit 0 reads 0.
+  bench_->emu().set_status(0x0008);
+  EXPECT_EQ(arm_->read(js), IoStatus::kFault);
+  EXPECT_STREQ(arm_->fault_detail().c_str(), "status 0x0008: e-stop (bit 0 low)");
+}
+
+TEST_F(UsbArmTest, WhenTheKeepAliveStopsTheEmulatedArmGoesTorqueFreeUntilAFaultReset) {
+  start_active(shipped_usb_config(), FaultPolicy{100});  // the shipped layout: heartbeat byte, 50 ms watchdog
+  ASSERT_FALSE(HasFatalFailure());
+  ASSERT_NEAR(cfg_.usb->drive_watchdog, 0.05, 1e-12);
+  JointCommand cmd{};
+  cmd.n = 3;
+  cmd.tau = {0.02, 0.0, 0.0};
+  JointState js{};
+  // While the reports keep coming (each with the next heartbeat), nothing happens: 0.2 s.
+  const auto t0 = std::chrono::steady_clock::now();
+  while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(200)) {
+    ASSERT_EQ(arm_->read(js), IoStatus::kOk);
+    ASSERT_EQ(arm_->write(cmd), IoStatus::kOk);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  EmulatorSnapshot s = bench_->emu().snapshot();
+  EXPECT_EQ(s.trips, 0u);
+  EXPECT_TRUE(s.enabled);
+  // The host stops (a hung servo, a killed process): torque-free after the watchdog time.
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  s = bench_->emu().snapshot();
+  EXPECT_EQ(s.trips, 1u);
+  EXPECT_TRUE(s.tripped);
+  EXPECT_FALSE(s.enabled);
+  // The driver reports it in the config's words; the fault is latched.
+  EXPECT_EQ(arm_->read(js), IoStatus::kFault);
+  EXPECT_EQ(arm_->fault_cause(), IoStatus::kDeviceFault);
+  EXPECT_STREQ(arm_->fault_detail().c_str(), "status 0x0003: fault (bit 0), communication lost (bit 1)");
+  for (int i = 0; i < 20; ++i) (void)arm_->write(cmd);  // the keep-alive again: still off
+  EXPECT_TRUE(bench_->emu().snapshot().tripped);
+  Outcome o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  s = bench_->emu().snapshot();
+  EXPECT_FALSE(s.tripped);
+  EXPECT_TRUE(s.enabled);
+  EXPECT_EQ(s.resets, 1u);
+  ASSERT_EQ(arm_->read(js), IoStatus::kOk);
+}
+
+TEST_F(UsbArmTest, ReconnectFindsTheReplugedArmAtItsNewAddressAndKeepsItOff) {
+  start_active(usb_config());
+  ASSERT_FALSE(HasFatalFailure());
+  JointState js{};
+  ASSERT_EQ(arm_->read(js), IoStatus::kOk);
+  bench_->unplug();
+  EXPECT_EQ(arm_->read(js), IoStatus::kFault);
+  EXPECT_TRUE(arm_->link_lost());
+  EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("the device is"), std::string::npos) << "[" << arm_->fault_detail().c_str() << "]";
+  Outcome o = arm_->reconnect();
+  ASSERT_FALSE(o.ok());
+  EXPECT_NE(o.error->message.find("no USB device 1209:0001"), std::string::npos) << o.error->message;
+  EXPECT_EQ(arm_->state(), Lifecycle::kFault);
+
+  bench_->plug(5);
+  o = arm_->reconnect();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  EXPECT_EQ(arm_->state(), Lifecycle::kFault) << "a reconnect never re-arms";
+  EXPECT_FALSE(arm_->link_lost());
+  EXPECT_EQ(arm_->counters().reconnects, 1u);
+  EXPECT_EQ(arm_->device_location(), "bus 001 address 005");
+  EmulatorSnapshot s = bench_->emu().snapshot();
+  EXPECT_FALSE(s.enabled) << "the reconnected arm is sent enable off";
+  EXPECT_EQ(s.enable_raw, cfg_.usb->enable_off);
+  JointCommand cmd{};
+  cmd.n = 3;
+  cmd.tau = {0.05, 0.05, 0.05};
+  EXPECT_EQ(arm_->write(cmd), IoStatus::kFault);
+  for (int j = 0; j < 3; ++j) EXPECT_EQ(bench_->emu().snapshot().current_counts[static_cast<std::size_t>(j)], 0);
+  o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error->message;
+  EXPECT_TRUE(bench_->emu().snapshot().enabled);
+  EXPECT_EQ(arm_->read(js), IoStatus::kOk);
+}
+
+TEST_F(UsbArmTest, EveryErrorIsDescribedWithTheDeviceAndTheEndpoint) {
+  start_active(usb_config(), FaultPolicy{100});
+  ASSERT_FALSE(HasFatalFailure());
+  JointState js{};
+  const auto text = [&] { return std::string(arm_->last_error().c_str()); };
+  bench_->emu().withhold_in(true);
+  EXPECT_EQ(arm_->read(js), IoStatus::kTimeout);
+  EXPECT_NE(text().find("bus 001 address 002, IN 0x81: no reply"), std::string::npos) << text();
+  bench_->emu().withhold_in(false);
+  bench_->emu().corrupt_next_in(Corruption::kShort);
+  EXPECT_EQ(arm_->read(js), IoStatus::kProtocolError);
+  EXPECT_EQ(text(), "bus 001 address 002, IN 0x81: short report: 32 of 64 bytes");
+  bench_->emu().corrupt_next_in(Corruption::kWrongId);
+  EXPECT_EQ(arm_->read(js), IoStatus::kProtocolError);
+  EXPECT_EQ(text(), "bus 001 address 002, IN 0x81: report id 2, expected 1");
+  bench_->unplug();
+  JointCommand cmd{};
+  cmd.n = 3;
+  EXPECT_EQ(arm_->write(cmd), IoStatus::kFault);
+  EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("bus 001 address 002, OUT 0x01: the device is"), std::string::npos)
+      << "[" << arm_->fault_detail().c_str() << "]";
 }
 
 // ---------------------------------------------------------------------------------------------
