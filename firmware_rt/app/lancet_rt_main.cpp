@@ -13,15 +13,14 @@
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
-#include <thread>
-
+#include <cstdlib>
 #include <memory>
 #include <optional>
-
-#include <cmath>
 #include <string>
+#include <thread>
 
 #include "app/device_factory.hpp"
 #include "app/supervisor.hpp"
@@ -236,7 +235,8 @@ int main(int argc, char** argv) {
     model.trajectory = &*trajectory;
     std::fprintf(stderr, "lancet-rt: replaying %zu trajectory points over %.2f s\n", trajectory->t.size(), trajectory->duration());
   }
-  // The arm, when one is configured: load, build its kinematics and device, configure, activate.
+  // The arm, when one is configured: load, build its kinematics and device, configure, wait for a
+  // good read (activate comes just before the loop starts).
   std::optional<lancet::arm::ArmConfig> arm_config;
   std::optional<lancet::arm::Kinematics> kinematics;
   std::unique_ptr<lancet::device::Device> arm;
@@ -248,6 +248,19 @@ int main(int argc, char** argv) {
       return 2;
     }
     arm_config = std::move(cfg).value();
+    if (arm_config->canopen) {
+      // The drives were told the cycle (0x1006, 0x60C2) from the config; a servo on another period
+      // would send SYNC at a rate they do not expect.
+      const auto sync_ns = static_cast<std::int64_t>(std::llround(arm_config->canopen->sync_period * 1e9));
+      if (std::llabs(sync_ns - rt_opts.loop().period_ns) > 500) {
+        std::fprintf(stderr,
+                     "lancet-rt: --period-us %.0f differs from sync_period_us %.0f in [bus.canopen] of %s: the drives expect "
+                     "a SYNC every %.0f us (0x1006); give lancet-rt --period-us %.0f or change the config\n",
+                     static_cast<double>(rt_opts.loop().period_ns) * 1e-3, static_cast<double>(sync_ns) * 1e-3,
+                     config_path.c_str(), static_cast<double>(sync_ns) * 1e-3, static_cast<double>(sync_ns) * 1e-3);
+        return 2;
+      }
+    }
     auto cal = lancet::arm::apply_calibration_file(*arm_config, lancet::arm::calibration_path(config_path));
     if (!cal.ok()) {
       std::fprintf(stderr, "lancet-rt: %s\n", cal.error().message.c_str());
@@ -279,18 +292,12 @@ int main(int argc, char** argv) {
                    arm->name().c_str(), first_read_timeout_ms, why.c_str());
       return 2;
     }
-    if (const lancet::device::Outcome o = arm->activate(); !o.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
-      return 2;
-    }
     model.kinematics = &*kinematics;
     const auto& ws = arm_config->safety;
     model.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
     for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < model.max_joint_torque.size(); ++j)
       model.max_joint_torque[j] = ws.max_joint_torque[j];
     model.haptic.safety.max_force = std::min(model.haptic.safety.max_force, ws.max_force);
-    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm_config->name.c_str(), arm->name().c_str(),
-                 arm->joint_count(), lancet::device::to_string(arm->state()));
   }
 
   lancet::rt::LoopParams loop_params = rt_opts.loop();
@@ -318,6 +325,16 @@ int main(int argc, char** argv) {
   const lancet::rt::RtSetupOptions setup_opts = rt_opts.setup();
   lancet::rt::RtSetupReport setup;
   lancet::rt::RtEnvironment environment(setup_opts, setup);
+  // Enable the arm as late as possible: a drive-side watchdog counts from the end of activate(),
+  // so the servo's first tick follows within a period or two.
+  if (arm) {
+    if (const lancet::device::Outcome o = arm->activate(); !o.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+      return 2;
+    }
+    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm_config->name.c_str(), arm->name().c_str(),
+                 arm->joint_count(), lancet::device::to_string(arm->state()));
+  }
   lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get(), hand);  // after mlockall: locked too
   lancet::rt::RtLoop loop(loop_params);
   std::atomic<bool> loop_done{false};

@@ -225,7 +225,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   // supervisor holds the device the servo keeps its hands off it.
   bool device_ok = true;
   if (arm_ != nullptr) {
-    if (hand_ != nullptr) hand_->set_hand_target(target + model_.device_origin);
+    if (hand_ != nullptr && device_owned) hand_->set_hand_target(target + model_.device_origin);
     d.last_read = device_owned ? arm_->read(d.joints) : device::IoStatus::kFault;
     device_ok = d.last_read == device::IoStatus::kOk;
     if (device_ok) {

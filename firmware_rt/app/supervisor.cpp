@@ -26,9 +26,14 @@ std::string describe_arm(const RtStatus& st) {
   std::string s = device::to_string(state);
   if (state == device::Lifecycle::kFault) {
     s += fmt(" (%s)", device::to_string(static_cast<device::IoStatus>(st.device_fault_cause)));
-    if (st.fault_text[0] != '\0') s += std::string(": ") + st.fault_text;
-    if (st.fault_node >= 0) s += fmt(" [node %d]", st.fault_node);
-    if (st.fault_code != 0) s += fmt(" [code 0x%04" PRIX32 "]", st.fault_code);
+    // The backends' words name the node and decode the code; the numbers alone only when there
+    // are no words (they stay in the status and the stats for programs).
+    if (st.fault_text[0] != '\0') {
+      s += std::string(": ") + st.fault_text;
+    } else {
+      if (st.fault_node >= 0) s += fmt(" [node %d]", st.fault_node);
+      if (st.fault_code != 0) s += fmt(" [code 0x%04" PRIX32 "]", st.fault_code);
+    }
   }
   if (st.link_lost != 0) s += "; bus link lost (reconnecting)";
   return s;

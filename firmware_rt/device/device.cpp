@@ -138,6 +138,10 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
   if (dt > counters_.max_io_ns) counters_.max_io_ns = dt;
   const bool noted = noted_;
   noted_ = false;
+  // A drive's fault bit stays set until it is reset and a lost link stays lost until it is
+  // reopened: count when either begins, not every read that finds it still so.
+  const bool continues = is_read && s == last_read_;
+  if (is_read) last_read_ = s;
   bool trip = false;
   switch (s) {
     case IoStatus::kOk:
@@ -159,8 +163,12 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
     case IoStatus::kTimeout: ++counters_.timeouts; break;
     case IoStatus::kCrcError: ++counters_.crc_errors; break;
     case IoStatus::kProtocolError: ++counters_.protocol_errors; break;
-    case IoStatus::kDisconnected: ++counters_.disconnects; break;
-    case IoStatus::kDeviceFault: ++counters_.device_faults; break;
+    case IoStatus::kDisconnected:
+      if (!continues) ++counters_.disconnects;
+      break;
+    case IoStatus::kDeviceFault:
+      if (!continues) ++counters_.device_faults;
+      break;
     case IoStatus::kNotActive:
     case IoStatus::kFault: return;
   }

@@ -60,7 +60,9 @@ enum class IoStatus : std::uint8_t {
 struct IoCounters {
   std::uint64_t reads = 0, writes = 0;
   std::uint64_t ok = 0;
-  std::uint64_t timeouts = 0, crc_errors = 0, protocol_errors = 0, disconnects = 0, device_faults = 0;
+  std::uint64_t timeouts = 0, crc_errors = 0, protocol_errors = 0;
+  std::uint64_t disconnects = 0;            ///< times the link was found lost (reads while it stays lost count once)
+  std::uint64_t device_faults = 0;          ///< times the drive began reporting a fault (a latched bit counts once)
   std::uint64_t glitches = 0;               ///< implausible encoder readings (kImplausible)
   std::uint64_t stale_replies = 0;          ///< late replies to an earlier request, discarded (backends that can tell)
   std::uint64_t faults = 0;                 ///< times the device entered kFault
@@ -176,6 +178,7 @@ class Device {
   IoStatus fault_cause_ = IoStatus::kOk;
   FaultDetail last_error_{}, fault_detail_{};
   bool noted_ = false;      // the backend described the error being accounted
+  IoStatus last_read_ = IoStatus::kOk;  // what the last read reported (latched conditions count once)
   bool link_lost_ = false;
   Plausibility plausibility_{};
   std::array<double, kMaxJoints> q_ref_{};  // last plausible reading

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <memory>
 
 #include "app/rt_servo.hpp"
@@ -236,6 +237,23 @@ TEST(RtSupervisor, AnnouncesAFaultWithItsCauseAndTheReArmAndNoticesAStall) {
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("SERVO STALLED"), std::string::npos);
   EXPECT_TRUE(sup.stalled());
+}
+
+TEST(RtSupervisor, DescribesAFaultByTheBackendsWordsAndByNumbersOnlyWithoutThem) {
+  RtStatus st{};
+  st.has_arm = 1;
+  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
+  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kDeviceFault);
+  st.fault_node = 1;
+  st.fault_code = 0x2310;
+  std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
+  EXPECT_EQ(describe_arm(st), "fault (device fault): node 1: EMCY 0x2310 continuous over-current");
+  st.fault_text[0] = '\0';
+  EXPECT_EQ(describe_arm(st), "fault (device fault) [node 1] [code 0x2310]");
+  st.link_lost = 1;
+  EXPECT_EQ(describe_arm(st), "fault (device fault) [node 1] [code 0x2310]; bus link lost (reconnecting)");
+  st.has_arm = 0;
+  EXPECT_EQ(describe_arm(st), "built-in simulated stylus");
 }
 
 }  // namespace

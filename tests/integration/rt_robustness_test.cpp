@@ -131,5 +131,20 @@ TEST_F(RtRobustness, EightBytesIntoARingIndexAreCountedAndTheServoTicksOnToItsDu
   EXPECT_NE(read_file(path("rt.log")).find("shared segment: rejected"), std::string::npos) << "announced on stderr";
 }
 
+TEST_F(RtRobustness, AServoPeriodThatDisagreesWithTheCanopenSyncPeriodIsRefusedBeforeTheBusIsTouched) {
+  // The drives are told the cycle (0x1006) from the config; lancet-rt on another period would
+  // send SYNC at a rate they do not expect. No CAN interface is needed to be refused.
+  Child rt({kRt, "--shm", shm_, "-q", "--no-rt", "--period-us", "500", "--config",
+            std::string(LANCET_SOURCE_DIR) + "/hw_configs/canopen_arm.toml"},
+           path("rt.log"));
+  const auto st = rt.wait_exit(10s);
+  ASSERT_TRUE(st.has_value());
+  ASSERT_TRUE(WIFEXITED(*st));
+  EXPECT_EQ(WEXITSTATUS(*st), 2);
+  const std::string log = read_file(path("rt.log"));
+  EXPECT_NE(log.find("--period-us 500 differs from sync_period_us 1000 in [bus.canopen]"), std::string::npos) << log;
+  EXPECT_FALSE(segment_exists());
+}
+
 }  // namespace
 }  // namespace lancet

@@ -104,7 +104,7 @@ TEST(DeviceLifecycle, ErrorsWhileInactiveAreCountedButNeverTrip) {
   a->inject(IoStatus::kDisconnected, 3);
   for (int i = 0; i < 3; ++i) EXPECT_EQ(a->read(s), IoStatus::kDisconnected);
   EXPECT_EQ(a->state(), Lifecycle::kInactive);
-  EXPECT_EQ(a->counters().disconnects, 3u);
+  EXPECT_EQ(a->counters().disconnects, 1u) << "one loss, read three times";
   EXPECT_EQ(a->counters().faults, 0u);
   EXPECT_EQ(a->read(s), IoStatus::kOk);
   ASSERT_TRUE(a->activate().ok());
@@ -214,6 +214,20 @@ TEST(DeviceFaultPolicy, ADisconnectOrADeviceFaultTripsAtOnce) {
     EXPECT_EQ(a->fault_cause(), cause);
     EXPECT_EQ(a->counters().faults, 1u);
   }
+}
+
+TEST(DeviceFaultPolicy, ALatchedDriveFaultIsCountedOncePerOnset) {
+  auto a = active_arm({.max_consecutive_errors = 100});
+  JointState s;
+  a->inject(IoStatus::kDeviceFault, 50);  // the drive's fault bit, read 50 times in a row
+  for (int i = 0; i < 50; ++i) (void)a->read(s);
+  EXPECT_EQ(a->counters().device_faults, 1u);
+  EXPECT_EQ(a->counters().faults, 1u);
+  ASSERT_EQ(a->read(s), IoStatus::kFault);  // the bit cleared; the arm stays faulted until re-armed
+  ASSERT_TRUE(a->rearm().ok());
+  a->inject(IoStatus::kDeviceFault, 3);  // a second onset
+  for (int i = 0; i < 3; ++i) (void)a->read(s);
+  EXPECT_EQ(a->counters().device_faults, 2u);
 }
 
 TEST(DeviceFaultPolicy, InFaultWriteReturnsFaultAndSendsZeroTorque) {
