@@ -4,7 +4,8 @@
 // The script, one command a line (lengths in mm, '#' starts a comment):
 //   mesh sheet CELLS SIZE        a wavy sheet of CELLS×CELLS cells, SIZE mm across
 //   mesh phantom ISO             the built-in phantom's isosurface at ISO HU (padded: closed)
-//   mesh file PATH               a mesh file OpenMesh reads (relative to the script's folder)
+//   mesh file PATH               a mesh file OpenMesh reads (relative to the script's folder), in
+//                                millimetres like every mesh file written (--units m: metres)
 //   press X Y Z DEPTH            a dent at the surface point nearest (X, Y, Z), DEPTH mm along −normal
 //   relax SECONDS                let dents and wrinkles return for that long
 //   cut X Y Z                    start a cut at the surface point nearest (X, Y, Z)
@@ -19,6 +20,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -40,6 +42,10 @@ namespace fs = std::filesystem;
 struct ScriptError {
   std::string message;
 };
+
+/// Metres per unit of the mesh files read and written: millimetres unless --units m, as
+/// lancet-volume writes them and as 3D Slicer, ITK and VTK pipelines expect.
+double g_file_unit = 1e-3;
 
 std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>& w, const fs::path& dir) {
   const auto need = [&](std::size_t n, const char* form) {
@@ -75,7 +81,13 @@ std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>&
     const fs::path path = fs::path(w[2]).is_absolute() ? fs::path(w[2]) : dir / w[2];
     OpenMesh::TriMesh_ArrayKernelT<> m;
     if (!OpenMesh::IO::read_mesh(m, path.string())) throw ScriptError{"cannot read the mesh " + path.string()};
-    for (auto v : m.vertices()) positions.push_back({m.point(v)[0], m.point(v)[1], m.point(v)[2]});
+    const auto u = static_cast<float>(g_file_unit);
+    for (auto v : m.vertices()) {
+      const auto& q = m.point(v);
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
+        throw ScriptError{path.string() + ": vertex " + std::to_string(v.idx()) + " is not finite"};
+      positions.push_back({q[0] * u, q[1] * u, q[2] * u});
+    }
     for (auto f : m.faces()) {
       std::array<std::uint32_t, 3> t{};
       int n = 0;
@@ -97,6 +109,8 @@ std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>&
 bool write(const surface::SurfaceModel& model, const std::string& path) {
   surface::SurfaceMesh copy = model.mesh();
   copy.garbage_collection();  // drop the faces cuts re-added under new handles
+  const auto per_unit = static_cast<float>(1.0 / g_file_unit);
+  for (auto v : copy.vertices()) copy.set_point(v, copy.point(v) * per_unit);
   OpenMesh::IO::Options opt = OpenMesh::IO::Options::VertexNormal;
   if (path.size() >= 4 && (path.substr(path.size() - 4) == ".obj" || path.substr(path.size() - 4) == ".ply"))
     opt += OpenMesh::IO::Options::VertexTexCoord;
@@ -111,12 +125,17 @@ int main(int argc, char** argv) {
   app.add_option("script", script, "the cut script (see the header of lancet_cut_replay_main.cpp or the README)")->required();
   app.add_option("--before", before, "write the mesh before the first cut here (.obj, .ply, .off, .stl)");
   app.add_option("--after", after, "write the mesh after the script here")->required();
+  std::string units = "mm";
+  app.add_option("--units", units, "length unit of the mesh files read ('mesh file') and written")
+      ->check(CLI::IsMember({"mm", "m"}))
+      ->capture_default_str();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     const int code = app.exit(e);
     return code == 0 ? 0 : 2;
   }
+  g_file_unit = units == "m" ? 1.0 : 1e-3;
   std::ifstream in(script);
   if (!in) {
     std::fprintf(stderr, "lancet-cut-replay: %s: cannot open\n", script.c_str());

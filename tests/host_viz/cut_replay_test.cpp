@@ -8,6 +8,7 @@
 
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <chrono>
 #include <fstream>
 #include <string>
@@ -53,6 +54,38 @@ TEST_F(CutReplay, ExampleWritesMeshesWithTheCutOpen) {
   EXPECT_GT(boundary_edges(a), boundary_edges(b) + 40) << "the cut's two lips are open boundary";
   EXPECT_NE(out.find("\"non_manifold_vertices\": 0"), std::string::npos) << out;
   EXPECT_NE(out.find("\"flipped_faces\": 0"), std::string::npos) << out;
+  // The files are in millimetres, like lancet-volume's: the 60 mm sheet spans 60 units.
+  float lo = 1e9f, hi = -1e9f;
+  for (auto v : b.vertices()) {
+    lo = std::min(lo, b.point(v)[0]);
+    hi = std::max(hi, b.point(v)[0]);
+  }
+  EXPECT_NEAR(hi - lo, 60.0f, 0.5f);
+}
+
+TEST_F(CutReplay, MeshFilesAreReadAndWrittenInMillimetresOrInMetresWhenAsked) {
+  // What one run writes (mm), the next reads back at the same size and cuts.
+  const auto script = [&](const std::string& text) { return write("s.txt", text); };
+  std::string out;
+  const std::string sheet = path("sheet.ply");
+  ASSERT_EQ(run({script("mesh sheet 20 60\n"), "--after", sheet}, out), 0) << out;
+  const auto extent = [](const std::string& file) {
+    Mesh m;
+    EXPECT_TRUE(OpenMesh::IO::read_mesh(m, file)) << file;
+    float lo = 1e9f, hi = -1e9f;
+    for (auto v : m.vertices()) {
+      lo = std::min(lo, m.point(v)[0]);
+      hi = std::max(hi, m.point(v)[0]);
+    }
+    return hi - lo;
+  };
+  // Read as metres and written as mm, the sheet would come back 1000 times larger.
+  const std::string cut = "mesh file " + sheet + "\ncut -10 0 0\nto 10 0 0\nend\n";
+  ASSERT_EQ(run({script(cut), "--after", path("again.ply")}, out), 0) << out;
+  EXPECT_NEAR(extent(path("again.ply")), 60.0f, 0.5f);
+  ASSERT_EQ(run({script("mesh sheet 20 60\n"), "--units", "m", "--after", path("metres.ply")}, out), 0) << out;
+  EXPECT_NEAR(extent(path("metres.ply")), 0.060f, 0.0005f);
+  EXPECT_EQ(run({script("mesh sheet 20 60\n"), "--units", "inch", "--after", path("x.ply")}, out), 2);
 }
 
 TEST_F(CutReplay, BadScriptsNameTheLine) {
