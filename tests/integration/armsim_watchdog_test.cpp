@@ -21,7 +21,7 @@
 #include <thread>
 
 #include "lancet/shared_model/shared_state.hpp"
-#include "process.hpp"
+#include "process_test.hpp"
 
 namespace lancet {
 namespace {
@@ -39,24 +39,16 @@ constexpr int kStatusRegister = 6, kHeartbeatRegister = 4;
 constexpr std::uint16_t kFaultBit = 1u << 0, kEnabledBit = 1u << 1, kCommLostBit = 1u << 2;
 constexpr double kWatchdogMs = 100;  // robust on a loaded VM: lancet-rt writes every millisecond
 
-class ArmsimWatchdog : public ::testing::Test {
+class ArmsimWatchdog : public test::ProcessTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const std::string name = std::string(info->name()).substr(0, 40);
-    dir_ = std::filesystem::temp_directory_path() / ("lancet-wd-" + std::to_string(getpid()) + "-" + name);
-    std::filesystem::create_directories(dir_);
-    shm_ = "/lancet-wd-" + std::to_string(getpid()) + "-" + name;
-  }
+  ArmsimWatchdog() : ProcessTest("wd") {}
   void TearDown() override {
     if (peek_ != nullptr) {
       modbus_close(peek_);
       modbus_free(peek_);
     }
-    shm_unlink(shm_.c_str());
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
+    ProcessTest::TearDown();
   }
-  std::string path(const std::string& f) const { return (dir_ / f).string(); }
 
   /// The shipped config with this test's port, timeouts and drive watchdog.
   std::string write_config(const std::string& port, double response_timeout_ms, double watchdog_ms) {
@@ -145,8 +137,6 @@ class ArmsimWatchdog : public ::testing::Test {
     EXPECT_EQ(*s & (kFaultBit | kCommLostBit), kFaultBit | kCommLostBit) << "status 0x" << std::hex << *s;
   }
 
-  std::filesystem::path dir_;
-  std::string shm_;
   modbus_t* peek_ = nullptr;
 };
 

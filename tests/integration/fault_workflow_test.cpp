@@ -17,7 +17,7 @@
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "lancet/shared_model/validate.hpp"
-#include "process.hpp"
+#include "process_test.hpp"
 
 namespace lancet {
 namespace {
@@ -30,20 +30,9 @@ using test::read_file;
 const std::string kBin = std::string(LANCET_BINARY_DIR);
 const std::string kSrc = std::string(LANCET_SOURCE_DIR);
 
-class FaultWorkflow : public ::testing::Test {
+class FaultWorkflow : public test::ProcessTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const std::string name = std::string(info->name()).substr(0, 40);
-    dir_ = std::filesystem::temp_directory_path() / ("lancet-faults-" + std::to_string(getpid()) + "-" + name);
-    std::filesystem::create_directories(dir_);
-    shm_ = "/lancet-faults-" + std::to_string(getpid()) + "-" + name;
-  }
-  void TearDown() override {
-    shm_unlink(shm_.c_str());
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
-  }
-  std::string path(const std::string& f) const { return (dir_ / f).string(); }
+  FaultWorkflow() : ProcessTest("faults") {}
 
   /// lancet-armsim on `port` (0: any; the port it took is returned through port_out).
   std::unique_ptr<Child> start_armsim(const std::string& port, std::vector<std::string> extra, const std::string& log,
@@ -99,9 +88,6 @@ class FaultWorkflow : public ::testing::Test {
     }
     return false;
   }
-
-  std::filesystem::path dir_;
-  std::string shm_;
 };
 
 constexpr std::uint32_t kActive = 2, kFault = 3;  // device::Lifecycle

@@ -15,7 +15,7 @@
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "lancet/shared_model/validate.hpp"
-#include "process.hpp"  // tests/support
+#include "process_test.hpp"  // tests/support
 
 namespace lancet {
 namespace {
@@ -27,20 +27,9 @@ using test::read_file;
 
 const std::string kRt = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-rt";
 
-class RtRobustness : public ::testing::Test {
+class RtRobustness : public test::ProcessTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    const std::string name = std::string(info->name()).substr(0, 40);
-    dir_ = std::filesystem::temp_directory_path() / ("lancet-rob-" + std::to_string(getpid()) + "-" + name);
-    std::filesystem::create_directories(dir_);
-    shm_ = "/lancet-rob-" + std::to_string(getpid()) + "-" + name;
-  }
-  void TearDown() override {
-    shm_unlink(shm_.c_str());
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
-  }
-  std::string path(const std::string& f) const { return (dir_ / f).string(); }
+  RtRobustness() : ProcessTest("rob") {}
   bool segment_exists() const {
     const int fd = shm_open(shm_.c_str(), O_RDONLY, 0);
     if (fd < 0) return errno != ENOENT;
@@ -60,9 +49,6 @@ class RtRobustness : public ::testing::Test {
     if (s.rt_status.try_read(st) != ReadStatus::kOk || wire::check(st) != nullptr) return 0;
     return st.tick;
   }
-
-  std::filesystem::path dir_;
-  std::string shm_;
 };
 
 TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegmentRemoved) {

@@ -4,6 +4,7 @@
 // in-place edits of a real file (a field's value, PixelData's length). Test-only.
 
 #include <cstdint>
+#include <random>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -131,6 +132,30 @@ inline DicomDataSet ct_slice(bool explicit_vr, bool big_endian, double z_mm, con
 }
 
 /// The offset of the first occurrence of `needle` in `bytes` (npos when absent).
+/// The seeds of the mutation tests: one CT slice in each transfer syntax (explicit VR little
+/// endian, implicit VR little endian, explicit VR big endian).
+inline std::vector<std::string> slice_in_every_syntax() {
+  return {dicom_file("1.2.840.10008.1.2.1", ct_slice(true, false, 1, "1.2")),
+          dicom_file("1.2.840.10008.1.2", ct_slice(false, false, 1, "1.2")),
+          dicom_file("1.2.840.10008.1.2.2", ct_slice(true, true, 1, "1.2"))};
+}
+
+/// `bytes` after 1..max_edits random edits past the 128-byte preamble: a byte changed, the file
+/// cut short there, or a byte inserted.
+inline std::string mutate(std::string bytes, std::mt19937& rng, int max_edits) {
+  const int edits = 1 + static_cast<int>(rng() % static_cast<unsigned>(max_edits));
+  for (int e = 0; e < edits; ++e) {
+    if (bytes.size() <= 129) break;
+    const std::size_t at = 128 + rng() % (bytes.size() - 128);
+    switch (rng() % 3) {
+      case 0: bytes[at] = static_cast<char>(rng()); break;
+      case 1: bytes.resize(at); break;
+      default: bytes.insert(at, 1, static_cast<char>(rng())); break;
+    }
+  }
+  return bytes;
+}
+
 inline std::size_t find_bytes(const std::string& bytes, std::string_view needle) { return bytes.find(needle); }
 
 }  // namespace lancet::test

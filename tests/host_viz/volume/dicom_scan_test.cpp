@@ -230,21 +230,9 @@ TEST(DicomScan, NotDicomAndNotAnImage) {
 // really has its pixel data inside the file.
 TEST(DicomScan, RandomMutationsNeverEscapeTheBytes) {
   std::mt19937 rng(20240611);
-  const std::vector<std::string> seeds = {dicom_file(kExplicitLE, ct_slice(true, false, 1, "1.2")),
-                                          dicom_file(kImplicitLE, ct_slice(false, false, 1, "1.2")),
-                                          dicom_file(kExplicitBE, ct_slice(true, true, 1, "1.2"))};
+  const std::vector<std::string> seeds = test::slice_in_every_syntax();
   for (int n = 0; n < 20000; ++n) {
-    std::string b = seeds[static_cast<std::size_t>(n) % seeds.size()];
-    const int edits = 1 + static_cast<int>(rng() % 4);
-    for (int e = 0; e < edits; ++e) {
-      if (b.size() <= 129) break;
-      const std::size_t at = 128 + rng() % (b.size() - 128);
-      switch (rng() % 3) {
-        case 0: b[at] = static_cast<char>(rng()); break;
-        case 1: b.resize(at); break;
-        default: b.insert(at, 1, static_cast<char>(rng())); break;
-      }
-    }
+    const std::string b = test::mutate(seeds[static_cast<std::size_t>(n) % seeds.size()], rng, 4);
     const DicomScan s = scan(b);
     if (s.status == DicomScanStatus::kImage) {
       EXPECT_LE(s.pixel_offset + s.pixel_length, b.size());

@@ -439,22 +439,10 @@ TEST_F(DicomSynthetic, TwoSeriesOfEqualSizeAreRefused) {
 // assertion inside GDCM would kill the test.
 TEST_F(DicomSynthetic, RandomMutationsNeverAbort) {
   std::mt19937 rng(7);
-  const std::vector<std::string> seeds = {test::dicom_file("1.2.840.10008.1.2.1", test::ct_slice(true, false, 1, "1.2")),
-                                          test::dicom_file("1.2.840.10008.1.2", test::ct_slice(false, false, 1, "1.2")),
-                                          test::dicom_file("1.2.840.10008.1.2.2", test::ct_slice(true, true, 1, "1.2"))};
+  const std::vector<std::string> seeds = test::slice_in_every_syntax();
   int loaded = 0;
   for (int n = 0; n < 1500; ++n) {
-    std::string b = seeds[static_cast<std::size_t>(n) % seeds.size()];
-    const int edits = 1 + static_cast<int>(rng() % 3);
-    for (int e = 0; e < edits; ++e) {
-      if (b.size() <= 129) break;
-      const std::size_t at = 128 + rng() % (b.size() - 128);
-      switch (rng() % 3) {
-        case 0: b[at] = static_cast<char>(rng()); break;
-        case 1: b.resize(at); break;
-        default: b.insert(at, 1, static_cast<char>(rng())); break;
-      }
-    }
+    const std::string b = test::mutate(seeds[static_cast<std::size_t>(n) % seeds.size()], rng, 3);
     write("x.dcm", b);
     auto r = load_dicom_series(dir_.string());
     if (r.ok()) {
