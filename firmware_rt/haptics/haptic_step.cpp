@@ -150,17 +150,29 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
       out.events |= event::kContactEnd;
     }
   } else if (in.patch != nullptr) {
-    ProxyResult rf = update_proxy(*in.patch, prev_proxy, in.device, m.proxy_radius, d.scratch);
+    // A free proxy found inside the tissue (the stylus was below the surface before the tissue
+    // around it arrived) starts on the surface, so the hand is pushed out, not ignored. The jump
+    // is not a motion: velocities count from where it starts.
+    const Vec3 start =
+        d.contact ? prev_proxy : surface_entry(*in.patch, prev_proxy, m.proxy_radius, m.capture_depth);
+    ProxyResult rf = update_proxy(*in.patch, start, in.device, m.proxy_radius, d.scratch);
     const Vec3 frictionless = rf.position;
     std::uint32_t tri_material = 1;
     if (rf.n_active > 0) tri_material = in.patch->triangles[rf.triangle].material;
     mat = &material(m, tri_material);
-    apply_friction(rf, prev_proxy, in.device, mat->friction_static, mat->friction_dynamic, d.sliding, d.scratch);
+    apply_friction(rf, start, in.device, mat->friction_static, mat->friction_dynamic, d.sliding, d.scratch);
     d.sliding = rf.n_active > 0 && !rf.stuck && norm(rf.position - frictionless) > 0;
     d.proxy = rf.position;
-    const Vec3 v_proxy = (1.0 / m.dt) * (d.proxy - prev_proxy);
+    const Vec3 v_proxy = (1.0 / m.dt) * (d.proxy - start);
     out.contact = rf.n_active > 0 && dot(d.proxy - in.device, rf.normal) > 0;
     raw = out.contact ? mat->stiffness * (d.proxy - in.device) - mat->damping * (in.velocity - v_proxy) : Vec3{};
+    if (out.contact && !(start == prev_proxy)) {
+      // The spring found compressed on capture holds energy the hand put in before the tissue was
+      // known: credit it to the passivity observer, or it would fight the push-out as if the
+      // tissue were creating energy (and, with the hand nearly still, chatter).
+      const Vec3 compressed = d.proxy - in.device;
+      d.safety.energy -= 0.5 * mat->stiffness * dot(compressed, compressed);
+    }
     d.stage = out.contact ? Stage::kDeform : Stage::kFree;
     // Rupture: a scalpel pressing harder than the material yields starts a cut, exactly once.
     if (out.contact && in.mode == ToolMode::kScalpel && norm(raw) > mat->yield_force) {

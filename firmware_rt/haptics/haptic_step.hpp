@@ -36,6 +36,9 @@ struct HapticModel {
   std::array<MaterialParams, kMaxMaterials> materials{};  ///< by material id (ids beyond: the last)
   SafetyParams safety{};
   Vec3 blade_axis{1, 0, 0};                ///< blade edge direction in the tool frame
+  /// m: a free stylus found at most this far behind the surface is brought to its front (pushed
+  /// out); deeper, it is left free (a jump to the surface from further would be a shove)
+  double capture_depth = 0.01;
   double snap_distance = 0.003;            ///< m: a retractor this close to the surface grabs it
   double elastic_limit = 0.015;            ///< m: how far the grabbed tissue stretches
   double release_factor = 1.5;             ///< pulled beyond elastic_limit × this, the grip slips

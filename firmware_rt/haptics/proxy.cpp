@@ -98,6 +98,42 @@ std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, doub
   return s.n_planes;
 }
 
+namespace {
+constexpr double kUnderSurface = 0.8;  // cos of the widest angle off the normal counted as "under"
+}  // namespace
+
+Vec3 surface_entry(const TissuePatch& patch, Vec3 p, double radius, double depth) noexcept {
+  const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
+  double best2 = depth * depth;
+  std::uint32_t best = n;
+  Vec3 best_q{};
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const PatchTriangle& t = patch.triangles[i];
+    const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+    if (!is_finite(a) || !is_finite(b) || !is_finite(c)) continue;
+    const Vec3 q = closest_point_on_triangle(p, a, b, c);
+    const double d2 = dot(p - q, p - q);
+    if (d2 < best2) {
+      best2 = d2;
+      best = i;
+      best_q = q;
+    }
+  }
+  if (best == n) return p;  // nothing within depth
+  const PatchTriangle& t = patch.triangles[best];
+  if ((t.flags & kTriangleOnCutEdge) != 0) return p;
+  const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+  const Vec3 face = cross(b - a, c - a);
+  if (dot(face, face) < 1e-24) return p;
+  const Vec3 nrm = normalized(face);
+  const double behind = -dot(p - best_q, nrm);
+  // Behind the face and (nearly) straight under the surface: under a face the distance is all
+  // along its normal; under a vertex or an edge of a gently curved sheet, nearly so; past the
+  // border of the sheet it is mostly sideways.
+  if (!(behind > 0) || behind < kUnderSurface * std::sqrt(best2)) return p;
+  return best_q + (radius * (1 + 1e-9) + 1e-12) * nrm;
+}
+
 Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active,
                        std::uint32_t& m) noexcept {
   m = 0;

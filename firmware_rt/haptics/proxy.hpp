@@ -48,6 +48,16 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept;
 /// Builds the separating planes of every patch triangle within `reach` of the sphere at p.
 std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, double reach, ProxyScratch& s) noexcept;
 
+/// Where a free proxy whose centre p lies inside the tissue should start instead: just in front of
+/// the nearest triangle (its centre `radius` above the face), when p is within `depth` of it,
+/// behind its face and under the surface (the way to it within about 37° of the face normal: not
+/// past the sheet's border) and the triangle is not on a cut's edge (p may be inside an opened
+/// incision). Otherwise p.
+/// This is how a stylus that is already below the surface when the tissue first appears around it
+/// (the patch came after the hand, lancet-rt started with the stylus pressed in) is pushed out
+/// instead of being ignored. Bounded: one pass over the patch.
+Vec3 surface_entry(const TissuePatch& patch, Vec3 p, double radius, double depth) noexcept;
+
 /// The point nearest goal that satisfies every plane, resting on at most three; p when none is
 /// found (p must satisfy them all). active_out receives the planes it rests on.
 Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active_out,

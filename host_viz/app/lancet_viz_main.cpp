@@ -12,7 +12,10 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
+#include <memory>
 #include <thread>
 
 #include "app/viz_session.hpp"
@@ -183,8 +186,23 @@ int main(int argc, char** argv) {
   std::string tissue = "block";
   cli.add_option("--tissue", tissue, "block: the procedural skin block; phantom: the skin of the built-in CT phantom (marching cubes)")
       ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str();
+  std::string trace_path;
+  cli.add_option("--trace", trace_path,
+                 "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
+                 "patch version it used), one line a servo tick");
   CLI11_PARSE(cli, argc, argv);
   if (o.headless && o.duration == 0) o.duration = 5;
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> trace(nullptr, &std::fclose);
+  if (!trace_path.empty()) {
+    trace.reset(std::fopen(trace_path.c_str(), "w"));
+    if (!trace) {
+      std::fprintf(stderr, "lancet-viz: --trace %s: cannot create: %s\n", trace_path.c_str(), std::strerror(errno));
+      return 2;
+    }
+    std::fputs("t_s,stage,events,tool_x_mm,tool_y_mm,tool_z_mm,proxy_x_mm,proxy_y_mm,proxy_z_mm,force_x_n,force_y_n,"
+               "force_z_n,patch_version\n",
+               trace.get());
+  }
 
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
@@ -213,6 +231,17 @@ int main(int argc, char** argv) {
   sp.shm_name = o.shm;
   sp.patch.radius = o.patch_radius_mm * 1e-3;
   lancet::viz::VizSession session(sp);
+  if (trace) {
+    session.set_sample_sink([f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i) {
+        const lancet::ToolSample& t = s[i];
+        const lancet::Vec3 a = t.tool.position * 1e3, b = t.proxy.position * 1e3;
+        std::fprintf(f, "%.6f,%u,%u,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%llu\n", static_cast<double>(t.t_ns) * 1e-9,
+                     static_cast<unsigned>(t.stage), static_cast<unsigned>(t.events), a.x, a.y, a.z, b.x, b.y, b.z,
+                     t.force.x, t.force.y, t.force.z, static_cast<unsigned long long>(t.patch_version));
+      }
+    });
+  }
 
   int exit_code = 0;
   std::uint64_t frames = 0;

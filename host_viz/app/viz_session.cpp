@@ -124,6 +124,7 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
     if (kept > 0) {
       stats_.ingest(batch_.data(), kept);
       latest_ = batch_[kept - 1];
+      if (sink_) sink_(batch_.data(), kept);
       on_samples(batch_.data(), kept);
     }
     if (n < batch_.size()) break;

@@ -5,6 +5,7 @@
 // TissuePatch around the newest tool position, beat the viz heartbeat.
 
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -44,6 +45,10 @@ class VizSession {
 
   /// Sets (active=true) or releases the stylus target sent to the simulated arm.
   void set_stylus_target(bool active, Vec3 position, std::int64_t now_ns);
+
+  /// Called each frame with the samples drained (checked, in order) before they drive the model.
+  using SampleSink = std::function<void(const ToolSample* samples, std::size_t n)>;
+  void set_sample_sink(SampleSink sink) { sink_ = std::move(sink); }
 
   /// Queues a command for lancet-rt; false when not attached or its ring is full.
   bool send(Command c, std::int64_t now_ns);
@@ -87,6 +92,7 @@ class VizSession {
   std::uint64_t target_seq_ = 0;
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;
+  SampleSink sink_;
   ToolSample fed_{};            ///< the last sample the surface model was given
   bool fed_any_ = false;
 };

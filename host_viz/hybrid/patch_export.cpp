@@ -41,13 +41,19 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   const surface::MeshView view = model.view();
   const auto& mesh = model.mesh();
   auto& near = scratch.faces;
-  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(params.radius), near);
+  // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
+  // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
+  // exact distance to the haptic triangles.
+  const double reach = params.radius + model.params().deform_max_depth;
+  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(reach), near);
   auto& cand = scratch.candidates;
   cand.clear();
-  const auto corner = [&](std::uint32_t v) { return Vec3f{view.xyz[3 * v], view.xyz[3 * v + 1], view.xyz[3 * v + 2]}; };
+  const auto corner = [&](std::uint32_t v) { return to_vec3f(model.haptic_position(v)); };
+  const double r2 = params.radius * params.radius;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
-    cand.emplace_back(surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2])), f);
+    const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
+    if (d2 <= r2) cand.emplace_back(d2, f);
   }
   const std::size_t keep = std::min<std::size_t>(cand.size(), kPatchCapacity);
   std::partial_sort(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(keep), cand.end());

@@ -36,7 +36,8 @@ using BrickSource = std::function<void(Vec3 centre, VoxelBrick& brick)>;
 
 /// The same from the surface model, through its BVH (cost follows the triangles near the tool,
 /// not the mesh): triangles within params.radius of centre by exact point–triangle distance,
-/// nearest first up to kPatchCapacity, current positions, material ids, kTriangleOnCutEdge on
+/// nearest first up to kPatchCapacity, at their haptic positions (SurfaceModel::haptic_position:
+/// the cut opening and the wrinkle, not the tool's own dent), material ids, kTriangleOnCutEdge on
 /// triangles with an open edge; also the cut state and the blade frame of the newest cut, and
 /// the brick from `brick` when given. Leaves seq and t_ns to the caller.
 std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,

@@ -120,6 +120,9 @@ OpenMesh::Vec3f SurfaceModel::vertex_cross_sum(std::uint32_t v) const {
 
 Vec3 SurfaceModel::position(std::uint32_t v) const noexcept { return v3(mesh_.point(vh(v))); }
 Vec3 SurfaceModel::rest_position(std::uint32_t v) const noexcept { return v3(mesh_.property(rest_, vh(v))); }
+Vec3 SurfaceModel::haptic_position(std::uint32_t v) const noexcept {
+  return v3(mesh_.property(rest_, vh(v)) + open_[v] + wrinkle_[v]);
+}
 
 MeshView SurfaceModel::view() const noexcept {
   return MeshView{mesh_.n_vertices() > 0 ? mesh_.points()[0].data() : nullptr, mesh_.n_vertices(), faces_};

@@ -127,6 +127,10 @@ class SurfaceModel {
   [[nodiscard]] SurfaceMesh::FaceHandle face_handle(std::uint32_t f) const noexcept { return handle_[f]; }
   [[nodiscard]] Vec3 position(std::uint32_t v) const noexcept;
   [[nodiscard]] Vec3 rest_position(std::uint32_t v) const noexcept;
+  /// The surface the stylus is felt against: the current position without the dent the tool
+  /// itself presses (rest + opening + wrinkle). The dent is what the trainee sees of the contact;
+  /// exporting it to the haptics would let the surface, and the proxy on it, follow the tool down.
+  [[nodiscard]] Vec3 haptic_position(std::uint32_t v) const noexcept;
   [[nodiscard]] MeshView view() const noexcept;
   [[nodiscard]] const TriangleBvh& bvh() const noexcept { return bvh_; }
   [[nodiscard]] const SurfaceParams& params() const noexcept { return params_; }

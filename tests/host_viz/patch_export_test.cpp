@@ -112,6 +112,34 @@ TEST(SurfacePatchExport, EqualsABruteForceNearestFirstSelection) {
   }
 }
 
+TEST(SurfacePatchExport, TheHapticsGetTheSurfaceWithoutTheToolsOwnDent) {
+  // The drawn surface dents under the tool; the patch lancet-rt pushes against must not, or the
+  // surface (and the proxy on it) would follow the tool down and the force would fade.
+  auto s = model(60);
+  const Vec3 contact{0.001, 0.0, surface::tissue_block_height({}, 0.001, 0.0)};
+  for (int i = 0; i < 20; ++i) s->update_contact(surface::Contact{contact, {0, 0, -1}, 0.004}, 0.016);
+  ASSERT_GT(s->deformed_vertices(), 0u);
+  double deepest = 0;
+  for (std::uint32_t v = 0; v < s->mesh().n_vertices(); ++v) deepest = std::max(deepest, s->haptic_position(v).z - s->position(v).z);
+  ASSERT_GT(deepest, 0.003) << "the drawn surface is dented";
+  auto patch = std::make_unique<TissuePatch>();
+  PatchExportScratch scratch;
+  const Vec3 tool = contact - Vec3{0, 0, 0.004};
+  const std::size_t found = export_patch(*s, tool, PatchExportParams{0.006}, scratch, *patch);
+  ASSERT_GT(found, 0u);
+  for (std::size_t i = 0; i < patch->n_triangles; ++i) {
+    const auto& t = patch->triangles[i];
+    for (const auto& v : t.v) {
+      // Every corner lies on the undented block (rest: no cut, no wrinkle here).
+      const double h = surface::tissue_block_height({}, v.x, v.y);
+      ASSERT_NEAR(v.z, h, 2e-6) << "triangle " << i;
+    }
+  }
+  // And the nearest triangle is the one over the tool, ~4 mm above it, not the dent around it.
+  const auto& t0 = patch->triangles[0];
+  EXPECT_NEAR((t0.v[0].z + t0.v[1].z + t0.v[2].z) / 3.0, contact.z, 0.0005);
+}
+
 TEST(SurfacePatchExport, CarriesTheCutStateBladeFrameAndBrick) {
   auto s = model(40);
   const auto h = [](double x, double y) {

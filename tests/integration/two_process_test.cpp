@@ -7,12 +7,15 @@
 #include <gtest/gtest.h>
 #include <sys/mman.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "lancet/shared_model/shared_state.hpp"
-#include "process.hpp"  // tests/support
+#include "process_test.hpp"  // tests/support
 
 namespace lancet {
 namespace {
@@ -26,26 +29,19 @@ const std::string kRt = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-rt
 const std::string kViz = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-viz";
 constexpr double kTimeoutMs = 150, kFadeMs = 100;
 
-class TwoProcess : public ::testing::Test {
- protected:
+class TwoProcess : public test::ProcessTest {
+ public:
+  TwoProcess() : ProcessTest("it") {}
   void SetUp() override {
     ASSERT_NE(std::getenv("DISPLAY"), nullptr) << "run under xvfb-run (ctest does this)";
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = std::filesystem::temp_directory_path() / ("lancet-it-" + std::to_string(getpid()) + "-" + info->name());
-    std::filesystem::create_directories(dir_);
-    shm_ = "/lancet-it-" + std::to_string(getpid()) + "-" + info->name();
+    ProcessTest::SetUp();
   }
-  void TearDown() override {
-    shm_unlink(shm_.c_str());  // a killed lancet-rt leaves its segment behind
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
-  }
-  std::string path(const std::string& f) const { return (dir_ / f).string(); }
 
-  std::unique_ptr<Child> start_rt() {
-    auto rt = std::make_unique<Child>(std::vector<std::string>{kRt, "--shm", shm_, "-q", "--stats", path("rt.json"),
-                                                               "--viz-timeout-ms", std::to_string(kTimeoutMs),
-                                                               "--fade-ms", std::to_string(kFadeMs)},
-                                      path("rt.log"));
+  std::unique_ptr<Child> start_rt(const std::vector<std::string>& extra = {}) {
+    std::vector<std::string> argv{kRt, "--shm", shm_, "-q", "--stats", path("rt.json"), "--viz-timeout-ms",
+                                  std::to_string(kTimeoutMs), "--fade-ms", std::to_string(kFadeMs)};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    auto rt = std::make_unique<Child>(argv, path("rt.log"));
     // Wait until its segment is ready.
     for (int i = 0; i < 500; ++i) {
       if (SharedChannel::open(shm_)) break;
@@ -76,9 +72,6 @@ class TwoProcess : public ::testing::Test {
     }
     return st;
   }
-
-  std::filesystem::path dir_;
-  std::string shm_;
 };
 
 TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
@@ -128,6 +121,91 @@ TEST_F(TwoProcess, PhantomSkinTissueGivesContactAndForce) {
   EXPECT_GT(json_number(r, "contact_ticks").value_or(0), 0) << r;
   EXPECT_GT(json_number(r, "max_force_n").value_or(0), 0.2) << r;
 }
+
+// What is felt and what is seen agree: the hand holds the stylus 3 mm below the tissue block for
+// seconds; every tick from contact on renders k·depth. (The viz once published its dented mesh
+// as the haptic patch, so the surface, and the proxy on it, followed the tool down and the force
+// shrank while the stylus stayed below the surface; and a stylus that was already below the
+// surface when the first patch came was never touched by it.) viz_delay_s starts lancet-viz that
+// long after lancet-rt, when the stylus is already pressed in.
+void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
+  constexpr double kStiffness = 300;  // N/m, every material
+  const double end_s = viz_delay_s + hold_s;
+  {
+    std::ofstream csv(fx.path("press.csv"));
+    csv << "t_s,x_mm,y_mm,z_mm\n";
+    for (int i = 0; i <= static_cast<int>(end_s * 100) + 100; ++i) {
+      const double t = i * 0.01;
+      const double a = t < 1.0 ? 0.5 - 0.5 * std::cos(M_PI * t) : 1.0;  // 10 mm above → 3 mm below in 1 s
+      csv << t << ",0,0," << 10.0 + a * (-3.0 - 10.0) << "\n";
+    }
+  }
+  auto rt = fx.start_rt({"--trajectory", fx.path("press.csv"), "--stiffness", std::to_string(kStiffness)});
+  ASSERT_TRUE(rt->running());
+  std::this_thread::sleep_for(std::chrono::duration<double>(viz_delay_s));
+  auto viz = fx.start_viz({"--duration", std::to_string(hold_s), "--trace", fx.path("trace.csv"), "--stats", fx.path("viz.json")});
+  const auto vs = viz->wait_exit(60s);
+  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
+  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(fx.path("viz.log"));
+  rt->signal(SIGTERM);
+  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+
+  // How deep the proxy sphere (radius 1 mm, HapticParams::proxy_radius) centred on the tool point
+  // reaches into the tissue block's rest surface (surface/placeholder_mesh: a·sin(x/L)·cos(y/L),
+  // a = 3 mm, L = 30 mm), along its normal: k times this is the force to feel.
+  const auto depth_m = [](double x, double y, double z) {
+    constexpr double a = 0.003, L = 0.03, kProxyRadius = 0.001;
+    const double h = a * std::sin(x / L) * std::cos(y / L);
+    const double gx = a / L * std::cos(x / L) * std::cos(y / L), gy = -a / L * std::sin(x / L) * std::sin(y / L);
+    return (h - z) / std::sqrt(1 + gx * gx + gy * gy) + kProxyRadius;
+  };
+  std::ifstream trace(fx.path("trace.csv"));
+  std::string line;
+  std::getline(trace, line);  // header
+  double first_t = -1, contact_t = -1, last_t = 0, worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0;
+  std::size_t checked = 0, free_after_contact = 0;
+  while (std::getline(trace, line)) {
+    double v[13];
+    std::istringstream ss(line);
+    char comma = 0;
+    for (int k = 0; k < 13; ++k) {
+      ss >> v[k];
+      if (k < 12) ss >> comma;
+    }
+    ASSERT_TRUE(ss) << line;
+    const double t = v[0], stage = v[1];
+    const double d = depth_m(v[3] * 1e-3, v[4] * 1e-3, v[5] * 1e-3);
+    if (first_t < 0) first_t = t;
+    last_t = t;
+    if (contact_t < 0) {
+      if (stage != 0) contact_t = t, depth_at_contact = d;
+      continue;
+    }
+    if (t - contact_t < 0.5) continue;  // the hand settles against the tissue
+    if (stage == 0) ++free_after_contact;
+    const double f = std::sqrt(v[9] * v[9] + v[10] * v[10] + v[11] * v[11]);
+    const double err = std::abs(f - kStiffness * d) / (kStiffness * d);
+    if (err > worst) worst = err, worst_t = t - contact_t;
+    min_depth = std::min(min_depth, d);
+    ++checked;
+  }
+  ASSERT_GE(contact_t, 0) << "no contact at all\n" << read_file(fx.path("viz.log"));
+  if (viz_delay_s > 0) {
+    EXPECT_GT(depth_at_contact, 0.003) << "the stylus was already pressed in when the tissue appeared";
+    EXPECT_LT(contact_t - first_t, 1.0) << "contact within a second of the first patch";
+  }
+  EXPECT_GT(last_t - contact_t, hold_s - 1.5) << "the trace must cover the whole hold";
+  EXPECT_GT(static_cast<double>(checked), (hold_s - 2.0) * 900) << "ticks checked (1 kHz for the hold)";
+  EXPECT_EQ(free_after_contact, 0u) << "ticks without contact while the stylus is held below the surface";
+  EXPECT_GT(min_depth, 0.002) << "the stylus stays well below the surface";
+  EXPECT_LT(worst, 0.10) << "force against k·depth, worst " << worst * 100 << " % at " << worst_t << " s after contact";
+  const std::string viz_stats = read_file(fx.path("viz.json"));
+  EXPECT_EQ(json_number(viz_stats, "lost").value_or(-1), 0) << viz_stats;
+}
+
+TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_press_is_felt(*this, 0, 7); }
+
+TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, 2.0, 4); }
 
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto rt = start_rt();
