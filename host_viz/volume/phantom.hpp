@@ -1,7 +1,8 @@
 #pragma once
 // The built-in phantom: the demo's default tissue, so the demo needs no data. A limb-like volume
 // along z: skin, subcutaneous fat, muscle, a bone (cortex and marrow) off centre, and two
-// contrast-filled vessels winding beside it, in Hounsfield units with CT-like noise. Deterministic
+// contrast-filled vessels winding beside it, in Hounsfield units with CT-like noise and partial-
+// volume boundaries (each boundary a two-voxel ramp centred on its exact place). Deterministic
 // from the seed: every voxel's noise comes from a hash of (seed, voxel index), so it is the same on
 // every machine and independent of fill order. Allocating; configure time only.
 
@@ -27,6 +28,10 @@ struct PhantomParams {
   double bone_radius = 0.013;      ///< m, outer cortex
   double cortex = 0.004;           ///< m thick
   double noise_hu = 12;            ///< HU, standard deviation of the CT noise
+  /// Boundaries blended over two voxels, as a CT's partial-volume effect and point spread blend
+  /// them, so that isosurfaces through them are smooth instead of terraced; false: every voxel
+  /// takes its material's HU (hard labels). The material labels are hard either way (by centre).
+  bool partial_volume = true;
   std::uint64_t seed = 1;
 };
 
