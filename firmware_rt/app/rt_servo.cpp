@@ -248,6 +248,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   in.orientation = Quat{};  // the simulated stylus does not rotate: the blade points along +x
   in.mode = d.mode;
   in.patch = d.patch_version != 0 ? &patch : nullptr;
+  in.tick = d.tick;
   in.patch_age_ns = d.patch_version != 0 ? now_ns - patch.t_ns : -1;
   haptics::HapticOutput& h = d.haptic_out;
   haptics::haptic_step(model_.haptic, d.haptic, in, h);

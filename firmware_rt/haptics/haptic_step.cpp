@@ -47,6 +47,14 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
     if (in.patch->seq != d.brick_seq) {
       d.brick = in.patch->brick;
       d.brick_seq = in.patch->seq;
+      // Removals after the newest sample the viz had applied are not in it yet: carve them again.
+      for (std::size_t i = 0; i < d.n_carves; ++i) {
+        const HapticData::Carve& c = d.carves[(d.carve_head + HapticData::kCarveMemory - d.n_carves + i) % HapticData::kCarveMemory];
+        if (c.tick > in.patch->samples_applied) {
+          carve_sphere(d.brick, c.centre, c.radius);
+          ++d.reapplied;
+        }
+      }
     }
     const VolumeContact vc = volume_proxy_step(d.brick, m.drill_iso_hu, prev_proxy, in.device);
     d.proxy = vc.position;
@@ -66,6 +74,9 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
         d.drill_progress -= 1.0;
         carve_sphere(d.brick, front, m.drill_burr_radius);
         ++d.removals;
+        d.carves[d.carve_head] = HapticData::Carve{front, m.drill_burr_radius, in.tick};
+        d.carve_head = (d.carve_head + 1) % HapticData::kCarveMemory;
+        d.n_carves = std::min(d.n_carves + 1, HapticData::kCarveMemory);
         out.events |= event::kDrillRemove;
         out.payload = EventPayload{front, vc.normal, Vec3{}, m.drill_burr_radius};
       }

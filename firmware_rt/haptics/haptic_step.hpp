@@ -70,6 +70,17 @@ struct HapticData {
   Vec3 last_pull_event{};
   VoxelBrick brick{};          ///< the drill's own copy of the patch's brick, carved as it drills
   std::uint64_t brick_seq = 0; ///< patch seq the copy came from
+  /// The drill's recent removals (a ring): a newer brick from the viz may not reflect them yet
+  /// (it was built before the viz saw their events), so they are carved into it again.
+  struct Carve {
+    Vec3 centre;
+    double radius;
+    std::uint64_t tick;
+  };
+  static constexpr std::size_t kCarveMemory = 128;
+  std::array<Carve, kCarveMemory> carves{};
+  std::size_t n_carves = 0, carve_head = 0;    ///< valid entries; where the next one goes
+  std::uint64_t reapplied = 0;                 ///< removals carved again into a newer brick
   double drill_progress = 0;   ///< accumulated removal (1 = remove one burr sphere)
   std::uint64_t removals = 0;
 };
@@ -80,6 +91,7 @@ struct HapticInput {
   Quat orientation;            ///< tool orientation (the blade is orientation · blade_axis)
   ToolMode mode = ToolMode::kProbe;
   const TissuePatch* patch = nullptr;  ///< null: no tissue known
+  std::uint64_t tick = 0;              ///< seq of the ToolSample this tick pushes
   std::int64_t patch_age_ns = -1;      ///< age of the patch (negative: none)
 };
 

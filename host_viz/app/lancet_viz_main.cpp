@@ -16,9 +16,12 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <optional>
 #include <thread>
 
 #include "app/viz_session.hpp"
+#include "hybrid/volume_brick.hpp"
+#include "volume/drill.hpp"
 #include "volume/marching_cubes.hpp"
 #include "volume/phantom.hpp"
 #include "render/overlay.hpp"
@@ -70,7 +73,14 @@ struct VizOptions {
   double fps = 60;
 };
 
-bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance) {
+struct DrillStats {
+  std::uint64_t removals = 0;       ///< kDrillRemove events applied to the volume
+  std::uint64_t voxels = 0;         ///< voxels they removed
+  std::uint64_t without_volume = 0; ///< events that found no volume to carve (block tissue)
+};
+
+bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
+                 const DrillStats& drill) {
   std::FILE* f = std::fopen(o.stats.c_str(), "w");
   if (f == nullptr) return false;
   const auto& st = s.stats();
@@ -79,7 +89,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"samples_received\": %llu,\n  \"samples_total\": %llu,\n  \"first_seq\": %llu,\n  \"last_seq\": %llu,\n"
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
                "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
-               "  \"status_rejected\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
+               "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
+               "  \"drill_removals_without_volume\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
                : s.link() == lancet::viz::Link::kLost   ? "lost"
@@ -90,7 +101,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(st.discarded), static_cast<unsigned long long>(st.max_batch),
                static_cast<unsigned long long>(s.patches_published()), static_cast<unsigned long long>(st.rejected),
                static_cast<unsigned long long>(st.ring_resets), static_cast<unsigned long long>(st.status_rejected),
-               o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
+               static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
+               static_cast<unsigned long long>(drill.without_volume), o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
 
@@ -145,9 +157,8 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
 
 // The built-in CT phantom's skin (marching cubes at -300 HU, padded so it closes), turned so the
 // limb lies along x with its upper side facing +z, and lowered so its top is at z = 0 where the
-// stylus script works.
-lancet::surface::TriangleMesh phantom_skin() {
-  const auto ph = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
+// stylus script works; the same placement puts the phantom's volume under it (the drill's brick).
+lancet::surface::TriangleMesh phantom_skin(const lancet::volume::Phantom& ph, lancet::hybrid::VolumePlacement& placement) {
   lancet::volume::IsoOptions o;
   o.iso = -300;
   o.pad_border = true;
@@ -158,11 +169,13 @@ lancet::surface::TriangleMesh phantom_skin() {
   const auto& iso = s.value();
   float top = -1e9f;
   for (const auto& p : iso.positions) top = std::max(top, p.y);
+  placement.axis = {2, 0, 1};  // world (x, y, z) = volume (z, x, y): a rotation, then down
+  placement.sign = {1, 1, 1};
+  placement.offset = {0, 0, -static_cast<double>(top)};
+  const lancet::hybrid::VolumePlacement turn{placement.axis, placement.sign, {}};
   for (std::size_t i = 0; i < iso.positions.size(); ++i) {
-    const auto& p = iso.positions[i];
-    const auto& n = iso.normals[i];
-    m.vertices.push_back({p.z, p.x, p.y - top});  // (x, y, z) → (z, x, y): a rotation, then down
-    m.normals.push_back({n.z, n.x, n.y});
+    m.vertices.push_back(lancet::to_vec3f(placement.to_world(lancet::to_vec3(iso.positions[i]))));
+    m.normals.push_back(lancet::to_vec3f(turn.to_world(lancet::to_vec3(iso.normals[i]))));
   }
   m.triangles = iso.triangles;
   for (const auto& t : iso.triangles) m.material.push_back(iso.material[t[0]]);
@@ -186,6 +199,9 @@ int main(int argc, char** argv) {
   std::string tissue = "block";
   cli.add_option("--tissue", tissue, "block: the procedural skin block; phantom: the skin of the built-in CT phantom (marching cubes)")
       ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str();
+  std::string tool;
+  cli.add_option("--tool", tool, "pick this tool in lancet-rt when connected (as the keys 1-4 do)")
+      ->check(CLI::IsMember({"probe", "scalpel", "retractor", "drill"}));
   std::string trace_path;
   cli.add_option("--trace", trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
@@ -218,8 +234,12 @@ int main(int argc, char** argv) {
 
   // The tissue: the surface model on the tissue block (cut, dented, opened by what lancet-rt
   // reports), drawn from a plain copy refreshed when it changes.
+  // With the phantom, its volume too: the brick every patch carries, carved by lancet-rt's drill.
+  std::optional<lancet::volume::Phantom> phantom;
+  lancet::hybrid::VolumePlacement placement;
+  if (tissue == "phantom") phantom = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
   lancet::surface::TriangleMesh mesh =
-      tissue == "phantom" ? phantom_skin() : lancet::surface::make_tissue_block({});
+      phantom ? phantom_skin(*phantom, placement) : lancet::surface::make_tissue_block({});
   auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
   if (!made.ok()) {
     std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
@@ -231,17 +251,38 @@ int main(int argc, char** argv) {
   sp.shm_name = o.shm;
   sp.patch.radius = o.patch_radius_mm * 1e-3;
   lancet::viz::VizSession session(sp);
-  if (trace) {
-    session.set_sample_sink([f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
-      for (std::size_t i = 0; i < n; ++i) {
-        const lancet::ToolSample& t = s[i];
+  // Every drained sample: to the trace, and the drill's removals into the volume, before this
+  // frame's patch is cut from it (so the next brick shows them; lancet-rt re-carves the newer ones).
+  DrillStats drill_stats;
+  if (phantom) {
+    session.set_brick_source([&](lancet::Vec3 centre, lancet::VoxelBrick& brick) {
+      lancet::hybrid::fill_brick(phantom->volume, placement, centre, brick);
+    });
+  }
+  session.set_sample_sink([&, f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i) {
+      const lancet::ToolSample& t = s[i];
+      if (f != nullptr) {
         const lancet::Vec3 a = t.tool.position * 1e3, b = t.proxy.position * 1e3;
         std::fprintf(f, "%.6f,%u,%u,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%llu\n", static_cast<double>(t.t_ns) * 1e-9,
                      static_cast<unsigned>(t.stage), static_cast<unsigned>(t.events), a.x, a.y, a.z, b.x, b.y, b.z,
                      t.force.x, t.force.y, t.force.z, static_cast<unsigned long long>(t.patch_version));
       }
-    });
-  }
+      if ((t.events & lancet::event::kDrillRemove) == 0) continue;
+      if (!phantom) {
+        ++drill_stats.without_volume;
+        continue;
+      }
+      lancet::volume::DrillParams dp;
+      dp.centre = placement.to_volume(t.payload.position);
+      dp.radius = t.payload.magnitude;
+      auto r = lancet::volume::drill_sphere(phantom->volume, dp, phantom->material);
+      if (r.ok()) {
+        ++drill_stats.removals;
+        drill_stats.voxels += r.value().voxels_removed;
+      }
+    }
+  });
 
   int exit_code = 0;
   std::uint64_t frames = 0;
@@ -258,11 +299,20 @@ int main(int argc, char** argv) {
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
     bool key_down[7] = {};
+    std::uint32_t tool_sent_for = 0;  // the connection --tool was last sent on
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
       const std::int64_t now = lancet::monotonic_ns();
       (void)session.frame(now, model);
+      if (!tool.empty() && session.link() == lancet::viz::Link::kConnected && tool_sent_for != session.connections()) {
+        lancet::Command c{};
+        c.kind = lancet::CommandKind::kSetToolMode;
+        c.mode = tool == "probe" ? lancet::ToolMode::kProbe : tool == "scalpel" ? lancet::ToolMode::kScalpel
+                 : tool == "retractor"                    ? lancet::ToolMode::kRetractor
+                                                          : lancet::ToolMode::kDrill;
+        if (session.send(c, now)) tool_sent_for = session.connections();
+      }
       if (model.revision() != shown_revision) {  // redraw only what changed shape
         shown_revision = model.revision();
         model.to_triangle_mesh(mesh);
@@ -356,7 +406,7 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
-  if (!o.stats.empty() && !write_stats(o, session, frames, variance)) {
+  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats)) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;
   }

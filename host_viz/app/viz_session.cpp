@@ -32,6 +32,7 @@ void VizSession::try_attach(std::int64_t now_ns) {
   // Samples queued before we attached are history; start from the live edge.
   bool reset = false;
   stats_.discarded = s.samples.discard_all(&reset);
+  samples_applied_ = 0;  // this lancet-rt's ticks start again
   if (reset) ++stats_.ring_resets;
   link_ = Link::kConnected;
   ++connections_;
@@ -50,7 +51,11 @@ void VizSession::detach(const std::string& why) {
 
 void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
   run_frame(now_ns, [](const ToolSample*, std::size_t) {},
-            [&](TissuePatch& p) { hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p); });
+            [&](TissuePatch& p) {
+              hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p);
+              p.brick.valid = 0;
+              if (brick_) brick_(latest_.tool.position, p.brick);
+            });
 }
 
 bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
@@ -73,7 +78,7 @@ bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
           changed = true;
         }
       },
-      [&](TissuePatch& p) { hybrid::export_patch(model, latest_.tool.position, params_.patch, scratch_, p); });
+      [&](TissuePatch& p) { hybrid::export_patch(model, latest_.tool.position, params_.patch, scratch_, p, brick_); });
   return changed;
 }
 
@@ -124,6 +129,7 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
     if (kept > 0) {
       stats_.ingest(batch_.data(), kept);
       latest_ = batch_[kept - 1];
+      samples_applied_ = std::max(samples_applied_, latest_.seq);
       if (sink_) sink_(batch_.data(), kept);
       on_samples(batch_.data(), kept);
     }
@@ -146,6 +152,7 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
     export_patch_now(p);
     p.seq = frame_;
     p.t_ns = now_ns;
+    p.samples_applied = samples_applied_;
     s.patch.write(p);
     ++patches_published_;
   }

@@ -50,6 +50,10 @@ class VizSession {
   using SampleSink = std::function<void(const ToolSample* samples, std::size_t n)>;
   void set_sample_sink(SampleSink sink) { sink_ = std::move(sink); }
 
+  /// The voxel brick sent with every patch (around the tool), e.g. from the scene's volume; none:
+  /// the patch carries no brick and lancet-rt's drill acts as a probe.
+  void set_brick_source(hybrid::BrickSource source) { brick_ = std::move(source); }
+
   /// Queues a command for lancet-rt; false when not attached or its ring is full.
   bool send(Command c, std::int64_t now_ns);
 
@@ -93,6 +97,8 @@ class VizSession {
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;
   SampleSink sink_;
+  hybrid::BrickSource brick_;
+  std::uint64_t samples_applied_ = 0;  ///< seq of the newest sample handed on since attaching
   ToolSample fed_{};            ///< the last sample the surface model was given
   bool fed_any_ = false;
 };

@@ -537,6 +537,48 @@ TEST(Drill, RemovesMaterialAndDenserBoneResistsMore) {
   EXPECT_GE(soft, hard);
 }
 
+TEST(Drill, ABrickFromTheVizThatHasNotSeenARemovalYetGetsItCarvedAgain) {
+  // lancet-rt carves its copy of the brick; the viz carves its volume only when it drains the
+  // removal's sample. A brick built before that (samples_applied older than the removal) must not
+  // put the bone back under the burr; one built after it already has it and is taken as it is.
+  const auto p = bone_patch(1000);
+  Rig rig(test_model(500));
+  std::uint64_t removal_tick = 0;
+  for (int i = 0; i < 3000 && removal_tick == 0; ++i) {
+    rig.in.tick = static_cast<std::uint64_t>(i + 1);
+    const double z = std::max(-0.006, 0.004 - 0.0001 * i);
+    if (rig.step(p.get(), {0, 0, z}, {}, ToolMode::kDrill).events & event::kDrillRemove) removal_tick = rig.in.tick;
+  }
+  ASSERT_NE(removal_tick, 0u) << "the drill removed bone";
+  // The voxels the removal turned from bone into air.
+  std::vector<std::size_t> carved;
+  for (std::size_t i = 0; i < std::size(p->brick.hu); ++i)
+    if (p->brick.hu[i] != rig.d->brick.hu[i]) carved.push_back(i);
+  ASSERT_FALSE(carved.empty());
+  const auto all_air = [&](const VoxelBrick& b) {
+    return std::all_of(carved.begin(), carved.end(), [&](std::size_t i) { return b.hu[i] == kAirHu; });
+  };
+  ASSERT_TRUE(all_air(rig.d->brick));
+  // A newer patch whose brick was built before the viz saw the removal: carved again.
+  auto stale = bone_patch(1000);
+  stale->seq = 2;
+  stale->samples_applied = removal_tick - 1;
+  rig.in.tick = removal_tick + 1;
+  rig.step(stale.get(), rig.in.device, {}, ToolMode::kDrill);
+  EXPECT_TRUE(all_air(rig.d->brick)) << "the removal is kept";
+  EXPECT_GE(rig.d->reapplied, 1u);
+  // One built after it (here, deliberately without the removal, to tell the cases apart): taken
+  // as the viz sent it.
+  auto fresh = bone_patch(1000);
+  fresh->seq = 3;
+  fresh->samples_applied = removal_tick;
+  const std::uint64_t reapplied = rig.d->reapplied;
+  rig.in.tick = removal_tick + 2;
+  rig.step(fresh.get(), rig.in.device, {}, ToolMode::kDrill);
+  EXPECT_FALSE(all_air(rig.d->brick)) << "the viz's brick is trusted to reflect the removal itself";
+  EXPECT_EQ(rig.d->reapplied, reapplied);
+}
+
 TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
   // A 0.1 kg mass under gravity bounces on a 5 kN/m wall rendered at 1 kHz, the force sampled once
   // a tick and held (sample and hold), no damping. The arm moves continuously meanwhile (fine

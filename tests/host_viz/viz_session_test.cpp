@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <memory>
 #include <string>
 
 namespace lancet::viz {
@@ -122,6 +123,35 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
   EXPECT_GT(patch->n_triangles, 0u);
   EXPECT_EQ(patch->centre, (Vec3{0.0, 0.0, -0.001}));
+  EXPECT_EQ(patch->samples_applied, 600u) << "the newest sample whose events it reflects";
+  EXPECT_EQ(patch->brick.valid, 0u) << "no volume, no brick";
+
+  // With a brick source, every patch carries the brick around the tool; the sample sink sees
+  // each sample (checked) before the patch is cut.
+  std::uint64_t sunk = 0, newest_sunk = 0;
+  s.set_sample_sink([&](const ToolSample* batch, std::size_t n) {
+    sunk += n;
+    newest_sunk = batch[n - 1].seq;
+  });
+  Vec3 brick_centre{};
+  s.set_brick_source([&](Vec3 centre, VoxelBrick& b) {
+    brick_centre = centre;
+    b.valid = 1;
+    b.dim = kBrickDim;
+    b.spacing = {0.001, 0.001, 0.001};
+    b.origin = centre;
+  });
+  for (std::uint64_t i = 601; i <= 620; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.001, 0.0, -0.002})));
+  now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  s.frame(now, mesh);
+  EXPECT_EQ(sunk, 20u);
+  EXPECT_EQ(newest_sunk, 620u);
+  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  EXPECT_EQ(patch->brick.valid, 1u);
+  EXPECT_EQ(brick_centre, (Vec3{0.001, 0.0, -0.002}));
+  EXPECT_EQ(patch->samples_applied, 620u);
+  s.set_sample_sink({});
 
   // Stylus target and commands travel the other way.
   s.set_stylus_target(true, {0.01, 0.02, -0.003}, now);

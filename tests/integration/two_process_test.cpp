@@ -8,6 +8,7 @@
 #include <sys/mman.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -211,6 +212,72 @@ void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
 TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_press_is_felt(*this, 0, 7); }
 
 TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, 2.0, 4); }
+
+// The drill on the phantom: every patch carries the voxel brick around the tool, lancet-rt's drill
+// passes the soft tissue, stops at the bone and removes it voxel by voxel as the hand presses on;
+// lancet-viz carves the same removals into its volume, and each newer brick keeps them (the drill
+// never finds bone again where it already removed it).
+TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
+  {
+    // Over the bone (world y = 6 mm, the phantom's bone centre), down to 40 mm below the top in 2 s.
+    std::ofstream csv(path("drill.csv"));
+    csv << "t_s,x_mm,y_mm,z_mm\n";
+    for (int i = 0; i <= 900; ++i) {
+      const double t = i * 0.01;
+      const double a = t < 2.0 ? 0.5 - 0.5 * std::cos(M_PI * t / 2.0) : 1.0;
+      csv << t << ",0,6," << 10.0 + a * (-40.0 - 10.0) << "\n";
+    }
+  }
+  auto rt = start_rt({"--trajectory", path("drill.csv")});
+  ASSERT_TRUE(rt->running());
+  auto viz = start_viz({"--duration", "6", "--tissue", "phantom", "--tool", "drill", "--trace", path("trace.csv"), "--stats",
+                        path("viz.json")});
+  const auto vs = viz->wait_exit(90s);
+  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
+  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  rt->signal(SIGTERM);
+  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+
+  std::ifstream trace(path("trace.csv"));
+  std::string line;
+  std::getline(trace, line);
+  double first_contact_z = 1, deepest_proxy = 1, highest_after = -1, max_force = 0, tool_at_contact = 0;
+  std::size_t drilling = 0, removals = 0, rebounds = 0;
+  while (std::getline(trace, line)) {
+    double v[13];
+    std::istringstream ss(line);
+    char comma = 0;
+    for (int k = 0; k < 13; ++k) {
+      ss >> v[k];
+      if (k < 12) ss >> comma;
+    }
+    ASSERT_TRUE(ss) << line;
+    if (static_cast<int>(v[1]) != static_cast<int>(Stage::kDrilling)) continue;
+    const double proxy_z = v[8];
+    if (drilling++ == 0) first_contact_z = proxy_z, tool_at_contact = v[5];
+    if ((static_cast<std::uint32_t>(v[2]) & event::kDrillRemove) != 0) ++removals;
+    // A brick that lost a removal would put bone back under the burr and shove the proxy up.
+    if (proxy_z > deepest_proxy + 0.3) ++rebounds;
+    deepest_proxy = std::min(deepest_proxy, proxy_z);
+    highest_after = std::max(highest_after, proxy_z);
+    max_force = std::max(max_force, std::sqrt(v[9] * v[9] + v[10] * v[10] + v[11] * v[11]));
+  }
+  const std::string stats = read_file(path("viz.json"));
+  std::printf("[ info     ] drill: bone met at z = %.2f mm (tool %.2f mm), %zu ticks drilling, %zu removals, proxy down to "
+              "%.2f mm, max force %.2f N\n",
+              first_contact_z, tool_at_contact, drilling, removals, deepest_proxy, max_force);
+  ASSERT_GT(drilling, 500u) << "the drill met the bone and pressed on it\n" << stats;
+  // The bone's top: the phantom's bone (radius 13 mm, centre 4 mm below the axis) under a skin
+  // whose top is at z = 0 at the far end of the tapering limb; the burr (1.5 mm) rests on it.
+  EXPECT_LT(first_contact_z, -25.0) << "the drill passed the skin, fat and muscle";
+  EXPECT_GT(first_contact_z, -35.0) << "and stopped at the bone";
+  EXPECT_GT(max_force, 2.0) << "the bone resists";
+  EXPECT_GT(removals, 3u) << "pressing on, the drill removes bone";
+  EXPECT_LT(deepest_proxy, first_contact_z - 1.0) << "and sinks into it as it does";
+  EXPECT_EQ(rebounds, 0u) << "no brick brought removed bone back";
+  EXPECT_EQ(json_number(stats, "drill_removals").value_or(-1), static_cast<double>(removals)) << stats;
+  EXPECT_GT(json_number(stats, "voxels_drilled").value_or(0), 0) << stats;
+}
 
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto rt = start_rt();

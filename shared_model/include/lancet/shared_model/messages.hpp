@@ -147,6 +147,9 @@ struct VoxelBrick {
 struct TissuePatch {
   std::uint64_t seq;         ///< viz frame counter when built
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when built (ns)
+  /// seq of the newest ToolSample whose events this patch reflects (0: none yet): lancet-rt
+  /// re-applies to the brick the drill removals it made after that sample.
+  std::uint64_t samples_applied;
   Vec3 centre;               ///< query centre: the tool position the viz used (m)
   double radius;             ///< query radius (m)
   std::uint32_t n_triangles; ///< valid entries in triangles

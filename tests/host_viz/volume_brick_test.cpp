@@ -1,0 +1,125 @@
+// The drill's voxel brick cut from a placed volume: voxels are the volume's own (no resampling),
+// the placement's permutation and offset are honoured, outside is air, bad input gives no brick.
+
+#include "hybrid/volume_brick.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+
+#include "volume/phantom.hpp"
+
+namespace lancet::hybrid {
+namespace {
+
+// A small volume whose value encodes its voxel index: v = i + 100 j + 10000 k would overflow
+// int16, so a smaller code: i + 40 j + 1600 k (dims 20 × 20 × 10 → at most 15 979).
+volume::Volume coded_volume() {
+  volume::Volume v;
+  v.dims = {20, 20, 10};
+  v.spacing = {0.001, 0.002, 0.0015};
+  v.origin = {-0.01, 0.005, 0.02};
+  v.data.resize(v.voxel_count());
+  for (int k = 0; k < v.dims[2]; ++k)
+    for (int j = 0; j < v.dims[1]; ++j)
+      for (int i = 0; i < v.dims[0]; ++i) v.data[v.index(i, j, k)] = static_cast<float>(i + 40 * j + 1600 * k);
+  return v;
+}
+
+TEST(VolumeBrick, PlacementRoundTripsAndChecksItself) {
+  VolumePlacement pl;
+  pl.axis = {2, 0, 1};
+  pl.sign = {1, -1, 1};
+  pl.offset = {0.01, -0.02, 0.003};
+  ASSERT_TRUE(pl.valid());
+  const Vec3 v{0.004, -0.007, 0.012};
+  const Vec3 w = pl.to_world(v);
+  EXPECT_NEAR(w.x, 0.012 + 0.01, 1e-15);
+  EXPECT_NEAR(w.y, -0.004 - 0.02, 1e-15);
+  EXPECT_NEAR(w.z, -0.007 + 0.003, 1e-15);
+  const Vec3 back = pl.to_volume(w);
+  EXPECT_NEAR(norm(back - v), 0, 1e-15);
+  pl.axis = {0, 0, 1};
+  EXPECT_FALSE(pl.valid());
+  pl.axis = {0, 1, 2};
+  pl.sign = {1, 0, 1};
+  EXPECT_FALSE(pl.valid());
+}
+
+TEST(VolumeBrick, EveryBrickVoxelIsTheVolumeVoxelAtItsPlace) {
+  const volume::Volume v = coded_volume();
+  VolumePlacement pl;
+  pl.axis = {2, 0, 1};
+  pl.sign = {1, 1, -1};
+  pl.offset = {0.001, 0.0, -0.01};
+  auto brick = std::make_unique<VoxelBrick>();
+  const Vec3 centre = pl.to_world(v.position(6.3, 4.8, 5.1));
+  fill_brick(v, pl, centre, *brick);
+  ASSERT_EQ(brick->valid, 1u);
+  EXPECT_EQ(brick->dim, kBrickDim);
+  // World spacing along x is the volume's z spacing, along y its x, along z its y.
+  EXPECT_DOUBLE_EQ(brick->spacing.x, 0.0015);
+  EXPECT_DOUBLE_EQ(brick->spacing.y, 0.001);
+  EXPECT_DOUBLE_EQ(brick->spacing.z, 0.002);
+  std::size_t inside = 0, outside = 0;
+  for (std::uint32_t k = 0; k < kBrickDim; ++k)
+    for (std::uint32_t j = 0; j < kBrickDim; ++j)
+      for (std::uint32_t i = 0; i < kBrickDim; ++i) {
+        const Vec3 w = brick->origin + Vec3{i * brick->spacing.x, j * brick->spacing.y, k * brick->spacing.z};
+        const Vec3 p = pl.to_volume(w) - v.origin;
+        const double fi = p.x / v.spacing.x, fj = p.y / v.spacing.y, fk = p.z / v.spacing.z;
+        // On the grid, exactly.
+        ASSERT_NEAR(fi, std::round(fi), 1e-6);
+        ASSERT_NEAR(fj, std::round(fj), 1e-6);
+        ASSERT_NEAR(fk, std::round(fk), 1e-6);
+        const long ii = std::lround(fi), jj = std::lround(fj), kk = std::lround(fk);
+        const std::int16_t got = brick->hu[i + kBrickDim * (j + kBrickDim * k)];
+        if (ii >= 0 && jj >= 0 && kk >= 0 && ii < v.dims[0] && jj < v.dims[1] && kk < v.dims[2]) {
+          ASSERT_EQ(got, static_cast<std::int16_t>(ii + 40 * jj + 1600 * kk)) << i << " " << j << " " << k;
+          ++inside;
+        } else {
+          ASSERT_EQ(got, -1000) << "outside the volume is air";
+          ++outside;
+        }
+      }
+  EXPECT_GT(inside, 0u);
+  EXPECT_GT(outside, 0u);
+  // The brick is centred on the tool within a voxel.
+  const Vec3 mid = brick->origin + 7.5 * brick->spacing;
+  EXPECT_LT(std::abs(mid.x - centre.x), brick->spacing.x);
+  EXPECT_LT(std::abs(mid.y - centre.y), brick->spacing.y);
+  EXPECT_LT(std::abs(mid.z - centre.z), brick->spacing.z);
+}
+
+TEST(VolumeBrick, BadInputGivesNoBrick) {
+  volume::Volume v = coded_volume();
+  auto brick = std::make_unique<VoxelBrick>();
+  fill_brick(v, VolumePlacement{}, {std::nan(""), 0, 0}, *brick);
+  EXPECT_EQ(brick->valid, 0u);
+  VolumePlacement bad;
+  bad.axis = {1, 1, 2};
+  fill_brick(v, bad, {0, 0, 0}, *brick);
+  EXPECT_EQ(brick->valid, 0u);
+  v.direction = {0, 1, 0, 1, 0, 0, 0, 0, 1};
+  fill_brick(v, VolumePlacement{}, {0, 0, 0}, *brick);
+  EXPECT_EQ(brick->valid, 0u) << "an oblique volume is not supported (yet)";
+  fill_brick(volume::Volume{}, VolumePlacement{}, {0, 0, 0}, *brick);
+  EXPECT_EQ(brick->valid, 0u);
+}
+
+TEST(VolumeBrick, ThePhantomsBoneIsInTheBrickWhereTheVizPutsIt) {
+  // The viz's placement of the phantom: world (x, y, z) = volume (z, x, y − top).
+  const volume::Phantom ph = volume::make_phantom({});
+  VolumePlacement pl;
+  pl.axis = {2, 0, 1};
+  pl.offset = {0, 0, -0.04};
+  auto brick = std::make_unique<VoxelBrick>();
+  // The bone's centre: volume (6, −4) mm in x, y; mid-length.
+  fill_brick(ph.volume, pl, pl.to_world({0.006, -0.004, 0.0}), *brick);
+  ASSERT_EQ(brick->valid, 1u);
+  EXPECT_GT(brick->hu[7 + kBrickDim * (7 + kBrickDim * 7)], 200) << "marrow at the centre";
+}
+
+}  // namespace
+}  // namespace lancet::hybrid
