@@ -218,7 +218,8 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)->group("Testing");
   std::string config_path, trajectory_path;
   cli.add_option("--trajectory", trajectory_path,
-                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm) instead of the built-in script");
+                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm[, tool]) instead of the built-in script; the "
+                 "optional tool cell (probe, scalpel, retractor, drill) picks the tool from that time on");
   cli.add_option("--config", config_path,
                  "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
                  "built-in stylus");

@@ -207,6 +207,15 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   const Vec3 target = target_fresh              ? d.target.target.position
                       : model_.trajectory != nullptr ? model_.trajectory->at(t)
                                                      : device::scripted_target(t, model_.script_depth);
+  // A scripted hand also picks its tools, each when its time comes (a later key in the viz wins
+  // until the script's next change).
+  if (model_.trajectory != nullptr) {
+    const auto& changes = model_.trajectory->tools;
+    while (d.next_tool_change < changes.size() && changes[d.next_tool_change].t <= t) {
+      d.mode = static_cast<ToolMode>(changes[d.next_tool_change].mode);
+      ++d.next_tool_change;
+    }
+  }
 
   // Newest patch, into the back buffer; swap only on a consistent read of a valid patch.
   TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];

@@ -71,6 +71,7 @@ enum class DeviceJob : int { kNone = 0, kRearm = 1, kReconnect = 2 };
 /// Everything the tick reads and writes, allocated once.
 struct RtData {
   std::uint64_t tick = 0;
+  std::size_t next_tool_change = 0;  ///< the trajectory's next tool change not yet applied
   std::int32_t pid = 0;
   std::int64_t start_ns = 0;
   device::SimStylusState stylus{};

@@ -25,6 +25,7 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
   int n = 0;
   bool header_allowed = true;
   static const char* kNames[4] = {"t_s", "x_mm", "y_mm", "z_mm"};
+  static const char* kTools[4] = {"probe", "scalpel", "retractor", "drill"};  // ToolMode order
   while (std::getline(in, line)) {
     ++n;
     if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
@@ -36,8 +37,9 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
       cells.push_back(b == std::string::npos ? std::string() : c.substr(b, e - b + 1));
     }
     const std::string where = path + ":" + std::to_string(n) + ": ";
-    if (cells.size() != 4)
-      return Error{ErrorCode::kInvalid, where + "expected 4 values (t_s, x_mm, y_mm, z_mm), found " + std::to_string(cells.size())};
+    if (cells.size() != 4 && cells.size() != 5)
+      return Error{ErrorCode::kInvalid,
+                   where + "expected 4 or 5 values (t_s, x_mm, y_mm, z_mm[, tool]), found " + std::to_string(cells.size())};
     double v[4];
     bool numbers = true;
     for (int i = 0; i < 4; ++i) {
@@ -62,6 +64,12 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
       return Error{ErrorCode::kInvalid, where + "t_s: times must increase: " + cells[0] + " follows " + std::to_string(tr.t.back())};
     tr.t.push_back(v[0]);
     tr.p.push_back(Vec3{v[1] * 1e-3, v[2] * 1e-3, v[3] * 1e-3});
+    if (cells.size() == 5 && !cells[4].empty()) {
+      const auto* it = std::find(std::begin(kTools), std::end(kTools), cells[4]);
+      if (it == std::end(kTools))
+        return Error{ErrorCode::kInvalid, where + "tool: expected probe, scalpel, retractor or drill, found '" + cells[4] + "'"};
+      tr.tools.push_back({v[0], static_cast<std::uint8_t>(it - std::begin(kTools))});
+    }
   }
   if (tr.t.empty()) return Error{ErrorCode::kInvalid, path + ": no trajectory points (lines of t_s, x_mm, y_mm, z_mm)"};
   return tr;

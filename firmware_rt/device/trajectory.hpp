@@ -1,9 +1,13 @@
 #pragma once
 // A recorded hand trajectory for the simulated arm or stylus: where the hand pulls the stylus
 // over time, replayed instead of the built-in script (test rigs, repeatable demos).
-// File: CSV lines `t_s, x_mm, y_mm, z_mm` (tissue frame), '#' comments, an optional header line
-// of names; times strictly increasing from >= 0. Loading allocates; at() does not.
+// File: CSV lines `t_s, x_mm, y_mm, z_mm[, tool]` (tissue frame), '#' comments, an optional
+// header line of names; times strictly increasing from >= 0. The optional fifth cell picks the
+// tool from that time on (probe, scalpel, retractor or drill; empty: no change), so a scripted
+// hand can press with the scalpel, lift and pull with the retractor. Loading allocates; at() does
+// not.
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -13,8 +17,13 @@
 namespace lancet::device {
 
 struct Trajectory {
+  struct ToolChange {
+    double t;             ///< s
+    std::uint8_t mode;    ///< ToolMode
+  };
   std::vector<double> t;  ///< s
   std::vector<Vec3> p;    ///< m
+  std::vector<ToolChange> tools;  ///< in time order
   /// Linear interpolation at time s; the first point before it, the last after. RT-safe.
   [[nodiscard]] Vec3 at(double s) const noexcept;
   [[nodiscard]] double duration() const noexcept { return t.empty() ? 0.0 : t.back(); }

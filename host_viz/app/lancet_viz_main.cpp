@@ -73,6 +73,32 @@ struct VizOptions {
   double fps = 60;
 };
 
+// What the trainee did to the surface, measured on the mesh: the cuts, the longest one's length
+// along its chain of split vertices (at rest) and the widest gap between the two lips of any cut
+// (paired vertices, as they are now).
+struct CutFigures {
+  std::size_t cuts = 0;
+  double longest_mm = 0, opening_mm = 0;
+  lancet::Vec3 from{}, to{};  ///< the longest cut's ends on the mesh (m)
+};
+CutFigures measure_cuts(const lancet::surface::SurfaceModel& model) {
+  CutFigures f;
+  f.cuts = model.cuts().size();
+  for (const auto& c : model.cuts()) {
+    double len = 0;
+    for (std::size_t i = 1; i < c.chain.size(); ++i)
+      len += lancet::norm(model.rest_position(c.chain[i]) - model.rest_position(c.chain[i - 1]));
+    if (len * 1e3 >= f.longest_mm && !c.chain.empty()) {
+      f.longest_mm = len * 1e3;
+      f.from = model.rest_position(c.chain.front());
+      f.to = model.rest_position(c.chain.back());
+    }
+    for (const auto& pr : c.pairs)
+      f.opening_mm = std::max(f.opening_mm, lancet::norm(model.position(pr.left) - model.position(pr.right)) * 1e3);
+  }
+  return f;
+}
+
 struct DrillStats {
   std::uint64_t removals = 0;       ///< kDrillRemove events applied to the volume
   std::uint64_t voxels = 0;         ///< voxels they removed
@@ -80,7 +106,7 @@ struct DrillStats {
 };
 
 bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
-                 const DrillStats& drill) {
+                 const DrillStats& drill, const CutFigures& cuts) {
   std::FILE* f = std::fopen(o.stats.c_str(), "w");
   if (f == nullptr) return false;
   const auto& st = s.stats();
@@ -90,7 +116,9 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
                "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
                "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
-               "  \"drill_removals_without_volume\": %llu,\n  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
+               "  \"drill_removals_without_volume\": %llu,\n  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
+               "  \"cut_opening_mm\": %.2f,\n  \"cut_from_mm\": [%.2f, %.2f, %.2f],\n  \"cut_to_mm\": [%.2f, %.2f, %.2f],\n"
+               "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
                : s.link() == lancet::viz::Link::kLost   ? "lost"
@@ -102,7 +130,9 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(s.patches_published()), static_cast<unsigned long long>(st.rejected),
                static_cast<unsigned long long>(st.ring_resets), static_cast<unsigned long long>(st.status_rejected),
                static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
-               static_cast<unsigned long long>(drill.without_volume), o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
+               static_cast<unsigned long long>(drill.without_volume), cuts.cuts, cuts.longest_mm, cuts.opening_mm,
+               cuts.from.x * 1e3, cuts.from.y * 1e3, cuts.from.z * 1e3, cuts.to.x * 1e3, cuts.to.y * 1e3, cuts.to.z * 1e3,
+               o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
 
@@ -406,7 +436,7 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
-  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats)) {
+  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats, measure_cuts(model))) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;
   }

@@ -279,6 +279,47 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
   EXPECT_GT(json_number(stats, "voxels_drilled").value_or(0), 0) << stats;
 }
 
+// The demo's scripted hand (docs/examples/demo_incision.csv, what ./lancet demo runs): the scalpel
+// presses until the skin ruptures, cuts along the line, lifts out; the retractor grabs beside the
+// incision and pulls it open. Measured on the viz's mesh: one cut, its length, its opening.
+TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
+  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/demo_incision.csv"});
+  ASSERT_TRUE(rt->running());
+  auto viz = start_viz({"--duration", "8", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
+                        path("demo.png")});
+  const auto vs = viz->wait_exit(90s);
+  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
+  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  rt->signal(SIGTERM);
+  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  std::ifstream trace(path("trace.csv"));
+  std::string line;
+  std::getline(trace, line);
+  std::size_t ruptures = 0, cutting = 0, pulls = 0;
+  while (std::getline(trace, line)) {
+    std::istringstream ss(line);
+    double t = 0, stage = 0, events = 0;
+    char comma = 0;
+    ss >> t >> comma >> stage >> comma >> events;
+    const auto ev = static_cast<std::uint32_t>(events);
+    ruptures += (ev & event::kRupture) != 0 ? 1 : 0;
+    pulls += (ev & event::kPull) != 0 ? 1 : 0;
+    cutting += static_cast<int>(stage) == static_cast<int>(Stage::kCutting) ? 1 : 0;
+  }
+  const std::string stats = read_file(path("viz.json"));
+  std::printf("[ info     ] demo hand: %zu rupture, %zu ticks cutting, %zu pull events; viz: %s cut(s), longest %s mm, "
+              "opened %s mm\n",
+              ruptures, cutting, pulls, std::to_string(json_number(stats, "cuts").value_or(-1)).c_str(),
+              std::to_string(json_number(stats, "longest_cut_mm").value_or(-1)).c_str(),
+              std::to_string(json_number(stats, "cut_opening_mm").value_or(-1)).c_str());
+  EXPECT_EQ(ruptures, 1u) << "the skin ruptures once under the scalpel";
+  EXPECT_GT(cutting, 2000u) << "then the blade cuts for seconds";
+  EXPECT_GT(pulls, 5u) << "the retractor pulls";
+  EXPECT_EQ(json_number(stats, "cuts").value_or(-1), 1) << stats;
+  EXPECT_GT(json_number(stats, "longest_cut_mm").value_or(0), 25) << "the 30 mm line, cut" << stats;
+  EXPECT_GT(json_number(stats, "cut_opening_mm").value_or(0), 3) << "and opened, lip to lip on the mesh" << stats;
+}
+
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto rt = start_rt();
   auto ch = SharedChannel::open(shm_);

@@ -35,13 +35,49 @@ TEST_F(TrajectoryFile, ErrorsNameTheLineAndField) {
   };
   EXPECT_NE(err("0,0,0,0\n1,abc,0,0\n").find("t.csv:2: x_mm: expected a number, found 'abc'"), std::string::npos);
   EXPECT_NE(err("0,0,0,0\n0,1,1,1\n").find("t.csv:2: t_s: times must increase"), std::string::npos);
-  EXPECT_NE(err("0,0,0\n").find("t.csv:1: expected 4 values"), std::string::npos);
+  EXPECT_NE(err("0,0,0\n").find("t.csv:1: expected 4 or 5 values"), std::string::npos);
+  EXPECT_NE(err("0,0,0,0,0,0\n").find("t.csv:1: expected 4 or 5 values"), std::string::npos);
+  EXPECT_NE(err("0,0,0,0,probe\n1,0,0,0,knife\n").find("t.csv:2: tool: expected probe, scalpel, retractor or drill, found 'knife'"),
+            std::string::npos);
   EXPECT_NE(err("-1,0,0,0\n").find("t_s: expected >= 0"), std::string::npos);
   EXPECT_NE(err("# nothing\n").find("no trajectory points"), std::string::npos);
   EXPECT_NE(err("0,0,0,nan\n").find("z_mm: expected a number"), std::string::npos);
   auto missing = load_trajectory_csv((dir_ / "none.csv").string());
   ASSERT_FALSE(missing.ok());
   EXPECT_EQ(missing.error().code, ErrorCode::kNotFound);
+}
+
+TEST_F(TrajectoryFile, AFifthCellPicksTheToolFromThatTimeOn) {
+  const auto p = write("t.csv", "t_s,x_mm,y_mm,z_mm,tool\n0,0,0,30,scalpel\n0.2,0,0,30\n0.4,0,0,30,retractor\n0.6,0,0,30,\n");
+  auto r = load_trajectory_csv(p);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Trajectory& tr = r.value();
+  ASSERT_EQ(tr.tools.size(), 2u);
+  EXPECT_EQ(tr.tools[0].t, 0.0);
+  EXPECT_EQ(tr.tools[0].mode, static_cast<std::uint8_t>(ToolMode::kScalpel));
+  EXPECT_EQ(tr.tools[1].t, 0.4);
+  EXPECT_EQ(tr.tools[1].mode, static_cast<std::uint8_t>(ToolMode::kRetractor));
+  // The servo replaying it takes each tool when its time comes; a key in between holds until the
+  // script's next change.
+  app::RtModel model;
+  model.trajectory = &tr;
+  auto shared = std::make_unique<SharedState>();
+  std::int64_t t = 1'000'000'000;
+  app::RtServo servo(model, *shared, t);
+  rt::Watchdog wd;
+  rt::LoopLive live;
+  ToolMode at_100ms = ToolMode::kProbe, at_600ms = ToolMode::kProbe;
+  for (std::uint64_t n = 1; n <= 700; ++n) {
+    t += model.period_ns;
+    servo.tick(rt::TickContext{t, t, n, wd, live});
+    ToolSample s;
+    while (shared->samples.try_pop(s)) {
+      if (n == 100) at_100ms = s.mode;
+      if (n == 600) at_600ms = s.mode;
+    }
+  }
+  EXPECT_EQ(at_100ms, ToolMode::kScalpel);
+  EXPECT_EQ(at_600ms, ToolMode::kRetractor);
 }
 
 TEST(TrajectoryServo, TheSimulatedHandFollowsTheRecording) {
