@@ -22,6 +22,7 @@ std::uint32_t idx(VH v) { return static_cast<std::uint32_t>(v.idx()); }
 
 constexpr double kMinArea = 1e-14;  // m²: below this a face counts as degenerate
 constexpr int kMaxWalkSteps = 4096;
+constexpr double kCutReach = 0.02;  // m: a blade tip this close to the surface cuts the point over it
 
 }  // namespace
 
@@ -471,6 +472,11 @@ void SurfaceModel::end_cut() {
 CutStepResult SurfaceModel::cut_to(Vec3 target) {
   CutStepResult r;
   if (!cutting() || !is_finite(target)) return r;
+  // The blade's tip is under the skin, often millimetres deep: cut towards the surface point over
+  // it. (Walking towards the deep point itself, its depth projected onto a sloping face outweighs
+  // a small step along the surface, and the cut runs downhill or stalls.)
+  Vec3 on_surface;
+  if (locate(target, kCutReach, &on_surface)) target = on_surface;
   Cut& cut = cuts_.back();
   cut.path.push_back(target);
 

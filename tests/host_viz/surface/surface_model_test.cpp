@@ -146,6 +146,25 @@ TEST(SurfaceModel, StraightCutSplitsTheMeshAlongThePath) {
   }
 }
 
+TEST(SurfaceModel, ABladeTipUnderTheSkinCutsTheSurfaceOverIt) {
+  // lancet-rt's blade is millimetres under the skin, and its path may run exactly along a row of
+  // mesh edges; in fine steps (one per servo tick) the cut still follows it to the end. (It once
+  // walked towards the deep point itself, ran downhill on the sloping faces and stalled.)
+  auto s = sheet(40);  // 1.5 mm cells: y = 0 is a row of edges
+  ASSERT_TRUE(s->begin_cut(on_sheet(-0.012, 0.0)));
+  for (int i = 1; i <= 2400; ++i) {
+    const double x = -0.012 + 0.024 * i / 2400.0;
+    const double jitter = (i % 2 != 0 ? 1 : -1) * 2e-7;
+    (void)s->cut_to(on_sheet(x, jitter) - Vec3{0, 0, 0.004});
+  }
+  s->end_cut();
+  const Cut& cut = s->cuts().front();
+  const Vec3 end = s->rest_position(cut.chain.back());
+  EXPECT_NEAR(end.x, 0.012, 0.002) << "the cut reached the end of the line";
+  EXPECT_NEAR(end.y, 0.0, 0.001);
+  EXPECT_GE(cut.chain.size(), 14u);
+}
+
 TEST(SurfaceModel, RandomCutsKeepTheInvariantsAfterEveryStep) {
   for (std::uint32_t seed : {1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u}) {
     auto s = sheet(36);
