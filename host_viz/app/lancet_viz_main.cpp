@@ -99,6 +99,34 @@ CutFigures measure_cuts(const lancet::surface::SurfaceModel& model) {
   return f;
 }
 
+// What lancet-rt's events said happened, for the trainee (the overlay) and the stats.
+struct EventTally {
+  std::uint64_t contacts = 0, ruptures = 0, grabs = 0, releases = 0, clamped_ticks = 0, fault_ticks = 0;
+  std::string last;  ///< the newest event worth a line on screen
+  void add(const lancet::ToolSample& t) {
+    using namespace lancet::event;
+    char buf[128];
+    if ((t.events & kContactBegin) != 0) ++contacts;
+    if ((t.events & kRupture) != 0) {
+      ++ruptures;
+      std::snprintf(buf, sizeof buf, "the skin ruptured at %.1f N: cutting", t.payload.magnitude);
+      last = buf;
+    }
+    if ((t.events & kGrab) != 0) {
+      ++grabs;
+      last = "the retractor holds the skin";
+    }
+    if ((t.events & kRelease) != 0) {
+      ++releases;
+      last = "the grip slipped: pulled past the skin's elastic limit";
+    }
+    if ((t.events & kForceClamped) != 0) {
+      if (clamped_ticks++ == 0 || last.rfind("force limited", 0) != 0) last = "force limited by the safety clamp: press less hard";
+    }
+    if ((t.events & kFault) != 0) ++fault_ticks;
+  }
+};
+
 struct DrillStats {
   std::uint64_t removals = 0;       ///< kDrillRemove events applied to the volume
   std::uint64_t voxels = 0;         ///< voxels they removed
@@ -106,7 +134,7 @@ struct DrillStats {
 };
 
 bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
-                 const DrillStats& drill, const CutFigures& cuts) {
+                 const DrillStats& drill, const CutFigures& cuts, const EventTally& ev) {
   std::FILE* f = std::fopen(o.stats.c_str(), "w");
   if (f == nullptr) return false;
   const auto& st = s.stats();
@@ -118,6 +146,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
                "  \"drill_removals_without_volume\": %llu,\n  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
                "  \"cut_opening_mm\": %.2f,\n  \"cut_from_mm\": [%.2f, %.2f, %.2f],\n  \"cut_to_mm\": [%.2f, %.2f, %.2f],\n"
+               "  \"contacts\": %llu,\n  \"ruptures\": %llu,\n  \"grabs\": %llu,\n  \"releases\": %llu,\n"
+               "  \"clamped_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
                "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
@@ -132,12 +162,15 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
                static_cast<unsigned long long>(drill.without_volume), cuts.cuts, cuts.longest_mm, cuts.opening_mm,
                cuts.from.x * 1e3, cuts.from.y * 1e3, cuts.from.z * 1e3, cuts.to.x * 1e3, cuts.to.y * 1e3, cuts.to.z * 1e3,
+               static_cast<unsigned long long>(ev.contacts), static_cast<unsigned long long>(ev.ruptures),
+               static_cast<unsigned long long>(ev.grabs), static_cast<unsigned long long>(ev.releases),
+               static_cast<unsigned long long>(ev.clamped_ticks), static_cast<unsigned long long>(ev.fault_ticks),
                o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
 
 std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSession& s, const Interaction& ui,
-                                                      bool headless) {
+                                                      bool headless, const EventTally& events) {
   using lancet::render::OverlayLine;
   std::vector<OverlayLine> lines;
   lines.push_back({s.link_message(), s.link() != lancet::viz::Link::kConnected});
@@ -164,6 +197,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
                   t.tool.position.y * 1e3, t.tool.position.z * 1e3);
     lines.push_back({buf});
   }
+  if (!events.last.empty()) lines.push_back({events.last, events.last.rfind("force limited", 0) == 0});
   const auto& st = s.stats();
   std::snprintf(buf, sizeof buf, "samples %llu received, %llu lost, %llu out of order; patch %u triangles",
                 static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(st.lost),
@@ -284,6 +318,7 @@ int main(int argc, char** argv) {
   // Every drained sample: to the trace, and the drill's removals into the volume, before this
   // frame's patch is cut from it (so the next brick shows them; lancet-rt re-carves the newer ones).
   DrillStats drill_stats;
+  EventTally events;
   if (phantom) {
     session.set_brick_source([&](lancet::Vec3 centre, lancet::VoxelBrick& brick) {
       lancet::hybrid::fill_brick(phantom->volume, placement, centre, brick);
@@ -292,6 +327,7 @@ int main(int argc, char** argv) {
   session.set_sample_sink([&, f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
       const lancet::ToolSample& t = s[i];
+      events.add(t);
       if (f != nullptr) {
         const lancet::Vec3 a = t.tool.position * 1e3, b = t.proxy.position * 1e3;
         std::fprintf(f, "%.6f,%u,%u,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%llu\n", static_cast<double>(t.t_ns) * 1e-9,
@@ -409,7 +445,7 @@ int main(int argc, char** argv) {
       in.patch = session.patches_published() > 0 ? &session.patch() : nullptr;
       in.camera_yaw = ui.yaw, in.camera_pitch = ui.pitch, in.camera_distance = ui.distance;
       renderer.render(in);
-      overlay.draw("Lancet", status_lines(session, ui, o.headless), renderer.width(), renderer.height());
+      overlay.draw("Lancet", status_lines(session, ui, o.headless, events), renderer.width(), renderer.height());
       if (!o.headless) renderer.present(fw, fh);
       win.swap_and_poll();
       ++frames;
@@ -436,7 +472,7 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
-  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats, measure_cuts(model))) {
+  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats, measure_cuts(model), events)) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;
   }

@@ -68,10 +68,12 @@ bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
       [&](const ToolSample* batch, std::size_t n) {
         for (std::size_t i = 0; i < n; ++i) {
           const ToolSample& t = batch[i];
-          const bool cutting = t.stage == Stage::kRupture || t.stage == Stage::kCutting;
+          // The cut grows by lancet-rt's cut progress events (every 0.5 mm of blade travel), the
+          // stages change and pulls apply as they come, the dent follows the newest sample.
+          const bool cut_step = t.stage == Stage::kCutting && (t.events & event::kCutProgress) != 0;
           const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & (event::kRupture | event::kPull)) != 0;
           const bool last = i + 1 == n;
-          if (!(cutting || transition || last)) continue;
+          if (!(cut_step || transition || last)) continue;
           model.apply(t, fed_any_ ? dt_between(fed_, t) : 0.0);
           fed_ = t;
           fed_any_ = true;

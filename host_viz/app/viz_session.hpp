@@ -37,10 +37,10 @@ class VizSession {
   /// One frame's worth of link work at now_ns (CLOCK_MONOTONIC). Not real-time; allocates only
   /// while its scratch buffers grow.
   void frame(std::int64_t now_ns, const surface::TriangleMesh& mesh);
-  /// The same with the surface model: the drained ToolSamples also drive it (every cutting
-  /// sample extends the cut, so the path keeps lancet-rt's resolution; stage changes and pulls
-  /// apply as they come; the dent and the relaxation follow the newest sample once a frame), and
-  /// the patch comes from its BVH. Returns true when the model changed shape this frame.
+  /// The same with the surface model: the drained ToolSamples also drive it (lancet-rt's cut
+  /// progress events, every 0.5 mm of blade travel, extend the cut; stage changes and pulls apply
+  /// as they come; the dent and the relaxation follow the newest sample once a frame), and the
+  /// patch comes from its BVH. Returns true when the model changed shape this frame.
   bool frame(std::int64_t now_ns, surface::SurfaceModel& model);
 
   /// Sets (active=true) or releases the stylus target sent to the simulated arm.

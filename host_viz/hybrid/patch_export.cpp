@@ -70,24 +70,6 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   out.n_triangles = static_cast<std::uint32_t>(keep);
   out.centre = centre;
   out.radius = params.radius;
-  // The newest cut's state and the blade frame along its path.
-  out.cut = CutState{};
-  out.cut.n_cuts = static_cast<std::uint32_t>(model.cuts().size());
-  if (!model.cuts().empty()) {
-    const surface::Cut& c = model.cuts().back();
-    out.cut.active = c.active ? 1u : 0u;
-    out.cut.entry = c.path.front();
-    out.cut.last = c.path.back();
-    out.cut.opening_width = c.opening;
-    if (c.active && c.path.size() >= 2) {
-      const Vec3 dir = normalized(c.path.back() - c.path[c.path.size() - 2]);
-      const auto n = mesh.normal(surface::SurfaceMesh::VertexHandle(static_cast<int>(c.chain.back())));
-      const Vec3 surface_normal{n[0], n[1], n[2]};
-      out.blade.origin = c.path.back();
-      out.blade.direction = dir;
-      out.blade.normal = normalized(cross(dir, surface_normal));  // the blade plane holds the path and the normal
-    }
-  }
   out.brick.valid = 0;
   if (brick) brick(centre, out.brick);
   return cand.size();

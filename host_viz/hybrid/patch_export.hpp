@@ -1,7 +1,7 @@
 #pragma once
 // TissuePatch export: the triangles of the surface near the tool, nearest first, up to the
-// patch capacity, for lancet-rt's haptic step. (The surface-model issue adds the BVH query, cut
-// state and blade frame; this version scans the placeholder mesh.)
+// patch capacity, for lancet-rt's haptic step: from a plain triangle mesh by a scan, or from the
+// surface model through its BVH, with the voxel brick of the scene's volume.
 
 #include <cstddef>
 #include <cstdint>
@@ -26,7 +26,7 @@ struct PatchExportScratch {
 };
 
 /// Fills out.triangles / n_triangles / centre / radius from mesh around centre; leaves seq, t_ns,
-/// blade, cut and brick to the caller. Returns the number of triangles found within the radius
+/// samples_applied and brick to the caller. Returns the number of triangles found within the radius
 /// (may exceed kPatchCapacity; only the nearest kPatchCapacity are exported).
 std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const PatchExportParams& params,
                          PatchExportScratch& scratch, TissuePatch& out);
@@ -38,8 +38,9 @@ using BrickSource = std::function<void(Vec3 centre, VoxelBrick& brick)>;
 /// not the mesh): triangles within params.radius of centre by exact point–triangle distance,
 /// nearest first up to kPatchCapacity, at their haptic positions (SurfaceModel::haptic_position:
 /// the cut opening and the wrinkle, not the tool's own dent), material ids, kTriangleOnCutEdge on
-/// triangles with an open edge; also the cut state and the blade frame of the newest cut, and
-/// the brick from `brick` when given. Leaves seq and t_ns to the caller.
+/// triangles with an open edge (lancet-rt's proxy does not push a tool found behind them out:
+/// it may be inside the incision), and the brick from `brick` when given. Leaves seq, t_ns and
+/// samples_applied to the caller.
 std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,
                          PatchExportScratch& scratch, TissuePatch& out, const BrickSource& brick = {});
 

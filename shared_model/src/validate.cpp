@@ -112,11 +112,6 @@ const char* check(const TissuePatch& p, std::int64_t now_ns) noexcept {
   if (p.n_triangles > kPatchCapacity) return "patch.n_triangles: above the capacity";
   if (!timestamp_ok(p.t_ns, now_ns)) return "patch.t_ns: not set or in the future";
   if (!position_ok(p.centre) || !in(p.radius, 0, kMaxCoordinate)) return "patch.centre/radius: not finite or out of range";
-  if (!position_ok(p.blade.origin) || !direction_ok(p.blade.direction) || !direction_ok(p.blade.normal))
-    return "patch.blade: not finite or out of range";
-  const CutState& c = p.cut;
-  if (!flag_ok(c.active) || !position_ok(c.entry) || !position_ok(c.last) || !in(c.opening_width, 0, 1.0))
-    return "patch.cut: not finite or out of range";
   for (std::uint32_t i = 0; i < p.n_triangles; ++i) {
     const PatchTriangle& t = p.triangles[i];
     if (!position_ok(t.v[0]) || !position_ok(t.v[1]) || !position_ok(t.v[2]))

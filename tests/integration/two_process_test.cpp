@@ -318,6 +318,10 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   EXPECT_EQ(json_number(stats, "cuts").value_or(-1), 1) << stats;
   EXPECT_GT(json_number(stats, "longest_cut_mm").value_or(0), 25) << "the 30 mm line, cut" << stats;
   EXPECT_GT(json_number(stats, "cut_opening_mm").value_or(0), 3) << "and opened, lip to lip on the mesh" << stats;
+  // The viz heard lancet-rt's events too (what its overlay tells the trainee).
+  EXPECT_EQ(json_number(stats, "ruptures").value_or(-1), 1) << stats;
+  EXPECT_GE(json_number(stats, "grabs").value_or(0), 1) << stats;
+  EXPECT_GE(json_number(stats, "contacts").value_or(0), 1) << stats;
 }
 
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {

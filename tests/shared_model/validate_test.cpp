@@ -36,7 +36,6 @@ std::unique_ptr<TissuePatch> good_patch() {
   p->n_triangles = 2;
   p->triangles[0] = {{{0, 0, 0}, {0.01f, 0, 0}, {0, 0.01f, 0}}, 1, kTriangleOnCutEdge};
   p->triangles[1] = {{{0, 0, 0}, {0.01f, 0.01f, 0}, {0, 0.01f, 0}}, 2, 0};
-  p->blade.direction = {1, 0, 0};
   p->brick.valid = 1;
   p->brick.dim = kBrickDim;
   p->brick.spacing = {0.0005, 0.0005, 0.001};
@@ -142,10 +141,7 @@ TEST(WireCheck, PatchDamageIsCaught) {
   p->brick.spacing.z = -1;
   EXPECT_NE(check(*p, kNow), nullptr);
   p = good_patch();
-  p->cut.opening_width = kNan;
-  EXPECT_NE(check(*p, kNow), nullptr);
-  p = good_patch();
-  p->blade.normal = {3, 0, 0};
+  p->centre.y = kNan;
   EXPECT_NE(check(*p, kNow), nullptr);
   // Triangles past n_triangles are not the patch: garbage there is fine.
   p = good_patch();

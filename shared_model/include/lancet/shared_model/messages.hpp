@@ -39,7 +39,7 @@ namespace event {
 inline constexpr std::uint32_t kContactBegin = 1u << 0;
 inline constexpr std::uint32_t kContactEnd = 1u << 1;
 inline constexpr std::uint32_t kRupture = 1u << 2;      ///< payload: position, normal, blade direction
-inline constexpr std::uint32_t kCutProgress = 1u << 3;  ///< payload: proxy position on the cut path
+inline constexpr std::uint32_t kCutProgress = 1u << 3;  ///< every 0.5 mm of cut; payload: proxy position on the cut path
 inline constexpr std::uint32_t kGrab = 1u << 4;         ///< payload: control point
 inline constexpr std::uint32_t kPull = 1u << 5;         ///< payload: control point, displacement (m)
 inline constexpr std::uint32_t kRelease = 1u << 6;
@@ -118,22 +118,6 @@ struct PatchTriangle {
 };
 inline constexpr std::uint16_t kTriangleOnCutEdge = 1u << 0;
 
-/// Blade frame of the scalpel, as the viz last saw it.
-struct BladeFrame {
-  Vec3 origin;     ///< blade tip (m)
-  Vec3 direction;  ///< unit cutting direction (along the edge)
-  Vec3 normal;     ///< unit normal of the blade plane
-};
-
-/// State of the cut the tool is making.
-struct CutState {
-  std::uint32_t active;      ///< 1 while a cut is in progress
-  std::uint32_t n_cuts;      ///< cuts made on this tissue so far
-  Vec3 entry;                ///< where the current cut entered (m)
-  Vec3 last;                 ///< last point of the current cut path (m)
-  double opening_width;      ///< current opening D of the cut (m)
-};
-
 /// Small cube of CT densities around the tool, for volume haptics and drilling.
 struct VoxelBrick {
   std::uint32_t valid;       ///< 1 when hu holds data
@@ -154,8 +138,6 @@ struct TissuePatch {
   double radius;             ///< query radius (m)
   std::uint32_t n_triangles; ///< valid entries in triangles
   std::uint32_t reserved0;
-  BladeFrame blade;
-  CutState cut;
   PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)
   VoxelBrick brick;
 };
@@ -258,8 +240,6 @@ LANCET_ASSERT_WIRE_TYPE(ToolSample);
 LANCET_ASSERT_WIRE_TYPE(MaterialParams);
 LANCET_ASSERT_WIRE_TYPE(Command);
 LANCET_ASSERT_WIRE_TYPE(PatchTriangle);
-LANCET_ASSERT_WIRE_TYPE(BladeFrame);
-LANCET_ASSERT_WIRE_TYPE(CutState);
 LANCET_ASSERT_WIRE_TYPE(VoxelBrick);
 LANCET_ASSERT_WIRE_TYPE(TissuePatch);
 LANCET_ASSERT_WIRE_TYPE(StylusTarget);
