@@ -101,12 +101,15 @@ CutFigures measure_cuts(const lancet::surface::SurfaceModel& model) {
 
 // What lancet-rt's events said happened, for the trainee (the overlay) and the stats.
 struct EventTally {
-  std::uint64_t contacts = 0, ruptures = 0, grabs = 0, releases = 0, clamped_ticks = 0, fault_ticks = 0;
+  std::uint64_t contacts = 0, contact_ends = 0, ruptures = 0, grabs = 0, releases = 0, clamped_ticks = 0, faded_ticks = 0,
+                fault_ticks = 0;
   std::string last;  ///< the newest event worth a line on screen
   void add(const lancet::ToolSample& t) {
     using namespace lancet::event;
     char buf[128];
     if ((t.events & kContactBegin) != 0) ++contacts;
+    if ((t.events & kContactEnd) != 0) ++contact_ends;
+    if ((t.events & kForceFaded) != 0) ++faded_ticks;
     if ((t.events & kRupture) != 0) {
       ++ruptures;
       std::snprintf(buf, sizeof buf, "the skin ruptured at %.1f N: cutting", t.payload.magnitude);
@@ -146,8 +149,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
                "  \"drill_removals_without_volume\": %llu,\n  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
                "  \"cut_opening_mm\": %.2f,\n  \"cut_from_mm\": [%.2f, %.2f, %.2f],\n  \"cut_to_mm\": [%.2f, %.2f, %.2f],\n"
-               "  \"contacts\": %llu,\n  \"ruptures\": %llu,\n  \"grabs\": %llu,\n  \"releases\": %llu,\n"
-               "  \"clamped_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
+               "  \"contacts\": %llu,\n  \"contact_ends\": %llu,\n  \"ruptures\": %llu,\n  \"grabs\": %llu,\n  \"releases\": %llu,\n"
+               "  \"clamped_ticks\": %llu,\n  \"faded_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
                "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
@@ -162,9 +165,11 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
                static_cast<unsigned long long>(drill.without_volume), cuts.cuts, cuts.longest_mm, cuts.opening_mm,
                cuts.from.x * 1e3, cuts.from.y * 1e3, cuts.from.z * 1e3, cuts.to.x * 1e3, cuts.to.y * 1e3, cuts.to.z * 1e3,
-               static_cast<unsigned long long>(ev.contacts), static_cast<unsigned long long>(ev.ruptures),
+               static_cast<unsigned long long>(ev.contacts), static_cast<unsigned long long>(ev.contact_ends),
+               static_cast<unsigned long long>(ev.ruptures),
                static_cast<unsigned long long>(ev.grabs), static_cast<unsigned long long>(ev.releases),
-               static_cast<unsigned long long>(ev.clamped_ticks), static_cast<unsigned long long>(ev.fault_ticks),
+               static_cast<unsigned long long>(ev.clamped_ticks), static_cast<unsigned long long>(ev.faded_ticks),
+               static_cast<unsigned long long>(ev.fault_ticks),
                o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
