@@ -66,12 +66,21 @@ bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
   run_frame(
       now_ns,
       [&](const ToolSample* batch, std::size_t n) {
+        // A pull sets the opening to the hand's displacement (not by it): of a run of pulls in
+        // one stage, only the newest counts.
+        std::size_t last_pull = n;
+        for (std::size_t i = n; i-- > 0;) {
+          if ((batch[i].events & event::kPull) != 0) {
+            last_pull = i;
+            break;
+          }
+        }
         for (std::size_t i = 0; i < n; ++i) {
           const ToolSample& t = batch[i];
           // The cut grows by lancet-rt's cut progress events (every 0.5 mm of blade travel), the
           // stages change and pulls apply as they come, the dent follows the newest sample.
           const bool cut_step = t.stage == Stage::kCutting && (t.events & event::kCutProgress) != 0;
-          const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & (event::kRupture | event::kPull)) != 0;
+          const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & event::kRupture) != 0 || i == last_pull;
           const bool last = i + 1 == n;
           if (!(cut_step || transition || last)) continue;
           model.apply(t, fed_any_ ? dt_between(fed_, t) : 0.0);

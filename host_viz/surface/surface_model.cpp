@@ -596,21 +596,50 @@ void SurfaceModel::apply_opening(Cut& cut) {
   }
   cut.spread.clear();
   const double spread = params_.open_spread;
-  for (const auto& pr : cut.pairs) mark_[pr.left] = mark_[pr.right] = 2;  // the pairs themselves: full offset below
-  if (cut.opening > 0 && spread > 0)
-    for (const auto& pr : cut.pairs) {
-      bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(spread + cut.opening), scratch_faces_);
-      for (std::uint32_t f : scratch_faces_)
-        for (std::uint32_t v : faces_[f])
-          if (mark_[v] == 0) {
-            mark_[v] = 1;
-            cut.spread.push_back(v);
-          }
-    }
+  if (cut.spread_map_pairs != n) build_spread_map(cut);
   const auto taper = [n](std::size_t i) {  // a lens: widest in the middle, closed at S and E
     return std::sin(std::numbers::pi * static_cast<double>(i + 1) / static_cast<double>(n + 1));
   };
-  for (std::uint32_t v : cut.spread) {
+  if (cut.opening > 0 && spread > 0)
+    for (const auto& e : cut.spread_map) {
+      const auto& pr = cut.pairs[e.pair];
+      open_[e.vertex] = pf(pr.v_co * (e.side_fall * cut.opening / 2 * taper(e.pair)));
+      cut.spread.push_back(e.vertex);
+      scratch_touched_.push_back(e.vertex);
+    }
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& pr = cut.pairs[i];
+    const P off = pf(pr.v_co * (cut.opening / 2 * taper(i)));
+    open_[pr.left] = -off;
+    open_[pr.right] = off;
+    scratch_touched_.push_back(pr.left);
+    scratch_touched_.push_back(pr.right);
+  }
+  for (std::uint32_t v : scratch_touched_) set_current(v);
+  refresh(scratch_touched_);
+}
+
+// Every vertex within open_spread (at rest) of the cut's pairs, with its nearest pair and signed
+// falloff. Gathered through the BVH around the pairs' current positions with room for the widest
+// opening, so it does not depend on how open the cut is now.
+void SurfaceModel::build_spread_map(Cut& cut) {
+  const std::size_t n = cut.pairs.size();
+  cut.spread_map.clear();
+  cut.spread_map_pairs = n;
+  const double spread = params_.open_spread;
+  if (n == 0 || !(spread > 0)) return;
+  for (const auto& pr : cut.pairs) mark_[pr.left] = mark_[pr.right] = 2;  // the pairs themselves move in full
+  scratch_vertices_.clear();
+  for (const auto& pr : cut.pairs) {
+    bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(spread + params_.open_limit), scratch_faces_);
+    for (std::uint32_t f : scratch_faces_)
+      for (std::uint32_t v : faces_[f])
+        if (mark_[v] == 0) {
+          mark_[v] = 1;
+          scratch_vertices_.push_back(v);
+        }
+  }
+  for (std::uint32_t v : scratch_vertices_) {
     mark_[v] = 0;
     const Vec3 p = rest_position(v);
     std::size_t best = 0;
@@ -623,23 +652,12 @@ void SurfaceModel::apply_opening(Cut& cut) {
       }
     }
     const double d = std::sqrt(d2);
+    if (!(d < spread)) continue;
     const auto& pr = cut.pairs[best];
     const double side = dot(p - pr.rest_left, pr.v_co) >= 0 ? 1.0 : -1.0;
-    const double fall = d < spread ? (1 - d / spread) * (1 - d / spread) : 0.0;
-    open_[v] = pf(pr.v_co * (side * cut.opening / 2 * taper(best) * fall));
-    scratch_touched_.push_back(v);
+    cut.spread_map.push_back({v, static_cast<std::uint32_t>(best), static_cast<float>(side * (1 - d / spread) * (1 - d / spread))});
   }
-  for (std::size_t i = 0; i < n; ++i) {
-    const auto& pr = cut.pairs[i];
-    mark_[pr.left] = mark_[pr.right] = 0;
-    const P off = pf(pr.v_co * (cut.opening / 2 * taper(i)));
-    open_[pr.left] = -off;
-    open_[pr.right] = off;
-    scratch_touched_.push_back(pr.left);
-    scratch_touched_.push_back(pr.right);
-  }
-  for (std::uint32_t v : scratch_touched_) set_current(v);
-  refresh(scratch_touched_);
+  for (const auto& pr : cut.pairs) mark_[pr.left] = mark_[pr.right] = 0;
 }
 
 double SurfaceModel::set_opening(std::size_t c, double width) {
@@ -655,6 +673,15 @@ double SurfaceModel::pull(std::size_t c, double displacement) {
   // The wrinkle: skin beside the cut buckles along its normal, oscillating with distance from
   // the cut and decaying away from it.
   const Cut& cut = cuts_[c];
+  // Where the skin wrinkles, and its profile, follow from the cut's rest geometry alone: computed
+  // once per cut and pair count, then each pull only rescales it.
+  if (!wrinkled_.empty() && wrinkle_cut_ == c && wrinkle_pairs_ == cut.pairs.size()) {
+    wrinkle_level_ = 0.25 * width;
+    relax(0);
+    return width;
+  }
+  wrinkle_cut_ = c;
+  wrinkle_pairs_ = cut.pairs.size();
   for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0);
   wrinkled_.clear();
   wrinkle_amp_.clear();

@@ -95,6 +95,14 @@ struct Cut {
   std::vector<Vec3> path;                    ///< m, the tool path points fed to the cut
   double opening = 0;                        ///< m, current opening width D
   std::vector<std::uint32_t> spread;         ///< vertices beside the cut moved by the opening
+  /// Per vertex within open_spread of the cut (at rest): its nearest pair and its signed falloff.
+  /// It depends on the rest geometry only, so it is rebuilt when pairs are added, not per opening.
+  struct SpreadEntry {
+    std::uint32_t vertex, pair;
+    float side_fall;                         ///< ±(1 − d / open_spread)², the side of the cut times the falloff
+  };
+  std::vector<SpreadEntry> spread_map;
+  std::size_t spread_map_pairs = 0;          ///< pairs.size() when spread_map was built (0: not built)
   bool active = false;
 };
 
@@ -191,6 +199,7 @@ class SurfaceModel {
   bool reattach(const std::vector<std::uint32_t>& faces, std::uint32_t from, std::uint32_t to);
   std::size_t split_fans(std::uint32_t v);
   void apply_opening(Cut& cut);
+  void build_spread_map(Cut& cut);
 
   SurfaceParams params_;
   SurfaceMesh mesh_;
@@ -207,6 +216,7 @@ class SurfaceModel {
   std::vector<std::uint32_t> wrinkled_;
   std::vector<float> wrinkle_amp_;                 ///< per vertex in wrinkled_: its profile
   double wrinkle_level_ = 0;                       ///< current wrinkle amplitude (m)
+  std::size_t wrinkle_cut_ = 0, wrinkle_pairs_ = 0; ///< the cut (and its pair count) wrinkled_ was made for
   TriangleBvh bvh_;
   std::uint64_t revision_ = 0;
   std::vector<Cut> cuts_;

@@ -1,0 +1,198 @@
+// lancet-bench-scene: one lancet-viz frame's scene update, as the viz runs it: the 16 ToolSamples
+// of 16 ms at 1 kHz drained from the shared ring (checked), applied to the surface model (dent,
+// rupture, the cut growing by progress events, the retractor's pull), the TissuePatch exported
+// around the tool (with the voxel brick on the phantom) and written to the segment; then, apart,
+// the copy of the mesh for drawing that follows a change of shape. On the phantom's skin and on a
+// 1M-triangle sheet. The target: p99 < 4 ms for the update. Prints one JSON object.
+//   lancet-bench-scene [--quick]
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "app/viz_session.hpp"
+#include "hybrid/volume_brick.hpp"
+#include "surface/placeholder_mesh.hpp"
+#include "surface/surface_model.hpp"
+#include "volume/marching_cubes.hpp"
+#include "volume/phantom.hpp"
+
+namespace {
+
+using namespace lancet;
+using Clock = std::chrono::steady_clock;
+
+double us_since(Clock::time_point t0) { return std::chrono::duration<double, std::micro>(Clock::now() - t0).count(); }
+
+struct Pct {
+  double p50 = 0, p99 = 0, max = 0;
+};
+Pct percentiles(std::vector<double> v) {
+  if (v.empty()) return {};
+  std::sort(v.begin(), v.end());
+  const auto at = [&](double q) { return v[static_cast<std::size_t>(q * static_cast<double>(v.size() - 1))]; };
+  return {at(0.5), at(0.99), v.back()};
+}
+
+struct Tissue {
+  std::string name;
+  surface::TriangleMesh mesh;
+  std::optional<volume::Phantom> phantom;
+  hybrid::VolumePlacement placement;
+  std::function<double(double, double)> height;  ///< surface height at (x, y), m
+};
+
+Tissue phantom_tissue() {
+  Tissue t;
+  t.name = "phantom skin";
+  t.phantom = volume::make_phantom({});
+  volume::IsoOptions o;
+  o.iso = -300;
+  o.pad_border = true;
+  o.pad_value = -1000;
+  auto s = volume::extract_isosurface(t.phantom->volume, o, t.phantom->material);
+  const auto& iso = s.value();
+  float top = -1e9f;
+  for (const auto& p : iso.positions) top = std::max(top, p.y);
+  t.placement.axis = {2, 0, 1};
+  t.placement.offset = {0, 0, -static_cast<double>(top)};
+  for (const auto& p : iso.positions) t.mesh.vertices.push_back(to_vec3f(t.placement.to_world(to_vec3(p))));
+  t.mesh.triangles = iso.triangles;
+  for (const auto& tri : iso.triangles) t.mesh.material.push_back(iso.material[tri[0]]);
+  // The skin's top along x near y = 0 (where the tool works): the highest vertex in each 1 mm
+  // slab of x within 2 mm of y = 0.
+  auto top_by_x = std::make_shared<std::vector<double>>(400, -1.0);  // x from −0.2 m in 1 mm slabs
+  for (const auto& v : t.mesh.vertices) {
+    const auto slab = static_cast<long>(std::floor((v.x + 0.2) / 0.001));
+    if (slab >= 0 && slab < 400 && std::abs(v.y) < 0.002) (*top_by_x)[static_cast<std::size_t>(slab)] =
+        std::max((*top_by_x)[static_cast<std::size_t>(slab)], static_cast<double>(v.z));
+  }
+  t.height = [top_by_x](double x, double) {
+    const auto slab = static_cast<long>(std::floor((x + 0.2) / 0.001));
+    return slab >= 0 && slab < 400 ? (*top_by_x)[static_cast<std::size_t>(slab)] : -1.0;
+  };
+  return t;
+}
+
+Tissue sheet_tissue() {
+  Tissue t;
+  t.name = "sheet 1M triangles";
+  surface::TissueBlockParams p;
+  p.cells = 707;  // 2 · 707² ≈ 1.0M triangles of 1 mm cells, 0.71 m across
+  p.half_extent = 0.0005 * p.cells;
+  t.mesh = surface::make_tissue_block(p);
+  t.height = [p](double x, double y) { return surface::tissue_block_height(p, x, y); };
+  return t;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  const int press_frames = quick ? 30 : 60, cut_frames = quick ? 60 : 150, pull_frames = quick ? 30 : 60;
+  constexpr int kSamplesPerFrame = 16;
+  std::printf("{\n  \"samples_per_frame\": %d,\n  \"frames\": {\"press\": %d, \"cut\": %d, \"pull\": %d},\n  \"tissues\": [\n",
+              kSamplesPerFrame, press_frames, cut_frames, pull_frames);
+  Tissue tissues[2] = {phantom_tissue(), sheet_tissue()};
+  for (int n = 0; n < 2; ++n) {
+    Tissue& tissue = tissues[n];
+    auto model = std::move(surface::SurfaceModel::create(tissue.mesh.vertices, tissue.mesh.triangles, tissue.mesh.material).value());
+    const std::string shm = "/lancet-bench-scene-" + std::to_string(getpid());
+    auto channel = SharedChannel::create(shm, {});
+    if (!channel) {
+      std::fprintf(stderr, "lancet-bench-scene: %s\n", channel.error().message.c_str());
+      return 1;
+    }
+    SharedState& s = channel.value().state();
+    viz::VizSessionParams vp;
+    vp.shm_name = shm;
+    viz::VizSession session(vp);
+    if (tissue.phantom) {
+      session.set_brick_source([&](Vec3 c, VoxelBrick& b) { hybrid::fill_brick(tissue.phantom->volume, tissue.placement, c, b); });
+    }
+    std::int64_t now = monotonic_ns();
+    s.rt_heartbeat.beat(now, getpid());
+    (void)session.frame(now, *model);  // attach
+    const auto surface_z = [&](double x, double y) { return tissue.height(x, y); };
+    std::uint64_t seq = 0;
+    std::vector<double> press_us, cut_us, pull_us, draw_us;
+    surface::TriangleMesh draw;
+    std::uint64_t shown = model->revision();
+    const double x0 = -0.02, speed = 0.02;  // m, m/s along x
+    const double z0 = surface_z(x0, 0.001);
+    const int frames = press_frames + cut_frames + pull_frames;
+    for (int f = 0; f < frames; ++f) {
+      for (int k = 0; k < kSamplesPerFrame; ++k) {
+        ToolSample t{};
+        t.seq = ++seq;
+        now += 1'000'000;
+        t.t_ns = now;
+        const double time = static_cast<double>(seq) * 1e-3;
+        if (f < press_frames) {
+          t.mode = ToolMode::kScalpel;
+          t.stage = Stage::kDeform;
+          t.proxy.position = {x0, 0.001, z0};
+          t.tool.position = {x0, 0.001, z0 - 0.003 * std::min(1.0, time / 0.5)};
+        } else if (f < press_frames + cut_frames) {
+          const double x = x0 + speed * (time - press_frames * kSamplesPerFrame * 1e-3);
+          t.mode = ToolMode::kScalpel;
+          const bool first = f == press_frames && k == 0;
+          t.stage = first ? Stage::kRupture : Stage::kCutting;
+          t.proxy.position = {x, 0.001, surface_z(x, 0.001) - 0.003};
+          t.tool.position = t.proxy.position;
+          if (first) {
+            t.events = event::kRupture;
+            t.payload.position = {x, 0.001, surface_z(x, 0.001)};
+          } else if (seq % 25 == 0) {  // 0.5 mm at 20 mm/s
+            t.events = event::kCutProgress;
+            t.payload.position = t.proxy.position;
+          }
+        } else {
+          t.mode = ToolMode::kRetractor;
+          t.stage = Stage::kPulling;
+          t.proxy.position = {0.0, 0.004, z0};
+          t.tool.position = t.proxy.position;
+          // lancet-rt reports a pull every 0.5 mm of hand travel: here every 25 ticks (20 mm/s).
+          if (seq % 25 == 0) {
+            t.events = event::kPull;
+            t.payload.magnitude = std::min(0.012, 0.0001 * (f - press_frames - cut_frames));
+          }
+        }
+        (void)s.samples.try_push(t);
+      }
+      s.rt_heartbeat.beat(now, getpid());
+      const auto t0 = Clock::now();
+      (void)session.frame(now, *model);
+      const double us = us_since(t0);
+      (f < press_frames ? press_us : f < press_frames + cut_frames ? cut_us : pull_us).push_back(us);
+      if (model->revision() != shown) {
+        shown = model->revision();
+        const auto t1 = Clock::now();
+        model->to_triangle_mesh(draw);
+        draw_us.push_back(us_since(t1));
+      }
+    }
+    const auto pr = percentiles(press_us), cu = percentiles(cut_us), pu = percentiles(pull_us), dr = percentiles(draw_us);
+    std::vector<double> all = press_us;
+    all.insert(all.end(), cut_us.begin(), cut_us.end());
+    all.insert(all.end(), pull_us.begin(), pull_us.end());
+    const auto al = percentiles(all);
+    std::printf("    {\"tissue\": \"%s\", \"triangles\": %zu, \"brick\": %s, \"cuts\": %zu,\n"
+                "     \"update_us\": {\"all\": {\"p50\": %.0f, \"p99\": %.0f, \"max\": %.0f}, \"press\": {\"p50\": %.0f, \"p99\": %.0f},"
+                " \"cut\": {\"p50\": %.0f, \"p99\": %.0f}, \"pull\": {\"p50\": %.0f, \"p99\": %.0f}},\n"
+                "     \"mesh_copy_for_drawing_us\": {\"p50\": %.0f, \"p99\": %.0f, \"count\": %zu}}%s\n",
+                tissue.name.c_str(), tissue.mesh.triangles.size(), tissue.phantom ? "true" : "false", model->cuts().size(), al.p50,
+                al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(), n == 0 ? "," : "");
+  }
+  std::printf("  ]\n}\n");
+  return 0;
+}
