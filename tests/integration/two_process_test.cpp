@@ -14,6 +14,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "process_test.hpp"  // tests/support
@@ -123,6 +124,35 @@ TEST_F(TwoProcess, PhantomSkinTissueGivesContactAndForce) {
   EXPECT_GT(json_number(r, "max_force_n").value_or(0), 0.2) << r;
 }
 
+// One line of lancet-viz --trace: a ToolSample as the viz received it (mm and N).
+struct TraceRow {
+  double t = 0;
+  int stage = 0;
+  std::uint32_t events = 0;
+  Vec3 tool, proxy, force;
+};
+
+std::vector<TraceRow> read_trace(const std::string& file) {
+  std::vector<TraceRow> rows;
+  std::ifstream in(file);
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    double v[13];
+    std::istringstream ss(line);
+    char comma = 0;
+    for (int k = 0; k < 13; ++k) {
+      ss >> v[k];
+      if (k < 12) ss >> comma;
+    }
+    EXPECT_TRUE(ss) << file << ": " << line;
+    if (!ss) break;
+    rows.push_back({v[0], static_cast<int>(v[1]), static_cast<std::uint32_t>(v[2]), {v[3], v[4], v[5]}, {v[6], v[7], v[8]},
+                    {v[9], v[10], v[11]}});
+  }
+  return rows;
+}
+
 // What is felt and what is seen agree: the hand holds the stylus 3 mm below the tissue block for
 // seconds; every tick from contact on renders k·depth. (The viz once published its dented mesh
 // as the haptic patch, so the surface, and the proxy on it, followed the tool down and the force
@@ -160,22 +190,12 @@ void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
     const double gx = a / L * std::cos(x / L) * std::cos(y / L), gy = -a / L * std::sin(x / L) * std::sin(y / L);
     return (h - z) / std::sqrt(1 + gx * gx + gy * gy) + kProxyRadius;
   };
-  std::ifstream trace(fx.path("trace.csv"));
-  std::string line;
-  std::getline(trace, line);  // header
   double first_t = -1, contact_t = -1, last_t = 0, worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0;
   std::size_t checked = 0, free_after_contact = 0, faded = 0;
-  while (std::getline(trace, line)) {
-    double v[13];
-    std::istringstream ss(line);
-    char comma = 0;
-    for (int k = 0; k < 13; ++k) {
-      ss >> v[k];
-      if (k < 12) ss >> comma;
-    }
-    ASSERT_TRUE(ss) << line;
-    const double t = v[0], stage = v[1];
-    const double d = depth_m(v[3] * 1e-3, v[4] * 1e-3, v[5] * 1e-3);
+  for (const TraceRow& r : read_trace(fx.path("trace.csv"))) {
+    const double t = r.t;
+    const int stage = r.stage;
+    const double d = depth_m(r.tool.x * 1e-3, r.tool.y * 1e-3, r.tool.z * 1e-3);
     if (first_t < 0) first_t = t;
     last_t = t;
     if (contact_t < 0) {
@@ -184,11 +204,11 @@ void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
     }
     if (t - contact_t < 0.5) continue;  // the hand settles against the tissue
     if (stage == 0) ++free_after_contact;
-    if ((static_cast<std::uint32_t>(v[2]) & event::kForceFaded) != 0) {
+    if ((r.events & event::kForceFaded) != 0) {
       ++faded;  // the safety's fade: the viz stalled past --viz-timeout-ms (a sanitizer build does)
       continue;
     }
-    const double f = std::sqrt(v[9] * v[9] + v[10] * v[10] + v[11] * v[11]);
+    const double f = norm(r.force);
     const double err = std::abs(f - kStiffness * d) / (kStiffness * d);
     if (err > worst) worst = err, worst_t = t - contact_t;
     min_depth = std::min(min_depth, d);
@@ -238,29 +258,18 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
   rt->signal(SIGTERM);
   ASSERT_TRUE(rt->wait_exit(10s).has_value());
 
-  std::ifstream trace(path("trace.csv"));
-  std::string line;
-  std::getline(trace, line);
   double first_contact_z = 1, deepest_proxy = 1, highest_after = -1, max_force = 0, tool_at_contact = 0;
   std::size_t drilling = 0, removals = 0, rebounds = 0;
-  while (std::getline(trace, line)) {
-    double v[13];
-    std::istringstream ss(line);
-    char comma = 0;
-    for (int k = 0; k < 13; ++k) {
-      ss >> v[k];
-      if (k < 12) ss >> comma;
-    }
-    ASSERT_TRUE(ss) << line;
-    if (static_cast<int>(v[1]) != static_cast<int>(Stage::kDrilling)) continue;
-    const double proxy_z = v[8];
-    if (drilling++ == 0) first_contact_z = proxy_z, tool_at_contact = v[5];
-    if ((static_cast<std::uint32_t>(v[2]) & event::kDrillRemove) != 0) ++removals;
+  for (const TraceRow& r : read_trace(path("trace.csv"))) {
+    if (r.stage != static_cast<int>(Stage::kDrilling)) continue;
+    const double proxy_z = r.proxy.z;
+    if (drilling++ == 0) first_contact_z = proxy_z, tool_at_contact = r.tool.z;
+    if ((r.events & event::kDrillRemove) != 0) ++removals;
     // A brick that lost a removal would put bone back under the burr and shove the proxy up.
     if (proxy_z > deepest_proxy + 0.3) ++rebounds;
     deepest_proxy = std::min(deepest_proxy, proxy_z);
     highest_after = std::max(highest_after, proxy_z);
-    max_force = std::max(max_force, std::sqrt(v[9] * v[9] + v[10] * v[10] + v[11] * v[11]));
+    max_force = std::max(max_force, norm(r.force));
   }
   const std::string stats = read_file(path("viz.json"));
   std::printf("[ info     ] drill: bone met at z = %.2f mm (tool %.2f mm), %zu ticks drilling, %zu removals, proxy down to "
@@ -292,19 +301,11 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
   rt->signal(SIGTERM);
   ASSERT_TRUE(rt->wait_exit(10s).has_value());
-  std::ifstream trace(path("trace.csv"));
-  std::string line;
-  std::getline(trace, line);
   std::size_t ruptures = 0, cutting = 0, pulls = 0;
-  while (std::getline(trace, line)) {
-    std::istringstream ss(line);
-    double t = 0, stage = 0, events = 0;
-    char comma = 0;
-    ss >> t >> comma >> stage >> comma >> events;
-    const auto ev = static_cast<std::uint32_t>(events);
-    ruptures += (ev & event::kRupture) != 0 ? 1 : 0;
-    pulls += (ev & event::kPull) != 0 ? 1 : 0;
-    cutting += static_cast<int>(stage) == static_cast<int>(Stage::kCutting) ? 1 : 0;
+  for (const TraceRow& r : read_trace(path("trace.csv"))) {
+    ruptures += (r.events & event::kRupture) != 0 ? 1 : 0;
+    pulls += (r.events & event::kPull) != 0 ? 1 : 0;
+    cutting += r.stage == static_cast<int>(Stage::kCutting) ? 1 : 0;
   }
   const std::string stats = read_file(path("viz.json"));
   std::printf("[ info     ] demo hand: %zu rupture, %zu ticks cutting, %zu pull events; viz: %s cut(s), longest %s mm, "
