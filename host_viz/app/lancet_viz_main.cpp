@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "app/viz_session.hpp"
+#include "hybrid/block_volume.hpp"
 #include "hybrid/volume_brick.hpp"
 #include "volume/drill.hpp"
 #include "volume/marching_cubes.hpp"
@@ -303,12 +304,19 @@ int main(int argc, char** argv) {
 
   // The tissue: the surface model on the tissue block (cut, dented, opened by what lancet-rt
   // reports), drawn from a plain copy refreshed when it changes.
-  // With the phantom, its volume too: the brick every patch carries, carved by lancet-rt's drill.
+  // The tissue's volume too: the brick every patch carries, carved by lancet-rt's drill (the
+  // phantom's CT, placed under its skin; under the block, layers parallel to its surface).
   std::optional<lancet::volume::Phantom> phantom;
   lancet::hybrid::VolumePlacement placement;
-  if (tissue == "phantom") phantom = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
-  lancet::surface::TriangleMesh mesh =
-      phantom ? phantom_skin(*phantom, placement) : lancet::surface::make_tissue_block({});
+  lancet::surface::TriangleMesh mesh;
+  if (tissue == "phantom") {
+    phantom = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
+    mesh = phantom_skin(*phantom, placement);
+  } else {
+    const lancet::surface::TissueBlockParams block{};
+    phantom = lancet::hybrid::make_block_volume(block);
+    mesh = lancet::surface::make_tissue_block(block);
+  }
   auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
   if (!made.ok()) {
     std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <memory>
 
+#include "hybrid/block_volume.hpp"
 #include "volume/phantom.hpp"
 
 namespace lancet::hybrid {
@@ -119,6 +120,38 @@ TEST(VolumeBrick, ThePhantomsBoneIsInTheBrickWhereTheVizPutsIt) {
   fill_brick(ph.volume, pl, pl.to_world({0.006, -0.004, 0.0}), *brick);
   ASSERT_EQ(brick->valid, 1u);
   EXPECT_GT(brick->hu[7 + kBrickDim * (7 + kBrickDim * 7)], 200) << "marrow at the centre";
+}
+
+TEST(BlockVolume, LayersLieParallelToTheBlocksSurfaceAtTheirDepths) {
+  surface::TissueBlockParams block;
+  block.half_extent = 0.02;
+  const volume::Phantom v = make_block_volume(block);
+  const BlockLayers L;
+  // Down a column, the labels run air, skin, fat, muscle, cortex, marrow, each boundary at its
+  // depth under the (wavy) surface there, within a voxel.
+  for (const double x : {-0.012, 0.0, 0.009}) {
+    const double h = surface::tissue_block_height(block, x, 0.004);
+    const double edges[5] = {0, L.skin, L.skin + L.fat, L.skin + L.fat + L.muscle, L.skin + L.fat + L.muscle + L.cortex};
+    const std::uint8_t below[5] = {volume::kSkin, volume::kFat, volume::kMuscle, volume::kCorticalBone, volume::kMarrow};
+    const int i = static_cast<int>(std::lround((x - v.volume.origin.x) / v.volume.spacing.x));
+    const int j = static_cast<int>(std::lround((0.004 - v.volume.origin.y) / v.volume.spacing.y));
+    for (int e = 0; e < 5; ++e) {
+      const double z_above = h - edges[e] + 0.0011, z_below = h - edges[e] - 0.0011;
+      const auto label_at = [&](double z) {
+        const int k = static_cast<int>(std::lround((z - v.volume.origin.z) / v.volume.spacing.z));
+        return v.material[v.volume.index(i, j, k)];
+      };
+      EXPECT_EQ(label_at(z_below), below[e]) << "x " << x << ", boundary " << e;
+      EXPECT_NE(label_at(z_above), below[e]) << "x " << x << ", boundary " << e;
+    }
+  }
+  // Bone is hard to the drill (above its 300 HU), the soft layers are not.
+  auto brick = std::make_unique<VoxelBrick>();
+  fill_brick(v.volume, VolumePlacement{}, {0.0, 0.0, -0.023}, *brick);
+  ASSERT_EQ(brick->valid, 1u);
+  EXPECT_GT(brick->hu[7 + kBrickDim * (7 + kBrickDim * 7)], 1000) << "cortex 23 mm down";
+  fill_brick(v.volume, VolumePlacement{}, {0.0, 0.0, -0.012}, *brick);
+  EXPECT_LT(brick->hu[7 + kBrickDim * (7 + kBrickDim * 7)], 300) << "muscle 12 mm down";
 }
 
 }  // namespace

@@ -233,38 +233,39 @@ TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_pre
 
 TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, 2.0, 4); }
 
-// The drill on the phantom: every patch carries the voxel brick around the tool, lancet-rt's drill
-// passes the soft tissue, stops at the bone and removes it voxel by voxel as the hand presses on;
-// lancet-viz carves the same removals into its volume, and each newer brick keeps them (the drill
-// never finds bone again where it already removed it).
-TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
+// The drill: every patch carries the voxel brick around the tool, lancet-rt's drill passes the
+// soft tissue, stops at the bone and removes it voxel by voxel as the hand presses on; lancet-viz
+// carves the same removals into its volume, and each newer brick keeps them (the drill never
+// finds bone again where it already removed it). The hand goes down at (0, y_mm) to target_mm,
+// below the bone's top, which lies between top_lo_mm and top_hi_mm (the burr rests on it).
+void drill_meets_bone(TwoProcess& fx, const std::string& tissue, double y_mm, double target, double top_lo_mm,
+                      double top_hi_mm) {
   {
-    // Over the bone (world y = 6 mm, the phantom's bone centre), down to 40 mm below the top in 2 s.
-    std::ofstream csv(path("drill.csv"));
+    std::ofstream csv(fx.path("drill.csv"));
     csv << "t_s,x_mm,y_mm,z_mm\n";
     for (int i = 0; i <= 900; ++i) {
       const double t = i * 0.01;
       const double a = t < 2.0 ? 0.5 - 0.5 * std::cos(M_PI * t / 2.0) : 1.0;
-      csv << t << ",0,6," << 10.0 + a * (-40.0 - 10.0) << "\n";
+      csv << t << ",0," << y_mm << "," << 10.0 + a * (target - 10.0) << "\n";
     }
   }
   // The viz first: building the phantom takes seconds in a sanitizer build, and the hand must not
   // be in the bone before the first brick comes (a drill that starts inside bone is not pushed out).
-  auto viz = start_viz({"--duration", "7", "--tissue", "phantom", "--tool", "drill", "--trace", path("trace.csv"), "--stats",
-                        path("viz.json")});
-  for (int i = 0; i < 600 && read_file(path("viz.log")).find("is lancet-rt running?") == std::string::npos; ++i)
+  auto viz = fx.start_viz({"--duration", "7", "--tissue", tissue, "--tool", "drill", "--trace", fx.path("trace.csv"), "--stats",
+                           fx.path("viz.json")});
+  for (int i = 0; i < 600 && read_file(fx.path("viz.log")).find("is lancet-rt running?") == std::string::npos; ++i)
     std::this_thread::sleep_for(100ms);
-  auto rt = start_rt({"--trajectory", path("drill.csv")});
+  auto rt = fx.start_rt({"--trajectory", fx.path("drill.csv")});
   ASSERT_TRUE(rt->running());
   const auto vs = viz->wait_exit(90s);
   ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(fx.path("viz.log"));
   rt->signal(SIGTERM);
   ASSERT_TRUE(rt->wait_exit(10s).has_value());
 
-  double first_contact_z = 1, deepest_proxy = 1, highest_after = -1, max_force = 0, tool_at_contact = 0;
+  double first_contact_z = 1, deepest_proxy = 1, max_force = 0, tool_at_contact = 0;
   std::size_t drilling = 0, removals = 0, rebounds = 0;
-  for (const TraceRow& r : read_trace(path("trace.csv"))) {
+  for (const TraceRow& r : read_trace(fx.path("trace.csv"))) {
     if (r.stage != static_cast<int>(Stage::kDrilling)) continue;
     const double proxy_z = r.proxy.z;
     if (drilling++ == 0) first_contact_z = proxy_z, tool_at_contact = r.tool.z;
@@ -272,18 +273,15 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
     // A brick that lost a removal would put bone back under the burr and shove the proxy up.
     if (proxy_z > deepest_proxy + 0.3) ++rebounds;
     deepest_proxy = std::min(deepest_proxy, proxy_z);
-    highest_after = std::max(highest_after, proxy_z);
     max_force = std::max(max_force, norm(r.force));
   }
-  const std::string stats = read_file(path("viz.json"));
-  std::printf("[ info     ] drill: bone met at z = %.2f mm (tool %.2f mm), %zu ticks drilling, %zu removals, proxy down to "
-              "%.2f mm, max force %.2f N\n",
-              first_contact_z, tool_at_contact, drilling, removals, deepest_proxy, max_force);
+  const std::string stats = read_file(fx.path("viz.json"));
+  std::printf("[ info     ] drill on the %s: bone met at z = %.2f mm (tool %.2f mm), %zu ticks drilling, %zu removals, proxy "
+              "down to %.2f mm, max force %.2f N\n",
+              tissue.c_str(), first_contact_z, tool_at_contact, drilling, removals, deepest_proxy, max_force);
   ASSERT_GT(drilling, 500u) << "the drill met the bone and pressed on it\n" << stats;
-  // The bone's top: the phantom's bone (radius 13 mm, centre 4 mm below the axis) under a skin
-  // whose top is at z = 0 at the far end of the tapering limb; the burr (1.5 mm) rests on it.
-  EXPECT_LT(first_contact_z, -25.0) << "the drill passed the skin, fat and muscle";
-  EXPECT_GT(first_contact_z, -35.0) << "and stopped at the bone";
+  EXPECT_LT(first_contact_z, top_hi_mm) << "the drill passed the skin, fat and muscle";
+  EXPECT_GT(first_contact_z, top_lo_mm) << "and stopped at the bone";
   EXPECT_GT(max_force, 2.0) << "the bone resists";
   EXPECT_GT(removals, 3u) << "pressing on, the drill removes bone";
   EXPECT_LT(deepest_proxy, first_contact_z - 1.0) << "and sinks into it as it does";
@@ -291,6 +289,15 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBoneAndTheVizKeepsWhatItRemoved) {
   EXPECT_EQ(json_number(stats, "drill_removals").value_or(-1), static_cast<double>(removals)) << stats;
   EXPECT_GT(json_number(stats, "voxels_drilled").value_or(0), 0) << stats;
 }
+
+// The phantom's bone (radius 13 mm, centre 4 mm below the limb's axis, at y = 6 mm in the world)
+// under a skin whose top is at z = 0 at the far end of the tapering limb.
+TEST_F(TwoProcess, TheDrillStopsAtThePhantomsBoneAndTheVizKeepsWhatItRemoved) {
+  drill_meets_bone(*this, "phantom", 6, -40, -35, -25);
+}
+
+// The block's bone plate: 20 mm under its surface (2 mm skin, 6 mm fat, 12 mm muscle).
+TEST_F(TwoProcess, TheDrillStopsAtTheBlocksBonePlate) { drill_meets_bone(*this, "block", 0, -28, -23, -17); }
 
 // The demo's scripted hand (docs/examples/demo_incision.csv, what ./lancet demo runs): the scalpel
 // presses until the skin ruptures, cuts along the line, lifts out; the retractor grabs beside the
