@@ -150,6 +150,11 @@ const char* check(const ToolSample& s) noexcept {
   const EventPayload& e = s.payload;
   if (!position_ok(e.position) || !direction_ok(e.normal) || !direction_ok(e.direction) || !finite(e.magnitude))
     return "sample.payload: not finite or out of range";
+  // The work an event causes in the viz is bounded by its payload: a burr of at most 10 mm, a
+  // pull of at most 10 cm.
+  if ((s.events & event::kDrillRemove) != 0 && !(e.magnitude > 0 && e.magnitude <= 0.01))
+    return "sample.payload.magnitude: a drill removal's radius not in (0, 10 mm]";
+  if ((s.events & event::kPull) != 0 && !in(e.magnitude, 0, 0.1)) return "sample.payload.magnitude: a pull not in [0, 10 cm]";
   return nullptr;
 }
 

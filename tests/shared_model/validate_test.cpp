@@ -166,6 +166,22 @@ TEST(WireCheck, SampleAndStatusDamageIsCaughtBeforeAnythingIsPrinted) {
   s = ToolSample{};
   s.tool.orientation = {0, 0, 0, 0};
   EXPECT_NE(check(s), nullptr);
+  // Events whose payload sets the viz's work: a drill removal of a 1 km burr would carve the
+  // whole volume for every sample.
+  s = ToolSample{};
+  s.tool.orientation = s.proxy.orientation = Quat{};
+  s.events = event::kDrillRemove;
+  s.payload.magnitude = 0.0015;
+  EXPECT_EQ(check(s), nullptr);
+  s.payload.magnitude = 1000;
+  EXPECT_NE(check(s), nullptr);
+  s.payload.magnitude = 0;
+  EXPECT_NE(check(s), nullptr);
+  s.events = event::kPull;
+  s.payload.magnitude = 0.012;
+  EXPECT_EQ(check(s), nullptr);
+  s.payload.magnitude = -0.01;
+  EXPECT_NE(check(s), nullptr);
 
   RtStatus st{};
   st.period_ns = 1'000'000;
