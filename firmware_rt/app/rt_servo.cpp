@@ -212,7 +212,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   if (model_.trajectory != nullptr) {
     const auto& changes = model_.trajectory->tools;
     while (d.next_tool_change < changes.size() && changes[d.next_tool_change].t <= t) {
-      d.mode = static_cast<ToolMode>(changes[d.next_tool_change].mode);
+      d.mode = changes[d.next_tool_change].mode;
       ++d.next_tool_change;
     }
   }

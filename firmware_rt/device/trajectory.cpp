@@ -25,7 +25,6 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
   int n = 0;
   bool header_allowed = true;
   static const char* kNames[4] = {"t_s", "x_mm", "y_mm", "z_mm"};
-  static const char* kTools[4] = {"probe", "scalpel", "retractor", "drill"};  // ToolMode order
   while (std::getline(in, line)) {
     ++n;
     if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
@@ -65,10 +64,10 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
     tr.t.push_back(v[0]);
     tr.p.push_back(Vec3{v[1] * 1e-3, v[2] * 1e-3, v[3] * 1e-3});
     if (cells.size() == 5 && !cells[4].empty()) {
-      const auto* it = std::find(std::begin(kTools), std::end(kTools), cells[4]);
-      if (it == std::end(kTools))
+      ToolMode mode{};
+      if (!tool_from_name(cells[4], mode))
         return Error{ErrorCode::kInvalid, where + "tool: expected probe, scalpel, retractor or drill, found '" + cells[4] + "'"};
-      tr.tools.push_back({v[0], static_cast<std::uint8_t>(it - std::begin(kTools))});
+      tr.tools.push_back({v[0], mode});
     }
   }
   if (tr.t.empty()) return Error{ErrorCode::kInvalid, path + ": no trajectory points (lines of t_s, x_mm, y_mm, z_mm)"};

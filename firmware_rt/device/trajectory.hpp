@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 
 namespace lancet::device {
@@ -19,7 +20,7 @@ namespace lancet::device {
 struct Trajectory {
   struct ToolChange {
     double t;             ///< s
-    std::uint8_t mode;    ///< ToolMode
+    ToolMode mode;
   };
   std::vector<double> t;  ///< s
   std::vector<Vec3> p;    ///< m

@@ -34,16 +34,6 @@ namespace {
 std::atomic<bool> g_stop{false};
 extern "C" void on_signal(int) { g_stop.store(true, std::memory_order_relaxed); }
 
-const char* mode_name(lancet::ToolMode m) {
-  switch (m) {
-    case lancet::ToolMode::kProbe: return "probe";
-    case lancet::ToolMode::kScalpel: return "scalpel";
-    case lancet::ToolMode::kRetractor: return "retractor";
-    case lancet::ToolMode::kDrill: return "drill";
-  }
-  return "?";
-}
-
 // Mouse and keyboard state of the interactive window.
 struct Interaction {
   bool mouse_drives_stylus = false;
@@ -199,7 +189,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   }
   if (s.has_sample()) {
     const auto& t = s.latest();
-    std::snprintf(buf, sizeof buf, "tool %s at (%.1f, %.1f, %.1f) mm", mode_name(t.mode), t.tool.position.x * 1e3,
+    std::snprintf(buf, sizeof buf, "tool %s at (%.1f, %.1f, %.1f) mm", lancet::tool_name(t.mode), t.tool.position.x * 1e3,
                   t.tool.position.y * 1e3, t.tool.position.z * 1e3);
     lines.push_back({buf});
   }
@@ -271,7 +261,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str();
   std::string tool;
   cli.add_option("--tool", tool, "pick this tool in lancet-rt when connected (as the keys 1-4 do)")
-      ->check(CLI::IsMember({"probe", "scalpel", "retractor", "drill"}));
+      ->check(CLI::IsMember(std::vector<std::string>(std::begin(lancet::kToolNames), std::end(lancet::kToolNames))));
   std::string trace_path;
   cli.add_option("--trace", trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
@@ -387,9 +377,7 @@ int main(int argc, char** argv) {
       if (!tool.empty() && session.link() == lancet::viz::Link::kConnected && tool_sent_for != session.connections()) {
         lancet::Command c{};
         c.kind = lancet::CommandKind::kSetToolMode;
-        c.mode = tool == "probe" ? lancet::ToolMode::kProbe : tool == "scalpel" ? lancet::ToolMode::kScalpel
-                 : tool == "retractor"                    ? lancet::ToolMode::kRetractor
-                                                          : lancet::ToolMode::kDrill;
+        (void)lancet::tool_from_name(tool, c.mode);  // CLI11 admitted only the tools' names
         if (session.send(c, now)) tool_sent_for = session.connections();
       }
       if (model.revision() != shown_revision) {  // redraw only what changed shape

@@ -54,9 +54,9 @@ TEST_F(TrajectoryFile, AFifthCellPicksTheToolFromThatTimeOn) {
   const Trajectory& tr = r.value();
   ASSERT_EQ(tr.tools.size(), 2u);
   EXPECT_EQ(tr.tools[0].t, 0.0);
-  EXPECT_EQ(tr.tools[0].mode, static_cast<std::uint8_t>(ToolMode::kScalpel));
+  EXPECT_EQ(tr.tools[0].mode, ToolMode::kScalpel);
   EXPECT_EQ(tr.tools[1].t, 0.4);
-  EXPECT_EQ(tr.tools[1].mode, static_cast<std::uint8_t>(ToolMode::kRetractor));
+  EXPECT_EQ(tr.tools[1].mode, ToolMode::kRetractor);
   // The servo replaying it takes each tool when its time comes; a key in between holds until the
   // script's next change.
   app::RtModel model;

@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <string_view>
 #include <type_traits>
 
 #include "lancet/shared_model/geometry.hpp"
@@ -22,6 +23,24 @@ inline constexpr std::uint32_t kBrickDim = 16;
 
 /// What the stylus is being used as.
 enum class ToolMode : std::uint8_t { kProbe = 0, kScalpel = 1, kRetractor = 2, kDrill = 3 };
+
+/// Each tool's name as people type it (command-line options, trajectory files), in ToolMode order.
+inline constexpr const char* kToolNames[4] = {"probe", "scalpel", "retractor", "drill"};
+
+constexpr const char* tool_name(ToolMode m) noexcept {
+  return static_cast<std::size_t>(m) < 4 ? kToolNames[static_cast<std::size_t>(m)] : "?";
+}
+
+/// The tool called `name`; false when no tool is.
+constexpr bool tool_from_name(std::string_view name, ToolMode& out) noexcept {
+  for (std::size_t i = 0; i < 4; ++i) {
+    if (name == kToolNames[i]) {
+      out = static_cast<ToolMode>(i);
+      return true;
+    }
+  }
+  return false;
+}
 
 /// Interaction stage of the haptic step (ALGORITHMS.md §2).
 enum class Stage : std::uint8_t {
