@@ -16,15 +16,13 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
-#include <optional>
 #include <thread>
 
 #include "app/viz_session.hpp"
 #include "hybrid/block_volume.hpp"
+#include "hybrid/phantom_skin.hpp"
 #include "hybrid/volume_brick.hpp"
 #include "volume/drill.hpp"
-#include "volume/marching_cubes.hpp"
-#include "volume/phantom.hpp"
 #include "render/overlay.hpp"
 #include "render/scene_renderer.hpp"
 #include "render/window.hpp"
@@ -124,7 +122,6 @@ struct EventTally {
 struct DrillStats {
   std::uint64_t removals = 0;       ///< kDrillRemove events applied to the volume
   std::uint64_t voxels = 0;         ///< voxels they removed
-  std::uint64_t without_volume = 0; ///< events that found no volume to carve (block tissue)
 };
 
 bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
@@ -138,7 +135,7 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
                "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
                "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
-               "  \"drill_removals_without_volume\": %llu,\n  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
+               "  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
                "  \"cut_opening_mm\": %.2f,\n  \"cut_from_mm\": [%.2f, %.2f, %.2f],\n  \"cut_to_mm\": [%.2f, %.2f, %.2f],\n"
                "  \"contacts\": %llu,\n  \"contact_ends\": %llu,\n  \"ruptures\": %llu,\n  \"grabs\": %llu,\n  \"releases\": %llu,\n"
                "  \"clamped_ticks\": %llu,\n  \"faded_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
@@ -154,7 +151,7 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(s.patches_published()), static_cast<unsigned long long>(st.rejected),
                static_cast<unsigned long long>(st.ring_resets), static_cast<unsigned long long>(st.status_rejected),
                static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
-               static_cast<unsigned long long>(drill.without_volume), cuts.cuts, cuts.longest_mm, cuts.opening_mm,
+               cuts.cuts, cuts.longest_mm, cuts.opening_mm,
                cuts.from.x * 1e3, cuts.from.y * 1e3, cuts.from.z * 1e3, cuts.to.x * 1e3, cuts.to.y * 1e3, cuts.to.z * 1e3,
                static_cast<unsigned long long>(ev.contacts), static_cast<unsigned long long>(ev.contact_ends),
                static_cast<unsigned long long>(ev.ruptures),
@@ -215,33 +212,6 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
 
 }  // namespace
 
-// The built-in CT phantom's skin (marching cubes at -300 HU, padded so it closes), turned so the
-// limb lies along x with its upper side facing +z, and lowered so its top is at z = 0 where the
-// stylus script works; the same placement puts the phantom's volume under it (the drill's brick).
-lancet::surface::TriangleMesh phantom_skin(const lancet::volume::Phantom& ph, lancet::hybrid::VolumePlacement& placement) {
-  lancet::volume::IsoOptions o;
-  o.iso = -300;
-  o.pad_border = true;
-  o.pad_value = -1000;
-  auto s = lancet::volume::extract_isosurface(ph.volume, o, ph.material);
-  lancet::surface::TriangleMesh m;
-  if (!s.ok()) return m;
-  const auto& iso = s.value();
-  float top = -1e9f;
-  for (const auto& p : iso.positions) top = std::max(top, p.y);
-  placement.axis = {2, 0, 1};  // world (x, y, z) = volume (z, x, y): a rotation, then down
-  placement.sign = {1, 1, 1};
-  placement.offset = {0, 0, -static_cast<double>(top)};
-  const lancet::hybrid::VolumePlacement turn{placement.axis, placement.sign, {}};
-  for (std::size_t i = 0; i < iso.positions.size(); ++i) {
-    m.vertices.push_back(lancet::to_vec3f(placement.to_world(lancet::to_vec3(iso.positions[i]))));
-    m.normals.push_back(lancet::to_vec3f(turn.to_world(lancet::to_vec3(iso.normals[i]))));
-  }
-  m.triangles = iso.triangles;
-  for (const auto& t : iso.triangles) m.material.push_back(iso.material[t[0]]);
-  return m;
-}
-
 int main(int argc, char** argv) {
   CLI::App cli{"lancet-viz: Lancet's visualizer (tissue, tool, link to lancet-rt)"};
   VizOptions o;
@@ -296,15 +266,15 @@ int main(int argc, char** argv) {
   // reports), drawn from a plain copy refreshed when it changes.
   // The tissue's volume too: the brick every patch carries, carved by lancet-rt's drill (the
   // phantom's CT, placed under its skin; under the block, layers parallel to its surface).
-  std::optional<lancet::volume::Phantom> phantom;
+  lancet::volume::Phantom tissue_volume;
   lancet::hybrid::VolumePlacement placement;
   lancet::surface::TriangleMesh mesh;
   if (tissue == "phantom") {
-    phantom = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
-    mesh = phantom_skin(*phantom, placement);
+    tissue_volume = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
+    mesh = lancet::hybrid::phantom_skin(tissue_volume, placement);
   } else {
     const lancet::surface::TissueBlockParams block{};
-    phantom = lancet::hybrid::make_block_volume(block);
+    tissue_volume = lancet::hybrid::make_block_volume(block);
     mesh = lancet::surface::make_tissue_block(block);
   }
   auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
@@ -322,11 +292,9 @@ int main(int argc, char** argv) {
   // frame's patch is cut from it (so the next brick shows them; lancet-rt re-carves the newer ones).
   DrillStats drill_stats;
   EventTally events;
-  if (phantom) {
-    session.set_brick_source([&](lancet::Vec3 centre, lancet::VoxelBrick& brick) {
-      lancet::hybrid::fill_brick(phantom->volume, placement, centre, brick);
-    });
-  }
+  session.set_brick_source([&](lancet::Vec3 centre, lancet::VoxelBrick& brick) {
+    lancet::hybrid::fill_brick(tissue_volume.volume, placement, centre, brick);
+  });
   session.set_sample_sink([&, f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
       const lancet::ToolSample& t = s[i];
@@ -338,14 +306,10 @@ int main(int argc, char** argv) {
                      t.force.x, t.force.y, t.force.z, static_cast<unsigned long long>(t.patch_version));
       }
       if ((t.events & lancet::event::kDrillRemove) == 0) continue;
-      if (!phantom) {
-        ++drill_stats.without_volume;
-        continue;
-      }
       lancet::volume::DrillParams dp;
       dp.centre = placement.to_volume(t.payload.position);
       dp.radius = t.payload.magnitude;
-      auto r = lancet::volume::drill_sphere(phantom->volume, dp, phantom->material);
+      auto r = lancet::volume::drill_sphere(tissue_volume.volume, dp, tissue_volume.material);
       if (r.ok()) {
         ++drill_stats.removals;
         drill_stats.voxels += r.value().voxels_removed;

@@ -20,10 +20,10 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
+#include "hybrid/phantom_skin.hpp"
 #include "hybrid/volume_brick.hpp"
 #include "surface/placeholder_mesh.hpp"
 #include "surface/surface_model.hpp"
-#include "volume/marching_cubes.hpp"
 #include "volume/phantom.hpp"
 
 namespace {
@@ -55,19 +55,7 @@ Tissue phantom_tissue() {
   Tissue t;
   t.name = "phantom skin";
   t.phantom = volume::make_phantom({});
-  volume::IsoOptions o;
-  o.iso = -300;
-  o.pad_border = true;
-  o.pad_value = -1000;
-  auto s = volume::extract_isosurface(t.phantom->volume, o, t.phantom->material);
-  const auto& iso = s.value();
-  float top = -1e9f;
-  for (const auto& p : iso.positions) top = std::max(top, p.y);
-  t.placement.axis = {2, 0, 1};
-  t.placement.offset = {0, 0, -static_cast<double>(top)};
-  for (const auto& p : iso.positions) t.mesh.vertices.push_back(to_vec3f(t.placement.to_world(to_vec3(p))));
-  t.mesh.triangles = iso.triangles;
-  for (const auto& tri : iso.triangles) t.mesh.material.push_back(iso.material[tri[0]]);
+  t.mesh = hybrid::phantom_skin(*t.phantom, t.placement);  // as lancet-viz places it
   // The skin's top along x near y = 0 (where the tool works): the highest vertex in each 1 mm
   // slab of x within 2 mm of y = 0.
   auto top_by_x = std::make_shared<std::vector<double>>(400, -1.0);  // x from −0.2 m in 1 mm slabs

@@ -5,10 +5,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 
 #include "hybrid/block_volume.hpp"
+#include "hybrid/phantom_skin.hpp"
 #include "volume/phantom.hpp"
 
 namespace lancet::hybrid {
@@ -113,8 +115,12 @@ TEST(VolumeBrick, ThePhantomsBoneIsInTheBrickWhereTheVizPutsIt) {
   // The viz's placement of the phantom: world (x, y, z) = volume (z, x, y − top).
   const volume::Phantom ph = volume::make_phantom({});
   VolumePlacement pl;
-  pl.axis = {2, 0, 1};
-  pl.offset = {0, 0, -0.04};
+  const surface::TriangleMesh skin = phantom_skin(ph, pl);
+  ASSERT_FALSE(skin.triangles.empty());
+  EXPECT_EQ(pl.axis, (std::array<int, 3>{2, 0, 1}));
+  float top = -1;
+  for (const auto& v : skin.vertices) top = std::max(top, v.z);
+  EXPECT_NEAR(top, 0.0f, 1e-6f) << "the skin's top at z = 0";
   auto brick = std::make_unique<VoxelBrick>();
   // The bone's centre: volume (6, −4) mm in x, y; mid-length.
   fill_brick(ph.volume, pl, pl.to_world({0.006, -0.004, 0.0}), *brick);
