@@ -23,8 +23,7 @@ volume::Phantom make_block_volume(const surface::TissueBlockParams& block, const
   ph.material.resize(v.voxel_count());
   const double skin_end = L.skin, fat_end = skin_end + L.fat, muscle_end = fat_end + L.muscle, cortex_end = muscle_end + L.cortex;
   const auto hu = [](PhantomMaterial m) { return static_cast<double>(volume::phantom_hu(m)); };
-  // The phantom's blending: a linear ramp two voxels wide centred on each boundary.
-  const auto inside = [s](double d) { return std::clamp(0.5 + d / (2.0 * s), 0.0, 1.0); };
+  const auto inside = [s](double d) { return volume::partial_volume_fraction(d, s); };  // the phantom's blending
   const auto lerp = [](double x, double y, double t) { return x + (y - x) * t; };
   for (int k = 0; k < nz; ++k)
     for (int j = 0; j < nxy; ++j)

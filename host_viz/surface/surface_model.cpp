@@ -670,16 +670,19 @@ double SurfaceModel::set_opening(std::size_t c, double width) {
 double SurfaceModel::pull(std::size_t c, double displacement) {
   if (c >= cuts_.size() || !std::isfinite(displacement)) return 0;
   const double width = set_opening(c, displacement);
-  // The wrinkle: skin beside the cut buckles along its normal, oscillating with distance from
-  // the cut and decaying away from it.
+  // The wrinkle: skin beside the cut buckles along its normal. Where, and its profile, follow
+  // from the cut's rest geometry alone: built once per cut and pair count, then each pull only
+  // rescales it.
+  if (wrinkled_.empty() || wrinkle_cut_ != c || wrinkle_pairs_ != cuts_[c].pairs.size()) build_wrinkle_map(c);
+  wrinkle_level_ = 0.25 * width;
+  relax(0);
+  return width;
+}
+
+// The skin beside cut c that buckles when it is pulled, and each vertex's profile: oscillating
+// with the distance from the cut and decaying away from it.
+void SurfaceModel::build_wrinkle_map(std::size_t c) {
   const Cut& cut = cuts_[c];
-  // Where the skin wrinkles, and its profile, follow from the cut's rest geometry alone: computed
-  // once per cut and pair count, then each pull only rescales it.
-  if (!wrinkled_.empty() && wrinkle_cut_ == c && wrinkle_pairs_ == cut.pairs.size()) {
-    wrinkle_level_ = 0.25 * width;
-    relax(0);
-    return width;
-  }
   wrinkle_cut_ = c;
   wrinkle_pairs_ = cut.pairs.size();
   for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0);
@@ -705,9 +708,6 @@ double SurfaceModel::pull(std::size_t c, double displacement) {
     wrinkled_.push_back(v);
     wrinkle_amp_.push_back(static_cast<float>(profile));
   }
-  wrinkle_level_ = 0.25 * width;
-  relax(0);
-  return width;
 }
 
 void SurfaceModel::relax(double dt) {

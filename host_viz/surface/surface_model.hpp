@@ -200,6 +200,7 @@ class SurfaceModel {
   std::size_t split_fans(std::uint32_t v);
   void apply_opening(Cut& cut);
   void build_spread_map(Cut& cut);
+  void build_wrinkle_map(std::size_t cut);
 
   SurfaceParams params_;
   SurfaceMesh mesh_;

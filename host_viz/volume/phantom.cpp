@@ -23,15 +23,11 @@ double gaussian(std::uint64_t seed, std::uint64_t index) noexcept {
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * std::numbers::pi * u2);
 }
 
-// How much of a voxel centred d from a boundary (d > 0: inside it) counts as inside: a linear
-// ramp two voxels wide, the box of the voxel blurred by about a voxel more (a CT's point spread).
-// Narrower, marching cubes' linear interpolation meets the ramp's kinks on most edges and the
-// surface facets; wider, the noise moves it more.
-double inside_fraction(double d, double h) noexcept { return std::clamp(0.5 + d / (2.0 * h), 0.0, 1.0); }
-
 double lerp(double a, double b, double t) noexcept { return a + (b - a) * t; }
 
 }  // namespace
+
+double partial_volume_fraction(double d, double spacing) noexcept { return std::clamp(0.5 + d / (2.0 * spacing), 0.0, 1.0); }
 
 float phantom_hu(PhantomMaterial m) noexcept {
   switch (m) {
@@ -89,12 +85,12 @@ Phantom make_phantom(const PhantomParams& p) {
           const double g = r > 0 ? std::hypot(w.x, w.y / (ey * ey)) / r : 1.0;
           const auto hu_of = [](PhantomMaterial mat) { return static_cast<double>(phantom_hu(mat)); };
           const double h = p.spacing;
-          const double fat_layer = lerp(hu_of(kFat), hu_of(kMuscle), inside_fraction((outer - p.skin - p.fat - r) / g, h));
-          const double skin_layer = lerp(hu_of(kSkin), fat_layer, inside_fraction((outer - p.skin - r) / g, h));
-          hu = lerp(hu_of(kAir), skin_layer, inside_fraction((outer - r) / g, h));
-          const double bone_hu = lerp(hu_of(kCorticalBone), hu_of(kMarrow), inside_fraction(p.bone_radius - p.cortex - rb, h));
-          hu = lerp(hu, bone_hu, inside_fraction(p.bone_radius - rb, h));
-          const double vessel = std::max(inside_fraction(0.003 - ra, h), inside_fraction(0.0022 - rv, h));
+          const double fat_layer = lerp(hu_of(kFat), hu_of(kMuscle), partial_volume_fraction((outer - p.skin - p.fat - r) / g, h));
+          const double skin_layer = lerp(hu_of(kSkin), fat_layer, partial_volume_fraction((outer - p.skin - r) / g, h));
+          hu = lerp(hu_of(kAir), skin_layer, partial_volume_fraction((outer - r) / g, h));
+          const double bone_hu = lerp(hu_of(kCorticalBone), hu_of(kMarrow), partial_volume_fraction(p.bone_radius - p.cortex - rb, h));
+          hu = lerp(hu, bone_hu, partial_volume_fraction(p.bone_radius - rb, h));
+          const double vessel = std::max(partial_volume_fraction(0.003 - ra, h), partial_volume_fraction(0.0022 - rv, h));
           hu = lerp(hu, hu_of(kVessel), vessel);
         }
         v.data[idx] = static_cast<float>(hu + p.noise_hu * gaussian(p.seed, idx));

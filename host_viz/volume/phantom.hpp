@@ -38,6 +38,13 @@ struct PhantomParams {
 /// Nominal HU of each material (before noise).
 float phantom_hu(PhantomMaterial m) noexcept;
 
+/// The phantom's partial-volume blending: how much of a voxel of size `spacing` centred `d` from
+/// a boundary (d > 0: inside it) counts as inside. A linear ramp two voxels wide, the box of the
+/// voxel blurred by about a voxel more (a CT's point spread). Narrower, marching cubes' linear
+/// interpolation meets the ramp's kinks on most edges and the surface facets; wider, the noise
+/// moves it more.
+double partial_volume_fraction(double d, double spacing) noexcept;
+
 struct Phantom {
   Volume volume;                      ///< HU, origin so that the volume is centred on (0, 0, 0)
   std::vector<std::uint8_t> material; ///< PhantomMaterial per voxel, same layout as volume.data
