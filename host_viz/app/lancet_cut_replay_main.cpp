@@ -1,18 +1,25 @@
-// lancet-cut-replay: replays a scripted cut on a surface mesh, headless, and writes the mesh before
-// and after (OBJ, PLY, OFF or STL through OpenMesh IO) so a person can open both in a mesh viewer.
+// lancet-cut-replay: replays a scripted hand on the tissue scene, headless, and writes the surface
+// before and after (OBJ, PLY, OFF or STL through OpenMesh IO) so a person can open both in a mesh
+// viewer. Each command becomes the ToolSamples lancet-rt would send (1 ms apart, fed in frames of
+// 16 as lancet-viz drains them) and goes through hybrid::TissueScene, the visualizer's own path:
+// the dent, the rupture, the cut growing by cut-progress events every 0.5 mm, its groove in the
+// volume, the pull, the drill.
 //   lancet-cut-replay SCRIPT --before before.ply --after after.obj
 // The script, one command a line (lengths in mm, '#' starts a comment):
-//   mesh sheet CELLS SIZE        a wavy sheet of CELLS×CELLS cells, SIZE mm across
-//   mesh phantom ISO             the built-in phantom's isosurface at ISO HU (padded: closed)
+//   mesh sheet CELLS SIZE        a wavy sheet of CELLS×CELLS cells, SIZE mm across, over layered tissue
+//   mesh phantom ISO             the built-in phantom's skin at ISO HU (its volume beneath)
 //   mesh file PATH               a mesh file OpenMesh reads (relative to the script's folder), in
-//                                millimetres like every mesh file written (--units m: metres)
+//                                millimetres like every mesh file written (--units m: metres); a
+//                                surface alone: no volume, so no groove and no drill
+//   tool NAME                    probe, scalpel, retractor or drill: the mode of the samples that follow
 //   press X Y Z DEPTH            a dent at the surface point nearest (X, Y, Z), DEPTH mm along −normal
 //   relax SECONDS                let dents and wrinkles return for that long
-//   cut X Y Z                    start a cut at the surface point nearest (X, Y, Z)
-//   to X Y Z                     extend the cut to there
-//   end                          end the cut
-//   open WIDTH                   open the newest cut to WIDTH mm (within the elastic limit)
-//   pull DISTANCE                pull the newest cut open by DISTANCE mm (opening and wrinkle)
+//   cut X Y Z                    the skin ruptures at the surface point nearest (X, Y, Z): a cut starts
+//   to X Y Z                     the blade moves to there (cut progress every 0.5 mm)
+//   end                          the blade leaves: the cut ends and reaches into the volume
+//   open WIDTH                   the retractor holds the newest cut open at WIDTH mm (its wrinkle relaxed)
+//   pull DISTANCE                the retractor pulls the newest cut DISTANCE mm open (opening and wrinkle)
+//   drill X Y Z RADIUS           the burr removes the voxels within RADIUS mm (0 < RADIUS <= 10) of (X, Y, Z)
 // `mesh` must come first. Exit status: 0 done, 2 bad script, arguments or files (the message
 // names the file, line and what was expected).
 
@@ -29,10 +36,9 @@
 #include <string>
 #include <vector>
 
+#include "hybrid/tissue_scene.hpp"
 #include "surface/placeholder_mesh.hpp"
 #include "surface/surface_model.hpp"
-#include "volume/marching_cubes.hpp"
-#include "volume/phantom.hpp"
 
 namespace {
 
@@ -47,37 +53,26 @@ struct ScriptError {
 /// lancet-volume writes them and as 3D Slicer, ITK and VTK pipelines expect.
 double g_file_unit = 1e-3;
 
-std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>& w, const fs::path& dir) {
+std::unique_ptr<hybrid::TissueScene> make_scene(const std::vector<std::string>& w, const fs::path& dir) {
   const auto need = [&](std::size_t n, const char* form) {
     if (w.size() != n) throw ScriptError{std::string("expected '") + form + "'"};
   };
   if (w.size() < 2) throw ScriptError{"expected 'mesh sheet CELLS SIZE', 'mesh phantom ISO' or 'mesh file PATH'"};
-  std::vector<Vec3f> positions;
-  std::vector<std::array<std::uint32_t, 3>> triangles;
-  std::vector<std::uint16_t> material;
+  hybrid::SceneDescription d;
   if (w[1] == "sheet") {
     need(4, "mesh sheet CELLS SIZE");
-    surface::TissueBlockParams p;
-    p.cells = std::stoi(w[2]);
-    p.half_extent = std::stod(w[3]) * 1e-3 / 2;
-    if (p.cells < 1 || p.cells > 4000 || !(p.half_extent > 0)) throw ScriptError{"sheet: CELLS must be 1..4000 and SIZE > 0"};
-    const auto m = surface::make_tissue_block(p);
-    positions = m.vertices;
-    triangles = m.triangles;
-    material = m.material;
+    d.source = hybrid::SceneSource::kBlock;
+    d.block.cells = std::stoi(w[2]);
+    d.block.half_extent = std::stod(w[3]) * 1e-3 / 2;
+    if (d.block.cells < 1 || d.block.cells > 4000 || !(d.block.half_extent > 0) || d.block.half_extent > 0.25)
+      throw ScriptError{"sheet: CELLS must be 1..4000 and SIZE in (0, 500] mm"};
   } else if (w[1] == "phantom") {
     need(3, "mesh phantom ISO");
-    const auto ph = volume::make_phantom(volume::PhantomParams{});
-    volume::IsoOptions o;
-    o.iso = std::stof(w[2]);
-    o.pad_border = true;
-    auto s = volume::extract_isosurface(ph.volume, o, ph.material);
-    if (!s.ok()) throw ScriptError{s.error().message};
-    positions = s.value().positions;
-    triangles = s.value().triangles;
-    for (const auto& t : triangles) material.push_back(s.value().material[t[0]]);
+    d.source = hybrid::SceneSource::kPhantom;
+    d.skin_iso = std::stof(w[2]);
   } else if (w[1] == "file") {
     need(3, "mesh file PATH");
+    d.source = hybrid::SceneSource::kMesh;
     const fs::path path = fs::path(w[2]).is_absolute() ? fs::path(w[2]) : dir / w[2];
     OpenMesh::TriMesh_ArrayKernelT<> m;
     if (!OpenMesh::IO::read_mesh(m, path.string())) throw ScriptError{"cannot read the mesh " + path.string()};
@@ -86,7 +81,7 @@ std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>&
       const auto& q = m.point(v);
       if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
         throw ScriptError{path.string() + ": vertex " + std::to_string(v.idx()) + " is not finite"};
-      positions.push_back({q[0] * u, q[1] * u, q[2] * u});
+      d.mesh.vertices.push_back({q[0] * u, q[1] * u, q[2] * u});
     }
     for (auto f : m.faces()) {
       std::array<std::uint32_t, 3> t{};
@@ -96,15 +91,43 @@ std::unique_ptr<surface::SurfaceModel> make_mesh(const std::vector<std::string>&
         ++n;
       }
       if (n != 3) throw ScriptError{path.string() + ": face " + std::to_string(f.idx()) + " has " + std::to_string(n) + " corners; triangles only"};
-      triangles.push_back(t);
+      d.mesh.triangles.push_back(t);
     }
   } else {
     throw ScriptError{"unknown mesh kind '" + w[1] + "': expected sheet, phantom or file"};
   }
-  auto model = surface::SurfaceModel::create(positions, triangles, material);
-  if (!model.ok()) throw ScriptError{model.error().message};
-  return std::move(model).value();
+  auto scene = hybrid::TissueScene::create(std::move(d));
+  if (!scene.ok()) throw ScriptError{scene.error().message};
+  return std::move(scene).value();
 }
+
+// The hand: ToolSamples 1 ms apart (or dt_ms), fed to the scene in frames of 16.
+struct Hand {
+  hybrid::TissueScene* scene = nullptr;
+  ToolMode mode = ToolMode::kProbe;
+  std::uint64_t seq = 0;
+  std::vector<ToolSample> pending;
+  ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0, std::int64_t dt_ms = 1) {
+    ToolSample t{};
+    t.seq = ++seq;
+    t.t_ns = (pending.empty() ? last_t_ns : pending.back().t_ns) + dt_ms * 1'000'000;
+    t.mode = mode;
+    t.stage = stage;
+    t.proxy.position = proxy;
+    t.tool.position = tool;
+    t.events = events;
+    t.payload.position = proxy;
+    pending.push_back(t);
+    return pending.back();
+  }
+  void flush() {
+    for (std::size_t i = 0; i < pending.size(); i += 16)
+      (void)scene->apply(std::span<const ToolSample>(pending).subspan(i, std::min<std::size_t>(16, pending.size() - i)));
+    if (!pending.empty()) last_t_ns = pending.back().t_ns;
+    pending.clear();
+  }
+  std::int64_t last_t_ns = 0;
+};
 
 bool write(const surface::SurfaceModel& model, const std::string& path) {
   surface::SurfaceMesh copy = model.mesh();
@@ -142,11 +165,13 @@ int main(int argc, char** argv) {
     return 2;
   }
   const fs::path dir = fs::path(script).parent_path();
-  std::unique_ptr<surface::SurfaceModel> model;
+  std::unique_ptr<hybrid::TissueScene> scene;
+  Hand hand;
+  Vec3 blade{};  // where the blade is while cutting
   bool wrote_before = before.empty();
   std::string line;
   int line_no = 0;
-  std::size_t steps = 0, crossings = 0;
+  std::size_t steps = 0;
   try {
     while (std::getline(in, line)) {
       ++line_no;
@@ -168,77 +193,105 @@ int main(int argc, char** argv) {
       };
       const auto args = [&](std::size_t n, const char* form) {
         if (w.size() != n + 1) throw ScriptError{std::string("expected '") + form + "', found " + std::to_string(w.size() - 1) + " values"};
-        if (!model) throw ScriptError{"'mesh' must come before '" + w[0] + "'"};
+        if (!scene) throw ScriptError{"'mesh' must come before '" + w[0] + "'"};
       };
       const auto point = [&] { return Vec3{num(1) * 1e-3, num(2) * 1e-3, num(3) * 1e-3}; };
       const std::string& cmd = w[0];
       if (cmd == "mesh") {
-        if (model) throw ScriptError{"only one 'mesh' per script"};
+        if (scene) throw ScriptError{"only one 'mesh' per script"};
         try {
-          model = make_mesh(w, dir);
+          scene = make_scene(w, dir);
         } catch (const std::invalid_argument&) {
           throw ScriptError{"expected numbers after 'mesh " + (w.size() > 1 ? w[1] : std::string()) + "'"};
         }
+        hand.scene = scene.get();
+      } else if (cmd == "tool") {
+        args(1, "tool NAME");
+        if (!tool_from_name(w[1], hand.mode)) throw ScriptError{"unknown tool '" + w[1] + "': expected probe, scalpel, retractor or drill"};
       } else if (cmd == "press") {
         args(4, "press X Y Z DEPTH");
-        Vec3 p = point();
-        const auto hit = model->bvh().closest_point(model->view(), to_vec3f(p));
+        const surface::SurfaceModel& model = scene->surface();
+        const auto hit = model.bvh().closest_point(model.view(), to_vec3f(point()));
         if (!hit) throw ScriptError{"the mesh is empty"};
-        const auto& t = model->faces()[hit->face];
-        const Vec3 n = normalized(cross(model->position(t[1]) - model->position(t[0]), model->position(t[2]) - model->position(t[0])));
-        model->update_contact(surface::Contact{to_vec3(hit->point), -1.0 * n, num(4) * 1e-3}, 0.0);
+        const auto& t = model.faces()[hit->face];
+        const Vec3 n = normalized(cross(model.position(t[1]) - model.position(t[0]), model.position(t[2]) - model.position(t[0])));
+        const Vec3 at = to_vec3(hit->point);
+        hand.add(Stage::kDeform, at, at - (num(4) * 1e-3) * n, event::kContactBegin);
       } else if (cmd == "relax") {
         args(1, "relax SECONDS");
-        for (double t = 0; t < num(1); t += 0.01) {
-          model->update_contact(std::nullopt, 0.01);
-          model->relax(0.01);
-        }
+        for (double t = 0; t < num(1); t += 0.01) hand.add(Stage::kFree, blade + Vec3{0, 0, 0.05}, blade + Vec3{0, 0, 0.05}, 0, 10);
       } else if (cmd == "cut") {
         args(3, "cut X Y Z");
+        hand.flush();
         if (!wrote_before) {
-          if (!write(*model, before)) throw ScriptError{"cannot write " + before};
+          if (!write(scene->surface(), before)) throw ScriptError{"cannot write " + before};
           wrote_before = true;
         }
-        if (!model->begin_cut(point(), 0.01)) throw ScriptError{"the cut's start is more than 10 mm from the surface"};
+        blade = point();
+        hand.add(Stage::kRupture, blade, blade, event::kRupture);
+        hand.flush();
+        if (!scene->surface().cutting()) throw ScriptError{"the cut's start is more than 5 mm from the surface"};
       } else if (cmd == "to") {
         args(3, "to X Y Z");
-        if (!model->cutting()) throw ScriptError{"'to' outside a cut: start one with 'cut X Y Z'"};
-        crossings += model->cut_to(point()).crossings;
+        if (!scene->surface().cutting()) throw ScriptError{"'to' outside a cut: start one with 'cut X Y Z'"};
+        // The blade at 0.1 mm a tick; lancet-rt reports progress every 0.5 mm of its travel.
+        const Vec3 from = blade, to = point();
+        const int ticks = std::max(1, static_cast<int>(std::ceil(norm(to - from) / 1e-4)));
+        for (int i = 1; i <= ticks; ++i) {
+          const Vec3 p = from + (static_cast<double>(i) / ticks) * (to - from);
+          hand.add(Stage::kCutting, p, p, i % 5 == 0 || i == ticks ? event::kCutProgress : 0u);
+        }
+        blade = to;
         ++steps;
       } else if (cmd == "end") {
         args(0, "end");
-        model->end_cut();
+        hand.add(Stage::kFree, blade + Vec3{0, 0, 0.01}, blade + Vec3{0, 0, 0.01}, event::kContactEnd);
       } else if (cmd == "open" || cmd == "pull") {
         args(1, cmd == "open" ? "open WIDTH" : "pull DISTANCE");
-        if (model->cuts().empty()) throw ScriptError{"'" + cmd + "' before any cut"};
+        hand.flush();
+        if (scene->surface().cuts().empty()) throw ScriptError{"'" + cmd + "' before any cut"};
         const double d = num(1) * 1e-3;
         if (d < 0) throw ScriptError{"expected a width >= 0"};
-        if (cmd == "open") (void)model->set_opening(model->cuts().size() - 1, d);
-        else (void)model->pull(model->cuts().size() - 1, d);
+        hand.add(Stage::kPulling, blade, blade, event::kPull).payload.magnitude = d;
+        if (cmd == "open")  // held there while the wrinkle relaxes
+          for (int i = 0; i < 200; ++i) hand.add(Stage::kPulling, blade, blade, 0, 10);
+      } else if (cmd == "drill") {
+        args(4, "drill X Y Z RADIUS");
+        const double r = num(4) * 1e-3;
+        if (!(r > 0 && r <= 0.01)) throw ScriptError{"expected a radius in (0, 10] mm"};
+        ToolSample& t = hand.add(Stage::kFree, point(), point(), event::kDrillRemove);
+        t.payload.magnitude = r;
       } else {
-        throw ScriptError{"unknown command '" + cmd + "': expected mesh, press, relax, cut, to, end, open or pull"};
+        throw ScriptError{"unknown command '" + cmd + "': expected mesh, tool, press, relax, cut, to, end, open, pull or drill"};
       }
     }
-    if (!model) throw ScriptError{"the script has no 'mesh' line"};
+    if (!scene) throw ScriptError{"the script has no 'mesh' line"};
+    hand.add(Stage::kFree, blade + Vec3{0, 0, 0.05}, blade + Vec3{0, 0, 0.05});  // the hand leaves
+    hand.flush();
   } catch (const ScriptError& e) {
     std::fprintf(stderr, "lancet-cut-replay: %s:%d: %s\n", script.c_str(), line_no, e.message.c_str());
     return 2;
   }
-  if (model->cutting()) model->end_cut();
-  if (!wrote_before && !write(*model, before)) {
+  const surface::SurfaceModel& model = scene->surface();
+  if (!wrote_before && !write(model, before)) {
     std::fprintf(stderr, "lancet-cut-replay: cannot write %s\n", before.c_str());
     return 2;
   }
-  if (!write(*model, after)) {
+  if (!write(model, after)) {
     std::fprintf(stderr, "lancet-cut-replay: cannot write %s\n", after.c_str());
     return 2;
   }
-  const auto st = model->stats();
+  const auto st = model.stats();
   std::size_t pairs = 0;
-  for (const auto& c : model->cuts()) pairs += c.pairs.size();
-  std::printf("{\"cuts\": %zu, \"steps\": %zu, \"crossings\": %zu, \"split_vertices\": %zu, \"faces\": %zu, \"vertices\": %zu, "
-              "\"boundary_edges\": %zu, \"non_manifold_vertices\": %zu, \"flipped_faces\": %zu, \"after\": \"%s\"}\n",
-              model->cuts().size(), steps, crossings, pairs, st.faces, st.vertices, st.boundary_edges, st.non_manifold_vertices,
-              st.flipped_faces, after.c_str());
+  for (const auto& c : model.cuts()) pairs += c.pairs.size();
+  const auto cuts = scene->cut_figures();
+  const auto grooves = scene->grooves();
+  std::printf("{\"cuts\": %zu, \"steps\": %zu, \"split_vertices\": %zu, \"longest_cut_mm\": %.2f, \"opening_mm\": %.2f, "
+              "\"faces\": %zu, \"vertices\": %zu, \"boundary_edges\": %zu, \"non_manifold_vertices\": %zu, \"flipped_faces\": %zu, "
+              "\"grooves\": %zu, \"groove_width_mm\": %.2f, \"groove_depth_mm\": %.2f, \"voxels_drilled\": %llu, \"after\": \"%s\"}\n",
+              model.cuts().size(), steps, pairs, cuts.longest * 1e3, cuts.opening * 1e3, st.faces, st.vertices, st.boundary_edges,
+              st.non_manifold_vertices, st.flipped_faces, grooves.size(), grooves.empty() ? 0.0 : grooves.back().top_gap * 1e3,
+              grooves.empty() ? 0.0 : grooves.back().depth * 1e3, static_cast<unsigned long long>(scene->events().voxels_drilled),
+              after.c_str());
   return 0;
 }

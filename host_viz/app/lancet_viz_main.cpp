@@ -1,6 +1,8 @@
-// lancet-viz: the visualizer process. Draws the tissue and the tool, drains lancet-rt's
-// ToolSamples every frame and publishes the TissuePatch around the tool. Keeps running (and says
-// so on screen) when lancet-rt is absent or goes away.
+// lancet-viz: the visualizer process. Wires the tissue scene (hybrid::TissueScene, built from a
+// training scenario or the built-in tissue) to lancet-rt through the shared-memory link
+// (VizSession), and both to the window (SceneRenderer, Overlay): each frame the drained
+// ToolSamples drive the scene, the scene's patch around the tool is published, what changed is
+// drawn. Keeps running (and says so on screen) when lancet-rt is absent or goes away.
 
 #include <epoxy/gl.h>
 #define GLFW_INCLUDE_NONE
@@ -16,13 +18,14 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <optional>
+#include <span>
 #include <thread>
+#include <vector>
 
 #include "app/viz_session.hpp"
-#include "hybrid/block_volume.hpp"
-#include "hybrid/phantom_skin.hpp"
-#include "hybrid/volume_brick.hpp"
-#include "volume/drill.hpp"
+#include "hybrid/scenario_scene.hpp"
+#include "hybrid/tissue_scene.hpp"
 #include "render/overlay.hpp"
 #include "render/scene_renderer.hpp"
 #include "render/window.hpp"
@@ -60,85 +63,33 @@ struct VizOptions {
   int width = 1280, height = 720;
   double patch_radius_mm = 20;
   double fps = 60;
-};
-
-// What the trainee did to the surface, measured on the mesh: the cuts, the longest one's length
-// along its chain of split vertices (at rest) and the widest gap between the two lips of any cut
-// (paired vertices, as they are now).
-struct CutFigures {
-  std::size_t cuts = 0;
-  double longest_mm = 0, opening_mm = 0;
-  lancet::Vec3 from{}, to{};  ///< the longest cut's ends on the mesh (m)
-};
-CutFigures measure_cuts(const lancet::surface::SurfaceModel& model) {
-  CutFigures f;
-  f.cuts = model.cuts().size();
-  for (const auto& c : model.cuts()) {
-    double len = 0;
-    for (std::size_t i = 1; i < c.chain.size(); ++i)
-      len += lancet::norm(model.rest_position(c.chain[i]) - model.rest_position(c.chain[i - 1]));
-    if (len * 1e3 >= f.longest_mm && !c.chain.empty()) {
-      f.longest_mm = len * 1e3;
-      f.from = model.rest_position(c.chain.front());
-      f.to = model.rest_position(c.chain.back());
-    }
-    for (const auto& pr : c.pairs)
-      f.opening_mm = std::max(f.opening_mm, lancet::norm(model.position(pr.left) - model.position(pr.right)) * 1e3);
-  }
-  return f;
-}
-
-// What lancet-rt's events said happened, for the trainee (the overlay) and the stats.
-struct EventTally {
-  std::uint64_t contacts = 0, contact_ends = 0, ruptures = 0, grabs = 0, releases = 0, clamped_ticks = 0, faded_ticks = 0,
-                fault_ticks = 0;
-  std::string last;  ///< the newest event worth a line on screen
-  void add(const lancet::ToolSample& t) {
-    using namespace lancet::event;
-    char buf[128];
-    if ((t.events & kContactBegin) != 0) ++contacts;
-    if ((t.events & kContactEnd) != 0) ++contact_ends;
-    if ((t.events & kForceFaded) != 0) ++faded_ticks;
-    if ((t.events & kRupture) != 0) {
-      ++ruptures;
-      std::snprintf(buf, sizeof buf, "the skin ruptured at %.1f N: cutting", t.payload.magnitude);
-      last = buf;
-    }
-    if ((t.events & kGrab) != 0) {
-      ++grabs;
-      last = "the retractor holds the skin";
-    }
-    if ((t.events & kRelease) != 0) {
-      ++releases;
-      last = "the grip slipped: pulled past the skin's elastic limit";
-    }
-    if ((t.events & kForceClamped) != 0) {
-      if (clamped_ticks++ == 0 || last.rfind("force limited", 0) != 0) last = "force limited by the safety clamp: press less hard";
-    }
-    if ((t.events & kFault) != 0) ++fault_ticks;
-  }
-};
-
-struct DrillStats {
-  std::uint64_t removals = 0;       ///< kDrillRemove events applied to the volume
-  std::uint64_t voxels = 0;         ///< voxels they removed
+  std::string scenario_name;  ///< for the stats
 };
 
 bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
-                 const DrillStats& drill, const CutFigures& cuts, const EventTally& ev) {
+                 const lancet::hybrid::TissueScene& scene, const lancet::hybrid::TaskStatus* task) {
   std::FILE* f = std::fopen(o.stats.c_str(), "w");
   if (f == nullptr) return false;
   const auto& st = s.stats();
+  const auto& ev = scene.events();
+  const auto cuts = scene.cut_figures();
+  const auto grooves = scene.grooves();
+  lancet::hybrid::GrooveFigures groove{};  // the widest
+  for (const auto& g : grooves)
+    if (g.top_gap >= groove.top_gap) groove = g;
   std::fprintf(f,
                "{\n  \"frames\": %llu,\n  \"connections\": %u,\n  \"rt_losses\": %u,\n  \"link\": \"%s\",\n"
                "  \"samples_received\": %llu,\n  \"samples_total\": %llu,\n  \"first_seq\": %llu,\n  \"last_seq\": %llu,\n"
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
                "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
-               "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n"
+               "  \"status_rejected\": %llu,\n  \"drill_removals\": %llu,\n  \"voxels_drilled\": %llu,\n  \"bone_updates\": %llu,\n"
                "  \"cuts\": %zu,\n  \"longest_cut_mm\": %.2f,\n"
                "  \"cut_opening_mm\": %.2f,\n  \"cut_from_mm\": [%.2f, %.2f, %.2f],\n  \"cut_to_mm\": [%.2f, %.2f, %.2f],\n"
-               "  \"contacts\": %llu,\n  \"contact_ends\": %llu,\n  \"ruptures\": %llu,\n  \"grabs\": %llu,\n  \"releases\": %llu,\n"
+               "  \"grooves\": %zu,\n  \"groove_width_mm\": %.2f,\n  \"groove_depth_mm\": %.2f,\n  \"groove_faces\": %zu,\n"
+               "  \"contacts\": %llu,\n  \"contact_ends\": %llu,\n  \"ruptures\": %llu,\n  \"cut_steps\": %llu,\n"
+               "  \"grabs\": %llu,\n  \"releases\": %llu,\n  \"pulls\": %llu,\n"
                "  \"clamped_ticks\": %llu,\n  \"faded_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
+               "  \"scenario\": \"%s\",\n  \"task_progress\": %.3f,\n  \"task_damaged\": %zu,\n"
                "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
@@ -150,22 +101,31 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(st.discarded), static_cast<unsigned long long>(st.max_batch),
                static_cast<unsigned long long>(s.patches_published()), static_cast<unsigned long long>(st.rejected),
                static_cast<unsigned long long>(st.ring_resets), static_cast<unsigned long long>(st.status_rejected),
-               static_cast<unsigned long long>(drill.removals), static_cast<unsigned long long>(drill.voxels),
-               cuts.cuts, cuts.longest_mm, cuts.opening_mm,
+               static_cast<unsigned long long>(ev.drill_removals), static_cast<unsigned long long>(ev.voxels_drilled),
+               static_cast<unsigned long long>(ev.bone_updates), cuts.cuts, cuts.longest * 1e3, cuts.opening * 1e3,
                cuts.from.x * 1e3, cuts.from.y * 1e3, cuts.from.z * 1e3, cuts.to.x * 1e3, cuts.to.y * 1e3, cuts.to.z * 1e3,
+               grooves.size(), groove.top_gap * 1e3, groove.depth * 1e3, groove.faces,
                static_cast<unsigned long long>(ev.contacts), static_cast<unsigned long long>(ev.contact_ends),
-               static_cast<unsigned long long>(ev.ruptures),
+               static_cast<unsigned long long>(ev.ruptures), static_cast<unsigned long long>(ev.cut_steps),
                static_cast<unsigned long long>(ev.grabs), static_cast<unsigned long long>(ev.releases),
+               static_cast<unsigned long long>(ev.pulls),
                static_cast<unsigned long long>(ev.clamped_ticks), static_cast<unsigned long long>(ev.faded_ticks),
-               static_cast<unsigned long long>(ev.fault_ticks),
+               static_cast<unsigned long long>(ev.fault_ticks), o.scenario_name.c_str(), task ? task->progress : 0.0,
+               task ? task->damaged.size() : std::size_t{0},
                o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
 
 std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSession& s, const Interaction& ui,
-                                                      bool headless, const EventTally& events) {
+                                                      bool headless, const lancet::hybrid::SceneEvents& events,
+                                                      const lancet::scenario::Scenario* scenario,
+                                                      const lancet::hybrid::TaskStatus* task, const std::string& keys) {
   using lancet::render::OverlayLine;
   std::vector<OverlayLine> lines;
+  if (scenario != nullptr) {
+    lines.push_back({"scenario " + scenario->name + ": " + scenario->description});
+    if (task != nullptr) lines.push_back({task->line, !task->damaged.empty()});
+  }
   lines.push_back({s.link_message(), s.link() != lancet::viz::Link::kConnected});
   char buf[256];
   if (const auto& st = s.rt_status(); st && s.link() == lancet::viz::Link::kConnected) {
@@ -190,7 +150,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
                   t.tool.position.y * 1e3, t.tool.position.z * 1e3);
     lines.push_back({buf});
   }
-  if (!events.last.empty()) lines.push_back({events.last, events.last.rfind("force limited", 0) == 0});
+  if (!events.last.empty()) lines.push_back({events.last, events.last_is_warning});
   const auto& st = s.stats();
   std::snprintf(buf, sizeof buf, "samples %llu received, %llu lost, %llu out of order; patch %u triangles",
                 static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(st.lost),
@@ -205,7 +165,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
-    lines.push_back({"1-4: probe / scalpel / retractor / drill   R: reset   W: re-arm watchdog   Esc: quit"});
+    lines.push_back({keys + "   R: reset   W: re-arm watchdog   Esc: quit"});
   }
   return lines;
 }
@@ -226,18 +186,29 @@ int main(int argc, char** argv) {
   cli.add_option("--patch-radius-mm", o.patch_radius_mm, "radius of the tissue patch sent to lancet-rt")
       ->check(CLI::Range(1.0, 200.0))->capture_default_str();
   cli.add_option("--fps", o.fps, "frame-rate cap")->check(CLI::Range(1.0, 1000.0))->capture_default_str();
+  std::string scenario_path, volume_path;
+  auto* scenario_opt = cli.add_option("--scenario", scenario_path,
+                                      "a training scenario (host_viz/scenarios/*.toml): the tissue, the tools, the camera, "
+                                      "the task and the structures not to damage");
+  cli.add_option("--volume", volume_path, "the CT for a scenario whose tissue is a file (DICOM directory, .mhd, .nrrd)")
+      ->needs(scenario_opt);
   std::string tissue = "block";
-  cli.add_option("--tissue", tissue, "block: the procedural skin block; phantom: the skin of the built-in CT phantom (marching cubes)")
-      ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str();
+  cli.add_option("--tissue", tissue, "without --scenario: phantom: the skin of the built-in CT phantom; block: the procedural skin block")
+      ->check(CLI::IsMember({"block", "phantom"}))->capture_default_str()->excludes(scenario_opt);
   std::string tool;
-  cli.add_option("--tool", tool, "pick this tool in lancet-rt when connected (as the keys 1-4 do)")
-      ->check(CLI::IsMember(std::vector<std::string>(std::begin(lancet::kToolNames), std::end(lancet::kToolNames))));
+  std::vector<std::string> tool_choices(std::begin(lancet::kToolNames), std::end(lancet::kToolNames));
+  tool_choices.emplace_back("none");
+  cli.add_option("--tool", tool,
+                 "pick this tool in lancet-rt when connected (as the keys 1-4 do); default: the scenario's start_tool; "
+                 "none: leave it to lancet-rt (a --trajectory that picks its own tools)")
+      ->check(CLI::IsMember(tool_choices));
   std::string trace_path;
   cli.add_option("--trace", trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
                  "patch version it used), one line a servo tick");
   CLI11_PARSE(cli, argc, argv);
   if (o.headless && o.duration == 0) o.duration = 5;
+  const bool tool_given = !tool.empty();
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> trace(nullptr, &std::fclose);
   if (!trace_path.empty()) {
     trace.reset(std::fopen(trace_path.c_str(), "w"));
@@ -248,6 +219,52 @@ int main(int argc, char** argv) {
     std::fputs("t_s,stage,events,tool_x_mm,tool_y_mm,tool_z_mm,proxy_x_mm,proxy_y_mm,proxy_z_mm,force_x_n,force_y_n,"
                "force_z_n,patch_version\n",
                trace.get());
+  }
+
+  // The tissue: a scenario's, or the built-in one.
+  std::optional<lancet::scenario::Scenario> scenario;
+  lancet::hybrid::SceneDescription desc;
+  if (!scenario_path.empty()) {
+    auto loaded = lancet::scenario::load_scenario(scenario_path);
+    if (!loaded.ok()) {
+      std::fprintf(stderr, "lancet-viz: %s\n", loaded.error().message.c_str());
+      return 2;
+    }
+    scenario = std::move(loaded).value();
+    auto d = lancet::hybrid::scene_description(*scenario, volume_path);
+    if (!d.ok()) {
+      std::fprintf(stderr, "lancet-viz: %s\n", d.error().message.c_str());
+      return 2;
+    }
+    desc = std::move(d).value();
+    o.scenario_name = scenario->name;
+    if (!tool_given) tool = lancet::tool_name(scenario->start_tool);
+  } else {
+    desc.source = tissue == "block" ? lancet::hybrid::SceneSource::kBlock : lancet::hybrid::SceneSource::kPhantom;
+  }
+  if (tool == "none") tool.clear();
+  desc.patch.radius = o.patch_radius_mm * 1e-3;
+  auto made = lancet::hybrid::TissueScene::create(std::move(desc));
+  if (!made.ok()) {
+    std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
+    return 3;
+  }
+  lancet::hybrid::TissueScene& scene = *made.value();
+  std::optional<lancet::hybrid::TaskMonitor> task;
+  std::vector<lancet::Vec3> guide;
+  if (scenario) {
+    task.emplace(*scenario, scene);
+    if (scenario->task == lancet::scenario::TaskKind::kIncision) guide = scene.drape(scenario->incision.line);
+    std::printf("lancet-viz: scenario %s (%s): %s\n", scenario->name.c_str(), scenario->file.c_str(), scenario->description.c_str());
+  }
+  // The tools on offer and their keys.
+  std::vector<lancet::ToolMode> offered = scenario ? scenario->tools
+                                                   : std::vector<lancet::ToolMode>{lancet::ToolMode::kProbe, lancet::ToolMode::kScalpel,
+                                                                                   lancet::ToolMode::kRetractor, lancet::ToolMode::kDrill};
+  std::string keys;
+  for (auto m : offered) {
+    keys += keys.empty() ? "" : " / ";
+    keys += std::to_string(static_cast<int>(m) + 1) + ": " + lancet::tool_name(m);
   }
 
   std::signal(SIGINT, on_signal);
@@ -262,69 +279,41 @@ int main(int argc, char** argv) {
   auto& win = *window.value();
   std::printf("lancet-viz: %s\n", win.gl_description().c_str());
 
-  // The tissue: the surface model on the tissue block (cut, dented, opened by what lancet-rt
-  // reports), drawn from a plain copy refreshed when it changes.
-  // The tissue's volume too: the brick every patch carries, carved by lancet-rt's drill (the
-  // phantom's CT, placed under its skin; under the block, layers parallel to its surface).
-  lancet::volume::Phantom tissue_volume;
-  lancet::hybrid::VolumePlacement placement;
-  lancet::surface::TriangleMesh mesh;
-  if (tissue == "phantom") {
-    tissue_volume = lancet::volume::make_phantom(lancet::volume::PhantomParams{});
-    mesh = lancet::hybrid::phantom_skin(tissue_volume, placement);
-  } else {
-    const lancet::surface::TissueBlockParams block{};
-    tissue_volume = lancet::hybrid::make_block_volume(block);
-    mesh = lancet::surface::make_tissue_block(block);
-  }
-  auto made = lancet::surface::SurfaceModel::create(mesh.vertices, mesh.triangles, mesh.material);
-  if (!made.ok()) {
-    std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
-    return 3;
-  }
-  lancet::surface::SurfaceModel& model = *made.value();
-  std::uint64_t shown_revision = model.revision();
   lancet::viz::VizSessionParams sp;
   sp.shm_name = o.shm;
-  sp.patch.radius = o.patch_radius_mm * 1e-3;
   lancet::viz::VizSession session(sp);
-  // Every drained sample: to the trace, and the drill's removals into the volume, before this
-  // frame's patch is cut from it (so the next brick shows them; lancet-rt re-carves the newer ones).
-  DrillStats drill_stats;
-  EventTally events;
-  session.set_brick_source([&](lancet::Vec3 centre, lancet::VoxelBrick& brick) {
-    lancet::hybrid::fill_brick(tissue_volume.volume, placement, centre, brick);
-  });
-  session.set_sample_sink([&, f = trace.get()](const lancet::ToolSample* s, std::size_t n) {
-    for (std::size_t i = 0; i < n; ++i) {
-      const lancet::ToolSample& t = s[i];
-      events.add(t);
-      if (f != nullptr) {
+  // Every drained sample: to the trace, then to the scene (and the task's measure); the patch
+  // around the tool comes from the scene.
+  const auto on_samples = [&, f = trace.get()](std::span<const lancet::ToolSample> batch) {
+    if (f != nullptr) {
+      for (const lancet::ToolSample& t : batch) {
         const lancet::Vec3 a = t.tool.position * 1e3, b = t.proxy.position * 1e3;
         std::fprintf(f, "%.6f,%u,%u,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%llu\n", static_cast<double>(t.t_ns) * 1e-9,
                      static_cast<unsigned>(t.stage), static_cast<unsigned>(t.events), a.x, a.y, a.z, b.x, b.y, b.z,
                      t.force.x, t.force.y, t.force.z, static_cast<unsigned long long>(t.patch_version));
       }
-      if ((t.events & lancet::event::kDrillRemove) == 0) continue;
-      lancet::volume::DrillParams dp;
-      dp.centre = placement.to_volume(t.payload.position);
-      dp.radius = t.payload.magnitude;
-      auto r = lancet::volume::drill_sphere(tissue_volume.volume, dp, tissue_volume.material);
-      if (r.ok()) {
-        ++drill_stats.removals;
-        drill_stats.voxels += r.value().voxels_removed;
-      }
     }
-  });
+    (void)scene.apply(batch);
+    if (task) (void)task->update(scene, batch);
+  };
+  const auto fill_patch = [&](lancet::Vec3 at, lancet::TissuePatch& patch) { (void)scene.export_patch(at, patch); };
 
   int exit_code = 0;
   std::uint64_t frames = 0;
   double variance = -1;
   try {
     lancet::render::SceneRenderer renderer(o.width, o.height);
+    lancet::surface::TriangleMesh mesh;
+    scene.draw_mesh(mesh);
     renderer.set_mesh(mesh);
+    std::uint64_t shown_revision = scene.revision();
     lancet::render::Overlay overlay(win.handle(), !o.headless);
     Interaction ui;
+    if (scenario) {
+      ui.yaw = static_cast<float>(scenario->camera.yaw);
+      ui.pitch = static_cast<float>(scenario->camera.pitch);
+      ui.distance = static_cast<float>(scenario->camera.distance);
+    }
     g_ui = &ui;
     if (!o.headless) glfwSetScrollCallback(win.handle(), on_scroll);
 
@@ -332,21 +321,21 @@ int main(int argc, char** argv) {
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
     bool key_down[7] = {};
-    std::uint32_t tool_sent_for = 0;  // the connection --tool was last sent on
+    std::uint32_t tool_sent_for = 0;  // the connection the starting tool was last sent on
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
       const std::int64_t now = lancet::monotonic_ns();
-      (void)session.frame(now, model);
+      session.frame(now, on_samples, fill_patch);
       if (!tool.empty() && session.link() == lancet::viz::Link::kConnected && tool_sent_for != session.connections()) {
         lancet::Command c{};
         c.kind = lancet::CommandKind::kSetToolMode;
-        (void)lancet::tool_from_name(tool, c.mode);  // CLI11 admitted only the tools' names
+        (void)lancet::tool_from_name(tool, c.mode);  // CLI11 or the scenario admitted only the tools' names
         if (session.send(c, now)) tool_sent_for = session.connections();
       }
-      if (model.revision() != shown_revision) {  // redraw only what changed shape
-        shown_revision = model.revision();
-        model.to_triangle_mesh(mesh);
+      if (scene.revision() != shown_revision) {  // redraw only what changed shape
+        shown_revision = scene.revision();
+        scene.draw_mesh(mesh);
         renderer.set_mesh(mesh);
       }
       if (session.link_message() != last_message) {
@@ -361,10 +350,10 @@ int main(int argc, char** argv) {
         if (fw > 0 && fh > 0) renderer.resize(fw, fh);
         GLFWwindow* h = win.handle();
         if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
-        // Edge-triggered keys: M toggles mouse drive, 1-4 pick the tool, R resets.
-        const int keys[7] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R, GLFW_KEY_W};
+        // Edge-triggered keys: M toggles mouse drive, 1-4 pick an offered tool, R resets, W re-arms.
+        const int key_codes[7] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R, GLFW_KEY_W};
         for (int k = 0; k < 7; ++k) {
-          const bool down = glfwGetKey(h, keys[k]) == GLFW_PRESS;
+          const bool down = glfwGetKey(h, key_codes[k]) == GLFW_PRESS;
           if (down && !key_down[k]) {
             if (k == 0) {
               ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
@@ -373,10 +362,11 @@ int main(int argc, char** argv) {
               lancet::Command c{};
               c.kind = k == 5 ? lancet::CommandKind::kReset : lancet::CommandKind::kRearm;
               (void)session.send(c, now);
-            } else {
+            } else if (const auto mode = static_cast<lancet::ToolMode>(k - 1);
+                       std::find(offered.begin(), offered.end(), mode) != offered.end()) {
               lancet::Command c{};
               c.kind = lancet::CommandKind::kSetToolMode;
-              c.mode = static_cast<lancet::ToolMode>(k - 1);
+              c.mode = mode;
               (void)session.send(c, now);
             }
           }
@@ -395,7 +385,9 @@ int main(int argc, char** argv) {
         glfwGetWindowSize(h, &ww, &wh);
         lancet::Vec3 p;
         if (ui.mouse_drives_stylus && renderer.pick_plane(mx, my, ww, wh, p)) {
-          p.z = -ui.depth_mm * 1e-3;
+          // Pushed depth_mm below the surface under the cursor (or below z = 0 off the tissue).
+          const auto top = scene.surface_below(p.x, p.y);
+          p.z = (top ? top->z : 0.0) - ui.depth_mm * 1e-3;
           session.set_stylus_target(true, p, now);
         }
       }
@@ -409,8 +401,13 @@ int main(int argc, char** argv) {
       }
       in.patch = session.patches_published() > 0 ? &session.patch() : nullptr;
       in.camera_yaw = ui.yaw, in.camera_pitch = ui.pitch, in.camera_distance = ui.distance;
+      if (scenario) in.camera_target = scenario->camera.target;
+      in.guide = guide.empty() ? nullptr : &guide;
       renderer.render(in);
-      overlay.draw("Lancet", status_lines(session, ui, o.headless, events), renderer.width(), renderer.height());
+      overlay.draw("Lancet",
+                   status_lines(session, ui, o.headless, scene.events(), scenario ? &*scenario : nullptr,
+                                task ? &task->status() : nullptr, keys),
+                   renderer.width(), renderer.height());
       if (!o.headless) renderer.present(fw, fh);
       win.swap_and_poll();
       ++frames;
@@ -437,7 +434,8 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
-  if (!o.stats.empty() && !write_stats(o, session, frames, variance, drill_stats, measure_cuts(model), events)) {
+  if (task) std::printf("lancet-viz: %s\n", task->status().line.c_str());
+  if (!o.stats.empty() && !write_stats(o, session, frames, variance, scene, task ? &task->status() : nullptr)) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;
   }

@@ -49,52 +49,7 @@ void VizSession::detach(const std::string& why) {
   message_ = why;
 }
 
-void VizSession::frame(std::int64_t now_ns, const surface::TriangleMesh& mesh) {
-  run_frame(now_ns, [](const ToolSample*, std::size_t) {},
-            [&](TissuePatch& p) {
-              hybrid::export_patch(mesh, latest_.tool.position, params_.patch, scratch_, p);
-              p.brick.valid = 0;
-              if (brick_) brick_(latest_.tool.position, p.brick);
-            });
-}
-
-bool VizSession::frame(std::int64_t now_ns, surface::SurfaceModel& model) {
-  bool changed = false;
-  const auto dt_between = [](const ToolSample& a, const ToolSample& b) {
-    return std::clamp(static_cast<double>(b.t_ns - a.t_ns) * 1e-9, 0.0, 0.1);
-  };
-  run_frame(
-      now_ns,
-      [&](const ToolSample* batch, std::size_t n) {
-        // A pull sets the opening to the hand's displacement (not by it): of a run of pulls in
-        // one stage, only the newest counts.
-        std::size_t last_pull = n;
-        for (std::size_t i = n; i-- > 0;) {
-          if ((batch[i].events & event::kPull) != 0) {
-            last_pull = i;
-            break;
-          }
-        }
-        for (std::size_t i = 0; i < n; ++i) {
-          const ToolSample& t = batch[i];
-          // The cut grows by lancet-rt's cut progress events (every 0.5 mm of blade travel), the
-          // stages change and pulls apply as they come, the dent follows the newest sample.
-          const bool cut_step = t.stage == Stage::kCutting && (t.events & event::kCutProgress) != 0;
-          const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & event::kRupture) != 0 || i == last_pull;
-          const bool last = i + 1 == n;
-          if (!(cut_step || transition || last)) continue;
-          model.apply(t, fed_any_ ? dt_between(fed_, t) : 0.0);
-          fed_ = t;
-          fed_any_ = true;
-          changed = true;
-        }
-      },
-      [&](TissuePatch& p) { hybrid::export_patch(model, latest_.tool.position, params_.patch, scratch_, p, brick_); });
-  return changed;
-}
-
-template <class OnSamples, class Export>
-void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&& export_patch_now) {
+void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, const PatchSource& fill_patch) {
   ++frame_;
   if (!channel_) try_attach(now_ns);
   if (!channel_) return;
@@ -141,8 +96,7 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
       stats_.ingest(batch_.data(), kept);
       latest_ = batch_[kept - 1];
       samples_applied_ = std::max(samples_applied_, latest_.seq);
-      if (sink_) sink_(batch_.data(), kept);
-      on_samples(batch_.data(), kept);
+      if (on_samples) on_samples(std::span<const ToolSample>(batch_.data(), kept));
     }
     if (n < batch_.size()) break;
   }
@@ -160,7 +114,9 @@ void VizSession::run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&&
   // Publish the tissue near the newest tool position.
   if (has_sample()) {
     TissuePatch& p = *patch_;
-    export_patch_now(p);
+    p.n_triangles = 0;
+    p.brick.valid = 0;
+    if (fill_patch) fill_patch(latest_.tool.position, p);
     p.seq = frame_;
     p.t_ns = now_ns;
     p.samples_applied = samples_applied_;

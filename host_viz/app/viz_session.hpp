@@ -1,19 +1,20 @@
 #pragma once
 // VizSession: lancet-viz's side of the shared-memory link, with no OpenGL in it (tested headless).
 // Each frame: attach to lancet-rt's segment if not attached (retrying twice a second), notice when
-// lancet-rt goes away (and keep running), drain every ToolSample since the last frame, publish a
-// TissuePatch around the newest tool position, beat the viz heartbeat.
+// lancet-rt goes away (and keep running), drain every ToolSample since the last frame (checked,
+// handed on in order), publish the TissuePatch the caller fills around the newest tool position,
+// beat the viz heartbeat. It knows nothing of the tissue: the scene (hybrid::TissueScene) does.
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "app/sample_stats.hpp"
-#include "hybrid/patch_export.hpp"
 #include "lancet/shared_model/shared_state.hpp"
-#include "surface/placeholder_mesh.hpp"
 
 namespace lancet::viz {
 
@@ -25,7 +26,6 @@ enum class Link {
 
 struct VizSessionParams {
   std::string shm_name = kDefaultShmName;
-  hybrid::PatchExportParams patch{};
   std::int64_t retry_ns = 500'000'000;       ///< attach retry interval
   std::int64_t rt_timeout_ns = 1'000'000'000;  ///< rt heartbeat age that counts as lost
 };
@@ -34,25 +34,19 @@ class VizSession {
  public:
   explicit VizSession(VizSessionParams params);
 
+  /// Called with the samples drained this frame (checked, in order; several calls a frame when
+  /// more than a batch arrived).
+  using SampleHandler = std::function<void(std::span<const ToolSample> samples)>;
+  /// Fills the patch's triangles and brick around the newest tool position (m); the session sets
+  /// seq, t_ns and samples_applied.
+  using PatchSource = std::function<void(Vec3 tool, TissuePatch& patch)>;
+
   /// One frame's worth of link work at now_ns (CLOCK_MONOTONIC). Not real-time; allocates only
-  /// while its scratch buffers grow.
-  void frame(std::int64_t now_ns, const surface::TriangleMesh& mesh);
-  /// The same with the surface model: the drained ToolSamples also drive it (lancet-rt's cut
-  /// progress events, every 0.5 mm of blade travel, extend the cut; stage changes and pulls apply
-  /// as they come; the dent and the relaxation follow the newest sample once a frame), and the
-  /// patch comes from its BVH. Returns true when the model changed shape this frame.
-  bool frame(std::int64_t now_ns, surface::SurfaceModel& model);
+  /// while its scratch buffers grow. Publishes a patch once a sample has been received.
+  void frame(std::int64_t now_ns, const SampleHandler& on_samples, const PatchSource& fill_patch);
 
   /// Sets (active=true) or releases the stylus target sent to the simulated arm.
   void set_stylus_target(bool active, Vec3 position, std::int64_t now_ns);
-
-  /// Called each frame with the samples drained (checked, in order) before they drive the model.
-  using SampleSink = std::function<void(const ToolSample* samples, std::size_t n)>;
-  void set_sample_sink(SampleSink sink) { sink_ = std::move(sink); }
-
-  /// The voxel brick sent with every patch (around the tool), e.g. from the scene's volume; none:
-  /// the patch carries no brick and lancet-rt's drill acts as a probe.
-  void set_brick_source(hybrid::BrickSource source) { brick_ = std::move(source); }
 
   /// Queues a command for lancet-rt; false when not attached or its ring is full.
   bool send(Command c, std::int64_t now_ns);
@@ -72,8 +66,6 @@ class VizSession {
   [[nodiscard]] std::uint32_t rt_losses() const noexcept { return rt_losses_; }
 
  private:
-  template <class OnSamples, class Export>
-  void run_frame(std::int64_t now_ns, OnSamples&& on_samples, Export&& export_patch);
   void try_attach(std::int64_t now_ns);
   void detach(const std::string& why);
 
@@ -88,7 +80,6 @@ class VizSession {
   ToolSample latest_{};
   std::vector<ToolSample> batch_;
   std::unique_ptr<TissuePatch> patch_;
-  hybrid::PatchExportScratch scratch_;
   std::uint64_t patches_published_ = 0;
   std::optional<RtStatus> rt_status_;
   std::uint64_t command_seq_ = 0;
@@ -96,11 +87,7 @@ class VizSession {
   std::uint64_t target_seq_ = 0;
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;
-  SampleSink sink_;
-  hybrid::BrickSource brick_;
   std::uint64_t samples_applied_ = 0;  ///< seq of the newest sample handed on since attaching
-  ToolSample fed_{};            ///< the last sample the surface model was given
-  bool fed_any_ = false;
 };
 
 }  // namespace lancet::viz

@@ -33,7 +33,10 @@ uniform vec3 u_light;
 out vec4 o_color;
 void main() {
   vec3 base = u_color;
-  if (u_mode == 0) base = v_mat == 2 ? vec3(0.72, 0.22, 0.26) : vec3(0.93, 0.73, 0.63);
+  // By material (PhantomMaterial): air/skin, fat, muscle, cortical bone, marrow, vessel.
+  const vec3 palette[8] = vec3[8](vec3(0.93, 0.73, 0.63), vec3(0.93, 0.73, 0.63), vec3(0.95, 0.85, 0.45), vec3(0.70, 0.25, 0.22),
+                                   vec3(0.92, 0.90, 0.82), vec3(0.80, 0.55, 0.40), vec3(0.72, 0.12, 0.16), vec3(0.93, 0.73, 0.63));
+  if (u_mode == 0) base = palette[clamp(v_mat, 0, 7)];
   if (u_mode == 2) { o_color = vec4(base, 1.0); return; }
   vec3 n = normalize(v_nrm);
   float diffuse = abs(dot(n, normalize(u_light)));   // two-sided
@@ -158,7 +161,7 @@ void SceneRenderer::draw(const GpuMesh& m, GLenum primitive, GLint first, GLsize
 }
 
 void SceneRenderer::render(const SceneInput& in) {
-  const glm::vec3 target(0.0f, 0.0f, 0.0f);
+  const glm::vec3 target = gv(in.camera_target);
   const glm::vec3 eye = target + in.camera_distance * glm::vec3(std::cos(in.camera_pitch) * std::sin(in.camera_yaw),
                                                                 -std::cos(in.camera_pitch) * std::cos(in.camera_yaw),
                                                                 std::sin(in.camera_pitch));
@@ -193,13 +196,21 @@ void SceneRenderer::render(const SceneInput& in) {
     push_vertex(lines, gv(in.tool), glm::vec3(0), 0);
     push_vertex(lines, gv(in.tool + 0.01 * in.force), glm::vec3(0), 0);  // 1 cm per newton
   }
+  const std::size_t force_floats = lines.size() - patch_floats;
+  if (in.guide != nullptr)  // the task's line, as segments, lifted like the wireframe
+    for (std::size_t i = 1; i < in.guide->size(); ++i) {
+      push_vertex(lines, gv((*in.guide)[i - 1]) + glm::vec3(0, 0, 0.0003f), glm::vec3(0), 0);
+      push_vertex(lines, gv((*in.guide)[i]) + glm::vec3(0, 0, 0.0003f), glm::vec3(0), 0);
+    }
   if (!lines.empty()) {
     glNamedBufferData(lines_.vbo.get(), static_cast<GLsizeiptr>(lines.size() * sizeof(float)), lines.data(),
                       GL_STREAM_DRAW);
     const auto patch_vertices = static_cast<GLsizei>(patch_floats / 7);
-    const auto force_vertices = static_cast<GLsizei>((lines.size() - patch_floats) / 7);
+    const auto force_vertices = static_cast<GLsizei>(force_floats / 7);
+    const auto guide_vertices = static_cast<GLsizei>((lines.size() - patch_floats - force_floats) / 7);
     draw(lines_, GL_LINES, 0, patch_vertices, glm::mat4(1.0f), glm::vec3(0.2f, 0.85f, 0.95f), 2);
     draw(lines_, GL_LINES, patch_vertices, force_vertices, glm::mat4(1.0f), glm::vec3(1.0f, 0.85f, 0.1f), 2);
+    draw(lines_, GL_LINES, patch_vertices + force_vertices, guide_vertices, glm::mat4(1.0f), glm::vec3(0.2f, 0.35f, 0.95f), 2);
   }
 
   if (in.has_tool) {

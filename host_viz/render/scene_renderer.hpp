@@ -4,6 +4,7 @@
 // shown in the window or read back for a screenshot. Needs a current GL 4.5 core context.
 
 #include <glm/glm.hpp>
+#include <vector>
 
 #include "lancet/shared_model/messages.hpp"
 #include "render/gl_objects.hpp"
@@ -21,6 +22,9 @@ struct SceneInput {
   float camera_yaw = 0.6f;     ///< rad, about +z
   float camera_pitch = 0.55f;  ///< rad above the surface plane
   float camera_distance = 0.26f;  ///< m
+  Vec3 camera_target{};        ///< m, the point the camera looks at and turns about
+  /// A guide drawn over the surface (the scenario's incision line, already on the surface), or null.
+  const std::vector<Vec3>* guide = nullptr;
 };
 
 class SceneRenderer {

@@ -174,41 +174,6 @@ std::optional<std::uint32_t> SurfaceModel::locate(Vec3 p, double max_distance, V
   return hit->face;
 }
 
-// ---- lancet-rt's stream -------------------------------------------------------------------------
-
-void SurfaceModel::apply(const ToolSample& sample, double dt) {
-  const Vec3 tool = sample.tool.position, proxy = sample.proxy.position;
-  if (!is_finite(tool) || !is_finite(proxy)) return;
-  const bool cutting_stage = sample.stage == Stage::kRupture || sample.stage == Stage::kCutting;
-  if (cutting() && !cutting_stage) end_cut();
-  switch (sample.stage) {
-    case Stage::kDeform: {
-      const Vec3 into = tool - proxy;
-      update_contact(Contact{proxy, normalized(into), norm(into)}, dt);
-      break;
-    }
-    case Stage::kRupture:
-    case Stage::kCutting: {
-      update_contact(std::nullopt, dt);
-      if (!cutting()) {
-        const Vec3 at = (sample.events & event::kRupture) != 0 && is_finite(sample.payload.position) ? sample.payload.position : proxy;
-        if (!begin_cut(at)) break;
-      }
-      (void)cut_to(proxy);
-      break;
-    }
-    case Stage::kPulling:
-      update_contact(std::nullopt, dt);
-      if (!cuts_.empty() && (sample.events & event::kPull) != 0) (void)pull(cuts_.size() - 1, sample.payload.magnitude);
-      relax(dt);
-      break;
-    default:
-      update_contact(std::nullopt, dt);
-      relax(dt);
-      break;
-  }
-}
-
 // ---- deformation --------------------------------------------------------------------------------
 
 void SurfaceModel::update_contact(const std::optional<Contact>& contact, double dt) {

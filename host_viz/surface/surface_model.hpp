@@ -30,7 +30,6 @@
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
 
 #include "lancet/shared_model/geometry.hpp"
-#include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 #include "surface/bvh.hpp"
 #include "surface/placeholder_mesh.hpp"
@@ -144,13 +143,6 @@ class SurfaceModel {
   [[nodiscard]] const SurfaceParams& params() const noexcept { return params_; }
   /// Bumped whenever positions or connectivity change (to redraw only when needed).
   [[nodiscard]] std::uint64_t revision() const noexcept { return revision_; }
-
-  // ---- driven by lancet-rt ----
-  /// Applies one ToolSample (dt: seconds since the previous one): in the deform stage the dent
-  /// follows the proxy and the tool's depth below it; rupture or cutting starts or extends a cut
-  /// along the proxy's path; leaving the cutting stage ends it; pulling opens the newest cut by
-  /// the payload's displacement; otherwise the surface relaxes.
-  void apply(const ToolSample& sample, double dt);
 
   // ---- pre-rupture deformation ----
   /// Advances the deformation by dt: with a contact, vertices near it take the Gaussian dent;

@@ -1,8 +1,9 @@
 // lancet-bench-scene: one lancet-viz frame's scene update, as the viz runs it: the 16 ToolSamples
-// of 16 ms at 1 kHz drained from the shared ring (checked), applied to the surface model (dent,
-// rupture, the cut growing by progress events, the retractor's pull), the TissuePatch exported
-// around the tool (with the voxel brick on the phantom) and written to the segment; then, apart,
-// the copy of the mesh for drawing that follows a change of shape. On the phantom's skin and on a
+// of 16 ms at 1 kHz drained from the shared ring (checked), applied to the TissueScene (dent,
+// rupture, the cut growing by progress events, the cut reaching into the volume when the blade
+// leaves, the retractor's pull opening the incision and its ChainMail groove), the TissuePatch
+// exported around the tool with the voxel brick and written to the segment; then, apart, the
+// mesh for drawing (surface and groove walls) that follows a change of shape. On the phantom's skin and on a
 // 1M-triangle sheet. The target: p99 < 4 ms for the update. Prints one JSON object.
 //   lancet-bench-scene [--quick]
 
@@ -20,11 +21,7 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
-#include "hybrid/phantom_skin.hpp"
-#include "hybrid/volume_brick.hpp"
-#include "surface/placeholder_mesh.hpp"
-#include "surface/surface_model.hpp"
-#include "volume/phantom.hpp"
+#include "hybrid/tissue_scene.hpp"
 
 namespace {
 
@@ -45,21 +42,20 @@ Pct percentiles(std::vector<double> v) {
 
 struct Tissue {
   std::string name;
-  surface::TriangleMesh mesh;
-  std::optional<volume::Phantom> phantom;
-  hybrid::VolumePlacement placement;
+  std::unique_ptr<hybrid::TissueScene> scene;
   std::function<double(double, double)> height;  ///< surface height at (x, y), m
 };
 
 Tissue phantom_tissue() {
   Tissue t;
   t.name = "phantom skin";
-  t.phantom = volume::make_phantom({});
-  t.mesh = hybrid::phantom_skin(*t.phantom, t.placement);  // as lancet-viz places it
+  t.scene = std::move(hybrid::TissueScene::create({}).value());
+  surface::TriangleMesh mesh;
+  t.scene->surface().to_triangle_mesh(mesh);
   // The skin's top along x near y = 0 (where the tool works): the highest vertex in each 1 mm
   // slab of x within 2 mm of y = 0.
   auto top_by_x = std::make_shared<std::vector<double>>(400, -1.0);  // x from −0.2 m in 1 mm slabs
-  for (const auto& v : t.mesh.vertices) {
+  for (const auto& v : mesh.vertices) {
     const auto slab = static_cast<long>(std::floor((v.x + 0.2) / 0.001));
     if (slab >= 0 && slab < 400 && std::abs(v.y) < 0.002) (*top_by_x)[static_cast<std::size_t>(slab)] =
         std::max((*top_by_x)[static_cast<std::size_t>(slab)], static_cast<double>(v.z));
@@ -74,10 +70,12 @@ Tissue phantom_tissue() {
 Tissue sheet_tissue() {
   Tissue t;
   t.name = "sheet 1M triangles";
-  surface::TissueBlockParams p;
-  p.cells = 707;  // 2 · 707² ≈ 1.0M triangles of 1 mm cells, 0.71 m across
-  p.half_extent = 0.0005 * p.cells;
-  t.mesh = surface::make_tissue_block(p);
+  hybrid::SceneDescription d;
+  d.source = hybrid::SceneSource::kBlock;
+  d.block.cells = 707;  // 2 · 707² ≈ 1.0M triangles of 1 mm cells, 0.71 m across
+  d.block.half_extent = 0.0005 * d.block.cells;
+  const surface::TissueBlockParams p = d.block;
+  t.scene = std::move(hybrid::TissueScene::create(std::move(d)).value());
   t.height = [p](double x, double y) { return surface::tissue_block_height(p, x, y); };
   return t;
 }
@@ -93,7 +91,7 @@ int main(int argc, char** argv) {
   Tissue tissues[2] = {phantom_tissue(), sheet_tissue()};
   for (int n = 0; n < 2; ++n) {
     Tissue& tissue = tissues[n];
-    auto model = std::move(surface::SurfaceModel::create(tissue.mesh.vertices, tissue.mesh.triangles, tissue.mesh.material).value());
+    hybrid::TissueScene& scene = *tissue.scene;
     const std::string shm = "/lancet-bench-scene-" + std::to_string(getpid());
     auto channel = SharedChannel::create(shm, {});
     if (!channel) {
@@ -104,17 +102,20 @@ int main(int argc, char** argv) {
     viz::VizSessionParams vp;
     vp.shm_name = shm;
     viz::VizSession session(vp);
-    if (tissue.phantom) {
-      session.set_brick_source([&](Vec3 c, VoxelBrick& b) { hybrid::fill_brick(tissue.phantom->volume, tissue.placement, c, b); });
-    }
+    const auto apply = [&](std::span<const ToolSample> batch) { (void)scene.apply(batch); };
+    bool brick = false;
+    const auto fill = [&](Vec3 tool, TissuePatch& patch) {
+      (void)scene.export_patch(tool, patch);
+      brick = brick || patch.brick.valid != 0;
+    };
     std::int64_t now = monotonic_ns();
     s.rt_heartbeat.beat(now, getpid());
-    (void)session.frame(now, *model);  // attach
+    session.frame(now, apply, fill);  // attach
     const auto surface_z = [&](double x, double y) { return tissue.height(x, y); };
     std::uint64_t seq = 0;
     std::vector<double> press_us, cut_us, pull_us, draw_us;
     surface::TriangleMesh draw;
-    std::uint64_t shown = model->revision();
+    std::uint64_t shown = scene.revision();
     const double x0 = -0.02, speed = 0.02;  // m, m/s along x
     const double z0 = surface_z(x0, 0.001);
     const int frames = press_frames + cut_frames + pull_frames;
@@ -159,13 +160,13 @@ int main(int argc, char** argv) {
       }
       s.rt_heartbeat.beat(now, getpid());
       const auto t0 = Clock::now();
-      (void)session.frame(now, *model);
+      session.frame(now, apply, fill);
       const double us = us_since(t0);
       (f < press_frames ? press_us : f < press_frames + cut_frames ? cut_us : pull_us).push_back(us);
-      if (model->revision() != shown) {
-        shown = model->revision();
+      if (scene.revision() != shown) {
+        shown = scene.revision();
         const auto t1 = Clock::now();
-        model->to_triangle_mesh(draw);
+        scene.draw_mesh(draw);
         draw_us.push_back(us_since(t1));
       }
     }
@@ -174,11 +175,15 @@ int main(int argc, char** argv) {
     all.insert(all.end(), cut_us.begin(), cut_us.end());
     all.insert(all.end(), pull_us.begin(), pull_us.end());
     const auto al = percentiles(all);
-    std::printf("    {\"tissue\": \"%s\", \"triangles\": %zu, \"brick\": %s, \"cuts\": %zu,\n"
+    const auto grooves = scene.grooves();
+    std::printf("    {\"tissue\": \"%s\", \"triangles\": %zu, \"brick\": %s, \"cuts\": %zu, \"groove_width_mm\": %.2f,"
+                " \"groove_depth_mm\": %.2f, \"groove_conflicts\": %llu,\n"
                 "     \"update_us\": {\"all\": {\"p50\": %.0f, \"p99\": %.0f, \"max\": %.0f}, \"press\": {\"p50\": %.0f, \"p99\": %.0f},"
                 " \"cut\": {\"p50\": %.0f, \"p99\": %.0f}, \"pull\": {\"p50\": %.0f, \"p99\": %.0f}},\n"
                 "     \"mesh_copy_for_drawing_us\": {\"p50\": %.0f, \"p99\": %.0f, \"count\": %zu}}%s\n",
-                tissue.name.c_str(), tissue.mesh.triangles.size(), tissue.phantom ? "true" : "false", model->cuts().size(), al.p50,
+                tissue.name.c_str(), scene.surface().n_faces(), brick ? "true" : "false", scene.surface().cuts().size(),
+                grooves.empty() ? 0.0 : grooves[0].top_gap * 1e3, grooves.empty() ? 0.0 : grooves[0].depth * 1e3,
+                grooves.empty() ? 0ull : static_cast<unsigned long long>(grooves[0].conflicts), al.p50,
                 al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(), n == 0 ? "," : "");
   }
   std::printf("  ]\n}\n");

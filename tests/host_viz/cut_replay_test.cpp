@@ -88,6 +88,27 @@ TEST_F(CutReplay, MeshFilesAreReadAndWrittenInMillimetresOrInMetresWhenAsked) {
   EXPECT_EQ(run({script("mesh sheet 20 60\n"), "--units", "inch", "--after", path("x.ply")}, out), 2);
 }
 
+// The script drives the visualizer's own scene: the cut reaches into the volume under the sheet
+// as a groove that opens with the incision, and the drill removes voxels.
+TEST_F(CutReplay, TheScriptGoesThroughTheTissueScene) {
+  const auto script = [&](const std::string& text) { return write("s.txt", text); };
+  std::string out;
+  ASSERT_EQ(run({script("mesh sheet 40 40\ntool scalpel\ncut -10 0 0\nto 10 0 0\nend\ntool retractor\nopen 4\n"
+                        "tool drill\ndrill 0 10 -3 2\n"),
+                 "--after", path("a.ply")},
+                out),
+            0)
+      << out;
+  EXPECT_NE(out.find("\"grooves\": 1, \"groove_width_mm\": 4.0"), std::string::npos) << out;
+  const auto at = out.find("\"voxels_drilled\": ");
+  ASSERT_NE(at, std::string::npos) << out;
+  EXPECT_GT(std::stoi(out.substr(at + 18)), 20) << out;
+  EXPECT_EQ(run({script("mesh sheet 10 20\ntool saw\n"), "--after", path("a.obj")}, out), 2);
+  EXPECT_NE(out.find(":2: unknown tool 'saw'"), std::string::npos) << out;
+  EXPECT_EQ(run({script("mesh sheet 10 20\ndrill 0 0 0 50\n"), "--after", path("a.obj")}, out), 2);
+  EXPECT_NE(out.find(":2: expected a radius in (0, 10] mm"), std::string::npos) << out;
+}
+
 TEST_F(CutReplay, BadScriptsNameTheLine) {
   const auto script = [&](const std::string& text) { return write("s.txt", text); };
   std::string out;

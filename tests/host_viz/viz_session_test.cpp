@@ -6,6 +6,9 @@
 #include <memory>
 #include <string>
 
+#include "hybrid/patch_export.hpp"
+#include "hybrid/tissue_scene.hpp"
+
 namespace lancet::viz {
 namespace {
 
@@ -19,6 +22,12 @@ ToolSample sample(std::uint64_t seq, Vec3 p) {
   s.seq = seq;
   s.tool.position = p;
   return s;
+}
+
+// The patch source of a plain mesh (no volume: no brick).
+VizSession::PatchSource mesh_patch(const surface::TriangleMesh& mesh) {
+  auto scratch = std::make_shared<hybrid::PatchExportScratch>();
+  return [&mesh, scratch](Vec3 tool, TissuePatch& p) { (void)hybrid::export_patch(mesh, tool, {}, *scratch, p); };
 }
 
 TEST(SampleStats, CountsLossAndDisorder) {
@@ -38,13 +47,13 @@ TEST(VizSession, WaitsWithoutAPeerAndSaysSo) {
   p.shm_name = unique_name("absent");
   VizSession s(p);
   const auto mesh = surface::make_tissue_block({});
-  s.frame(1'000'000'000, mesh);
+  s.frame(1'000'000'000, {}, mesh_patch(mesh));
   EXPECT_EQ(s.link(), Link::kWaiting);
   EXPECT_NE(s.link_message().find("does not exist"), std::string::npos) << s.link_message();
 }
 
-// lancet-rt's stream drives the surface model: a dent, a rupture and a cut along +x, then the
-// lift; the published patch carries the cut.
+// lancet-rt's stream, drained by the session, drives the scene: a dent, a rupture and a cut
+// along +x, then the lift; the published patch carries the cut.
 TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   const std::string name = unique_name("cut");
   auto rt = SharedChannel::create(name, {}).value();
@@ -54,9 +63,14 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   VizSessionParams p;
   p.shm_name = name;
   VizSession session(p);
-  auto block = surface::make_tissue_block({});
-  auto model = std::move(surface::SurfaceModel::create(block.vertices, block.triangles, block.material).value());
-  (void)session.frame(now, *model);  // attach
+  hybrid::SceneDescription d;
+  d.source = hybrid::SceneSource::kBlock;
+  auto scene = std::move(hybrid::TissueScene::create(std::move(d)).value());
+  bool changed = false;
+  const auto apply = [&](std::span<const ToolSample> batch) { changed |= scene->apply(batch); };
+  const auto fill = [&](Vec3 tool, TissuePatch& patch) { (void)scene->export_patch(tool, patch); };
+  const surface::SurfaceModel* model = &scene->surface();
+  session.frame(now, apply, fill);  // attach
   ASSERT_EQ(session.link(), Link::kConnected) << session.link_message();
   const auto on_surface = [](double x, double y) { return Vec3{x, y, surface::tissue_block_height({}, x, y)}; };
   std::uint64_t seq = 0;
@@ -76,7 +90,8 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
     push(Stage::kCutting, on_surface(-0.02 + 0.0001 * i, 0.0011), i % 5 == 0 ? event::kCutProgress : 0u);
   now += 400'000'000;
   shared.rt_heartbeat.beat(now, getpid());
-  EXPECT_TRUE(session.frame(now, *model));
+  session.frame(now, apply, fill);
+  EXPECT_TRUE(changed);
   ASSERT_EQ(model->cuts().size(), 1u);
   EXPECT_TRUE(model->cutting());
   EXPECT_GE(model->cuts()[0].pairs.size(), 10u) << "2 mm cells over 3 cm";
@@ -86,7 +101,7 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   push(Stage::kFree, on_surface(0.01, 0.0011), 0);
   now += 20'000'000;
   shared.rt_heartbeat.beat(now, getpid());
-  (void)session.frame(now, *model);
+  session.frame(now, apply, fill);
   EXPECT_FALSE(model->cutting());
   EXPECT_EQ(model->cuts().size(), 1u);
   std::size_t on_cut = 0;
@@ -111,7 +126,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   p.shm_name = name;
   VizSession s(p);
   const auto mesh = surface::make_tissue_block({});
-  s.frame(now, mesh);
+  s.frame(now, {}, mesh_patch(mesh));
   ASSERT_EQ(s.link(), Link::kConnected) << s.link_message();
   EXPECT_EQ(s.stats().discarded, 10u);
   EXPECT_EQ(s.stats().received, 0u);
@@ -119,7 +134,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   for (std::uint64_t i = 11; i <= 600; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.0, 0.0, -0.001})));
   now = monotonic_ns();
   shared.rt_heartbeat.beat(now, getpid());
-  s.frame(now, mesh);
+  s.frame(now, {}, mesh_patch(mesh));
   EXPECT_EQ(s.stats().received, 590u);
   EXPECT_EQ(s.stats().lost, 0u);
   EXPECT_EQ(s.latest().seq, 600u);
@@ -133,32 +148,33 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   EXPECT_EQ(patch->samples_applied, 600u) << "the newest sample whose events it reflects";
   EXPECT_EQ(patch->brick.valid, 0u) << "no volume, no brick";
 
-  // With a brick source, every patch carries the brick around the tool; the sample sink sees
-  // each sample (checked) before the patch is cut.
+  // The handler sees each sample (checked) before the patch source fills the patch around the
+  // newest tool position (here with a brick).
   std::uint64_t sunk = 0, newest_sunk = 0;
-  s.set_sample_sink([&](const ToolSample* batch, std::size_t n) {
-    sunk += n;
-    newest_sunk = batch[n - 1].seq;
-  });
+  const auto sink = [&](std::span<const ToolSample> batch) {
+    sunk += batch.size();
+    newest_sunk = batch.back().seq;
+  };
   Vec3 brick_centre{};
-  s.set_brick_source([&](Vec3 centre, VoxelBrick& b) {
+  const auto with_brick = [&, plain = mesh_patch(mesh)](Vec3 centre, TissuePatch& out) {
+    plain(centre, out);
+    VoxelBrick& b = out.brick;
     brick_centre = centre;
     b.valid = 1;
     b.dim = kBrickDim;
     b.spacing = {0.001, 0.001, 0.001};
     b.origin = centre;
-  });
+  };
   for (std::uint64_t i = 601; i <= 620; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.001, 0.0, -0.002})));
   now = monotonic_ns();
   shared.rt_heartbeat.beat(now, getpid());
-  s.frame(now, mesh);
+  s.frame(now, sink, with_brick);
   EXPECT_EQ(sunk, 20u);
   EXPECT_EQ(newest_sunk, 620u);
   ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
   EXPECT_EQ(patch->brick.valid, 1u);
   EXPECT_EQ(brick_centre, (Vec3{0.001, 0.0, -0.002}));
   EXPECT_EQ(patch->samples_applied, 620u);
-  s.set_sample_sink({});
 
   // Stylus target and commands travel the other way.
   s.set_stylus_target(true, {0.01, 0.02, -0.003}, now);
@@ -177,7 +193,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   // lancet-rt exits cleanly: the viz notices at its next frame and keeps running.
   shared.rt_heartbeat.stop();
   rt.reset();
-  s.frame(monotonic_ns(), mesh);
+  s.frame(monotonic_ns(), {}, mesh_patch(mesh));
   EXPECT_EQ(s.link(), Link::kLost);
   EXPECT_NE(s.link_message().find("lancet-rt is not running"), std::string::npos) << s.link_message();
   EXPECT_EQ(s.rt_losses(), 1u);
@@ -185,7 +201,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   // A new lancet-rt appears under the same name: the viz attaches again.
   rt.emplace(SharedChannel::create(name, {}).value());
   rt->state().rt_heartbeat.beat(monotonic_ns(), getpid());
-  s.frame(monotonic_ns() + 2'000'000'000, mesh);  // past the retry interval
+  s.frame(monotonic_ns() + 2'000'000'000, {}, mesh_patch(mesh));  // past the retry interval
   EXPECT_EQ(s.link(), Link::kConnected) << s.link_message();
   EXPECT_EQ(s.connections(), 2u);
 }

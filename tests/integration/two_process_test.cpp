@@ -18,6 +18,7 @@
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "process_test.hpp"  // tests/support
+#include "shared_data.hpp"   // tests/support
 
 namespace lancet {
 namespace {
@@ -300,10 +301,16 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBlocksBonePlate) { drill_meets_bone(*this, 
 // presses until the skin ruptures, cuts along the line, lifts out; the retractor grabs beside the
 // incision and pulls it open. Measured on the viz's mesh: one cut, its length, its opening.
 TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
+  // As ./lancet demo runs it: lancet-viz on the skin-incision scenario first (building the
+  // phantom's scene takes a while), then lancet-rt with the scripted hand once the viz waits.
+  auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml", "--tool",
+                        "none", "--duration", "9", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
+                        path("demo.png")});
+  for (int i = 0; i < 600 && read_file(path("viz.log")).find("does not exist") == std::string::npos; ++i)
+    std::this_thread::sleep_for(100ms);
+  ASSERT_NE(read_file(path("viz.log")).find("does not exist"), std::string::npos) << read_file(path("viz.log"));
   auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/demo_incision.csv"});
   ASSERT_TRUE(rt->running());
-  auto viz = start_viz({"--duration", "8", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
-                        path("demo.png")});
   const auto vs = viz->wait_exit(90s);
   ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
   ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
@@ -331,6 +338,74 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   EXPECT_EQ(json_number(stats, "ruptures").value_or(-1), 1) << stats;
   EXPECT_GE(json_number(stats, "grabs").value_or(0), 1) << stats;
   EXPECT_GE(json_number(stats, "contacts").value_or(0), 1) << stats;
+  // The cut went into the volume along the task's line, and its groove opened with the incision.
+  EXPECT_EQ(json_number(stats, "grooves").value_or(-1), 1) << stats;
+  EXPECT_GT(json_number(stats, "groove_width_mm").value_or(0), 3) << stats;
+  EXPECT_GT(json_number(stats, "groove_depth_mm").value_or(0), 5) << stats;
+  EXPECT_GT(json_number(stats, "task_progress").value_or(0), 0.8) << "the line is cut along most of its length" << stats;
+  EXPECT_EQ(json_number(stats, "task_damaged").value_or(-1), 0) << "the artery 29 mm down is untouched" << stats;
+}
+
+// The bone-drilling scenario with a scripted drill: the burr stops at the exposed bone, lancet-rt
+// removes the cortex under it, and the viz carves what it reports into the scene's volume and
+// counts it against the window.
+TEST_F(TwoProcess, TheDrillingScenarioRemovesBoneInTheWindow) {
+  auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/bone_drilling.toml", "--tool",
+                        "none", "--duration", "8", "--stats", path("viz.json"), "--screenshot", path("drill.png")});
+  for (int i = 0; i < 600 && read_file(path("viz.log")).find("does not exist") == std::string::npos; ++i)
+    std::this_thread::sleep_for(100ms);
+  ASSERT_NE(read_file(path("viz.log")).find("does not exist"), std::string::npos) << read_file(path("viz.log"));
+  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/drill_window.csv"});
+  const auto vs = viz->wait_exit(90s);
+  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
+  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  rt->signal(SIGTERM);
+  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  const std::string stats = read_file(path("viz.json"));
+  std::printf("[ info     ] drilling scenario: %s removals, %s voxels, window %s%% done\n",
+              std::to_string(json_number(stats, "drill_removals").value_or(-1)).c_str(),
+              std::to_string(json_number(stats, "voxels_drilled").value_or(-1)).c_str(),
+              std::to_string(100 * json_number(stats, "task_progress").value_or(-1)).c_str());
+  EXPECT_GT(json_number(stats, "drill_removals").value_or(0), 3) << stats;
+  EXPECT_GT(json_number(stats, "voxels_drilled").value_or(0), 20) << stats;
+  EXPECT_GE(json_number(stats, "bone_updates").value_or(0), 1) << "the bone surface was re-extracted" << stats;
+  EXPECT_GT(json_number(stats, "task_progress").value_or(0), 0.02) << "bone of the window is gone" << stats;
+  EXPECT_EQ(json_number(stats, "task_damaged").value_or(-1), 0) << "the nerve canal 12 mm below is untouched" << stats;
+}
+
+// Every shipped scenario runs (alone: lancet-rt is not needed to look), the CT one on a real scan;
+// a broken scenario or a missing CT is refused with the reason and exit status 2.
+TEST_F(TwoProcess, EveryShippedScenarioRuns) {
+  const std::string dir = std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/";
+  for (const char* name : {"skin_incision", "bone_drilling"}) {
+    auto viz = start_viz({"--scenario", dir + name + ".toml", "--duration", "1", "--stats", path("viz.json")});
+    const auto vs = viz->wait_exit(90s);
+    ASSERT_TRUE(vs.has_value() && WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << name << "\n" << read_file(path("viz.log"));
+    EXPECT_NE(read_file(path("viz.json")).find("\"scenario\": \""), std::string::npos);
+    EXPECT_NE(read_file(path("viz.log")).find("task: "), std::string::npos) << read_file(path("viz.log"));
+  }
+  {  // the CT scenario wants its scan
+    auto viz = start_viz({"--scenario", dir + "ct_incision.toml", "--duration", "1"});
+    const auto vs = viz->wait_exit(30s);
+    ASSERT_TRUE(vs.has_value() && WIFEXITED(*vs));
+    EXPECT_EQ(WEXITSTATUS(*vs), 2);
+    EXPECT_NE(read_file(path("viz.log")).find("give the CT with --volume PATH"), std::string::npos) << read_file(path("viz.log"));
+  }
+  {  // a scenario file with a mistake names its line
+    std::ofstream(path("bad.toml")) << "schema_version = 1\nname = \"x\"\ndescription = \"y\"\ntools = [\"probe\", \"saw\"]\n";
+    auto viz = start_viz({"--scenario", path("bad.toml"), "--duration", "1"});
+    const auto vs = viz->wait_exit(30s);
+    ASSERT_TRUE(vs.has_value() && WIFEXITED(*vs));
+    EXPECT_EQ(WEXITSTATUS(*vs), 2);
+    EXPECT_NE(read_file(path("viz.log")).find("bad.toml:4"), std::string::npos) << read_file(path("viz.log"));
+  }
+  const std::string volumes = test::shared_volumes_dir();
+  if (volumes.empty()) return;
+  auto viz = start_viz({"--scenario", dir + "ct_incision.toml", "--volume", volumes + "/head_ct_headsq/headsq_64x64x93_int16.mhd",
+                        "--duration", "1", "--stats", path("ct.json"), "--screenshot", path("ct.png")});
+  const auto vs = viz->wait_exit(90s);
+  ASSERT_TRUE(vs.has_value() && WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  EXPECT_GT(json_number(read_file(path("ct.json")), "screenshot_variance").value_or(0), 100) << "the head is drawn";
 }
 
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {

@@ -337,45 +337,5 @@ TEST(SurfaceModel, CutsThatOpenAsTheyGoKeepTheInvariants) {
   }
 }
 
-TEST(SurfaceModel, ToolSamplesDriveDentCutAndPull) {
-  auto s = sheet(40);
-  ToolSample t{};
-  const Vec3 start = on_sheet(-0.008, 0.0009);
-  // Pressing: the dent follows.
-  t.stage = Stage::kDeform;
-  t.proxy.position = start;
-  t.tool.position = start + Vec3{0, 0, -0.003};
-  s->apply(t, 0.001);
-  EXPECT_GT(s->deformed_vertices(), 0u);
-  // Rupture, then cutting along +x.
-  t.stage = Stage::kRupture;
-  t.events = event::kRupture;
-  t.payload.position = start;
-  s->apply(t, 0.001);
-  ASSERT_TRUE(s->cutting());
-  t.events = 0;
-  t.stage = Stage::kCutting;
-  for (int i = 1; i <= 12; ++i) {
-    t.proxy.position = on_sheet(-0.008 + 0.001 * i, 0.0009);
-    s->apply(t, 0.001);
-  }
-  EXPECT_GE(s->cuts().back().pairs.size(), 5u);
-  // Lifting out ends the cut; a pull opens it.
-  t.stage = Stage::kFree;
-  s->apply(t, 0.001);
-  EXPECT_FALSE(s->cutting());
-  t.stage = Stage::kPulling;
-  t.events = event::kPull;
-  t.payload.magnitude = 0.002;
-  s->apply(t, 0.001);
-  EXPECT_DOUBLE_EQ(s->cuts().back().opening, 0.002);
-  // Released for a while: the dent is gone.
-  t.stage = Stage::kFree;
-  t.events = 0;
-  for (int i = 0; i < 300; ++i) s->apply(t, 0.01);
-  EXPECT_EQ(s->deformed_vertices(), 0u);
-  EXPECT_EQ(s->stats().flipped_faces, 0u);
-}
-
 }  // namespace
 }  // namespace lancet::surface

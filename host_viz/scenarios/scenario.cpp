@@ -1,0 +1,916 @@
+// The scenario loader and the task geometry. Everything that touches toml++ lives in this file.
+// Structure as in firmware_rt/arm/arm_config.cpp: a Sink collects errors; a Section reads one TOML
+// table, remembers which keys the schema asked for and reports the rest as unknown; one parse_*
+// function per schema section fills the plain Scenario; cross-section checks (the task's tool
+// among the tools, labels against the tissue source) come last. Every check records an error and
+// carries on, so one run reports everything.
+//
+// The value-describing helpers and Section repeat arm_config.cpp's (trimmed to what this schema
+// needs): neither library may depend on the other's process folder.
+
+#include "scenarios/scenario.hpp"
+
+// toml++ 3.3 checks two parser preconditions with assert(), and malformed input can break them
+// ("[" followed by a newline, "[[ # x", "a = [}]"): builds without NDEBUG would abort instead of
+// throwing parse_error (upstream: marzer/tomlplusplus PR #301). With the check off the parser
+// reports those inputs as ordinary syntax errors, as release builds do (tests/fuzz/scenario_fuzz
+// covers it). Matters in header-only mode; the packaged shared library is built without these
+// asserts.
+#ifndef TOML_ASSERT
+#define TOML_ASSERT(expr) static_cast<void>(0)
+#endif
+#include <toml++/toml.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <initializer_list>
+#include <limits>
+#include <numbers>
+#include <utility>
+
+namespace lancet::scenario {
+
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kMm = 1e-3;
+constexpr double kDeg = std::numbers::pi / 180.0;
+constexpr std::size_t kMaxFileBytes = 1u << 20;  // a scenario is a few kB; refuse anything absurd
+constexpr std::size_t kMaxLinePoints = 256;
+constexpr std::size_t kMaxAvoid = 64;
+
+// ---------------------------------------------------------------------------------------------
+// Describing values in messages
+
+std::string quote(std::string_view s) {
+  std::string out = "\"";
+  std::size_t shown = 0;
+  for (const char ch : s) {
+    if (++shown > 48) {
+      out += "...";
+      break;
+    }
+    const auto c = static_cast<unsigned char>(ch);
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += ch;
+    } else if (c < 0x20 || c >= 0x7f) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02X", static_cast<unsigned>(c));
+      out += buf;
+    } else {
+      out += ch;
+    }
+  }
+  return out + "\"";
+}
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+std::string describe(const toml::node& n) {
+  switch (n.type()) {
+    case toml::node_type::string: return "string " + quote(n.as_string()->get());
+    case toml::node_type::integer: return "integer " + std::to_string(n.as_integer()->get());
+    case toml::node_type::floating_point: return "float " + num(n.as_floating_point()->get());
+    case toml::node_type::boolean: return n.as_boolean()->get() ? "boolean true" : "boolean false";
+    case toml::node_type::array: return "array of " + std::to_string(n.as_array()->size());
+    case toml::node_type::table: return "table";
+    case toml::node_type::date: return "date";
+    case toml::node_type::time: return "time";
+    case toml::node_type::date_time: return "date-time";
+    case toml::node_type::none: break;
+  }
+  return "nothing";
+}
+
+// Optimal string alignment distance: insertions, deletions, substitutions and swaps of two
+// neighbouring characters ("nmae" is one edit from "name").
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> before(b.size() + 1), prev(b.size() + 1), row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      row[j] = std::min({prev[j] + 1, row[j - 1] + 1, prev[j - 1] + (a[i - 1] == b[j - 1] ? 0u : 1u)});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) row[j] = std::min(row[j], before[j - 2] + 1);
+    }
+    std::swap(before, prev);
+    std::swap(prev, row);
+  }
+  return prev[b.size()];
+}
+
+/// The candidate closest to `word` when it is a plausible typo of it; empty otherwise.
+template <class Range>
+std::string_view nearest(std::string_view word, const Range& candidates) {
+  std::string_view best;
+  std::size_t best_d = 3;
+  for (const auto& c : candidates) {
+    const std::string_view cv(c);
+    const std::size_t d = edit_distance(word, cv);
+    if (d < best_d && d < std::max<std::size_t>(cv.size() / 2, 1)) {
+      best_d = d;
+      best = cv;
+    }
+  }
+  return best;
+}
+
+std::string indexed(const std::string& path, std::size_t i) { return path + "[" + std::to_string(i) + "]"; }
+
+// ---------------------------------------------------------------------------------------------
+// Errors
+
+struct Problem {
+  int line = 1, column = 1;
+  std::string field;    // dotted path; empty for a syntax error
+  std::string message;  // "expected ..., found ..." or a sentence
+};
+
+struct Sink {
+  std::string file;
+  std::vector<Problem> problems;
+
+  void add(const toml::source_region& at, std::string field, const std::string& expected, const std::string& found,
+           std::string message = {}) {
+    Problem p;
+    p.line = at.begin.line > 0 ? static_cast<int>(at.begin.line) : 1;
+    p.column = at.begin.column > 0 ? static_cast<int>(at.begin.column) : 1;
+    p.field = std::move(field);
+    p.message = message.empty() ? "expected " + expected + ", found " + found : std::move(message);
+    problems.push_back(std::move(p));
+  }
+
+  [[nodiscard]] std::string report() const {
+    std::string out;
+    for (const Problem& p : problems) {
+      out += file + ":" + std::to_string(p.line) + ":" + std::to_string(p.column) + ": ";
+      if (!p.field.empty()) out += p.field + ": ";
+      out += p.message;
+      out += '\n';
+    }
+    return out;
+  }
+};
+
+enum class Need { kRequired, kOptional };
+constexpr Need kReq = Need::kRequired;
+constexpr Need kOpt = Need::kOptional;
+
+/// Allowed interval of a number as the file writes it.
+struct Range {
+  double lo = -kInf, hi = kInf;
+  bool lo_open = false, hi_open = false;
+  [[nodiscard]] bool contains(double v) const {
+    return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+  }
+  [[nodiscard]] std::string text() const {
+    const bool has_lo = std::isfinite(lo), has_hi = std::isfinite(hi);
+    if (has_lo && has_hi) return "a number in " + std::string(lo_open ? "(" : "[") + num(lo) + ", " + num(hi) + (hi_open ? ")" : "]");
+    if (has_lo) return std::string("a number ") + (lo_open ? "> " : ">= ") + num(lo);
+    if (has_hi) return std::string("a number ") + (hi_open ? "< " : "<= ") + num(hi);
+    return "a finite number";
+  }
+};
+constexpr Range kAny{};
+constexpr Range positive_up_to(double hi) { return Range{0, hi, true, false}; }
+
+template <class E>
+struct Choice {
+  std::string_view name;
+  E value;
+};
+
+template <class E>
+std::string choices_text(std::initializer_list<Choice<E>> options) {
+  std::string s = "one of ";
+  bool first = true;
+  for (const auto& o : options) {
+    if (!first) s += ", ";
+    s += quote(o.name);
+    first = false;
+  }
+  return s;
+}
+
+std::optional<double> read_number(Sink& s, const toml::node& n, const std::string& field, Range range) {
+  double v = 0;
+  if (const auto* i = n.as_integer()) {
+    v = static_cast<double>(i->get());
+  } else if (const auto* f = n.as_floating_point()) {
+    v = f->get();
+  } else {
+    s.add(n.source(), field, range.text(), describe(n));
+    return std::nullopt;
+  }
+  if (!range.contains(v)) {
+    s.add(n.source(), field, range.text(), describe(n));
+    return std::nullopt;
+  }
+  return v;
+}
+
+/// An array of exactly three finite numbers, scaled into SI.
+std::optional<Vec3> read_vec3(Sink& s, const toml::node& n, const std::string& field, double scale) {
+  const auto* a = n.as_array();
+  if (a == nullptr || a->size() != 3) {
+    s.add(n.source(), field, "an array of 3 numbers [x, y, z]", describe(n));
+    return std::nullopt;
+  }
+  std::array<double, 3> v{};
+  bool ok = true;
+  for (std::size_t i = 0; i < 3; ++i) {
+    const auto x = read_number(s, *a->get(i), indexed(field, i), kAny);
+    if (x) v[i] = *x * scale;
+    ok = ok && x.has_value();
+  }
+  if (!ok) return std::nullopt;
+  return Vec3{v[0], v[1], v[2]};
+}
+
+/// A string naming one of `options`; a near miss gets a did-you-mean.
+template <class E>
+std::optional<E> read_choice(Sink& s, const toml::node& n, const std::string& field,
+                             std::initializer_list<Choice<E>> options) {
+  const auto* v = n.as_string();
+  if (v != nullptr) {
+    for (const auto& o : options) {
+      if (o.name == v->get()) return o.value;
+    }
+  }
+  const std::string expected = choices_text(options);
+  std::string message = "expected " + expected + ", found " + describe(n);
+  if (v != nullptr) {
+    std::vector<std::string_view> names;
+    for (const auto& o : options) names.push_back(o.name);
+    const std::string_view best = nearest(v->get(), names);
+    if (!best.empty()) message += " (did you mean " + quote(best) + "?)";
+  }
+  s.add(n.source(), field, expected, describe(n), std::move(message));
+  return std::nullopt;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Section: one TOML table read against the schema
+
+class Section {
+ public:
+  Section(Sink& sink, const toml::table& table, std::string path) : sink_(sink), table_(table), path_(std::move(path)) {}
+  Section(const Section&) = delete;
+  Section& operator=(const Section&) = delete;
+
+  [[nodiscard]] std::string field(std::string_view key) const {
+    return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
+  }
+  /// Where a key's value is, or the table when the key is absent.
+  [[nodiscard]] const toml::source_region& where(std::string_view key) const {
+    const toml::node* n = table_.get(key);
+    return n != nullptr ? n->source() : table_.source();
+  }
+  [[nodiscard]] bool has(std::string_view key) const { return table_.get(key) != nullptr; }
+  Sink& sink() { return sink_; }
+
+  /// The key's node (nullptr when absent); marks the key as part of the schema here.
+  const toml::node* get(std::string_view key) {
+    if (std::find(known_.begin(), known_.end(), key) == known_.end()) known_.emplace_back(key);
+    return table_.get(key);
+  }
+  /// Marks keys as belonging here without reading them (a section whose variant is unknown).
+  void skip(std::initializer_list<std::string_view> keys) {
+    for (const auto k : keys) (void)get(k);
+  }
+  /// A key that must not appear in this variant of the section.
+  void forbid(std::string_view key, const std::string& only_for) {
+    if (const toml::node* n = get(key)) {
+      sink_.add(n->source(), field(key), "no " + std::string(key) + " (it is only for " + only_for + ")", describe(*n));
+    }
+  }
+  void missing(std::string_view key, const std::string& expected) {
+    sink_.add(table_.source(), field(key), expected, "nothing", "required key is missing; expected " + expected);
+  }
+
+  std::optional<std::int64_t> integer(std::string_view key, Need need, std::int64_t lo, std::int64_t hi) {
+    const toml::node* n = get(key);
+    const std::string expected = lo == hi ? "the integer " + std::to_string(lo)
+                                          : "an integer in " + std::to_string(lo) + ".." + std::to_string(hi);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, expected);
+      return std::nullopt;
+    }
+    const auto* v = n->as_integer();
+    if (v == nullptr || v->get() < lo || v->get() > hi) {
+      sink_.add(n->source(), field(key), expected, describe(*n));
+      return std::nullopt;
+    }
+    return v->get();
+  }
+
+  std::optional<double> number(std::string_view key, Need need, Range range) {
+    const toml::node* n = get(key);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, range.text());
+      return std::nullopt;
+    }
+    return read_number(sink_, *n, field(key), range);
+  }
+
+  std::optional<std::string> text(std::string_view key, Need need, std::size_t max_len) {
+    const toml::node* n = get(key);
+    const std::string expected = "a non-empty string of at most " + std::to_string(max_len) + " characters";
+    if (n == nullptr) {
+      if (need == kReq) missing(key, expected);
+      return std::nullopt;
+    }
+    const auto* v = n->as_string();
+    if (v == nullptr || v->get().empty() || v->get().size() > max_len) {
+      sink_.add(n->source(), field(key), expected, describe(*n));
+      return std::nullopt;
+    }
+    return v->get();
+  }
+
+  template <class E>
+  std::optional<E> choice(std::string_view key, Need need, std::initializer_list<Choice<E>> options) {
+    const toml::node* n = get(key);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, choices_text(options));
+      return std::nullopt;
+    }
+    return read_choice(sink_, *n, field(key), options);
+  }
+
+  std::optional<Vec3> vec3(std::string_view key, Need need, double scale) {
+    const toml::node* n = get(key);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, "an array of 3 numbers [x, y, z]");
+      return std::nullopt;
+    }
+    return read_vec3(sink_, *n, field(key), scale);
+  }
+
+  const toml::table* table(std::string_view key, Need need) {
+    const toml::node* n = get(key);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, "a table [" + field(key) + "]");
+      return nullptr;
+    }
+    if (const auto* t = n->as_table()) return t;
+    sink_.add(n->source(), field(key), "a table [" + field(key) + "]", describe(*n));
+    return nullptr;
+  }
+
+  /// An array with min..max elements (nullptr after reporting when it is not).
+  const toml::array* array(std::string_view key, Need need, std::size_t min, std::size_t max, const std::string& expected) {
+    const toml::node* n = get(key);
+    if (n == nullptr) {
+      if (need == kReq) missing(key, expected);
+      return nullptr;
+    }
+    const auto* a = n->as_array();
+    if (a == nullptr || a->size() < min || a->size() > max) {
+      sink_.add(n->source(), field(key), expected, describe(*n));
+      return nullptr;
+    }
+    return a;
+  }
+
+  /// Reports every key of the table the schema did not ask for.
+  void finish() {
+    for (auto&& [k, v] : table_) {
+      const std::string_view key = k.str();
+      if (std::find(known_.begin(), known_.end(), key) != known_.end()) continue;
+      std::string list;
+      for (const auto& kn : known_) list += (list.empty() ? "" : ", ") + kn;
+      const std::string_view best = nearest(key, known_);
+      std::string message = "unknown key " + quote(key);
+      if (!best.empty()) message += " (did you mean " + quote(best) + "?)";
+      message += list.empty() ? "; this table takes no keys" : "; known keys here: " + list;
+      sink_.add(k.source(), field(key), list.empty() ? "no keys" : "one of: " + list, "unknown key " + quote(key),
+                message);
+    }
+  }
+
+ private:
+  Sink& sink_;
+  const toml::table& table_;
+  std::string path_;
+  std::vector<std::string> known_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Sections
+
+const std::initializer_list<Choice<ToolMode>> kToolChoices{
+    {"probe", ToolMode::kProbe}, {"scalpel", ToolMode::kScalpel}, {"retractor", ToolMode::kRetractor}, {"drill", ToolMode::kDrill}};
+
+std::string tool_list_text(const std::vector<ToolMode>& tools) {
+  std::string s = "[";
+  for (std::size_t i = 0; i < tools.size(); ++i) s += (i ? ", " : "") + quote(tool_name(tools[i]));
+  return s + "]";
+}
+
+void parse_tools(Section& top, Scenario& out) {
+  const std::string expected = "an array of 1..4 tool names (\"probe\", \"scalpel\", \"retractor\", \"drill\")";
+  const toml::array* a = top.array("tools", kReq, 1, 4, expected);
+  if (a == nullptr) return;
+  std::vector<std::size_t> index_of;  // file index of each entry of out.tools
+  for (std::size_t i = 0; i < a->size(); ++i) {
+    const toml::node& n = *a->get(i);
+    const auto t = read_choice(top.sink(), n, indexed("tools", i), kToolChoices);
+    if (!t) continue;
+    const auto dup = std::find(out.tools.begin(), out.tools.end(), *t);
+    if (dup != out.tools.end()) {
+      const std::size_t first = index_of[static_cast<std::size_t>(dup - out.tools.begin())];
+      top.sink().add(n.source(), indexed("tools", i), "a tool not already listed (tools[" + std::to_string(first) + "])",
+                     describe(n));
+      continue;
+    }
+    out.tools.push_back(*t);
+    index_of.push_back(i);
+  }
+}
+
+// The start tool: optional (the first tool offered), but when given it must be offered.
+void parse_start_tool(Section& top, Scenario& out, bool tools_ok) {
+  const auto start = top.choice<ToolMode>("start_tool", kOpt, kToolChoices);
+  if (!start) {
+    if (!out.tools.empty()) out.start_tool = out.tools.front();
+    return;
+  }
+  out.start_tool = *start;
+  if (tools_ok && std::find(out.tools.begin(), out.tools.end(), *start) == out.tools.end()) {
+    top.sink().add(top.where("start_tool"), "start_tool", "one of the offered tools " + tool_list_text(out.tools),
+                   "string " + quote(tool_name(*start)));
+  }
+}
+
+// "x", "-y", "+z": a volume axis and a direction.
+bool parse_axis(std::string_view s, int& axis, int& sign) {
+  sign = 1;
+  if (!s.empty() && (s[0] == '-' || s[0] == '+')) {
+    sign = s[0] == '-' ? -1 : 1;
+    s.remove_prefix(1);
+  }
+  if (s.size() != 1 || s[0] < 'x' || s[0] > 'z') return false;
+  axis = s[0] - 'x';
+  return true;
+}
+
+void parse_axes(Section& t, Tissue& out) {
+  const std::string expected = "an array of 3 volume axes, e.g. [\"x\", \"-z\", \"y\"]";
+  const toml::array* a = t.array("axes", kOpt, 3, 3, expected);
+  if (a == nullptr) return;
+  std::array<int, 3> axis{}, sign{};
+  bool ok = true;
+  for (std::size_t i = 0; i < 3; ++i) {
+    const toml::node& n = *a->get(i);
+    const auto* v = n.as_string();
+    const std::string field = indexed(t.field("axes"), i);
+    if (v == nullptr || !parse_axis(v->get(), axis[i], sign[i])) {
+      t.sink().add(n.source(), field, "one of \"x\", \"y\", \"z\", \"-x\", \"-y\", \"-z\"", describe(n));
+      ok = false;
+      continue;
+    }
+    for (std::size_t j = 0; j < i; ++j) {
+      if (a->get(j)->as_string() != nullptr && axis[j] == axis[i] && ok) {
+        t.sink().add(n.source(), field, "a volume axis not used by " + indexed(t.field("axes"), j), describe(n));
+        ok = false;
+      }
+    }
+  }
+  if (ok) {
+    out.axis = axis;
+    out.sign = sign;
+  }
+}
+
+// Returns the source when it was read.
+std::optional<TissueSource> parse_tissue(Section& t, Tissue& out, const std::string& source_name) {
+  const auto source = t.choice<TissueSource>(
+      "source", kReq, {{"phantom", TissueSource::kPhantom}, {"block", TissueSource::kBlock}, {"file", TissueSource::kFile}});
+  out.surface = t.choice<SurfaceKind>("surface", kOpt, {{"skin", SurfaceKind::kSkin}, {"bone", SurfaceKind::kBone}})
+                    .value_or(SurfaceKind::kSkin);
+  if (auto v = t.number("cut_depth_mm", kOpt, positive_up_to(30))) out.cut_depth = *v * kMm;
+
+  // A file's intensities are the scanner's: its isovalues must be stated. The built-in volumes
+  // are in HU, so the defaults fit them.
+  const bool file = source == TissueSource::kFile;
+  const Need iso_need = file ? kReq : kOpt;
+  const Range hu{-100'000, 100'000};
+  const auto skin = t.number("skin_iso_hu", iso_need, hu);
+  const auto bone = t.number("bone_iso_hu", iso_need, hu);
+  if (skin) out.skin_iso = static_cast<float>(*skin);
+  if (bone) out.bone_iso = static_cast<float>(*bone);
+  if ((skin || bone) && !(out.skin_iso < out.bone_iso)) {
+    const std::string key = bone ? "bone_iso_hu" : "skin_iso_hu";
+    const std::string other = bone ? "skin_iso_hu (" + num(out.skin_iso) + ")" : "bone_iso_hu (" + num(out.bone_iso) + ")";
+    t.sink().add(t.where(key), t.field(key), std::string(bone ? "a number > " : "a number < ") + other,
+                 describe(*t.get(key)));
+  }
+
+  if (!source) {
+    t.skip({"path", "axes"});
+    return source;
+  }
+  out.source = *source;
+  if (!file) {
+    const std::string why = "source = \"file\"; this tissue is source = " + quote(source_key(*source));
+    t.forbid("path", why);
+    t.forbid("axes", why);
+    return source;
+  }
+  if (auto p = t.text("path", kOpt, 4096)) {
+    const std::filesystem::path path(*p);
+    const std::filesystem::path dir = std::filesystem::path(source_name).parent_path();
+    out.volume_path = path.is_absolute() || dir.empty() ? path.lexically_normal().string()
+                                                        : (dir / path).lexically_normal().string();
+  }
+  parse_axes(t, out);
+  return source;
+}
+
+void parse_camera(Section& c, Camera& out) {
+  if (auto v = c.number("yaw_deg", kOpt, Range{-360, 360})) out.yaw = *v * kDeg;
+  if (auto v = c.number("pitch_deg", kOpt, Range{-89, 89})) out.pitch = *v * kDeg;
+  if (auto v = c.number("distance_mm", kOpt, positive_up_to(5000))) out.distance = *v * kMm;
+  if (auto v = c.vec3("target_mm", kOpt, kMm)) out.target = *v;
+}
+
+void parse_incision(Section& t, IncisionTask& out) {
+  const std::string expected = "an array of 2.." + std::to_string(kMaxLinePoints) + " points [x, y, z]";
+  if (const toml::array* a = t.array("line_mm", kReq, 2, kMaxLinePoints, expected)) {
+    std::vector<Vec3> line;
+    for (std::size_t i = 0; i < a->size(); ++i) {
+      if (auto p = read_vec3(t.sink(), *a->get(i), indexed(t.field("line_mm"), i), kMm)) line.push_back(*p);
+    }
+    if (line.size() == a->size()) {
+      double length = 0;
+      for (std::size_t i = 1; i < line.size(); ++i) length += std::hypot(line[i].x - line[i - 1].x, line[i].y - line[i - 1].y);
+      if (!(length > 0)) {
+        t.sink().add(a->source(), t.field("line_mm"), "a line of nonzero length in x-y", "length 0 mm");
+      } else {
+        out.line = std::move(line);
+      }
+    }
+  }
+  if (auto v = t.number("tolerance_mm", kOpt, positive_up_to(50))) out.tolerance = *v * kMm;
+}
+
+void parse_drill(Section& t, DrillTask& out) {
+  if (auto v = t.vec3("centre_mm", kReq, kMm)) out.centre = *v;
+  if (auto v = t.number("radius_mm", kOpt, positive_up_to(50))) out.radius = *v * kMm;
+  if (auto v = t.number("depth_mm", kOpt, positive_up_to(100))) out.depth = *v * kMm;
+}
+
+// Returns the task kind when it was read.
+std::optional<TaskKind> parse_task(Section& t, Scenario& out) {
+  const auto kind = t.choice<TaskKind>("kind", kReq, {{"incision", TaskKind::kIncision}, {"drill", TaskKind::kDrill}});
+  if (!kind) {
+    t.skip({"line_mm", "tolerance_mm", "centre_mm", "radius_mm", "depth_mm"});
+    return std::nullopt;
+  }
+  out.task = *kind;
+  if (*kind == TaskKind::kIncision) {
+    parse_incision(t, out.incision);
+    for (const char* key : {"centre_mm", "radius_mm", "depth_mm"}) t.forbid(key, "kind = \"drill\"");
+  } else {
+    parse_drill(t, out.drill);
+    for (const char* key : {"line_mm", "tolerance_mm"}) t.forbid(key, "kind = \"incision\"");
+  }
+  return kind;
+}
+
+void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source) {
+  const std::string expected = "an array of 0.." + std::to_string(kMaxAvoid) + " tables [[avoid]]";
+  const toml::array* a = top.array("avoid", kOpt, 0, kMaxAvoid, expected);
+  if (a == nullptr) return;
+  std::vector<std::pair<std::string, std::size_t>> names;
+  for (std::size_t i = 0; i < a->size(); ++i) {
+    const toml::node& e = *a->get(i);
+    const std::string path = indexed("avoid", i);
+    const toml::table* t = e.as_table();
+    if (t == nullptr) {
+      top.sink().add(e.source(), path, "a table", describe(e));
+      continue;
+    }
+    Section s(top.sink(), *t, path);
+    Structure st;
+    if (auto v = s.text("name", kReq, 64)) {
+      st.name = *v;
+      for (const auto& [other, k] : names) {
+        if (other == *v) {
+          s.sink().add(s.where("name"), s.field("name"), "a name not used by " + indexed("avoid", k), describe(*t->get("name")));
+        }
+      }
+      names.emplace_back(*v, i);
+    }
+    const auto shape = s.choice<ShapeKind>(
+        "shape", kReq, {{"label", ShapeKind::kLabel}, {"capsule", ShapeKind::kCapsule}, {"sphere", ShapeKind::kSphere}});
+    if (!shape) {
+      s.skip({"label", "a_mm", "b_mm", "centre_mm", "radius_mm"});
+      s.finish();
+      continue;
+    }
+    st.kind = *shape;
+    const std::string why_label = "shape = \"label\"", why_capsule = "shape = \"capsule\"", why_sphere = "shape = \"sphere\"";
+    switch (*shape) {
+      case ShapeKind::kLabel:
+        st.label = static_cast<std::uint8_t>(s.integer("label", kReq, 1, 255).value_or(0));
+        s.forbid("a_mm", why_capsule);
+        s.forbid("b_mm", why_capsule);
+        s.forbid("centre_mm", why_sphere);
+        s.forbid("radius_mm", why_capsule + " or " + why_sphere);
+        // Only the built-in volumes carry material labels.
+        if (source == TissueSource::kFile) {
+          s.sink().add(s.where("shape"), s.field("shape"),
+                       "\"capsule\" or \"sphere\" (tissue.source = \"file\" has no material labels)", "string \"label\"");
+        }
+        break;
+      case ShapeKind::kCapsule:
+        st.a = s.vec3("a_mm", kReq, kMm).value_or(Vec3{});
+        st.b = s.vec3("b_mm", kReq, kMm).value_or(Vec3{});
+        st.radius = s.number("radius_mm", kReq, positive_up_to(100)).value_or(0) * kMm;
+        s.forbid("label", why_label);
+        s.forbid("centre_mm", why_sphere);
+        break;
+      case ShapeKind::kSphere:
+        st.a = s.vec3("centre_mm", kReq, kMm).value_or(Vec3{});
+        st.radius = s.number("radius_mm", kReq, positive_up_to(100)).value_or(0) * kMm;
+        s.forbid("label", why_label);
+        s.forbid("a_mm", why_capsule);
+        s.forbid("b_mm", why_capsule);
+        break;
+    }
+    s.finish();
+    out.avoid.push_back(std::move(st));
+  }
+}
+
+Scenario parse_root(const toml::table& root, Sink& sink, const std::string& source_name) {
+  Scenario sc;
+  sc.file = source_name;
+  Section top(sink, root, "");
+  (void)top.integer("schema_version", kReq, kSchemaVersion, kSchemaVersion);
+  sc.name = top.text("name", kReq, 64).value_or("");
+  sc.description = top.text("description", kOpt, 1024).value_or("");
+  const std::size_t errors_before_tools = sink.problems.size();
+  parse_tools(top, sc);
+  const bool tools_ok = sink.problems.size() == errors_before_tools && !sc.tools.empty();
+  parse_start_tool(top, sc, tools_ok);
+
+  std::optional<TissueSource> source;
+  if (const toml::table* tt = top.table("tissue", kReq)) {
+    Section t(sink, *tt, "tissue");
+    source = parse_tissue(t, sc.tissue, source_name);
+    t.finish();
+  }
+  if (const toml::table* ct = top.table("camera", kOpt)) {
+    Section c(sink, *ct, "camera");
+    parse_camera(c, sc.camera);
+    c.finish();
+  }
+  std::optional<TaskKind> task;
+  if (const toml::table* tt = top.table("task", kReq)) {
+    Section t(sink, *tt, "task");
+    task = parse_task(t, sc);
+    t.finish();
+  }
+  parse_avoid(top, sc, source);
+
+  // The task needs its tool.
+  if (task && tools_ok) {
+    const ToolMode needed = *task == TaskKind::kIncision ? ToolMode::kScalpel : ToolMode::kDrill;
+    if (std::find(sc.tools.begin(), sc.tools.end(), needed) == sc.tools.end()) {
+      sink.add(top.where("tools"), "tools",
+               "tools including " + quote(tool_name(needed)) + " (task.kind = " + quote(task_key(*task)) + " needs it)",
+               tool_list_text(sc.tools));
+    }
+  }
+  top.finish();
+  return sc;
+}
+
+// Reads a whole file; on failure returns the reason.
+std::optional<std::string> read_file(const std::string& path, std::string& text, ErrorCode& code) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) {
+    code = errno == ENOENT ? ErrorCode::kNotFound : ErrorCode::kSystem;
+    return "cannot open: " + std::string(std::strerror(errno));
+  }
+  text.clear();
+  char buf[65536];
+  std::size_t got = 0;
+  while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) {
+    text.append(buf, got);
+    if (text.size() > kMaxFileBytes) {
+      std::fclose(f);
+      code = ErrorCode::kInvalid;
+      return "file is larger than " + std::to_string(kMaxFileBytes >> 20) + " MiB; not a scenario";
+    }
+  }
+  const bool failed = std::ferror(f) != 0;
+  const int err = errno;
+  std::fclose(f);
+  if (failed) {
+    code = ErrorCode::kSystem;
+    return "cannot read: " + std::string(std::strerror(err));
+  }
+  return std::nullopt;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Task geometry (x-y only)
+
+struct Xy {
+  double x = 0, y = 0;
+};
+Xy xy(Vec3 v) { return {v.x, v.y}; }
+
+// Distance from p to the segment ab and the parameter t in [0, 1] of the closest point.
+double segment_distance(Xy p, Xy a, Xy b, double& t) {
+  const double dx = b.x - a.x, dy = b.y - a.y;
+  const double len2 = dx * dx + dy * dy;
+  t = len2 > 0 ? std::clamp(((p.x - a.x) * dx + (p.y - a.y) * dy) / len2, 0.0, 1.0) : 0.0;
+  return std::hypot(p.x - (a.x + t * dx), p.y - (a.y + t * dy));
+}
+
+// Distance from p to the polyline and the arc length (x-y) of the closest point.
+double polyline_distance(Xy p, const std::vector<Vec3>& line, double& arc) {
+  arc = 0;
+  if (line.empty()) return kInf;
+  if (line.size() == 1) return std::hypot(p.x - line[0].x, p.y - line[0].y);
+  double best = kInf, start = 0;
+  for (std::size_t i = 1; i < line.size(); ++i) {
+    const Xy a = xy(line[i - 1]), b = xy(line[i]);
+    const double len = std::hypot(b.x - a.x, b.y - a.y);
+    double t = 0;
+    const double d = segment_distance(p, a, b, t);
+    if (d < best) {
+      best = d;
+      arc = start + t * len;
+    }
+    start += len;
+  }
+  return best;
+}
+
+double xy_length(const std::vector<Vec3>& line) {
+  double len = 0;
+  for (std::size_t i = 1; i < line.size(); ++i) len += std::hypot(line[i].x - line[i - 1].x, line[i].y - line[i - 1].y);
+  return len;
+}
+
+}  // namespace
+
+std::string_view source_key(TissueSource s) noexcept {
+  switch (s) {
+    case TissueSource::kBlock: return "block";
+    case TissueSource::kPhantom: return "phantom";
+    case TissueSource::kFile: return "file";
+  }
+  return "?";
+}
+
+std::string_view surface_key(SurfaceKind s) noexcept {
+  switch (s) {
+    case SurfaceKind::kSkin: return "skin";
+    case SurfaceKind::kBone: return "bone";
+  }
+  return "?";
+}
+
+std::string_view task_key(TaskKind k) noexcept {
+  switch (k) {
+    case TaskKind::kIncision: return "incision";
+    case TaskKind::kDrill: return "drill";
+  }
+  return "?";
+}
+
+std::string_view shape_key(ShapeKind k) noexcept {
+  switch (k) {
+    case ShapeKind::kLabel: return "label";
+    case ShapeKind::kCapsule: return "capsule";
+    case ShapeKind::kSphere: return "sphere";
+  }
+  return "?";
+}
+
+Result<Scenario> parse_scenario(std::string_view text, const std::string& source_name) {
+  Sink sink;
+  sink.file = source_name;
+  std::optional<Scenario> sc;
+  try {
+    const toml::table root = toml::parse(text, std::string_view(source_name));
+    sc = parse_root(root, sink, source_name);
+  } catch (const toml::parse_error& e) {
+    sink.add(e.source(), "", "valid TOML", "a syntax error", "TOML syntax error: " + std::string(e.description()));
+  }
+  if (!sink.problems.empty()) {
+    std::stable_sort(sink.problems.begin(), sink.problems.end(), [](const Problem& a, const Problem& b) {
+      return std::pair(a.line, a.column) < std::pair(b.line, b.column);
+    });
+    return Error{ErrorCode::kInvalid, sink.report()};
+  }
+  return std::move(*sc);
+}
+
+Result<Scenario> load_scenario(const std::string& path) {
+  std::string text;
+  ErrorCode code{};
+  if (auto why = read_file(path, text, code)) return Error{code, path + ": " + *why};
+  return parse_scenario(text, path);
+}
+
+double xy_distance_to_polyline(Vec3 p, const std::vector<Vec3>& line) {
+  double arc = 0;
+  return polyline_distance(xy(p), line, arc);
+}
+
+IncisionProgress incision_progress(const IncisionTask& task, const std::vector<std::vector<Vec3>>& cuts) {
+  IncisionProgress out;
+  const double tol = task.tolerance;
+  const double task_len = xy_length(task.line);
+  double cut_len = 0;
+  for (const auto& c : cuts) {
+    cut_len += xy_length(c);
+    for (const Vec3& p : c) out.max_deviation = std::max(out.max_deviation, xy_distance_to_polyline(p, task.line));
+  }
+  if (task.line.empty() || !(cut_len > 0) || !std::isfinite(cut_len)) return out;
+
+  // Each cut segment in pieces of at most h: a piece whose midpoint is within tolerance covers the
+  // stretch of the task line its ends project onto; the others count as outside.
+  constexpr double kMaxPieces = 1 << 16;
+  const double h = std::max(tol > 0 ? tol / 4 : cut_len, cut_len / kMaxPieces);
+  std::vector<std::pair<double, double>> spans;
+  double outside_len = 0;
+  for (const auto& c : cuts) {
+    for (std::size_t i = 1; i < c.size(); ++i) {
+      const Xy a = xy(c[i - 1]), b = xy(c[i]);
+      const double len = std::hypot(b.x - a.x, b.y - a.y);
+      if (!(len > 0)) continue;
+      const auto n = static_cast<std::size_t>(std::max(1.0, std::ceil(len / h)));
+      for (std::size_t k = 0; k < n; ++k) {
+        const double t0 = static_cast<double>(k) / static_cast<double>(n);
+        const double t1 = static_cast<double>(k + 1) / static_cast<double>(n);
+        const Xy p0{a.x + t0 * (b.x - a.x), a.y + t0 * (b.y - a.y)};
+        const Xy p1{a.x + t1 * (b.x - a.x), a.y + t1 * (b.y - a.y)};
+        const Xy mid{0.5 * (p0.x + p1.x), 0.5 * (p0.y + p1.y)};
+        double s_mid = 0, s0 = 0, s1 = 0;
+        if (polyline_distance(mid, task.line, s_mid) > tol) {
+          outside_len += len / static_cast<double>(n);
+          continue;
+        }
+        (void)polyline_distance(p0, task.line, s0);
+        (void)polyline_distance(p1, task.line, s1);
+        // Near a sharp corner of the task line the closest point can jump: then only the
+        // midpoint's place counts.
+        if (std::abs(s1 - s0) > 2 * len / static_cast<double>(n) + 1e-12) s0 = s1 = s_mid;
+        spans.emplace_back(std::min(s0, s1), std::max(s0, s1));
+      }
+    }
+  }
+  out.outside = std::clamp(outside_len / cut_len, 0.0, 1.0);
+  if (!(task_len > 0)) {
+    out.covered = spans.empty() ? 0.0 : 1.0;
+    return out;
+  }
+  std::sort(spans.begin(), spans.end());
+  double covered = 0, lo = 0, hi = -1;
+  for (const auto& [s0, s1] : spans) {
+    if (s0 > hi) {
+      if (hi > lo) covered += hi - lo;
+      lo = s0;
+      hi = s1;
+    } else {
+      hi = std::max(hi, s1);
+    }
+  }
+  if (hi > lo) covered += hi - lo;
+  out.covered = std::clamp(covered / task_len, 0.0, 1.0);
+  return out;
+}
+
+bool touches(const Structure& s, Vec3 centre, double radius) {
+  switch (s.kind) {
+    case ShapeKind::kLabel: return false;
+    case ShapeKind::kSphere: return norm(centre - s.a) <= s.radius + radius;
+    case ShapeKind::kCapsule: {
+      const Vec3 ab = s.b - s.a;
+      const double len2 = dot(ab, ab);
+      const double t = len2 > 0 ? std::clamp(dot(centre - s.a, ab) / len2, 0.0, 1.0) : 0.0;
+      return norm(centre - (s.a + t * ab)) <= s.radius + radius;
+    }
+  }
+  return false;
+}
+
+}  // namespace lancet::scenario

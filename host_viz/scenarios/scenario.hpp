@@ -1,0 +1,132 @@
+#pragma once
+// Scenario: one training exercise as data, loaded from a TOML file in host_viz/scenarios/ (schema:
+// host_viz/scenarios/README.md). Which tissue (the built-in phantom, the procedural block or a
+// CT file), which isosurface the trainee touches, the tools offered, where the camera starts, the
+// task (an incision line or a drill window) and the structures not to damage.
+//
+// The file states its units in its key names (line_mm, tolerance_mm, yaw_deg, skin_iso_hu, ...);
+// everything here is SI (m, rad) except isovalues (HU). World frame: z up, the tissue's top
+// surface at z = 0, x along the limb.
+//
+// Loading validates the whole file and reports every problem at once, one per line, as
+// "file:line:col: field: expected ..., found ...": unknown keys (with a did-you-mean), missing
+// required keys, wrong types, values out of range, sections that disagree with each other.
+// Configure time only (allocating, throws nothing: toml++'s exceptions stay inside the loader).
+// incision_progress() and touches() are cheap pure functions, safe on any thread.
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "lancet/shared_model/geometry.hpp"  // Vec3 (double x,y,z) and helpers
+#include "lancet/shared_model/messages.hpp"  // ToolMode, tool_from_name, tool_name, kToolNames
+#include "lancet/shared_model/result.hpp"    // Result<T>, Error, ErrorCode
+
+namespace lancet::scenario {
+
+/// The schema_version this loader reads.
+inline constexpr int kSchemaVersion = 1;
+
+enum class TissueSource : std::uint8_t { kBlock, kPhantom, kFile };
+enum class SurfaceKind : std::uint8_t { kSkin, kBone };  // which isosurface the trainee touches and cuts
+
+struct Tissue {
+  TissueSource source = TissueSource::kPhantom;
+  std::string volume_path;          ///< kFile: resolved against the scenario file's folder; empty: must come from --volume
+  float skin_iso = -300;            ///< HU (key skin_iso_hu)
+  float bone_iso = 300;             ///< HU (key bone_iso_hu), > skin_iso
+  SurfaceKind surface = SurfaceKind::kSkin;
+  double cut_depth = 0.006;         ///< m (key cut_depth_mm, range (0, 30] mm): how deep the scalpel's cut reaches into the volume
+  /// kFile only (key axes, e.g. ["x", "-z", "y"]): world axis a runs along the volume's axis
+  /// axis[a] (0 = i/x, 1 = j/y, 2 = k/z), in the direction sign[a] (+1 or -1). A permutation.
+  std::array<int, 3> axis{0, 1, 2};
+  std::array<int, 3> sign{1, 1, 1};
+};
+
+/// Where the orbit camera starts: rad, rad, m, m (keys yaw_deg, pitch_deg, distance_mm, target_mm).
+struct Camera {
+  double yaw = 0.6;        ///< rad about +z
+  double pitch = 0.55;     ///< rad above the surface plane, (-90°, 90°)
+  double distance = 0.26;  ///< m from the target, > 0
+  Vec3 target{};           ///< m, the point the camera orbits and looks at
+};
+
+enum class TaskKind : std::uint8_t { kIncision, kDrill };
+
+/// Cut along a polyline on the surface. Only x and y count: the line is projected onto the surface.
+struct IncisionTask {
+  std::vector<Vec3> line;   ///< m; >= 2 points, nonzero length in x-y
+  double tolerance = 0.003; ///< m, the largest x-y distance from the line that still counts as on it
+};
+
+/// Open a window into the surface: a disc of `radius` about `centre`, `depth` deep.
+struct DrillTask {
+  Vec3 centre{};         ///< m, on (or near) the surface being drilled
+  double radius = 0.005; ///< m
+  double depth = 0.004;  ///< m below the surface at the centre
+};
+
+enum class ShapeKind : std::uint8_t { kLabel, kCapsule, kSphere };
+
+/// A structure not to damage.
+struct Structure {
+  std::string name;
+  ShapeKind kind = ShapeKind::kLabel;
+  std::uint8_t label = 0;  ///< kLabel: volume material label (0..255; the phantom's PhantomMaterial)
+  Vec3 a{}, b{};           ///< kCapsule: segment ends (m); kSphere: centre a
+  double radius = 0;       ///< kCapsule/kSphere (m)
+};
+
+struct Scenario {
+  std::string name, description;
+  std::string file;  ///< the path it was loaded from (parse_scenario: the source name)
+  Tissue tissue;
+  std::vector<ToolMode> tools;             ///< offered, no duplicates, non-empty, in file order
+  ToolMode start_tool = ToolMode::kProbe;  ///< among tools
+  Camera camera;
+  TaskKind task = TaskKind::kIncision;
+  IncisionTask incision;  ///< when task == kIncision
+  DrillTask drill;        ///< when task == kDrill
+  std::vector<Structure> avoid;
+};
+
+/// Name of each enum value as the file writes it ("phantom", "bone", "drill", "capsule", ...).
+[[nodiscard]] std::string_view source_key(TissueSource s) noexcept;
+[[nodiscard]] std::string_view surface_key(SurfaceKind s) noexcept;
+[[nodiscard]] std::string_view task_key(TaskKind k) noexcept;
+[[nodiscard]] std::string_view shape_key(ShapeKind k) noexcept;
+
+/// Parses and validates; every problem reported at once in Error::message (ErrorCode::kInvalid),
+/// one per line, sorted by position, as
+///   "<source_name>:<line>:<col>: <dotted.field>: expected <...>, found <...>"
+/// (unknown keys: "...: unknown key "x" (did you mean "y"?); known keys here: ..."; missing keys:
+/// "...: required key is missing; expected ..."; a TOML syntax error: "<source_name>:<line>:<col>:
+/// TOML syntax error: ...", the only line, as the parse stops there). A relative tissue.path is
+/// resolved against the folder of `source_name`. Sets Scenario::file to `source_name`.
+[[nodiscard]] Result<Scenario> parse_scenario(std::string_view text, const std::string& source_name);
+/// Reads the file (errors: "<path>: cannot open: <strerror>", kNotFound or kSystem) and parses
+/// it; sets Scenario::file.
+[[nodiscard]] Result<Scenario> load_scenario(const std::string& path);
+
+/// How far along an incision task the trainee is, from the cuts made so far (each a polyline on the surface, m).
+struct IncisionProgress {
+  double covered = 0;        ///< fraction of the task line (in x-y) within tolerance of some cut, 0..1
+  double max_deviation = 0;  ///< m, the largest x-y distance of any cut point from the task line
+  double outside = 0;        ///< fraction of the cuts' total length farther than tolerance from the line
+};
+/// Only x and y count. `covered` samples the task line every tolerance / 4 (at most 4096 samples)
+/// and counts a sample as covered when some cut passes within tolerance of it; `outside` splits
+/// each cut segment the same way. Cuts of one point count for max_deviation only. Empty cuts: all 0.
+[[nodiscard]] IncisionProgress incision_progress(const IncisionTask& task, const std::vector<std::vector<Vec3>>& cuts);
+
+/// True when a sphere (centre, radius, m) touches the shape (kCapsule/kSphere; kLabel: always
+/// false — labels are checked by the caller against the volume). Touching includes contact.
+[[nodiscard]] bool touches(const Structure& s, Vec3 centre, double radius);
+
+/// x-y distance (m) from p to the polyline (z ignored); +inf for an empty line.
+[[nodiscard]] double xy_distance_to_polyline(Vec3 p, const std::vector<Vec3>& line);
+
+}  // namespace lancet::scenario

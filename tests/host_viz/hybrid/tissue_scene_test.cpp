@@ -1,0 +1,279 @@
+// TissueScene: lancet-rt's ToolSample stream, scripted, drives the whole tissue — the dent, the
+// rupture, a cut of the right length on the surface, a groove of the opening's width and the cut's
+// depth in the volume, the drill's removals and the bone surface re-extracted closed — and the
+// patch it exports carries the brick.
+
+#include "hybrid/tissue_scene.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <functional>
+#include <memory>
+#include <vector>
+
+#include "hybrid/phantom_skin.hpp"
+#include "volume/mesh_tools.hpp"
+
+namespace lancet::hybrid {
+namespace {
+
+std::unique_ptr<TissueScene> make(SceneDescription d) {
+  auto s = TissueScene::create(std::move(d));
+  EXPECT_TRUE(s.ok()) << (s.ok() ? "" : s.error().message);
+  return s.ok() ? std::move(s).value() : nullptr;
+}
+
+// A scripted hand: samples one tick (1 ms) apart.
+struct Script {
+  std::vector<ToolSample> samples;
+  std::uint64_t seq = 0;
+  ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0) {
+    ToolSample t{};
+    t.seq = ++seq;
+    t.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
+    t.stage = stage;
+    t.proxy.position = proxy;
+    t.tool.position = tool;
+    t.events = events;
+    t.payload.position = proxy;
+    samples.push_back(t);
+    return samples.back();
+  }
+  // Feeds the samples in frames of 16, as lancet-viz drains them.
+  void play(TissueScene& s) {
+    for (std::size_t i = 0; i < samples.size(); i += 16)
+      (void)s.apply(std::span<const ToolSample>(samples).subspan(i, std::min<std::size_t>(16, samples.size() - i)));
+    samples.clear();
+  }
+};
+
+// Press, rupture, a straight cut of `length` along +x from `start` (the blade 1 mm below the
+// proxy, cut progress every 0.5 mm), lift out, then the retractor pulls the incision open by D.
+void cut_and_open(Script& sc, const std::function<double(double, double)>& height, Vec3 start, double length, double d) {
+  const auto on = [&](double x, double y) { return Vec3{x, y, height(x, y)}; };
+  const Vec3 p0 = on(start.x, start.y);
+  for (int i = 0; i < 50; ++i) sc.add(Stage::kDeform, p0, p0 + Vec3{0, 0, -0.00005 * i});
+  sc.add(Stage::kRupture, p0, p0 + Vec3{0, 0, -0.003}, event::kRupture).payload.magnitude = 4.0;
+  const int steps = static_cast<int>(std::lround(length / 0.0001));
+  for (int i = 1; i <= steps; ++i) {
+    const Vec3 p = on(start.x + 0.0001 * i, start.y);
+    sc.add(Stage::kCutting, p, p + Vec3{0, 0, -0.001}, i % 5 == 0 ? event::kCutProgress : 0u);
+  }
+  const Vec3 end = on(start.x + length, start.y);
+  sc.add(Stage::kFree, end + Vec3{0, 0, 0.01}, end + Vec3{0, 0, 0.01});
+  const Vec3 mid = on(start.x + 0.5 * length, start.y);
+  sc.add(Stage::kFree, mid + Vec3{0, 0, 0.001}, mid + Vec3{0, 0, 0.001}, event::kContactBegin);
+  sc.add(Stage::kPulling, mid, mid, event::kGrab);
+  for (int i = 1; i <= 100; ++i) sc.add(Stage::kPulling, mid, mid, event::kPull).payload.magnitude = d * i / 100.0;
+}
+
+TEST(TissueScene, AScriptedStreamCutsTheSurfaceAndOpensAGrooveInTheVolume) {
+  SceneDescription d;
+  d.source = SceneSource::kBlock;
+  d.cut_depth = 0.006;
+  auto scene = make(d);
+  ASSERT_TRUE(scene);
+  Script sc;
+  const surface::TissueBlockParams block{};
+  const auto height = [&](double x, double y) { return surface::tissue_block_height(block, x, y); };
+  cut_and_open(sc, height, {-0.015, 0.0011, 0}, 0.03, 0.004);
+  sc.play(*scene);
+
+  const SceneEvents& e = scene->events();
+  EXPECT_EQ(e.ruptures, 1u);
+  EXPECT_EQ(e.grabs, 1u);
+  EXPECT_EQ(e.pulls, 100u);
+  EXPECT_EQ(e.cut_steps, 60u);
+  // On the surface: one cut, 30 mm long on the mesh, opened by D.
+  const CutFigures cuts = scene->cut_figures();
+  EXPECT_EQ(cuts.cuts, 1u);
+  EXPECT_NEAR(cuts.longest, 0.03, 0.003);
+  EXPECT_NEAR(cuts.opening, 0.004, 0.0005);
+  // In the volume: a groove along the same 30 mm, its top walls D apart, as deep as the cut.
+  const auto grooves = scene->grooves();
+  ASSERT_EQ(grooves.size(), 1u);
+  const GrooveFigures& g = grooves[0];
+  EXPECT_NEAR(g.length, 0.03, 0.0015);
+  EXPECT_DOUBLE_EQ(g.width, 0.004);
+  EXPECT_NEAR(g.top_gap, 0.004, 0.0002);
+  // The block's surface undulates by ±3 mm along the cut: the cut reaches 6 mm below its lowest
+  // point, so its deepest face is 6 to 6 + 6 mm below the top of its column.
+  EXPECT_GE(g.depth, 0.006 - 0.001);
+  EXPECT_LE(g.depth, 0.012 + 0.001);
+  EXPECT_GT(g.faces, 100u);
+
+  // What is drawn: the surface plus the groove's walls, in the tissue's materials.
+  surface::TriangleMesh drawn, skin;
+  scene->draw_mesh(drawn);
+  scene->surface().to_triangle_mesh(skin);
+  EXPECT_GT(drawn.triangles.size(), skin.triangles.size() + 50);
+  std::size_t fat = 0;
+  for (std::size_t f = skin.triangles.size(); f < drawn.triangles.size(); ++f) fat += drawn.material[f] == volume::kFat;
+  EXPECT_GT(fat, 0u) << "the walls show the fat under the skin";
+  const auto st = scene->surface().stats();
+  EXPECT_EQ(st.non_manifold_vertices, 0u);
+  EXPECT_EQ(st.flipped_faces, 0u);
+}
+
+TEST(TissueScene, TheGrooveWidensWithTheOpening) {
+  SceneDescription d;
+  d.source = SceneSource::kBlock;
+  auto scene = make(d);
+  ASSERT_TRUE(scene);
+  Script sc;
+  const surface::TissueBlockParams block{};
+  const auto height = [&](double x, double y) { return surface::tissue_block_height(block, x, y); };
+  cut_and_open(sc, height, {-0.01, 0.0011, 0}, 0.02, 0.002);
+  sc.play(*scene);
+  const double narrow = scene->grooves().at(0).top_gap;
+  const Vec3 mid{0, 0.0011, height(0, 0.0011)};
+  for (int i = 1; i <= 50; ++i) sc.add(Stage::kPulling, mid, mid, event::kPull).payload.magnitude = 0.002 + 0.003 * i / 50.0;
+  sc.play(*scene);
+  EXPECT_NEAR(narrow, 0.002, 0.0002);
+  EXPECT_NEAR(scene->grooves().at(0).top_gap, 0.005, 0.0003);
+}
+
+TEST(TissueScene, ThePhantomIsPlacedAsItsSkinSaysAndItsPatchCarriesTheBrick) {
+  auto scene = make({});
+  ASSERT_TRUE(scene);
+  VolumePlacement expected;
+  (void)phantom_skin(volume::make_phantom({}), expected);
+  EXPECT_EQ(scene->placement().axis, expected.axis);
+  EXPECT_NEAR(scene->placement().offset.z, expected.offset.z, 1e-9);
+  EXPECT_NEAR(scene->placement().offset.x, 0, 1e-9);
+  // Down from z = 0 at the limb's middle: air, then skin, fat and muscle in that order.
+  std::vector<std::uint8_t> layers;
+  for (double z = 0; z > -0.02; z -= 0.00025) {
+    const std::uint8_t l = scene->label_at({0, 0, z});
+    if (layers.empty() || layers.back() != l) layers.push_back(l);
+  }
+  EXPECT_EQ(layers, (std::vector<std::uint8_t>{volume::kAir, volume::kSkin, volume::kFat, volume::kMuscle}));
+  auto patch = std::make_unique<TissuePatch>();
+  EXPECT_GT(scene->export_patch({0, 0, 0}, *patch), 0u);
+  EXPECT_GT(patch->n_triangles, 0u);
+  EXPECT_EQ(patch->brick.valid, 1u);
+}
+
+// The drill: removals lancet-rt reports are carved into the volume, the labels follow, and the bone
+// surface is re-extracted where they were and stays closed.
+TEST(TissueScene, DrillRemovalsCarveTheVolumeAndKeepTheBoneSurfaceClosed) {
+  auto scene = make({});
+  ASSERT_TRUE(scene);
+  const Vec3 bone_top{0, 0.006, -0.0325};  // the phantom's bone under the limb's front
+  ASSERT_EQ(scene->label_at(bone_top + Vec3{0, 0, -0.001}), volume::kCorticalBone);
+  Script sc;
+  for (int i = 0; i < 40; ++i) {
+    const Vec3 c = bone_top + Vec3{0, 0, -0.0001 * i};
+    sc.add(Stage::kFree, c, c, event::kDrillRemove).payload.magnitude = 0.0025;
+  }
+  sc.play(*scene);
+  EXPECT_EQ(scene->events().drill_removals, 40u);
+  EXPECT_GT(scene->events().voxels_drilled, 60u);
+  EXPECT_EQ(scene->label_at(bone_top + Vec3{0, 0, -0.002}), volume::kAir);
+  EXPECT_EQ(scene->label_at(bone_top + Vec3{0, 0, -0.0055}), volume::kAir);
+  ASSERT_NE(scene->bone(), nullptr);
+  EXPECT_GE(scene->events().bone_updates, 1u);
+  const auto st = volume::mesh_stats(scene->bone()->mesh());
+  EXPECT_TRUE(st.closed()) << st.boundary_edges << " boundary edges, " << st.non_manifold_vertices << " non-manifold";
+  // The next patch's brick has the hole.
+  auto patch = std::make_unique<TissuePatch>();
+  (void)scene->export_patch(bone_top, *patch);
+  ASSERT_EQ(patch->brick.valid, 1u);
+  const VoxelBrick& b = patch->brick;
+  int inside = 0, air = 0;
+  for (std::uint32_t k = 0; k < kBrickDim; ++k)
+    for (std::uint32_t j = 0; j < kBrickDim; ++j)
+      for (std::uint32_t i = 0; i < kBrickDim; ++i) {
+        const Vec3 c = b.origin + Vec3{i * b.spacing.x, j * b.spacing.y, k * b.spacing.z};
+        if (norm(c - (bone_top + Vec3{0, 0, -0.002})) > 0.002) continue;
+        ++inside;
+        air += b.hu[i + kBrickDim * (j + kBrickDim * k)] == -1000;
+      }
+  EXPECT_GT(inside, 10);
+  EXPECT_EQ(air, inside);
+}
+
+// Exposed bone: the trainee touches the bone; the drilled hole shows in what is drawn and, within
+// a quarter second, in the surface the haptics feel.
+TEST(TissueScene, OnExposedBoneTheDrilledHoleIsDrawnAndFelt) {
+  SceneDescription d;
+  d.surface = SceneSurface::kBone;
+  auto scene = make(d);
+  ASSERT_TRUE(scene);
+  ASSERT_NE(scene->bone(), nullptr);
+  surface::TriangleMesh before;
+  scene->draw_mesh(before);
+  const std::uint64_t rev = scene->revision();
+  const Vec3 bone_top{0, 0.006, -0.0325};
+  Script sc;
+  for (int i = 0; i < 300; ++i) {
+    const Vec3 c = bone_top + Vec3{0, 0, -0.00001 * i};
+    sc.add(Stage::kFree, c, c, i % 10 == 0 ? event::kDrillRemove : 0u).payload.magnitude = 0.002;
+  }
+  sc.play(*scene);
+  EXPECT_NE(scene->revision(), rev);
+  surface::TriangleMesh after;
+  scene->draw_mesh(after);
+  EXPECT_NE(after.triangles.size(), before.triangles.size());
+  // The felt surface has no triangle left inside the burr's first bite.
+  auto patch = std::make_unique<TissuePatch>();
+  ASSERT_GT(scene->export_patch(bone_top, *patch), 0u);
+  for (std::uint32_t t = 0; t < patch->n_triangles; ++t)
+    for (const auto& v : patch->triangles[t].v) EXPECT_GT(norm(to_vec3(v) - bone_top), 0.0015);
+}
+
+TEST(TissueScene, AVolumeWithoutLabelsGetsThemFromItsIsovalues) {
+  SceneDescription d;
+  d.source = SceneSource::kVolume;
+  volume::Volume& v = d.volume.volume;
+  v.dims = {40, 30, 20};
+  v.spacing = {0.001, 0.001, 0.001};
+  v.value_unit = "HU";
+  v.data.assign(v.voxel_count(), -1000.0f);
+  for (int k = 0; k < 14; ++k)  // tissue in the lower 14 layers, a bone slab in the lowest 4
+    for (int j = 0; j < 30; ++j)
+      for (int i = 0; i < 40; ++i) v.data[v.index(i, j, k)] = k < 4 ? 1200.0f : 40.0f;
+  auto scene = make(std::move(d));
+  ASSERT_TRUE(scene);
+  EXPECT_EQ(scene->label_at({0, 0, -0.002}), volume::kMuscle);
+  EXPECT_EQ(scene->label_at({0, 0, -0.0125}), volume::kCorticalBone);
+  EXPECT_EQ(scene->label_at({0, 0, 0.002}), volume::kAir);
+}
+
+TEST(TissueScene, BadDescriptionsAreRefusedWithTheReason) {
+  SceneDescription empty;
+  empty.source = SceneSource::kVolume;
+  auto r = TissueScene::create(std::move(empty));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("empty"), std::string::npos) << r.error().message;
+
+  SceneDescription air;
+  air.source = SceneSource::kVolume;
+  air.volume.volume.dims = {8, 8, 8};
+  air.volume.volume.spacing = {0.001, 0.001, 0.001};
+  air.volume.volume.data.assign(512, -1000.0f);
+  r = TissueScene::create(std::move(air));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("no skin at -300"), std::string::npos) << r.error().message;
+
+  SceneDescription axes;
+  axes.source = SceneSource::kVolume;
+  axes.volume.volume.dims = {8, 8, 8};
+  axes.volume.volume.spacing = {0.001, 0.001, 0.001};
+  axes.volume.volume.data.assign(512, 40.0f);
+  axes.axis = {0, 0, 2};
+  r = TissueScene::create(std::move(axes));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("permutation"), std::string::npos) << r.error().message;
+
+  SceneDescription iso;
+  iso.skin_iso = 500;
+  iso.bone_iso = 300;
+  r = TissueScene::create(std::move(iso));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("skin < bone"), std::string::npos) << r.error().message;
+}
+
+}  // namespace
+}  // namespace lancet::hybrid
