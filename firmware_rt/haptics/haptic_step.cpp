@@ -78,7 +78,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
         d.carve_head = (d.carve_head + 1) % HapticData::kCarveMemory;
         d.n_carves = std::min(d.n_carves + 1, HapticData::kCarveMemory);
         out.events |= event::kDrillRemove;
-        out.payload = EventPayload{front, vc.normal, Vec3{}, m.drill_burr_radius};
+        out.payload = EventPayload{front, m.drill_burr_radius};
       }
     }
   } else if (in.mode == ToolMode::kRetractor && (d.grabbed || in.patch != nullptr)) {
@@ -97,7 +97,6 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
           best = dist2;
           found = true;
           d.control = q;
-          d.grab_normal = normalized(cross(b - a, c - a));
           d.cut_material = t.material;
         }
       }
@@ -105,7 +104,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
         d.grabbed = true;
         d.last_pull_event = in.device;
         out.events |= event::kGrab;
-        out.payload = EventPayload{d.control, d.grab_normal, Vec3{}, 0};
+        out.payload = EventPayload{d.control, 0};
       }
     }
     if (d.grabbed) {
@@ -117,7 +116,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
         d.stage = Stage::kFree;
         d.proxy = in.device;
         out.events |= event::kRelease;
-        out.payload = EventPayload{d.control, d.grab_normal, normalized(disp), m.elastic_limit};
+        out.payload = EventPayload{d.control, m.elastic_limit};
       } else {
         d.stage = Stage::kPulling;
         d.proxy = d.control;  // the magnetic snap: the hand is drawn to the control point
@@ -125,7 +124,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
         out.contact = true;
         if (norm(in.device - d.last_pull_event) > 0.0005) {
           out.events |= event::kPull;
-          out.payload = EventPayload{d.control, d.grab_normal, normalized(disp), std::min(len, m.elastic_limit)};
+          out.payload = EventPayload{d.control, std::min(len, m.elastic_limit)};
           d.last_pull_event = in.device;
         }
       }
@@ -149,7 +148,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
     out.contact = true;
     if (norm(d.proxy - d.last_cut_event) > 0.0005) {  // every 0.5 mm of cut
       out.events |= event::kCutProgress;
-      out.payload = EventPayload{d.proxy, d.cut_normal, u, 0};
+      out.payload = EventPayload{d.proxy, 0};
       d.last_cut_event = d.proxy;
     }
     // Exit: the device has come back out above the entry plane.
@@ -194,8 +193,7 @@ void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, Hap
       d.last_cut_event = d.proxy;
       ++d.ruptures;
       out.events |= event::kRupture;
-      const Vec3 blade = rotate(in.orientation, m.blade_axis);
-      out.payload = EventPayload{d.proxy, rf.normal, normalized(blade - dot(blade, rf.normal) * rf.normal), norm(raw)};
+      out.payload = EventPayload{d.proxy, norm(raw)};
     }
   } else {
     d.proxy = in.device;  // no tissue known: the proxy follows freely

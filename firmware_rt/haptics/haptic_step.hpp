@@ -66,7 +66,6 @@ struct HapticData {
   std::uint64_t ruptures = 0;
   bool grabbed = false;        ///< retractor holding the tissue
   Vec3 control{};              ///< where it grabbed (m)
-  Vec3 grab_normal{};
   Vec3 last_pull_event{};
   VoxelBrick brick{};          ///< the drill's own copy of the patch's brick, carved as it drills
   std::uint64_t brick_seq = 0; ///< patch seq the copy came from

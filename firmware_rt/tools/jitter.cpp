@@ -31,7 +31,6 @@ void fill_workload_patch(TissuePatch& p) {
     }
   }
   p.n_triangles = n;
-  p.radius = 0.03;
 }
 
 // Adds b's samples to a (both histograms with whole-microsecond bucket edges).

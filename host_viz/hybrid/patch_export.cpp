@@ -31,8 +31,6 @@ std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const P
     pt.flags = 0;
   }
   out.n_triangles = static_cast<std::uint32_t>(keep);
-  out.centre = centre;
-  out.radius = params.radius;
   return cand.size();
 }
 
@@ -68,8 +66,6 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
       if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
   }
   out.n_triangles = static_cast<std::uint32_t>(keep);
-  out.centre = centre;
-  out.radius = params.radius;
   out.brick.valid = 0;
   if (brick) brick(centre, out.brick);
   return cand.size();

@@ -25,7 +25,7 @@ struct PatchExportScratch {
   std::vector<std::uint32_t> faces;                          ///< BVH query result
 };
 
-/// Fills out.triangles / n_triangles / centre / radius from mesh around centre; leaves seq, t_ns,
+/// Fills out.triangles / n_triangles from mesh around centre; leaves seq, t_ns,
 /// samples_applied and brick to the caller. Returns the number of triangles found within the radius
 /// (may exceed kPatchCapacity; only the nearest kPatchCapacity are exported).
 std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const PatchExportParams& params,

@@ -18,8 +18,6 @@ bool position_ok(Vec3 p) {
          in(p.z, -kMaxCoordinate, kMaxCoordinate);
 }
 bool position_ok(Vec3f p) { return position_ok(to_vec3(p)); }
-/// A unit (or zero) direction, loosely: finite and not longer than 1.01.
-bool direction_ok(Vec3 d) { return is_finite(d) && dot(d, d) <= 1.0201; }
 bool quat_ok(Quat q) {
   const double n2 = q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z;
   return in(n2, 0.98, 1.02);
@@ -111,7 +109,6 @@ const char* check(const StylusTarget& t, std::int64_t now_ns) noexcept {
 const char* check(const TissuePatch& p, std::int64_t now_ns) noexcept {
   if (p.n_triangles > kPatchCapacity) return "patch.n_triangles: above the capacity";
   if (!timestamp_ok(p.t_ns, now_ns)) return "patch.t_ns: not set or in the future";
-  if (!position_ok(p.centre) || !in(p.radius, 0, kMaxCoordinate)) return "patch.centre/radius: not finite or out of range";
   for (std::uint32_t i = 0; i < p.n_triangles; ++i) {
     const PatchTriangle& t = p.triangles[i];
     if (!position_ok(t.v[0]) || !position_ok(t.v[1]) || !position_ok(t.v[2]))
@@ -148,7 +145,7 @@ const char* check(const ToolSample& s) noexcept {
   if (!pose_ok(s.tool) || !pose_ok(s.proxy)) return "sample.tool/proxy: not finite, out of range or not a unit quaternion";
   if (!force_ok(s.force)) return "sample.force: not finite or above 1000 N";
   const EventPayload& e = s.payload;
-  if (!position_ok(e.position) || !direction_ok(e.normal) || !direction_ok(e.direction) || !finite(e.magnitude))
+  if (!position_ok(e.position) || !finite(e.magnitude))
     return "sample.payload: not finite or out of range";
   // The work an event causes in the viz is bounded by its payload: a burr of at most 10 mm, a
   // pull of at most 10 cm.

@@ -41,8 +41,6 @@ TEST(PatchExport, NearestFirstAndAllWithinRadius) {
   const std::size_t found = export_patch(mesh, centre, params, scratch, *patch);
   ASSERT_GT(patch->n_triangles, 10u);
   EXPECT_EQ(found, patch->n_triangles);  // well under capacity
-  EXPECT_EQ(patch->centre, centre);
-  EXPECT_EQ(patch->radius, params.radius);
   double prev = 0;
   for (std::uint32_t i = 0; i < patch->n_triangles; ++i) {
     const double d = centroid_distance(patch->triangles[i], centre);

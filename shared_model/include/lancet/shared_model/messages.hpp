@@ -71,8 +71,6 @@ inline constexpr std::uint32_t kFault = 1u << 10;       ///< watchdog or device 
 /// Data attached to the events of one tick.
 struct EventPayload {
   Vec3 position;      ///< m
-  Vec3 normal;        ///< unit surface normal
-  Vec3 direction;     ///< unit blade or pull direction
   double magnitude;   ///< event-specific scalar (m for radius/displacement, N for force)
 };
 
@@ -153,8 +151,6 @@ struct TissuePatch {
   /// seq of the newest ToolSample whose events this patch reflects (0: none yet): lancet-rt
   /// re-applies to the brick the drill removals it made after that sample.
   std::uint64_t samples_applied;
-  Vec3 centre;               ///< query centre: the tool position the viz used (m)
-  double radius;             ///< query radius (m)
   std::uint32_t n_triangles; ///< valid entries in triangles
   std::uint32_t reserved0;
   PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)

@@ -21,7 +21,7 @@ namespace lancet {
 
 /// Bump when the meaning of a field changes without changing the layout.
 /// 2: Command::check (was reserved0) must match wire::command_check.
-inline constexpr std::uint64_t kProtocolVersion = 4;
+inline constexpr std::uint64_t kProtocolVersion = 5;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -69,7 +69,7 @@ constexpr std::uint64_t shared_layout_hash() {
   h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, material_id),
            offsetof(Command, material), sizeof(MaterialParams), offsetof(MaterialParams, yield_force),
            offsetof(MaterialParams, density));
-  h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, centre), offsetof(TissuePatch, n_triangles),
+  h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, n_triangles),
            offsetof(TissuePatch, triangles), offsetof(TissuePatch, brick), sizeof(PatchTriangle),
            offsetof(PatchTriangle, material), offsetof(PatchTriangle, flags), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
   h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
