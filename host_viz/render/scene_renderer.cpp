@@ -1,6 +1,8 @@
 #include "render/scene_renderer.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtc/type_ptr.hpp>
 #include <numbers>
@@ -29,14 +31,17 @@ in vec3 v_nrm;
 flat in int v_mat;
 uniform vec3 u_color;
 uniform int u_mode;      // 0: lit by material id, 1: lit u_color, 2: flat u_color
+uniform int u_face_materials;  // 1: the material of face gl_PrimitiveID from the buffer, 0: v_mat
 uniform vec3 u_light;
+layout(std430, binding = 0) readonly buffer FaceMaterials { uint face_material[]; };
 out vec4 o_color;
 void main() {
   vec3 base = u_color;
+  int mat = u_face_materials == 1 ? int(face_material[gl_PrimitiveID]) : v_mat;
   // By material (PhantomMaterial): air/skin, fat, muscle, cortical bone, marrow, vessel.
   const vec3 palette[8] = vec3[8](vec3(0.93, 0.73, 0.63), vec3(0.93, 0.73, 0.63), vec3(0.95, 0.85, 0.45), vec3(0.70, 0.25, 0.22),
                                    vec3(0.92, 0.90, 0.82), vec3(0.80, 0.55, 0.40), vec3(0.72, 0.12, 0.16), vec3(0.93, 0.73, 0.63));
-  if (u_mode == 0) base = palette[clamp(v_mat, 0, 7)];
+  if (u_mode == 0) base = palette[clamp(mat, 0, 7)];
   if (u_mode == 2) { o_color = vec4(base, 1.0); return; }
   vec3 n = normalize(v_nrm);
   float diffuse = abs(dot(n, normalize(u_light)));   // two-sided
@@ -118,13 +123,81 @@ SceneRenderer::GpuMesh SceneRenderer::upload(const std::vector<float>& data) {
   return m;
 }
 
-void SceneRenderer::set_mesh(const surface::TriangleMesh& mesh) {
-  std::vector<float> v;
-  v.reserve(mesh.triangles.size() * 21);
-  for (std::size_t f = 0; f < mesh.triangles.size(); ++f) {
-    for (auto i : mesh.triangles[f]) push_vertex(v, gv(mesh.vertices[i]), gv(mesh.normals[i]), mesh.material[f]);
+namespace {
+
+// Sends what differs between `now` and `before` (the buffer's contents) in blocks of 16 kB, or
+// the whole when the size changed; returns the bytes sent. `before` becomes `now`.
+template <class T>
+std::size_t sync_buffer(Buffer& buffer, std::vector<T>& before, const std::vector<T>& now) {
+  const GLuint id = buffer.get();
+  if (now.size() != before.size()) {
+    glNamedBufferData(id, static_cast<GLsizeiptr>(std::max<std::size_t>(now.size(), 1) * sizeof(T)), now.data(), GL_DYNAMIC_DRAW);
+    before = now;
+    return now.size() * sizeof(T);
   }
-  surface_ = upload(v);
+  constexpr std::size_t kBlock = 16384 / sizeof(T);
+  std::size_t sent = 0;
+  for (std::size_t at = 0; at < now.size();) {
+    // A run of consecutive changed blocks goes in one call.
+    std::size_t end = at;
+    while (end < now.size()) {
+      const std::size_t n = std::min(kBlock, now.size() - end);
+      if (std::equal(now.begin() + static_cast<std::ptrdiff_t>(end), now.begin() + static_cast<std::ptrdiff_t>(end + n),
+                     before.begin() + static_cast<std::ptrdiff_t>(end)))
+        break;
+      end += n;
+    }
+    if (end > at) {
+      std::copy(now.begin() + static_cast<std::ptrdiff_t>(at), now.begin() + static_cast<std::ptrdiff_t>(end),
+                before.begin() + static_cast<std::ptrdiff_t>(at));
+      glNamedBufferSubData(id, static_cast<GLintptr>(at * sizeof(T)), static_cast<GLsizeiptr>((end - at) * sizeof(T)),
+                           now.data() + at);
+      sent += (end - at) * sizeof(T);
+      at = end;
+    } else {
+      at += std::min(kBlock, now.size() - at);
+    }
+  }
+  return sent;
+}
+
+}  // namespace
+
+void SceneRenderer::set_mesh(const surface::TriangleMesh& mesh) {
+  SurfaceBuffers& g = surface_;
+  if (g.vao.get() == 0) {
+    GLuint vao = 0, bufs[3] = {0, 0, 0};
+    glCreateVertexArrays(1, &vao);
+    glCreateBuffers(3, bufs);
+    g.vao = VertexArray(vao);
+    g.vertices = Buffer(bufs[0]);
+    g.indices = Buffer(bufs[1]);
+    g.materials = Buffer(bufs[2]);
+    glVertexArrayVertexBuffer(vao, 0, bufs[0], 0, 6 * sizeof(float));
+    glVertexArrayElementBuffer(vao, bufs[1]);
+    glEnableVertexArrayAttrib(vao, 0);
+    glVertexArrayAttribFormat(vao, 0, 3, GL_FLOAT, GL_FALSE, 0);
+    glVertexArrayAttribBinding(vao, 0, 0);
+    glEnableVertexArrayAttrib(vao, 1);
+    glVertexArrayAttribFormat(vao, 1, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float));
+    glVertexArrayAttribBinding(vao, 1, 0);
+  }
+  std::vector<float> v(mesh.vertices.size() * 6);
+  for (std::size_t k = 0; k < mesh.vertices.size(); ++k) {
+    const Vec3f p = mesh.vertices[k], n = k < mesh.normals.size() ? mesh.normals[k] : Vec3f{0, 0, 1};
+    float* o = v.data() + 6 * k;
+    o[0] = p.x, o[1] = p.y, o[2] = p.z, o[3] = n.x, o[4] = n.y, o[5] = n.z;
+  }
+  std::vector<std::uint32_t> idx(mesh.triangles.size() * 3), mat(mesh.triangles.size());
+  for (std::size_t f = 0; f < mesh.triangles.size(); ++f) {
+    for (std::size_t c = 0; c < 3; ++c) idx[3 * f + c] = mesh.triangles[f][c];
+    mat[f] = f < mesh.material.size() ? mesh.material[f] : 1u;
+  }
+  last_upload_bytes_ = sync_buffer(g.vertices, g.v, v) + sync_buffer(g.indices, g.i, idx) + sync_buffer(g.materials, g.m, mat);
+}
+
+std::size_t SceneRenderer::mesh_bytes() const noexcept {
+  return surface_.v.size() * sizeof(float) + (surface_.i.size() + surface_.m.size()) * sizeof(std::uint32_t);
 }
 
 void SceneRenderer::resize(int width, int height) {
@@ -176,7 +249,18 @@ void SceneRenderer::render(const SceneInput& in) {
   glUseProgram(program_.get());
   glUniform3f(glGetUniformLocation(program_.get(), "u_light"), eye.x, eye.y, eye.z + 0.2f);
 
-  draw(surface_, GL_TRIANGLES, 0, surface_.count, glm::mat4(1.0f), glm::vec3(1), 0);
+  if (!surface_.i.empty()) {
+    const GLuint p = program_.get();
+    const glm::mat4 mvp = proj_ * view_;
+    glUniformMatrix4fv(glGetUniformLocation(p, "u_mvp"), 1, GL_FALSE, glm::value_ptr(mvp));
+    glUniformMatrix4fv(glGetUniformLocation(p, "u_model"), 1, GL_FALSE, glm::value_ptr(glm::mat4(1.0f)));
+    glUniform1i(glGetUniformLocation(p, "u_mode"), 0);
+    glUniform1i(glGetUniformLocation(p, "u_face_materials"), 1);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, surface_.materials.get());
+    glBindVertexArray(surface_.vao.get());
+    glDrawElements(GL_TRIANGLES, static_cast<GLsizei>(surface_.i.size()), GL_UNSIGNED_INT, nullptr);
+    glUniform1i(glGetUniformLocation(p, "u_face_materials"), 0);
+  }
 
   // Lines: the patch wireframe (lifted 0.2 mm so it is not hidden by the surface) and the force.
   std::vector<float> lines;

@@ -33,8 +33,13 @@ class SceneRenderer {
   /// (configure time) when GL refuses.
   SceneRenderer(int width, int height);
 
-  /// Replaces the surface mesh on the GPU.
+  /// Replaces the surface mesh on the GPU: indexed (a vertex once, not once per corner), and
+  /// only the blocks of vertices, indices and face materials that differ from the last mesh
+  /// are sent (a dent or a cut's opening moves a few hundred vertices of a million).
   void set_mesh(const surface::TriangleMesh& mesh);
+  /// Bytes set_mesh sent to the GPU last time, and what sending everything would have been.
+  [[nodiscard]] std::size_t last_upload_bytes() const noexcept { return last_upload_bytes_; }
+  [[nodiscard]] std::size_t mesh_bytes() const noexcept;
   /// Resizes the offscreen target.
   void resize(int width, int height);
   /// Draws the scene into the offscreen target; leaves it bound for an overlay to draw on.
@@ -62,7 +67,17 @@ class SceneRenderer {
   Program program_;
   Framebuffer fbo_;
   Renderbuffer color_, depth_;
-  GpuMesh surface_, sphere_, cylinder_;
+  GpuMesh sphere_, cylinder_;
+  // The surface: indexed, its face materials in a storage buffer read by gl_PrimitiveID; the
+  // CPU copies are what the GPU holds, to find what changed.
+  struct SurfaceBuffers {
+    VertexArray vao;
+    Buffer vertices, indices, materials;
+    std::vector<float> v;           ///< position and normal per vertex
+    std::vector<std::uint32_t> i;   ///< 3 per face
+    std::vector<std::uint32_t> m;   ///< material per face
+  } surface_;
+  std::size_t last_upload_bytes_ = 0;
   GpuMesh lines_;
   glm::mat4 view_{1.0f}, proj_{1.0f};
 };

@@ -1,0 +1,69 @@
+// SceneRenderer on llvmpipe (hidden window under xvfb-run): the surface is drawn indexed with its
+// face materials, and a changed mesh sends only the blocks that changed.
+
+#include "render/scene_renderer.hpp"
+
+#include <gtest/gtest.h>
+
+#include <memory>
+
+#include "render/window.hpp"
+#include "surface/placeholder_mesh.hpp"
+
+namespace lancet::render {
+namespace {
+
+class SceneRendererTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto w = Window::create({320, 200, false, "test"});
+    ASSERT_TRUE(w) << "no GL context (run under xvfb-run; ctest does): " << w.error().message;
+    window_ = std::move(w).value();
+  }
+  std::unique_ptr<Window> window_;
+};
+
+// The mean colour of the image's middle.
+std::array<double, 3> centre_colour(const Image& img) {
+  std::array<double, 3> sum{};
+  int n = 0;
+  for (int y = img.height / 3; y < 2 * img.height / 3; ++y)
+    for (int x = img.width / 3; x < 2 * img.width / 3; ++x, ++n)
+      for (int c = 0; c < 3; ++c) sum[static_cast<std::size_t>(c)] += img.rgba[static_cast<std::size_t>(4 * (y * img.width + x) + c)];
+  for (auto& s : sum) s /= n;
+  return sum;
+}
+
+TEST_F(SceneRendererTest, ADentSendsOnlyWhatChangedAndMaterialsColourTheFaces) {
+  SceneRenderer r(320, 200);
+  surface::TissueBlockParams p;
+  p.cells = 200;  // 80 000 triangles
+  surface::TriangleMesh mesh = surface::make_tissue_block(p);
+  r.set_mesh(mesh);
+  EXPECT_EQ(r.last_upload_bytes(), r.mesh_bytes()) << "the first mesh goes whole";
+  r.set_mesh(mesh);
+  EXPECT_EQ(r.last_upload_bytes(), 0u) << "the same mesh sends nothing";
+  // A dent: 50 neighbouring vertices move.
+  for (std::size_t i = 20000; i < 20050; ++i) mesh.vertices[i].z -= 0.002f;
+  r.set_mesh(mesh);
+  EXPECT_GT(r.last_upload_bytes(), 0u);
+  EXPECT_LE(r.last_upload_bytes(), 2 * 16384u) << "one or two 16 kB blocks of " << r.mesh_bytes() << " bytes";
+
+  SceneInput in;
+  in.camera_pitch = 1.5f;  // from above
+  in.camera_distance = 0.12f;
+  std::fill(mesh.material.begin(), mesh.material.end(), std::uint16_t{1});  // skin
+  r.set_mesh(mesh);
+  r.render(in);
+  const auto skin = centre_colour(r.read_back());
+  std::fill(mesh.material.begin(), mesh.material.end(), std::uint16_t{6});  // vessel
+  r.set_mesh(mesh);
+  EXPECT_LE(r.last_upload_bytes(), mesh.material.size() * 4) << "only the materials changed";
+  r.render(in);
+  const auto vessel = centre_colour(r.read_back());
+  EXPECT_GT(skin[1], vessel[1] + 40) << "skin is pale, the vessel dark red";
+  EXPECT_GT(vessel[0], 2 * vessel[1]);
+}
+
+}  // namespace
+}  // namespace lancet::render
