@@ -194,6 +194,9 @@ Result<std::unique_ptr<TissueScene>> TissueScene::create(SceneDescription d) {
   if (!model.ok()) return invalid(model.error().message);
   s->surface_ = std::move(model).value();
   s->desc_ = std::move(d);
+  // The lattice's material ids now, not at the first cut's end in the middle of a frame; its
+  // elements are still materialised only where a cut or a groove needs them.
+  s->ensure_lattice();
   return s;
 }
 

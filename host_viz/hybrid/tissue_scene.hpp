@@ -2,7 +2,7 @@
 // TissueScene: the tissue of one simulation, owning every model of it (ALGORITHMS.md §1, the
 // hybrid model): the volume (CT in HU with material labels) placed in the world, the skin surface
 // made from the volume's marching-cubes skin (the SurfaceModel that is dented, cut and opened),
-// the ChainMail lattice around cuts (materialised lazily: the groove under an incision), the live
+// the ChainMail lattice around cuts (elements materialised lazily: the groove under an incision), the live
 // bone isosurface and the drill.
 //
 // It applies lancet-rt's ToolSample stream in order: the dent follows the proxy; a rupture
