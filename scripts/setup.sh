@@ -13,13 +13,15 @@ PACKAGES=(
   python3-pymodbus qemu-system-x86 busybox-static
   # visualizer
   libglfw3-dev libglm-dev libepoxy-dev libgl-dev libgl1-mesa-dri libimgui-dev libstb-dev libopenmesh-dev
+  # headless GL without an X server (EGL, Mesa surfaceless)
+  libegl-dev libegl1 libegl-mesa0
   # configuration, command lines, logging
   libtomlplusplus-dev libcli11-dev libspdlog-dev
   # volume files (compressed MetaImage, gzip NRRD, DICOM series)
   zlib1g-dev libgdcm-dev
   # tests and benchmarks (python3-vtk9: the marching-cubes cross-check against VTK, run by
   # Debian's /usr/bin/python3)
-  libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth rt-tests python3-vtk9
+  libgtest-dev libgmock-dev libbenchmark-dev rt-tests python3-vtk9
 )
 
 missing=()

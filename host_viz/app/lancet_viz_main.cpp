@@ -176,7 +176,7 @@ int main(int argc, char** argv) {
   CLI::App cli{"lancet-viz: Lancet's visualizer (tissue, tool, link to lancet-rt)"};
   VizOptions o;
   cli.add_option("--shm", o.shm, "shared-memory segment of lancet-rt")->capture_default_str();
-  cli.add_flag("--headless", o.headless, "render offscreen in a hidden window (needs an X display, e.g. xvfb-run)");
+  cli.add_flag("--headless", o.headless, "render offscreen without a window (EGL: no X server or DISPLAY needed)");
   cli.add_option("--duration", o.duration, "seconds to run; 0 runs until the window closes (headless default 5)")
       ->check(CLI::NonNegativeNumber);
   cli.add_option("--screenshot", o.screenshot, "write a PNG of the last frame here on exit");

@@ -11,19 +11,25 @@ Overlay::Overlay(GLFWwindow* window, bool install_callbacks) {
   ImGui::CreateContext();
   ImGui::GetIO().IniFilename = nullptr;  // no imgui.ini litter in the working directory
   ImGui::StyleColorsDark();
-  ImGui_ImplGlfw_InitForOpenGL(window, install_callbacks);
+  // Headless (no window): no platform backend; the frame's size and time are set in draw().
+  if (window != nullptr) ImGui_ImplGlfw_InitForOpenGL(window, install_callbacks);
+  glfw_ = window != nullptr;
   ImGui_ImplOpenGL3_Init("#version 450");
 }
 
 Overlay::~Overlay() {
   ImGui_ImplOpenGL3_Shutdown();
-  ImGui_ImplGlfw_Shutdown();
+  if (glfw_) ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
 }
 
 void Overlay::draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height) {
   ImGui_ImplOpenGL3_NewFrame();
-  ImGui_ImplGlfw_NewFrame();
+  if (glfw_) {
+    ImGui_ImplGlfw_NewFrame();
+  } else {
+    ImGui::GetIO().DeltaTime = 1.0f / 60.0f;
+  }
   ImGui::GetIO().DisplaySize = ImVec2(static_cast<float>(width), static_cast<float>(height));
   ImGui::NewFrame();
   ImGui::SetNextWindowPos(ImVec2(10, 10), ImGuiCond_Always);
@@ -42,6 +48,6 @@ void Overlay::draw(const std::string& title, const std::vector<OverlayLine>& lin
   ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
 }
 
-bool Overlay::wants_mouse() const { return ImGui::GetIO().WantCaptureMouse; }
+bool Overlay::wants_mouse() const { return glfw_ && ImGui::GetIO().WantCaptureMouse; }
 
 }  // namespace lancet::render

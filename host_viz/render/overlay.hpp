@@ -17,6 +17,7 @@ struct OverlayLine {
 class Overlay {
  public:
   /// Needs the window's GL context current. install_callbacks: let ImGui see mouse/keyboard.
+  /// window nullptr (headless): no input, the panel is drawn only.
   Overlay(GLFWwindow* window, bool install_callbacks);
   ~Overlay();
   Overlay(const Overlay&) = delete;
@@ -26,6 +27,9 @@ class Overlay {
   void draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
   /// True while ImGui wants the mouse (the scene should ignore it).
   [[nodiscard]] bool wants_mouse() const;
+
+ private:
+  bool glfw_ = false;  ///< the GLFW platform backend is in use (not headless)
 };
 
 }  // namespace lancet::render

@@ -1,7 +1,10 @@
 #pragma once
-// Window: GLFW initialisation and one OpenGL 4.5 core context, visible (the demo) or hidden
-// (headless: rendering goes to an offscreen framebuffer and is read back). Needs an X display;
-// headless runs use Xvfb (xvfb-run), where Mesa's llvmpipe provides GL 4.5 core.
+// Window: one OpenGL 4.5 core context. Visible (the demo's window): GLFW, which needs a display.
+// Headless: no window and no X server at all: an EGL context without a surface (Mesa's
+// EGL_MESA_platform_surfaceless, else the first EGL device through EGL_EXT_platform_device), so
+// rendering goes to framebuffer objects and is read back; DISPLAY is neither needed nor used.
+// GLFW 3.3 cannot make such a context, hence EGL here (through libepoxy: its
+// eglGetPlatformDisplayEXT, as eglGetPlatformDisplay aborts before a display exists).
 
 #include <memory>
 #include <string>
@@ -15,7 +18,7 @@ namespace lancet::render {
 struct WindowParams {
   int width = 1280;
   int height = 720;
-  bool visible = true;
+  bool visible = true;   ///< false: headless (EGL, no window, no display needed)
   std::string title = "Lancet";
 };
 
@@ -28,17 +31,25 @@ class Window {
   Window(const Window&) = delete;
   Window& operator=(const Window&) = delete;
 
+  /// The GLFW window; nullptr when headless.
   [[nodiscard]] GLFWwindow* handle() const noexcept { return window_; }
+  [[nodiscard]] bool headless() const noexcept { return window_ == nullptr; }
   [[nodiscard]] bool should_close() const;
   void swap_and_poll();
   /// Framebuffer size in pixels.
   void framebuffer_size(int& w, int& h) const;
-  /// GL_RENDERER and GL_VERSION strings of the context.
+  /// GL_RENDERER and GL_VERSION strings of the context (and how it was made, when headless).
   [[nodiscard]] std::string gl_description() const;
 
  private:
-  explicit Window(GLFWwindow* w) : window_(w) {}
+  Window() = default;
+  static Result<std::unique_ptr<Window>> create_headless(const WindowParams& params);
   GLFWwindow* window_ = nullptr;
+  int width_ = 0, height_ = 0;
+  // EGL (headless): display, context (void* so no EGL header leaks into users).
+  void* egl_display_ = nullptr;
+  void* egl_context_ = nullptr;
+  std::string egl_platform_;
 };
 
 }  // namespace lancet::render

@@ -24,7 +24,8 @@ const std::string kBin = std::string(LANCET_BINARY_DIR);
 const std::string kSrc = std::string(LANCET_SOURCE_DIR);
 
 TEST(ArmsimModbus, LancetRtRendersForcesOnTheSimulatedArmOverModbusTcp) {
-  ASSERT_NE(std::getenv("DISPLAY"), nullptr) << "run under xvfb-run (ctest does this)";
+  // lancet-viz renders headless through EGL: no X server, and none may be assumed.
+  unsetenv("DISPLAY");
   const auto dir = std::filesystem::temp_directory_path() / ("lancet-armsim-it-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
   const std::string shm = "/lancet-armsim-it-" + std::to_string(getpid());

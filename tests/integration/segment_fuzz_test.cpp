@@ -51,7 +51,8 @@ void add_seqlock(std::vector<Region>& out, const char* name, std::size_t base, i
 }
 
 TEST(SegmentFuzz, BothProcessesSurviveRandomBytesAcrossTheLiveSegment) {
-  ASSERT_NE(std::getenv("DISPLAY"), nullptr) << "run under xvfb-run (ctest does this)";
+  // lancet-viz renders headless through EGL: no X server, and none may be assumed.
+  unsetenv("DISPLAY");
   const auto dir = std::filesystem::temp_directory_path() / ("lancet-segfuzz-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
   const std::string shm = "/lancet-segfuzz-" + std::to_string(getpid());
