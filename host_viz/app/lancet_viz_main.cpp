@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <optional>
 #include <span>
@@ -28,6 +29,7 @@
 #include "hybrid/tissue_scene.hpp"
 #include "render/overlay.hpp"
 #include "render/scene_renderer.hpp"
+#include "render/volume_raycaster.hpp"
 #include "render/window.hpp"
 
 namespace {
@@ -39,8 +41,11 @@ extern "C" void on_signal(int) { g_stop.store(true, std::memory_order_relaxed); 
 struct Interaction {
   bool mouse_drives_stylus = false;
   double depth_mm = 3.0;       // how far below the surface the mouse-driven stylus is pushed
-  bool rotating = false;
+  bool rotating = false, windowing = false;
   double last_x = 0, last_y = 0;
+  int view = 0;               // 0 mesh, 1 mesh with the volume composited, 2 the volume alone
+  int preset = 1;             // index into volume::kTfPresets
+  float level = 0, width = 1; // window/level: HU shift and width scale of the preset
   float yaw = 0.6f, pitch = 0.55f, distance = 0.26f;
 };
 Interaction* g_ui = nullptr;
@@ -165,7 +170,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
-    lines.push_back({keys + "   R: reset   W: re-arm watchdog   Esc: quit"});
+    lines.push_back({keys + "   V: volume view   R: reset   W: re-arm watchdog   Esc: quit"});
   }
   return lines;
 }
@@ -202,6 +207,17 @@ int main(int argc, char** argv) {
                  "pick this tool in lancet-rt when connected (as the keys 1-4 do); default: the scenario's start_tool; "
                  "none: leave it to lancet-rt (a --trajectory that picks its own tools)")
       ->check(CLI::IsMember(tool_choices));
+  std::map<std::string, int> views{{"mesh", 0}, {"composite", 1}, {"volume", 2}};
+  std::string view = "mesh";
+  cli.add_option("--view", view,
+                 "mesh: the surfaces; composite: with the volume ray cast where no surface is in front; volume: the "
+                 "volume alone (V cycles them in the window)")
+      ->check(CLI::IsMember({"mesh", "composite", "volume"}))->capture_default_str();
+  std::vector<std::string> preset_names;
+  for (auto p : lancet::volume::kTfPresets) preset_names.emplace_back(lancet::volume::tf_preset_name(p));
+  std::string preset = "CT-Soft-Tissue";
+  cli.add_option("--preset", preset, "the volume's transfer function (P cycles them in the window)")
+      ->check(CLI::IsMember(preset_names))->capture_default_str();
   std::string trace_path;
   cli.add_option("--trace", trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
@@ -309,6 +325,11 @@ int main(int argc, char** argv) {
     std::uint64_t shown_revision = scene.revision();
     lancet::render::Overlay overlay(win.handle(), !o.headless);
     Interaction ui;
+    ui.view = views.at(view);
+    ui.preset = static_cast<int>(std::find(preset_names.begin(), preset_names.end(), preset) - preset_names.begin());
+    std::unique_ptr<lancet::render::VolumeRaycaster> raycaster;  // made when the volume is first shown
+    int shown_preset = -1;
+    float shown_level = 0, shown_width = 1;
     if (scenario) {
       ui.yaw = static_cast<float>(scenario->camera.yaw);
       ui.pitch = static_cast<float>(scenario->camera.pitch);
@@ -320,7 +341,7 @@ int main(int argc, char** argv) {
     const auto start = std::chrono::steady_clock::now();
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
-    bool key_down[7] = {};
+    bool key_down[9] = {};
     std::uint32_t tool_sent_for = 0;  // the connection the starting tool was last sent on
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
@@ -351,14 +372,20 @@ int main(int argc, char** argv) {
         GLFWwindow* h = win.handle();
         if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
         // Edge-triggered keys: M toggles mouse drive, 1-4 pick an offered tool, R resets, W re-arms.
-        const int key_codes[7] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_R, GLFW_KEY_W};
-        for (int k = 0; k < 7; ++k) {
+        const int key_codes[9] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4,
+                                  GLFW_KEY_R, GLFW_KEY_W, GLFW_KEY_V, GLFW_KEY_P};
+        for (int k = 0; k < 9; ++k) {
           const bool down = glfwGetKey(h, key_codes[k]) == GLFW_PRESS;
           if (down && !key_down[k]) {
-            if (k == 0) {
+            if (k == 7) {
+              ui.view = (ui.view + 1) % 3;
+            } else if (k == 8) {
+              ui.preset = (ui.preset + 1) % static_cast<int>(preset_names.size());
+              ui.level = 0, ui.width = 1;
+            } else if (k == 0) {
               ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
               if (!ui.mouse_drives_stylus) session.set_stylus_target(false, {}, now);
-            } else if (k >= 5) {
+            } else if (k == 5 || k == 6) {
               lancet::Command c{};
               c.kind = k == 5 ? lancet::CommandKind::kReset : lancet::CommandKind::kRearm;
               (void)session.send(c, now);
@@ -379,6 +406,13 @@ int main(int argc, char** argv) {
           ui.yaw += static_cast<float>(mx - ui.last_x) * 0.005f;
           ui.pitch = std::clamp(ui.pitch + static_cast<float>(my - ui.last_y) * 0.005f, 0.05f, 1.5f);
         }
+        // Right drag: window/level, as in 3D Slicer (across: level, up and down: width).
+        const bool right = glfwGetMouseButton(h, GLFW_MOUSE_BUTTON_RIGHT) == GLFW_PRESS && !overlay.wants_mouse();
+        if (right && ui.windowing) {
+          ui.level += static_cast<float>(mx - ui.last_x) * 2.0f;
+          ui.width = std::clamp(ui.width * std::pow(1.005f, static_cast<float>(my - ui.last_y)), 0.05f, 20.0f);
+        }
+        ui.windowing = right;
         ui.rotating = left;
         ui.last_x = mx, ui.last_y = my;
         int ww = 0, wh = 0;
@@ -403,11 +437,39 @@ int main(int argc, char** argv) {
       in.camera_yaw = ui.yaw, in.camera_pitch = ui.pitch, in.camera_distance = ui.distance;
       if (scenario) in.camera_target = scenario->camera.target;
       in.guide = guide.empty() ? nullptr : &guide;
+      // The volume: made and uploaded when first shown, its drilled voxels sent as they change.
+      const lancet::volume::VoxelBox changed = scene.take_volume_changes();
+      if (ui.view != 0) {
+        if (!raycaster) {
+          raycaster = std::make_unique<lancet::render::VolumeRaycaster>();
+          raycaster->set_volume(scene.volume());
+          shown_preset = -1;
+        } else if (!changed.empty()) {
+          raycaster->update_region(scene.volume(), changed);
+        }
+        if (shown_preset != ui.preset || shown_level != ui.level || shown_width != ui.width) {
+          raycaster->set_transfer_function(
+              lancet::volume::tf_preset(lancet::volume::kTfPresets[ui.preset], ui.level, ui.width));
+          shown_preset = ui.preset, shown_level = ui.level, shown_width = ui.width;
+        }
+        in.volume = raycaster.get();
+        in.volume_to_world = scene.volume_to_world();
+        in.volume_params.step = 1.0f;  // a voxel a sample: interactive on llvmpipe
+        in.draw_surface = ui.view == 1;
+      } else if (raycaster && !changed.empty()) {
+        raycaster->update_region(scene.volume(), changed);
+      }
       renderer.render(in);
-      overlay.draw("Lancet",
-                   status_lines(session, ui, o.headless, scene.events(), scenario ? &*scenario : nullptr,
-                                task ? &task->status() : nullptr, keys),
-                   renderer.width(), renderer.height());
+      auto lines = status_lines(session, ui, o.headless, scene.events(), scenario ? &*scenario : nullptr,
+                                task ? &task->status() : nullptr, keys);
+      if (ui.view != 0) {
+        char buf[160];
+        std::snprintf(buf, sizeof buf, "volume: %s, level %+.0f HU, width x%.2f%s", preset_names[static_cast<std::size_t>(ui.preset)].c_str(),
+                      static_cast<double>(ui.level), static_cast<double>(ui.width),
+                      o.headless ? "" : "   V: view, P: preset, right drag: window/level");
+        lines.push_back({buf});
+      }
+      overlay.draw("Lancet", lines, renderer.width(), renderer.height());
       if (!o.headless) renderer.present(fw, fh);
       win.swap_and_poll();
       ++frames;

@@ -319,14 +319,32 @@ void TissueScene::drill(const ToolSample& t) {
   events_.voxels_drilled += r.value().voxels_removed;
   const volume::VoxelBox& b = r.value().dirty;
   if (b.empty()) return;
-  if (dirty_.empty()) {
-    dirty_ = b;
-  } else {
+  for (volume::VoxelBox* box : {&dirty_, &changed_}) {
+    if (box->empty()) {
+      *box = b;
+      continue;
+    }
     for (std::size_t a = 0; a < 3; ++a) {
-      dirty_.lo[a] = std::min(dirty_.lo[a], b.lo[a]);
-      dirty_.hi[a] = std::max(dirty_.hi[a], b.hi[a]);
+      box->lo[a] = std::min(box->lo[a], b.lo[a]);
+      box->hi[a] = std::max(box->hi[a], b.hi[a]);
     }
   }
+}
+
+volume::VoxelBox TissueScene::take_volume_changes() noexcept {
+  const volume::VoxelBox b = changed_;
+  changed_ = {};
+  return b;
+}
+
+std::array<float, 16> TissueScene::volume_to_world() const noexcept {
+  std::array<float, 16> m{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    m[4 * static_cast<std::size_t>(placement_.axis[a]) + a] = static_cast<float>(placement_.sign[a]);
+    m[12 + a] = static_cast<float>(at(placement_.offset, static_cast<int>(a)));
+  }
+  m[15] = 1;
+  return m;
 }
 
 // The removals of this frame re-extract the bone surface where they were (made at the first

@@ -146,6 +146,11 @@ class TissueScene {
   [[nodiscard]] std::optional<Vec3> surface_below(double x, double y) const;
   /// A polyline laid on the surface: resampled every `step` m in x-y, each point at the surface.
   [[nodiscard]] std::vector<Vec3> drape(const std::vector<Vec3>& line, double step = 0.001) const;
+  /// The voxels the drill changed since the last call (one box around them; empty: none), for
+  /// whoever keeps a copy of the volume (the GPU ray caster).
+  [[nodiscard]] volume::VoxelBox take_volume_changes() noexcept;
+  /// The placement as a column-major 4×4 matrix (volume frame → world).
+  [[nodiscard]] std::array<float, 16> volume_to_world() const noexcept;
   /// Material label of the volume at a world point (kAir outside).
   [[nodiscard]] std::uint8_t label_at(Vec3 world) const noexcept;
 
@@ -172,6 +177,7 @@ class TissueScene {
   // The bone surface, re-extracted where the drill removed voxels.
   std::unique_ptr<volume::LiveIsosurface> bone_;
   volume::VoxelBox dirty_{};
+  volume::VoxelBox changed_{};  ///< drilled since take_volume_changes()
   bool bone_changed_ = false;
   std::int64_t surface_rebuilt_ns_ = 0;
   std::uint64_t own_revision_ = 0;

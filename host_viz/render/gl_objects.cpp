@@ -54,4 +54,20 @@ Program make_program(const std::string& vertex_src, const std::string& fragment_
   return Program(p);
 }
 
+Program make_compute_program(const std::string& compute_src) {
+  const GLuint cs = compile(GL_COMPUTE_SHADER, compute_src);
+  const GLuint p = glCreateProgram();
+  glAttachShader(p, cs);
+  glLinkProgram(p);
+  glDeleteShader(cs);
+  GLint ok = 0;
+  glGetProgramiv(p, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    const std::string log = info_log(p, glGetProgramiv, glGetProgramInfoLog);
+    glDeleteProgram(p);
+    throw std::runtime_error("compute program failed to link: " + log);
+  }
+  return Program(p);
+}
+
 }  // namespace lancet::render

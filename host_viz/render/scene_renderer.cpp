@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtc/type_ptr.hpp>
 #include <numbers>
@@ -47,6 +48,22 @@ void main() {
   float diffuse = abs(dot(n, normalize(u_light)));   // two-sided
   o_color = vec4(base * (0.25 + 0.75 * diffuse), 1.0);
 }
+)";
+
+// The volume's image over what is drawn: a full-screen triangle, premultiplied blending.
+constexpr const char* kCompositeVertex = R"(#version 450 core
+out vec2 v_uv;
+void main() {
+  vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+  v_uv = p;
+  gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
+}
+)";
+constexpr const char* kCompositeFragment = R"(#version 450 core
+in vec2 v_uv;
+uniform sampler2D u_image;
+out vec4 o_color;
+void main() { o_color = texture(u_image, v_uv); }
 )";
 
 // Appends one vertex (position, normal, material) to an interleaved float buffer.
@@ -95,6 +112,10 @@ glm::vec3 gv(Vec3f v) { return {v.x, v.y, v.z}; }
 
 SceneRenderer::SceneRenderer(int width, int height) : width_(0), height_(0) {
   program_ = make_program(kVertex, kFragment);
+  composite_ = make_program(kCompositeVertex, kCompositeFragment);
+  GLuint vao = 0;
+  glCreateVertexArrays(1, &vao);
+  empty_vao_ = VertexArray(vao);
   sphere_ = upload(unit_sphere(24, 16));
   cylinder_ = upload(unit_cylinder(20));
   lines_ = upload({});  // a streamed buffer, refilled every frame
@@ -204,16 +225,19 @@ void SceneRenderer::resize(int width, int height) {
   if (width == width_ && height == height_) return;
   width_ = width;
   height_ = height;
-  GLuint fbo = 0, rb[2] = {0, 0};
+  GLuint fbo = 0, rb = 0, depth = 0;
   glCreateFramebuffers(1, &fbo);
-  glCreateRenderbuffers(2, rb);
+  glCreateRenderbuffers(1, &rb);
+  glCreateTextures(GL_TEXTURE_2D, 1, &depth);
   fbo_ = Framebuffer(fbo);
-  color_ = Renderbuffer(rb[0]);
-  depth_ = Renderbuffer(rb[1]);
-  glNamedRenderbufferStorage(rb[0], GL_RGBA8, width, height);
-  glNamedRenderbufferStorage(rb[1], GL_DEPTH_COMPONENT24, width, height);
-  glNamedFramebufferRenderbuffer(fbo, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, rb[0]);
-  glNamedFramebufferRenderbuffer(fbo, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, rb[1]);
+  color_ = Renderbuffer(rb);
+  depth_ = Texture(depth);
+  glNamedRenderbufferStorage(rb, GL_RGBA8, width, height);
+  glTextureStorage2D(depth, 1, GL_DEPTH_COMPONENT32F, width, height);
+  glTextureParameteri(depth, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTextureParameteri(depth, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  glNamedFramebufferRenderbuffer(fbo, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, rb);
+  glNamedFramebufferTexture(fbo, GL_DEPTH_ATTACHMENT, depth, 0);
   if (glCheckNamedFramebufferStatus(fbo, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE) {
     throw std::runtime_error("offscreen framebuffer " + std::to_string(width) + "x" + std::to_string(height) +
                              " is incomplete");
@@ -249,7 +273,7 @@ void SceneRenderer::render(const SceneInput& in) {
   glUseProgram(program_.get());
   glUniform3f(glGetUniformLocation(program_.get(), "u_light"), eye.x, eye.y, eye.z + 0.2f);
 
-  if (!surface_.i.empty()) {
+  if (!surface_.i.empty() && in.draw_surface) {
     const GLuint p = program_.get();
     const glm::mat4 mvp = proj_ * view_;
     glUniformMatrix4fv(glGetUniformLocation(p, "u_mvp"), 1, GL_FALSE, glm::value_ptr(mvp));
@@ -260,6 +284,32 @@ void SceneRenderer::render(const SceneInput& in) {
     glBindVertexArray(surface_.vao.get());
     glDrawElements(GL_TRIANGLES, static_cast<GLsizei>(surface_.i.size()), GL_UNSIGNED_INT, nullptr);
     glUniform1i(glGetUniformLocation(p, "u_face_materials"), 0);
+  }
+
+  // The volume, where no opaque mesh is in front: its rays stop at the meshes' depth.
+  if (in.volume != nullptr) {
+    glm::mat4 model;
+    std::memcpy(glm::value_ptr(model), in.volume_to_world.data(), sizeof(float) * 16);
+    const glm::mat4 inv = glm::inverse(proj_ * view_ * model);
+    volume::RayCamera cam;
+    std::memcpy(cam.inv_view_proj.data(), glm::value_ptr(inv), sizeof(float) * 16);
+    cam.width = width_;
+    cam.height = height_;
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);  // the depth is read, not attached, while the rays run
+    in.volume->render(cam, in.volume_params, in.draw_surface ? depth_.get() : 0);
+    glBindFramebuffer(GL_FRAMEBUFFER, fbo_.get());
+    glViewport(0, 0, width_, height_);
+    glDisable(GL_DEPTH_TEST);
+    glEnable(GL_BLEND);
+    glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    glUseProgram(composite_.get());
+    glBindTextureUnit(0, in.volume->texture());
+    glUniform1i(glGetUniformLocation(composite_.get(), "u_image"), 0);
+    glBindVertexArray(empty_vao_.get());
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glDisable(GL_BLEND);
+    glEnable(GL_DEPTH_TEST);
+    glUseProgram(program_.get());
   }
 
   // Lines: the patch wireframe (lifted 0.2 mm so it is not hidden by the surface) and the force.

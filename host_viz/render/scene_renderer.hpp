@@ -4,11 +4,13 @@
 // shown in the window or read back for a screenshot. Needs a current GL 4.5 core context.
 
 #include <glm/glm.hpp>
+#include <array>
 #include <vector>
 
 #include "lancet/shared_model/messages.hpp"
 #include "render/gl_objects.hpp"
 #include "render/image.hpp"
+#include "render/volume_raycaster.hpp"
 #include "surface/placeholder_mesh.hpp"
 
 namespace lancet::render {
@@ -25,6 +27,11 @@ struct SceneInput {
   Vec3 camera_target{};        ///< m, the point the camera looks at and turns about
   /// A guide drawn over the surface (the scenario's incision line, already on the surface), or null.
   const std::vector<Vec3>* guide = nullptr;
+  /// The volume, ray cast and composited with the opaque meshes (rays stop at their depth), or null.
+  VolumeRaycaster* volume = nullptr;
+  std::array<float, 16> volume_to_world{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};  ///< column-major
+  volume::RaycastParams volume_params{};
+  bool draw_surface = true;    ///< false: the volume alone (the mesh still stops nothing)
 };
 
 class SceneRenderer {
@@ -66,7 +73,10 @@ class SceneRenderer {
   int width_, height_;
   Program program_;
   Framebuffer fbo_;
-  Renderbuffer color_, depth_;
+  Renderbuffer color_;
+  Texture depth_;           ///< a texture, so the volume's rays can stop at the meshes
+  Program composite_;       ///< draws the volume's premultiplied image over the meshes
+  VertexArray empty_vao_;
   GpuMesh sphere_, cylinder_;
   // The surface: indexed, its face materials in a storage buffer read by gl_PrimitiveID; the
   // CPU copies are what the GPU holds, to find what changed.

@@ -1,0 +1,246 @@
+#include "render/volume_raycaster.hpp"
+
+#include <algorithm>
+#include <vector>
+
+namespace lancet::render {
+namespace {
+
+// The reference's operations, in its order (volume/raycast.cpp).
+constexpr const char* kCompute = R"(#version 450 core
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(rgba32f, binding = 0) uniform writeonly image2D u_out;
+uniform sampler2D u_depth;  // the opaque meshes' depth (same camera), when u_use_depth == 1
+layout(std430, binding = 1) readonly buffer Voxels { float voxel[]; };
+layout(std430, binding = 2) readonly buffer Table { vec4 table[256]; };
+layout(std430, binding = 3) readonly buffer Empty { uint empty_brick[]; };
+uniform ivec3 u_dims;
+uniform ivec3 u_bricks;
+uniform vec3 u_origin;
+uniform vec3 u_spacing;
+uniform mat4 u_inv_vp;
+uniform ivec2 u_size;
+uniform float u_lo, u_hi, u_step, u_ref, u_early;
+uniform int u_jitter, u_skip, u_shade, u_mip, u_use_depth;
+
+float mixf(float a, float b, float t) { return a + (b - a) * t; }
+float at(int i, int j, int k) { return voxel[i + u_dims.x * (j + u_dims.y * k)]; }
+float sample_at(vec3 p) {
+  float px = clamp(p.x, 0.0, float(u_dims.x - 1)), py = clamp(p.y, 0.0, float(u_dims.y - 1)), pz = clamp(p.z, 0.0, float(u_dims.z - 1));
+  int i = min(int(floor(px)), max(u_dims.x - 2, 0)), j = min(int(floor(py)), max(u_dims.y - 2, 0)), k = min(int(floor(pz)), max(u_dims.z - 2, 0));
+  int i1 = min(i + 1, u_dims.x - 1), j1 = min(j + 1, u_dims.y - 1), k1 = min(k + 1, u_dims.z - 1);
+  float fx = px - float(i), fy = py - float(j), fz = pz - float(k);
+  float c00 = mixf(at(i, j, k), at(i1, j, k), fx), c10 = mixf(at(i, j1, k), at(i1, j1, k), fx);
+  float c01 = mixf(at(i, j, k1), at(i1, j, k1), fx), c11 = mixf(at(i, j1, k1), at(i1, j1, k1), fx);
+  return mixf(mixf(c00, c10, fy), mixf(c01, c11, fy), fz);
+}
+vec4 lookup(float v) {
+  float x = clamp((v - u_lo) / (u_hi - u_lo) * 255.0, 0.0, 255.0);
+  int i = min(int(x), 254);
+  float f = x - float(i);
+  vec4 a = table[i], b = table[i + 1];
+  return vec4(mixf(a.x, b.x, f), mixf(a.y, b.y, f), mixf(a.z, b.z, f), mixf(a.w, b.w, f));
+}
+float jitter(int x, int y) {
+  uint h = uint(x) * 1973u + uint(y) * 9277u + 26699u;
+  h = (h ^ 61u) ^ (h >> 16);
+  h *= 9u;
+  h ^= h >> 4;
+  h *= 0x27d4eb2du;
+  h ^= h >> 15;
+  return float(h >> 8) * (1.0 / 16777216.0);
+}
+void main() {
+  ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+  if (px.x >= u_size.x || px.y >= u_size.y) return;
+  float nx = 2.0 * (float(px.x) + 0.5) / float(u_size.x) - 1.0;
+  float ny = 2.0 * (float(px.y) + 0.5) / float(u_size.y) - 1.0;
+  vec4 a = u_inv_vp * vec4(nx, ny, -1.0, 1.0), b = u_inv_vp * vec4(nx, ny, 1.0, 1.0);
+  vec3 pn = vec3(a.x / a.w, a.y / a.w, a.z / a.w), pf = vec3(b.x / b.w, b.y / b.w, b.z / b.w);
+  vec3 dir = pf - pn;
+  float len = sqrt(dir.x * dir.x + dir.y * dir.y + dir.z * dir.z);
+  dir = (1.0 / len) * dir;
+  vec3 q0 = vec3((pn.x - u_origin.x) / u_spacing.x, (pn.y - u_origin.y) / u_spacing.y, (pn.z - u_origin.z) / u_spacing.z);
+  vec3 qd = vec3(dir.x / u_spacing.x, dir.y / u_spacing.y, dir.z / u_spacing.z);
+  float t_in = 0.0, t_out = len;
+  for (int ax = 0; ax < 3; ++ax) {
+    float o = q0[ax], d = qd[ax], hi = float(u_dims[ax] - 1);
+    if (d == 0.0) {
+      if (o < 0.0 || o > hi) t_out = -1.0;
+      continue;
+    }
+    float t0 = (0.0 - o) / d, t1 = (hi - o) / d;
+    t_in = max(t_in, min(t0, t1));
+    t_out = min(t_out, max(t0, t1));
+  }
+  if (u_use_depth == 1) {  // stop at the opaque surface: its depth back to a point on this ray
+    float d = texelFetch(u_depth, px, 0).x;
+    if (d < 1.0) {
+      vec4 s = u_inv_vp * vec4(nx, ny, 2.0 * d - 1.0, 1.0);
+      t_out = min(t_out, length(vec3(s.x / s.w, s.y / s.w, s.z / s.w) - pn));
+    }
+  }
+  float ds = u_step * u_ref;
+  float j = u_jitter == 1 ? jitter(px.x, px.y) : 0.0;
+  float cr = 0.0, cg = 0.0, cb = 0.0, ca = 0.0, vmax = -3.402823466e+38;
+  bool any = false;
+  for (int k = 0;;) {
+    float t = t_in + (float(k) + j) * ds;
+    if (!(t <= t_out)) break;
+    vec3 p = q0 + t * qd;
+    if (u_skip == 1 && u_mip == 0) {
+      int bx = clamp(int(floor(p.x / 8.0)), 0, u_bricks.x - 1);
+      int by = clamp(int(floor(p.y / 8.0)), 0, u_bricks.y - 1);
+      int bz = clamp(int(floor(p.z / 8.0)), 0, u_bricks.z - 1);
+      if (empty_brick[bx + u_bricks.x * (by + u_bricks.y * bz)] != 0u) {
+        float t_exit = 3.402823466e+38;
+        ivec3 bi = ivec3(bx, by, bz);
+        for (int ax = 0; ax < 3; ++ax) {
+          float d = qd[ax], o = q0[ax];
+          if (d > 0.0) t_exit = min(t_exit, (float((bi[ax] + 1) * 8) - o) / d);
+          else if (d < 0.0) t_exit = min(t_exit, (float(bi[ax] * 8) - o) / d);
+        }
+        int next = int(ceil((t_exit - t_in) / ds - j));
+        k = max(next, k + 1);
+        continue;
+      }
+    }
+    float value = sample_at(p);
+    any = true;
+    if (u_mip == 1) {
+      vmax = max(vmax, value);
+      ++k;
+      continue;
+    }
+    vec4 c = lookup(value);
+    if (c.w > 0.0) {
+      float alpha = 1.0 - pow(1.0 - c.w, u_step);
+      float light = 1.0;
+      if (u_shade == 1) {
+        float gx = (sample_at(p + vec3(1, 0, 0)) - sample_at(p - vec3(1, 0, 0))) * 0.5 / u_spacing.x;
+        float gy = (sample_at(p + vec3(0, 1, 0)) - sample_at(p - vec3(0, 1, 0))) * 0.5 / u_spacing.y;
+        float gz = (sample_at(p + vec3(0, 0, 1)) - sample_at(p - vec3(0, 0, 1))) * 0.5 / u_spacing.z;
+        float gl = sqrt(gx * gx + gy * gy + gz * gz);
+        if (gl > 1e-3) light = 0.3 + 0.7 * abs((gx * dir.x + gy * dir.y + gz * dir.z) / gl);
+      }
+      float w = (1.0 - ca) * alpha;
+      cr += w * c.x * light;
+      cg += w * c.y * light;
+      cb += w * c.z * light;
+      ca += w;
+      if (ca >= u_early) break;
+    }
+    ++k;
+  }
+  if (u_mip == 1 && any) {
+    vec4 c = lookup(vmax);
+    cr = c.x * c.w; cg = c.y * c.w; cb = c.z * c.w; ca = c.w;
+  }
+  imageStore(u_out, px, vec4(cr, cg, cb, ca));
+}
+)";
+
+GLuint new_buffer() {
+  GLuint b = 0;
+  glCreateBuffers(1, &b);
+  return b;
+}
+
+}  // namespace
+
+VolumeRaycaster::VolumeRaycaster() : program_(make_compute_program(kCompute)) {
+  voxels_ = Buffer(new_buffer());
+  mask_ = Buffer(new_buffer());
+  table_ = Buffer(new_buffer());
+  set_transfer_function(volume::tf_preset(volume::TfPreset::kCtSoftTissue));
+}
+
+void VolumeRaycaster::set_volume(const volume::Volume& v) {
+  dims_ = v.dims;
+  origin_ = v.origin;
+  spacing_ = v.spacing;
+  reference_ = volume::reference_step(v);
+  glNamedBufferData(voxels_.get(), static_cast<GLsizeiptr>(std::max<std::size_t>(v.data.size(), 1) * sizeof(float)), v.data.data(),
+                    GL_DYNAMIC_DRAW);
+  grid_ = volume::BrickGrid(v);
+  upload_mask();
+}
+
+void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox box) {
+  if (box.empty() || v.dims != dims_) return;
+  // Whole z-slabs of the box: one contiguous range of the buffer.
+  const int k0 = std::clamp(box.lo[2], 0, dims_[2]), k1 = std::clamp(box.hi[2], 0, dims_[2]);
+  if (k1 <= k0) return;
+  const std::size_t slab = static_cast<std::size_t>(dims_[0]) * static_cast<std::size_t>(dims_[1]);
+  glNamedBufferSubData(voxels_.get(), static_cast<GLintptr>(slab * static_cast<std::size_t>(k0) * sizeof(float)),
+                       static_cast<GLsizeiptr>(slab * static_cast<std::size_t>(k1 - k0) * sizeof(float)),
+                       v.data.data() + slab * static_cast<std::size_t>(k0));
+  grid_.update(v, box);
+  upload_mask();
+}
+
+void VolumeRaycaster::set_transfer_function(const volume::TransferFunction& tf) {
+  tf_ = tf;
+  glNamedBufferData(table_.get(), static_cast<GLsizeiptr>(sizeof(tf.table)), tf.table.data(), GL_DYNAMIC_DRAW);
+  upload_mask();
+}
+
+void VolumeRaycaster::upload_mask() {
+  const std::vector<std::uint8_t> m = grid_.empty_mask(tf_);
+  std::vector<std::uint32_t> u(m.begin(), m.end());
+  if (u.empty()) u.push_back(0);
+  glNamedBufferData(mask_.get(), static_cast<GLsizeiptr>(u.size() * sizeof(std::uint32_t)), u.data(), GL_DYNAMIC_DRAW);
+}
+
+void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::RaycastParams& params, GLuint depth_texture) {
+  if (cam.width != image_w_ || cam.height != image_h_) {
+    GLuint t = 0;
+    glCreateTextures(GL_TEXTURE_2D, 1, &t);
+    glTextureStorage2D(t, 1, GL_RGBA32F, cam.width, cam.height);
+    glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    image_ = Texture(t);
+    image_w_ = cam.width;
+    image_h_ = cam.height;
+  }
+  const GLuint p = program_.get();
+  glUseProgram(p);
+  const auto bricks = grid_.dims();
+  glUniform3i(glGetUniformLocation(p, "u_dims"), dims_[0], dims_[1], dims_[2]);
+  glUniform3i(glGetUniformLocation(p, "u_bricks"), bricks[0], bricks[1], bricks[2]);
+  glUniform3f(glGetUniformLocation(p, "u_origin"), static_cast<float>(origin_.x), static_cast<float>(origin_.y), static_cast<float>(origin_.z));
+  glUniform3f(glGetUniformLocation(p, "u_spacing"), static_cast<float>(spacing_.x), static_cast<float>(spacing_.y),
+              static_cast<float>(spacing_.z));
+  glUniformMatrix4fv(glGetUniformLocation(p, "u_inv_vp"), 1, GL_FALSE, cam.inv_view_proj.data());
+  glUniform2i(glGetUniformLocation(p, "u_size"), cam.width, cam.height);
+  glUniform1f(glGetUniformLocation(p, "u_lo"), tf_.lo);
+  glUniform1f(glGetUniformLocation(p, "u_hi"), tf_.hi);
+  glUniform1f(glGetUniformLocation(p, "u_step"), params.step);
+  glUniform1f(glGetUniformLocation(p, "u_ref"), reference_);
+  glUniform1f(glGetUniformLocation(p, "u_early"), params.early_stop);
+  glUniform1i(glGetUniformLocation(p, "u_jitter"), params.jitter ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_skip"), params.skip_empty ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_shade"), params.shade ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_mip"), tf_.mip ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_use_depth"), depth_texture != 0 ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_depth"), 0);
+  glBindTextureUnit(0, depth_texture);
+  glBindImageTexture(0, image_.get(), 0, GL_FALSE, 0, GL_WRITE_ONLY, GL_RGBA32F);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, voxels_.get());
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, table_.get());
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, mask_.get());
+  glDispatchCompute(static_cast<GLuint>((cam.width + 7) / 8), static_cast<GLuint>((cam.height + 7) / 8), 1);
+  glMemoryBarrier(GL_SHADER_IMAGE_ACCESS_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT | GL_TEXTURE_UPDATE_BARRIER_BIT);
+}
+
+volume::RgbaImage VolumeRaycaster::read_back() const {
+  volume::RgbaImage img;
+  img.width = image_w_;
+  img.height = image_h_;
+  img.rgba.resize(static_cast<std::size_t>(image_w_) * static_cast<std::size_t>(image_h_) * 4);
+  if (image_.get() != 0)
+    glGetTextureImage(image_.get(), 0, GL_RGBA, GL_FLOAT, static_cast<GLsizei>(img.rgba.size() * sizeof(float)), img.rgba.data());
+  return img;
+}
+
+}  // namespace lancet::render

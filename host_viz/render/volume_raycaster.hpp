@@ -1,0 +1,48 @@
+#pragma once
+// VolumeRaycaster: GPU direct volume rendering, one GL 4.5 compute shader invocation per pixel,
+// the same sampling, table, opacity correction, jitter, early termination, empty-space skipping
+// and shading as volume::raycast_cpu (its reference; volume/raycast.hpp states the algorithm).
+// The voxels, the brick grid's empty mask and the table live in storage buffers (the voxels are
+// interpolated by hand, in float, as the reference does, so the two agree to rounding); the
+// image is an RGBA32F texture, premultiplied. Needs a current GL 4.5 context.
+
+#include <cstdint>
+
+#include "render/gl_objects.hpp"
+#include "volume/raycast.hpp"
+
+namespace lancet::render {
+
+class VolumeRaycaster {
+ public:
+  /// Compiles the compute shader. Throws std::runtime_error when GL refuses it.
+  VolumeRaycaster();
+
+  /// Uploads the voxels and builds the brick grid.
+  void set_volume(const volume::Volume& v);
+  /// After drilling or cutting changed the voxels of `box`: uploads those slabs again and
+  /// recomputes the bricks over them.
+  void update_region(const volume::Volume& v, volume::VoxelBox box);
+  void set_transfer_function(const volume::TransferFunction& tf);
+
+  /// Renders a camera.width × camera.height image. depth_texture (optional): the opaque meshes'
+  /// depth buffer for the same camera and size; rays stop there (composited with the meshes).
+  void render(const volume::RayCamera& camera, const volume::RaycastParams& params, GLuint depth_texture = 0);
+  /// The last image (premultiplied RGBA, row 0 at the bottom).
+  [[nodiscard]] volume::RgbaImage read_back() const;
+  [[nodiscard]] GLuint texture() const noexcept { return image_.get(); }
+
+ private:
+  void upload_mask();
+  Program program_;
+  Buffer voxels_, mask_, table_;
+  Texture image_;
+  int image_w_ = 0, image_h_ = 0;
+  volume::BrickGrid grid_;
+  volume::TransferFunction tf_;
+  std::array<int, 3> dims_{};
+  Vec3 origin_{}, spacing_{};
+  float reference_ = 0;
+};
+
+}  // namespace lancet::render
