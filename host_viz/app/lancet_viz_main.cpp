@@ -213,6 +213,11 @@ int main(int argc, char** argv) {
                  "mesh: the surfaces; composite: with the volume ray cast where no surface is in front; volume: the "
                  "volume alone (V cycles them in the window)")
       ->check(CLI::IsMember({"mesh", "composite", "volume"}))->capture_default_str();
+  std::string screenshot_view;
+  cli.add_option("--screenshot-view", screenshot_view,
+                 "draw the last frame (the screenshot's, with --duration) in this view instead: e.g. composite, to show the "
+                 "volume beneath an opened incision while the run itself stays fast")
+      ->check(CLI::IsMember({"mesh", "composite", "volume"}));
   std::vector<std::string> preset_names;
   for (auto p : lancet::volume::kTfPresets) preset_names.emplace_back(lancet::volume::tf_preset_name(p));
   std::string preset = "CT-Soft-Tissue";
@@ -323,6 +328,7 @@ int main(int argc, char** argv) {
     scene.draw_mesh(mesh);
     renderer.set_mesh(mesh);
     std::uint64_t shown_revision = scene.revision();
+    bool shown_walls_off = false;
     lancet::render::Overlay overlay(win.handle(), !o.headless);
     Interaction ui;
     ui.view = views.at(view);
@@ -343,9 +349,15 @@ int main(int argc, char** argv) {
     std::string last_message;
     bool key_down[9] = {};
     std::uint32_t tool_sent_for = 0;  // the connection the starting tool was last sent on
+    bool screenshot_frame = false;    // the extra frame drawn in --screenshot-view
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
-      if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) break;
+      if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) {
+        // Time is up; with --screenshot-view, one frame more in that view for the screenshot.
+        if (screenshot_view.empty() || screenshot_frame) break;
+        ui.view = views.at(screenshot_view);
+        screenshot_frame = true;
+      }
       const std::int64_t now = lancet::monotonic_ns();
       session.frame(now, on_samples, fill_patch);
       if (!tool.empty() && session.link() == lancet::viz::Link::kConnected && tool_sent_for != session.connections()) {
@@ -354,9 +366,12 @@ int main(int argc, char** argv) {
         (void)lancet::tool_from_name(tool, c.mode);  // CLI11 or the scenario admitted only the tools' names
         if (session.send(c, now)) tool_sent_for = session.connections();
       }
-      if (scene.revision() != shown_revision) {  // redraw only what changed shape
+      // Redraw only what changed shape; with the volume beneath, the grooves' walls are the
+      // volume's to show.
+      if (scene.revision() != shown_revision || (ui.view == 1) != shown_walls_off) {
         shown_revision = scene.revision();
-        scene.draw_mesh(mesh);
+        shown_walls_off = ui.view == 1;
+        scene.draw_mesh(mesh, !shown_walls_off);
         renderer.set_mesh(mesh);
       }
       if (session.link_message() != last_message) {
@@ -442,10 +457,10 @@ int main(int argc, char** argv) {
       if (ui.view != 0) {
         if (!raycaster) {
           raycaster = std::make_unique<lancet::render::VolumeRaycaster>();
-          raycaster->set_volume(scene.volume());
+          raycaster->set_volume(scene.render_volume());
           shown_preset = -1;
         } else if (!changed.empty()) {
-          raycaster->update_region(scene.volume(), changed);
+          raycaster->update_region(scene.render_volume(), changed);
         }
         if (shown_preset != ui.preset || shown_level != ui.level || shown_width != ui.width) {
           raycaster->set_transfer_function(
@@ -457,7 +472,7 @@ int main(int argc, char** argv) {
         in.volume_params.step = 1.0f;  // a voxel a sample: interactive on llvmpipe
         in.draw_surface = ui.view == 1;
       } else if (raycaster && !changed.empty()) {
-        raycaster->update_region(scene.volume(), changed);
+        raycaster->update_region(scene.render_volume(), changed);
       }
       renderer.render(in);
       auto lines = status_lines(session, ui, o.headless, scene.events(), scenario ? &*scenario : nullptr,
@@ -469,6 +484,9 @@ int main(int argc, char** argv) {
                       o.headless ? "" : "   V: view, P: preset, right drag: window/level");
         lines.push_back({buf});
       }
+      // ImGui sizes a panel from the frame before: the screenshot's extra frame (a line more) is
+      // laid out once before it is drawn.
+      if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height());
       overlay.draw("Lancet", lines, renderer.width(), renderer.height());
       if (!o.headless) renderer.present(fw, fh);
       win.swap_and_poll();

@@ -315,6 +315,7 @@ void TissueScene::drill(const ToolSample& t) {
   dp.radius = t.payload.magnitude;
   auto r = volume::drill_sphere(tissue_.volume, dp, tissue_.material);
   if (!r.ok()) return;  // wire::check bounds the radius; a burr outside the volume removes nothing
+  if (!render_.data.empty()) (void)volume::drill_sphere(render_, dp);
   ++events_.drill_removals;
   events_.voxels_drilled += r.value().voxels_removed;
   const volume::VoxelBox& b = r.value().dirty;
@@ -328,6 +329,76 @@ void TissueScene::drill(const ToolSample& t) {
       box->lo[a] = std::min(box->lo[a], b.lo[a]);
       box->hi[a] = std::max(box->hi[a], b.hi[a]);
     }
+  }
+}
+
+const volume::Volume& TissueScene::render_volume() {
+  if (render_.data.empty() && !tissue_.volume.data.empty()) {
+    render_ = tissue_.volume;
+    for (const Groove& g : grooves_)
+      if (g.width > 0) carve(g, 0);
+  }
+  return render_;
+}
+
+// The groove's opening in the drawn volume: voxels whose x-y distance to the cut's path is within
+// half the opening (tapered to zero at the cut's ends, as the skin's opening is) shrinking
+// linearly to zero at the cut depth below the path, become air; bone stays. The region of the
+// previous, wider or narrower, opening is restored from the tissue's volume first.
+void TissueScene::carve(const Groove& g, double previous_width) {
+  const surface::Cut& cut = surface_->cuts()[g.surface_cut];
+  const std::vector<Vec3>& path = cut.path;
+  if (path.size() < 2) return;
+  const double half = 0.5 * std::max(g.width, previous_width) + 0.002, depth = desc_.cut_depth;
+  Vec3 lo{1e30, 1e30, 1e30}, hi{-1e30, -1e30, -1e30};
+  for (const Vec3& p : path) {
+    lo = {std::min(lo.x, p.x - half), std::min(lo.y, p.y - half), std::min(lo.z, p.z - depth - 0.002)};
+    hi = {std::max(hi.x, p.x + half), std::max(hi.y, p.y + half), std::max(hi.z, p.z + 0.002)};
+  }
+  // The box in voxel indices (through the placement's corners).
+  const volume::Volume& v = tissue_.volume;
+  volume::VoxelBox box{{v.dims[0], v.dims[1], v.dims[2]}, {0, 0, 0}};
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 w{(c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z};
+    const Vec3 q = placement_.to_volume(w);
+    for (int a = 0; a < 3; ++a) {
+      const double f = (at(q, a) - at(v.origin, a)) / at(v.spacing, a);
+      box.lo[u(a)] = std::min(box.lo[u(a)], std::max(0, static_cast<int>(std::floor(f))));
+      box.hi[u(a)] = std::max(box.hi[u(a)], std::min(v.dims[u(a)], static_cast<int>(std::ceil(f)) + 1));
+    }
+  }
+  if (box.empty()) return;
+  double total = 0;
+  std::vector<double> arc(path.size(), 0.0);
+  for (std::size_t i = 1; i < path.size(); ++i) arc[i] = total += std::hypot(path[i].x - path[i - 1].x, path[i].y - path[i - 1].y);
+  if (total <= 0) return;
+  for (int k = box.lo[2]; k < box.hi[2]; ++k)
+    for (int j = box.lo[1]; j < box.hi[1]; ++j)
+      for (int i = box.lo[0]; i < box.hi[0]; ++i) {
+        const std::size_t idx = v.index(i, j, k);
+        render_.data[idx] = v.data[idx];  // restore, then carve the current opening
+        if (g.width <= 0) continue;
+        const std::uint8_t m = tissue_.material[idx];
+        if (m == volume::kCorticalBone || m == volume::kMarrow) continue;
+        const Vec3 w = placement_.to_world(v.position(i, j, k));
+        // Nearest point of the path in x-y: its arc position and surface height.
+        double best = 1e30, s = 0, z = 0;
+        for (std::size_t n = 1; n < path.size(); ++n) {
+          const Vec3 a = path[n - 1], b = path[n];
+          const double dx = b.x - a.x, dy = b.y - a.y, l2 = dx * dx + dy * dy;
+          const double t = l2 > 0 ? std::clamp(((w.x - a.x) * dx + (w.y - a.y) * dy) / l2, 0.0, 1.0) : 0.0;
+          const double px = a.x + t * dx - w.x, py = a.y + t * dy - w.y, d2 = px * px + py * py;
+          if (d2 < best) best = d2, s = arc[n - 1] + t * (arc[n] - arc[n - 1]), z = a.z + t * (b.z - a.z);
+        }
+        const double h = z - w.z;  // below the cut's path
+        if (h < -0.002 || h > depth) continue;
+        const double open = 0.5 * g.width * std::sin(M_PI * s / total) * (1.0 - std::max(h, 0.0) / depth);
+        if (std::sqrt(best) <= open) render_.data[idx] = -1000.0f;
+      }
+  const bool first = changed_.empty();
+  for (std::size_t a = 0; a < 3; ++a) {
+    changed_.lo[a] = first ? box.lo[a] : std::min(changed_.lo[a], box.lo[a]);
+    changed_.hi[a] = first ? box.hi[a] : std::max(changed_.hi[a], box.hi[a]);
   }
 }
 
@@ -434,7 +505,9 @@ void TissueScene::update_grooves() {
     if (g.cut.faces.empty() || std::abs(d - g.width) < 1e-4) continue;
     const auto r = chainmail_->open_groove(g.cut, std::max(d, 1e-5));
     g.conflicts += r.conflicts;
+    const double before = g.width;
     g.width = d;
+    if (!render_.data.empty()) carve(g, before);
     ++own_revision_;
   }
 }
@@ -471,13 +544,13 @@ std::size_t TissueScene::export_patch(Vec3 centre, TissuePatch& out) {
   });
 }
 
-void TissueScene::draw_mesh(surface::TriangleMesh& out) const {
+void TissueScene::draw_mesh(surface::TriangleMesh& out, bool walls) const {
   if (desc_.surface == SceneSurface::kBone && bone_) {
     out = to_world(bone_->mesh(), placement_);
     return;
   }
   surface_->to_triangle_mesh(out);
-  if (!chainmail_) return;
+  if (!chainmail_ || !walls) return;
   // Each open groove's walls and floor: its face elements binned by (side, arc, layer), a vertex
   // per bin at their mean position, quads between neighbouring bins, and a floor strip between
   // the deepest bins of the two walls.

@@ -121,9 +121,9 @@ class TissueScene {
   /// Leaves seq, t_ns and samples_applied to the caller.
   std::size_t export_patch(Vec3 centre, TissuePatch& out);
 
-  /// The mesh to draw (world frame): the surface with the grooves' walls and floors, or the live
-  /// bone surface on exposed bone.
-  void draw_mesh(surface::TriangleMesh& out) const;
+  /// The mesh to draw (world frame): the surface with the grooves' walls and floors (walls false:
+  /// without them, when the volume is drawn beneath), or the live bone surface on exposed bone.
+  void draw_mesh(surface::TriangleMesh& out, bool walls = true) const;
   /// Bumped whenever draw_mesh would give something else.
   [[nodiscard]] std::uint64_t revision() const noexcept;
 
@@ -146,7 +146,11 @@ class TissueScene {
   [[nodiscard]] std::optional<Vec3> surface_below(double x, double y) const;
   /// A polyline laid on the surface: resampled every `step` m in x-y, each point at the surface.
   [[nodiscard]] std::vector<Vec3> drape(const std::vector<Vec3>& line, double step = 0.001) const;
-  /// The voxels the drill changed since the last call (one box around them; empty: none), for
+  /// The volume as it is drawn: the tissue's volume with each open groove carved out (air where
+  /// the incision gapes, a V down to the cut depth), so that a ray cast through the opening sees
+  /// the layers beneath. Made at the first call; kept up to date from then on.
+  [[nodiscard]] const volume::Volume& render_volume();
+  /// The voxels the drill or an opening groove changed since the last call (one box around them; empty: none), for
   /// whoever keeps a copy of the volume (the GPU ray caster).
   [[nodiscard]] volume::VoxelBox take_volume_changes() noexcept;
   /// The placement as a column-major 4×4 matrix (volume frame → world).
@@ -164,6 +168,7 @@ class TissueScene {
   void refresh_bone_surface();
 
   struct Groove;
+  void carve(const Groove& g, double previous_width);
   SceneDescription desc_;
   volume::Phantom tissue_;
   VolumePlacement placement_;
@@ -177,7 +182,8 @@ class TissueScene {
   // The bone surface, re-extracted where the drill removed voxels.
   std::unique_ptr<volume::LiveIsosurface> bone_;
   volume::VoxelBox dirty_{};
-  volume::VoxelBox changed_{};  ///< drilled since take_volume_changes()
+  volume::VoxelBox changed_{};  ///< drilled or carved since take_volume_changes()
+  volume::Volume render_;       ///< render_volume() (empty until asked for)
   bool bone_changed_ = false;
   std::int64_t surface_rebuilt_ns_ = 0;
   std::uint64_t own_revision_ = 0;

@@ -23,7 +23,7 @@ Overlay::~Overlay() {
   ImGui::DestroyContext();
 }
 
-void Overlay::draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height) {
+void Overlay::build(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height) {
   ImGui_ImplOpenGL3_NewFrame();
   if (glfw_) {
     ImGui_ImplGlfw_NewFrame();
@@ -45,6 +45,14 @@ void Overlay::draw(const std::string& title, const std::vector<OverlayLine>& lin
   }
   ImGui::End();
   ImGui::Render();
+}
+
+void Overlay::layout(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height) {
+  build(title, lines, width, height);
+}
+
+void Overlay::draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height) {
+  build(title, lines, width, height);
   ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
 }
 

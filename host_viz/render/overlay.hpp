@@ -25,11 +25,14 @@ class Overlay {
 
   /// Draws a titled panel with the lines into the currently bound framebuffer (w×h pixels).
   void draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
+  /// The same panel laid out without drawing it (so the next draw has its final size).
+  void layout(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
   /// True while ImGui wants the mouse (the scene should ignore it).
   [[nodiscard]] bool wants_mouse() const;
 
  private:
   bool glfw_ = false;  ///< the GLFW platform backend is in use (not headless)
+  void build(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
 };
 
 }  // namespace lancet::render

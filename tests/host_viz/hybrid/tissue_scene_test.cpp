@@ -134,6 +134,40 @@ TEST(TissueScene, TheGrooveWidensWithTheOpening) {
   EXPECT_NEAR(scene->grooves().at(0).top_gap, 0.005, 0.0003);
 }
 
+// The volume as drawn: the open groove is carved out of it (air where the incision gapes, down
+// to the cut depth), the tissue's own volume is untouched, and a narrower opening restores what
+// it no longer opens.
+TEST(TissueScene, TheDrawnVolumeGapesWhereTheIncisionIsOpen) {
+  SceneDescription d;
+  d.source = SceneSource::kBlock;
+  auto scene = make(d);
+  ASSERT_TRUE(scene);
+  const volume::Volume& drawn = scene->render_volume();
+  const volume::Volume& tissue = scene->volume();
+  const surface::TissueBlockParams block{};
+  const auto height = [&](double x, double y) { return surface::tissue_block_height(block, x, y); };
+  const auto hu = [&](const volume::Volume& v, Vec3 w) {
+    const Vec3 q = scene->placement().to_volume(w);
+    const int i = static_cast<int>(std::lround((q.x - v.origin.x) / v.spacing.x)), j = static_cast<int>(std::lround((q.y - v.origin.y) / v.spacing.y)),
+              k = static_cast<int>(std::lround((q.z - v.origin.z) / v.spacing.z));
+    return v.data[v.index(i, j, k)];
+  };
+  Script sc;
+  cut_and_open(sc, height, {-0.015, 0.0, 0}, 0.03, 0.006);
+  sc.play(*scene);
+  (void)scene->take_volume_changes();
+  const Vec3 under{0.0, 0.0, height(0.0, 0.0) - 0.002};
+  EXPECT_EQ(hu(scene->render_volume(), under), -1000.0f) << "air in the gap, 2 mm down";
+  EXPECT_GT(hu(tissue, under), -500.0f) << "the tissue itself is not cut away";
+  EXPECT_GT(hu(drawn, under + Vec3{0, 0.008, 0}), -500.0f) << "8 mm beside the cut is tissue";
+  // Closing the incision fills the gap again.
+  const Vec3 mid{0, 0, height(0, 0)};
+  sc.add(Stage::kPulling, mid, mid, event::kPull).payload.magnitude = 0.0;
+  sc.play(*scene);
+  EXPECT_GT(hu(scene->render_volume(), under), -500.0f);
+  EXPECT_FALSE(scene->take_volume_changes().empty()) << "the change is reported for the ray caster";
+}
+
 TEST(TissueScene, ThePhantomIsPlacedAsItsSkinSaysAndItsPatchCarriesTheBrick) {
   auto scene = make({});
   ASSERT_TRUE(scene);
