@@ -318,6 +318,7 @@ void TissueScene::drill(const ToolSample& t) {
   if (!render_.data.empty()) (void)volume::drill_sphere(render_, dp);
   ++events_.drill_removals;
   events_.voxels_drilled += r.value().voxels_removed;
+  last_removal_ns_ = t.t_ns;
   const volume::VoxelBox& b = r.value().dirty;
   if (b.empty()) return;
   for (volume::VoxelBox* box : {&dirty_, &changed_}) {
@@ -421,26 +422,32 @@ std::array<float, 16> TissueScene::volume_to_world() const noexcept {
 // The removals of this frame re-extract the bone surface where they were (made at the first
 // removal); on exposed bone the touched surface follows, at most four times a second.
 void TissueScene::refresh_bone_surface() {
-  if (dirty_.empty()) return;
-  const volume::VoxelBox box = dirty_;
-  dirty_ = {};
-  if (!bone_) {
-    auto made = volume::LiveIsosurface::create(tissue_.volume, iso_options(desc_.bone_iso), tissue_.material);
-    if (!made.ok()) return;
-    bone_ = std::move(made).value();
-  } else if (!bone_->update(tissue_.volume, box, tissue_.material).ok()) {
-    return;
+  if (!dirty_.empty()) {
+    const volume::VoxelBox box = dirty_;
+    dirty_ = {};
+    if (!bone_) {
+      auto made = volume::LiveIsosurface::create(tissue_.volume, iso_options(desc_.bone_iso), tissue_.material);
+      if (!made.ok()) return;
+      bone_ = std::move(made).value();
+    } else if (!bone_->update(tissue_.volume, box, tissue_.material).ok()) {
+      return;
+    }
+    ++events_.bone_updates;
+    if (desc_.surface != SceneSurface::kBone) return;
+    ++own_revision_;
+    bone_changed_ = true;
   }
-  ++events_.bone_updates;
-  if (desc_.surface != SceneSurface::kBone) return;
-  ++own_revision_;
-  bone_changed_ = true;
-  if (fed_.t_ns - surface_rebuilt_ns_ < 250'000'000) return;
-  surface_rebuilt_ns_ = fed_.t_ns;
+  // The felt surface follows once the drilling pauses (the drill itself pushes against the
+  // brick, not the surface): when the tool is no longer the drill, or half a second after its
+  // last removal. Rebuilding it is a whole surface's work, too much for every drilling frame.
+  if (!bone_changed_) return;
+  if (fed_.mode == ToolMode::kDrill && fed_.t_ns - last_removal_ns_ < 500'000'000) return;
   bone_changed_ = false;
   const surface::TriangleMesh m = to_world(bone_->mesh(), placement_);
   auto model = surface::SurfaceModel::create(m.vertices, m.triangles, m.material, desc_.surface_params);
-  if (model.ok()) surface_ = std::move(model).value();
+  if (!model.ok()) return;
+  own_revision_ += surface_->revision() + 1;  // the new model counts from 0 again: never repeat a revision
+  surface_ = std::move(model).value();
 }
 
 // ---- the groove ---------------------------------------------------------------------------------

@@ -185,7 +185,7 @@ class TissueScene {
   volume::VoxelBox changed_{};  ///< drilled or carved since take_volume_changes()
   volume::Volume render_;       ///< render_volume() (empty until asked for)
   bool bone_changed_ = false;
-  std::int64_t surface_rebuilt_ns_ = 0;
+  std::int64_t last_removal_ns_ = 0;  ///< t_ns of the newest drill removal
   std::uint64_t own_revision_ = 0;
   SceneEvents events_;
   ToolSample fed_{};  ///< the last sample the surface model was given

@@ -228,8 +228,8 @@ TEST(TissueScene, DrillRemovalsCarveTheVolumeAndKeepTheBoneSurfaceClosed) {
   EXPECT_EQ(air, inside);
 }
 
-// Exposed bone: the trainee touches the bone; the drilled hole shows in what is drawn and, within
-// a quarter second, in the surface the haptics feel.
+// Exposed bone: the trainee touches the bone; the drilled hole shows in what is drawn at once and,
+// once the drilling pauses (the drill put down), in the surface the haptics feel.
 TEST(TissueScene, OnExposedBoneTheDrilledHoleIsDrawnAndFelt) {
   SceneDescription d;
   d.surface = SceneSurface::kBone;
@@ -243,13 +243,23 @@ TEST(TissueScene, OnExposedBoneTheDrilledHoleIsDrawnAndFelt) {
   Script sc;
   for (int i = 0; i < 300; ++i) {
     const Vec3 c = bone_top + Vec3{0, 0, -0.00001 * i};
-    sc.add(Stage::kFree, c, c, i % 10 == 0 ? event::kDrillRemove : 0u).payload.magnitude = 0.002;
+    ToolSample& t = sc.add(Stage::kFree, c, c, i % 10 == 0 ? event::kDrillRemove : 0u);
+    t.payload.magnitude = 0.002;
+    t.mode = ToolMode::kDrill;
   }
   sc.play(*scene);
   EXPECT_NE(scene->revision(), rev);
   surface::TriangleMesh after;
   scene->draw_mesh(after);
   EXPECT_NE(after.triangles.size(), before.triangles.size());
+  auto early = std::make_unique<TissuePatch>();
+  ASSERT_GT(scene->export_patch(bone_top, *early), 0u);
+  std::size_t inside = 0;
+  for (std::uint32_t t = 0; t < early->n_triangles; ++t)
+    for (const auto& v : early->triangles[t].v) inside += norm(to_vec3(v) - bone_top) <= 0.0015;
+  EXPECT_GT(inside, 0u) << "while the drill is in use, the felt surface is not rebuilt";
+  sc.add(Stage::kFree, bone_top + Vec3{0, 0, 0.01}, bone_top + Vec3{0, 0, 0.01});  // the probe again
+  sc.play(*scene);
   // The felt surface has no triangle left inside the burr's first bite.
   auto patch = std::make_unique<TissuePatch>();
   ASSERT_GT(scene->export_patch(bone_top, *patch), 0u);
