@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <map>
 #include <memory>
 #include <optional>
@@ -350,6 +351,9 @@ int main(int argc, char** argv) {
     bool key_down[9] = {};
     std::uint32_t tool_sent_for = 0;  // the connection the starting tool was last sent on
     bool screenshot_frame = false;    // the extra frame drawn in --screenshot-view
+    bool want_snapshot = false;       // F12 or the panel's button: a PNG of this frame
+    bool f12_down = false;
+    std::vector<float> force_history, wake_history;
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) {
@@ -414,6 +418,9 @@ int main(int argc, char** argv) {
           }
           key_down[k] = down;
         }
+        const bool f12 = glfwGetKey(h, GLFW_KEY_F12) == GLFW_PRESS;
+        if (f12 && !f12_down) want_snapshot = true;
+        f12_down = f12;
         double mx = 0, my = 0;
         glfwGetCursorPos(h, &mx, &my);
         const bool left = glfwGetMouseButton(h, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS && !overlay.wants_mouse();
@@ -484,10 +491,57 @@ int main(int argc, char** argv) {
                       o.headless ? "" : "   V: view, P: preset, right drag: window/level");
         lines.push_back({buf});
       }
+      // The controls panel: task, tools, the force and the servo over the last seconds, the volume.
+      force_history.push_back(session.has_sample() ? static_cast<float>(lancet::norm(session.latest().force)) : 0.0f);
+      const auto& rs = session.rt_status();
+      wake_history.push_back(rs ? static_cast<float>(rs->wake_p99_ns) * 1e-3f : 0.0f);
+      for (auto* h : {&force_history, &wake_history})
+        if (h->size() > 300) h->erase(h->begin(), h->begin() + static_cast<std::ptrdiff_t>(h->size() - 300));
+      lancet::render::PanelState panel;
+      if (task) {
+        panel.task_progress = static_cast<float>(task->status().progress);
+        panel.task_label = scenario->task == lancet::scenario::TaskKind::kIncision ? "incision along the line" : "drill the window";
+      }
+      for (auto m : offered) {
+        panel.tools.emplace_back(lancet::tool_name(m));
+        panel.tool_keys.push_back(static_cast<int>(m));
+      }
+      panel.tool = session.has_sample() ? static_cast<int>(session.latest().mode) : -1;
+      panel.force_history = force_history;
+      panel.wake_p99_history = wake_history;
+      panel.watchdog_tripped = rs && rs->watchdog_tripped != 0;
+      panel.connected = session.link() == lancet::viz::Link::kConnected;
+      panel.view = ui.view;
+      panel.presets = preset_names;
+      panel.preset = ui.preset;
+      panel.level = ui.level, panel.width = ui.width;
       // ImGui sizes a panel from the frame before: the screenshot's extra frame (a line more) is
       // laid out once before it is drawn.
-      if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height());
-      overlay.draw("Lancet", lines, renderer.width(), renderer.height());
+      if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height(), &panel);
+      const lancet::render::PanelActions act = overlay.draw("Lancet", lines, renderer.width(), renderer.height(), &panel);
+      if (act.tool >= 0) {
+        lancet::Command c{};
+        c.kind = lancet::CommandKind::kSetToolMode;
+        c.mode = static_cast<lancet::ToolMode>(act.tool);
+        (void)session.send(c, now);
+      }
+      if (act.rearm || act.reset) {
+        lancet::Command c{};
+        c.kind = act.reset ? lancet::CommandKind::kReset : lancet::CommandKind::kRearm;
+        (void)session.send(c, now);
+      }
+      if (act.view >= 0) ui.view = act.view;
+      if (act.preset >= 0) ui.preset = act.preset, ui.level = 0, ui.width = 1;
+      if (act.window_changed) ui.level = act.level, ui.width = act.width;
+      if (act.screenshot) want_snapshot = true;
+      if (want_snapshot) {  // lancet-YYYYmmdd-HHMMSS.png in the working directory
+        want_snapshot = false;
+        char name[64];
+        const std::time_t wall = std::time(nullptr);
+        std::strftime(name, sizeof name, "lancet-%Y%m%d-%H%M%S.png", std::localtime(&wall));
+        const lancet::render::Image img = renderer.read_back();
+        std::printf("lancet-viz: %s %s\n", lancet::render::write_png(name, img) ? "wrote" : "cannot write", name);
+      }
       if (!o.headless) renderer.present(fw, fh);
       win.swap_and_poll();
       ++frames;

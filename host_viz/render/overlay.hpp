@@ -14,6 +14,31 @@ struct OverlayLine {
   bool alert = false;  ///< drawn in red
 };
 
+/// The controls panel (right side): the task's progress, the tools on offer, the servo's
+/// history, the volume's view and transfer function. What the user clicked comes back in
+/// PanelActions (headless: nothing is clicked, the panel is drawn for the screenshot).
+struct PanelState {
+  float task_progress = -1;             ///< 0..1; < 0: no task
+  std::string task_label;
+  std::vector<std::string> tools;       ///< offered, in key order
+  std::vector<int> tool_keys;           ///< their ToolMode values
+  int tool = -1;                        ///< the tool in use (ToolMode), -1 unknown
+  std::vector<float> force_history;     ///< |F| in N, oldest first
+  std::vector<float> wake_p99_history;  ///< µs, oldest first
+  bool watchdog_tripped = false, connected = false;
+  int view = 0;                         ///< 0 mesh, 1 composite, 2 volume
+  std::vector<std::string> presets;
+  int preset = 0;
+  float level = 0, width = 1;
+};
+struct PanelActions {
+  int tool = -1;            ///< ToolMode picked, -1 none
+  bool rearm = false, reset = false, screenshot = false;
+  int view = -1, preset = -1;
+  bool window_changed = false;
+  float level = 0, width = 1;
+};
+
 class Overlay {
  public:
   /// Needs the window's GL context current. install_callbacks: let ImGui see mouse/keyboard.
@@ -23,16 +48,20 @@ class Overlay {
   Overlay(const Overlay&) = delete;
   Overlay& operator=(const Overlay&) = delete;
 
-  /// Draws a titled panel with the lines into the currently bound framebuffer (w×h pixels).
-  void draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
+  /// Draws a titled panel with the lines (and, given a state, the controls panel) into the
+  /// currently bound framebuffer (w×h pixels); returns what was clicked.
+  PanelActions draw(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height,
+                    const PanelState* panel = nullptr);
   /// The same panel laid out without drawing it (so the next draw has its final size).
-  void layout(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
+  void layout(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height,
+              const PanelState* panel = nullptr);
   /// True while ImGui wants the mouse (the scene should ignore it).
   [[nodiscard]] bool wants_mouse() const;
 
  private:
   bool glfw_ = false;  ///< the GLFW platform backend is in use (not headless)
-  void build(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height);
+  PanelActions build(const std::string& title, const std::vector<OverlayLine>& lines, int width, int height,
+                     const PanelState* panel);
 };
 
 }  // namespace lancet::render
