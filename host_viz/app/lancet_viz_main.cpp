@@ -18,6 +18,7 @@
 #include <cstdio>
 #include <cstring>
 #include <ctime>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
@@ -47,6 +48,8 @@ struct Interaction {
   int view = 0;               // 0 mesh, 1 mesh with the volume composited, 2 the volume alone
   int preset = 1;             // index into volume::kTfPresets
   float level = 0, width = 1; // window/level: HU shift and width scale of the preset
+  bool clip = false;          // the volume cut away above clip_mm (world z)
+  float clip_mm = -10;
   float yaw = 0.6f, pitch = 0.55f, distance = 0.26f;
 };
 Interaction* g_ui = nullptr;
@@ -219,6 +222,8 @@ int main(int argc, char** argv) {
                  "draw the last frame (the screenshot's, with --duration) in this view instead: e.g. composite, to show the "
                  "volume beneath an opened incision while the run itself stays fast")
       ->check(CLI::IsMember({"mesh", "composite", "volume"}));
+  float clip_mm = std::numeric_limits<float>::quiet_NaN();
+  cli.add_option("--clip-mm", clip_mm, "cut the volume away above this height (world z, mm; the skin's top is at 0)");
   std::vector<std::string> preset_names;
   for (auto p : lancet::volume::kTfPresets) preset_names.emplace_back(lancet::volume::tf_preset_name(p));
   std::string preset = "CT-Soft-Tissue";
@@ -334,6 +339,7 @@ int main(int argc, char** argv) {
     Interaction ui;
     ui.view = views.at(view);
     ui.preset = static_cast<int>(std::find(preset_names.begin(), preset_names.end(), preset) - preset_names.begin());
+    if (std::isfinite(clip_mm)) ui.clip = true, ui.clip_mm = clip_mm;
     std::unique_ptr<lancet::render::VolumeRaycaster> raycaster;  // made when the volume is first shown
     int shown_preset = -1;
     float shown_level = 0, shown_width = 1;
@@ -477,6 +483,11 @@ int main(int argc, char** argv) {
         in.volume = raycaster.get();
         in.volume_to_world = scene.volume_to_world();
         in.volume_params.step = 1.0f;  // a voxel a sample: interactive on llvmpipe
+        if (ui.clip) {  // keep world z <= clip_mm, as a plane in the volume's frame
+          const auto m = in.volume_to_world;
+          in.volume_params.clip = true;
+          in.volume_params.clip_plane = {m[2], m[6], m[10], m[14] - ui.clip_mm * 1e-3f};
+        }
         in.draw_surface = ui.view == 1;
       } else if (raycaster && !changed.empty()) {
         raycaster->update_region(scene.render_volume(), changed);
@@ -515,6 +526,7 @@ int main(int argc, char** argv) {
       panel.presets = preset_names;
       panel.preset = ui.preset;
       panel.level = ui.level, panel.width = ui.width;
+      panel.clip = ui.clip, panel.clip_mm = ui.clip_mm;
       // ImGui sizes a panel from the frame before: the screenshot's extra frame (a line more) is
       // laid out once before it is drawn.
       if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height(), &panel);
@@ -533,6 +545,7 @@ int main(int argc, char** argv) {
       if (act.view >= 0) ui.view = act.view;
       if (act.preset >= 0) ui.preset = act.preset, ui.level = 0, ui.width = 1;
       if (act.window_changed) ui.level = act.level, ui.width = act.width;
+      if (act.clip_changed) ui.clip = act.clip, ui.clip_mm = act.clip_mm;
       if (act.screenshot) want_snapshot = true;
       if (want_snapshot) {  // lancet-YYYYmmdd-HHMMSS.png in the working directory
         want_snapshot = false;

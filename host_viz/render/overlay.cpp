@@ -113,6 +113,17 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
         act.level = level;
         act.width = win;
       }
+      bool clip = p.clip;
+      float clip_mm = p.clip_mm;
+      const bool c = ImGui::Checkbox("clip above", &clip);
+      ImGui::SameLine();
+      ImGui::SetNextItemWidth(120);
+      const bool h = ImGui::SliderFloat("z (mm)", &clip_mm, -100.0f, 20.0f, "%.0f");
+      if (c || h) {
+        act.clip_changed = true;
+        act.clip = clip;
+        act.clip_mm = clip_mm;
+      }
     }
     ImGui::End();
   }

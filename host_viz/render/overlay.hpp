@@ -30,6 +30,8 @@ struct PanelState {
   std::vector<std::string> presets;
   int preset = 0;
   float level = 0, width = 1;
+  bool clip = false;                    ///< the volume is cut away above clip_mm (world z)
+  float clip_mm = 0;
 };
 struct PanelActions {
   int tool = -1;            ///< ToolMode picked, -1 none
@@ -37,6 +39,8 @@ struct PanelActions {
   int view = -1, preset = -1;
   bool window_changed = false;
   float level = 0, width = 1;
+  bool clip_changed = false, clip = false;
+  float clip_mm = 0;
 };
 
 class Overlay {

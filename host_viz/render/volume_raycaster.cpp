@@ -21,7 +21,8 @@ uniform vec3 u_spacing;
 uniform mat4 u_inv_vp;
 uniform ivec2 u_size;
 uniform float u_lo, u_hi, u_step, u_ref, u_early;
-uniform int u_jitter, u_skip, u_shade, u_mip, u_use_depth;
+uniform int u_jitter, u_skip, u_shade, u_mip, u_use_depth, u_clip;
+uniform vec4 u_plane;
 
 float mixf(float a, float b, float t) { return a + (b - a) * t; }
 float at(int i, int j, int k) { return voxel[i + u_dims.x * (j + u_dims.y * k)]; }
@@ -79,6 +80,12 @@ void main() {
       vec4 s = u_inv_vp * vec4(nx, ny, 2.0 * d - 1.0, 1.0);
       t_out = min(t_out, length(vec3(s.x / s.w, s.y / s.w, s.z / s.w) - pn));
     }
+  }
+  if (u_clip == 1) {
+    float f0 = u_plane.x * pn.x + u_plane.y * pn.y + u_plane.z * pn.z + u_plane.w, fd = u_plane.x * dir.x + u_plane.y * dir.y + u_plane.z * dir.z;
+    if (fd > 0.0) t_out = min(t_out, -f0 / fd);
+    else if (fd < 0.0) t_in = max(t_in, -f0 / fd);
+    else if (f0 > 0.0) t_out = -1.0;
   }
   float ds = u_step * u_ref;
   float j = u_jitter == 1 ? jitter(px.x, px.y) : 0.0;
@@ -223,6 +230,8 @@ void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::Raycast
   glUniform1i(glGetUniformLocation(p, "u_shade"), params.shade ? 1 : 0);
   glUniform1i(glGetUniformLocation(p, "u_mip"), tf_.mip ? 1 : 0);
   glUniform1i(glGetUniformLocation(p, "u_use_depth"), depth_texture != 0 ? 1 : 0);
+  glUniform1i(glGetUniformLocation(p, "u_clip"), params.clip ? 1 : 0);
+  glUniform4f(glGetUniformLocation(p, "u_plane"), params.clip_plane[0], params.clip_plane[1], params.clip_plane[2], params.clip_plane[3]);
   glUniform1i(glGetUniformLocation(p, "u_depth"), 0);
   glBindTextureUnit(0, depth_texture);
   glBindImageTexture(0, image_.get(), 0, GL_FALSE, 0, GL_WRITE_ONLY, GL_RGBA32F);

@@ -260,6 +260,17 @@ void raycast_cpu(const Volume& v, const BrickGrid& grid, const TransferFunction&
       }
       const std::size_t pix = static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width) + static_cast<std::size_t>(x);
       if (!max_t.empty()) t_out = std::min(t_out, max_t[pix]);
+      if (params.clip) {  // keep the part of the ray where the plane's function is <= 0
+        const auto& c = params.clip_plane;
+        const float f0 = c[0] * pn.x + c[1] * pn.y + c[2] * pn.z + c[3], fd = c[0] * dir.x + c[1] * dir.y + c[2] * dir.z;
+        if (fd > 0.0f) {
+          t_out = std::min(t_out, -f0 / fd);
+        } else if (fd < 0.0f) {
+          t_in = std::max(t_in, -f0 / fd);
+        } else if (f0 > 0.0f) {
+          t_out = -1;
+        }
+      }
       float cr = 0, cg = 0, cb = 0, ca = 0, vmax = std::numeric_limits<float>::lowest();
       const float j = params.jitter ? ray_jitter(x, y) : 0.0f;
       bool any = false;

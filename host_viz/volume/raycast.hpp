@@ -104,6 +104,9 @@ struct RaycastParams {
   bool skip_empty = true;
   bool shade = true;
   bool opacity_correction = true;  ///< false: a sample's opacity is the table's whatever the step (reference only, for tests)
+  /// A clipping plane (volume frame, m): only what lies where a·x + b·y + c·z + d <= 0 is drawn.
+  bool clip = false;
+  std::array<float, 4> clip_plane{0, 0, 1, 0};
 };
 
 struct RaycastStats {

@@ -69,6 +69,19 @@ TEST_F(VolumeRaycasterTest, MatchesTheCpuReferenceForEveryPreset) {
     EXPECT_LT(d.max, 1e-3) << volume::tf_preset_name(preset);
     EXPECT_EQ(d.over, 0u) << volume::tf_preset_name(preset);
   }
+  {  // with a clipping plane through the ball
+    volume::RaycastParams clipped;
+    clipped.clip = true;
+    clipped.clip_plane = {0.6f, 0.0f, 0.8f, -0.045f};
+    const volume::TransferFunction tf = volume::tf_preset(volume::TfPreset::kCtSoftTissue);
+    gpu.set_transfer_function(tf);
+    gpu.render(cam, clipped);
+    volume::RgbaImage c;
+    volume::raycast_cpu(v, grid, tf, cam, clipped, {}, c);
+    const Diff d = compare(gpu.read_back(), c);
+    EXPECT_LT(d.max, 1e-3);
+    EXPECT_GT(test::mean_alpha(c), 0.01);
+  }
   // Drill out the core: after update_region, GPU and CPU agree again (and the hole shows).
   volume::DrillParams dp;
   dp.centre = {0.0315, 0.0315, 0.04725};

@@ -89,6 +89,28 @@ TEST(Raycast, RaysStopAtFullOpacityAndAtTheSurfacesDepth) {
   EXPECT_EQ(st.samples, 0u);
 }
 
+TEST(Raycast, AClippingPlaneCutsTheVolumeAway) {
+  const Volume v = ball_volume();
+  const BrickGrid grid(v);
+  const TransferFunction bone = tf_preset(TfPreset::kCtBone);
+  const RayCamera cam = camera_on(v, 64, 64, 0.0f, 0.0f);  // looking along +y at the ball
+  RaycastParams p;
+  RgbaImage whole, half, none;
+  raycast_cpu(v, grid, bone, cam, p, {}, whole);
+  p.clip = true;
+  p.clip_plane = {1, 0, 0, -0.0315f};  // keep x <= the ball's centre
+  raycast_cpu(v, grid, bone, cam, p, {}, half);
+  p.clip_plane = {0, 0, 1, 1.0f};  // keep z <= -1 m: nothing
+  raycast_cpu(v, grid, bone, cam, p, {}, none);
+  EXPECT_NEAR(mean_alpha(half), 0.5 * mean_alpha(whole), 0.1 * mean_alpha(whole));
+  EXPECT_EQ(mean_alpha(none), 0.0);
+  // The kept half is the left one (x grows to the right of this camera).
+  double left = 0, right = 0;
+  for (int y = 0; y < 64; ++y)
+    for (int x = 0; x < 64; ++x) (x < 32 ? left : right) += half.rgba[static_cast<std::size_t>(4 * (y * 64 + x) + 3)];
+  EXPECT_GT(left, 5 * right);
+}
+
 TEST(Raycast, DrillingUpdatesTheBricksOverTheHole) {
   Volume v = ball_volume();
   BrickGrid grid(v);
