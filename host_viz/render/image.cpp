@@ -1,8 +1,21 @@
 #include "render/image.hpp"
 
+#include <stb/stb_image.h>
 #include <stb/stb_image_write.h>
 
 namespace lancet::render {
+
+Image read_png(const std::string& path) {
+  Image img;
+  int w = 0, h = 0, n = 0;
+  unsigned char* data = stbi_load(path.c_str(), &w, &h, &n, 4);
+  if (data == nullptr) return img;
+  img.width = w;
+  img.height = h;
+  img.rgba.assign(data, data + static_cast<std::size_t>(w) * static_cast<std::size_t>(h) * 4);
+  stbi_image_free(data);
+  return img;
+}
 
 bool write_png(const std::string& path, const Image& img) {
   if (img.width <= 0 || img.height <= 0 || img.rgba.size() != static_cast<std::size_t>(img.width * img.height * 4)) {
