@@ -1,5 +1,6 @@
 #include "render/gl_objects.hpp"
 
+#include <initializer_list>
 #include <stdexcept>
 #include <vector>
 
@@ -35,15 +36,14 @@ GLuint compile(GLenum kind, const std::string& src) {
 
 }  // namespace
 
-Program make_program(const std::string& vertex_src, const std::string& fragment_src) {
-  const GLuint vs = compile(GL_VERTEX_SHADER, vertex_src);
-  const GLuint fs = compile(GL_FRAGMENT_SHADER, fragment_src);
+namespace {
+
+// Links the compiled shaders into a program (deleting them); throws with the linker's log.
+Program link_program(std::initializer_list<GLuint> shaders) {
   const GLuint p = glCreateProgram();
-  glAttachShader(p, vs);
-  glAttachShader(p, fs);
+  for (GLuint sh : shaders) glAttachShader(p, sh);
   glLinkProgram(p);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
+  for (GLuint sh : shaders) glDeleteShader(sh);
   GLint ok = 0;
   glGetProgramiv(p, GL_LINK_STATUS, &ok);
   if (!ok) {
@@ -54,20 +54,12 @@ Program make_program(const std::string& vertex_src, const std::string& fragment_
   return Program(p);
 }
 
-Program make_compute_program(const std::string& compute_src) {
-  const GLuint cs = compile(GL_COMPUTE_SHADER, compute_src);
-  const GLuint p = glCreateProgram();
-  glAttachShader(p, cs);
-  glLinkProgram(p);
-  glDeleteShader(cs);
-  GLint ok = 0;
-  glGetProgramiv(p, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    const std::string log = info_log(p, glGetProgramiv, glGetProgramInfoLog);
-    glDeleteProgram(p);
-    throw std::runtime_error("compute program failed to link: " + log);
-  }
-  return Program(p);
+}  // namespace
+
+Program make_program(const std::string& vertex_src, const std::string& fragment_src) {
+  return link_program({compile(GL_VERTEX_SHADER, vertex_src), compile(GL_FRAGMENT_SHADER, fragment_src)});
 }
+
+Program make_compute_program(const std::string& compute_src) { return link_program({compile(GL_COMPUTE_SHADER, compute_src)}); }
 
 }  // namespace lancet::render
