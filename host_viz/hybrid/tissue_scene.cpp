@@ -78,6 +78,19 @@ surface::TriangleMesh to_world(const volume::IsoMesh& mesh, const VolumePlacemen
   return m;
 }
 
+// box becomes the smallest box holding both it and more (an empty one holds nothing).
+void grow(volume::VoxelBox& box, const volume::VoxelBox& more) {
+  if (more.empty()) return;
+  if (box.empty()) {
+    box = more;
+    return;
+  }
+  for (std::size_t a = 0; a < 3; ++a) {
+    box.lo[a] = std::min(box.lo[a], more.lo[a]);
+    box.hi[a] = std::max(box.hi[a], more.hi[a]);
+  }
+}
+
 volume::IsoOptions iso_options(float iso) {
   volume::IsoOptions o;
   o.iso = iso;
@@ -319,18 +332,8 @@ void TissueScene::drill(const ToolSample& t) {
   ++events_.drill_removals;
   events_.voxels_drilled += r.value().voxels_removed;
   last_removal_ns_ = t.t_ns;
-  const volume::VoxelBox& b = r.value().dirty;
-  if (b.empty()) return;
-  for (volume::VoxelBox* box : {&dirty_, &changed_}) {
-    if (box->empty()) {
-      *box = b;
-      continue;
-    }
-    for (std::size_t a = 0; a < 3; ++a) {
-      box->lo[a] = std::min(box->lo[a], b.lo[a]);
-      box->hi[a] = std::max(box->hi[a], b.hi[a]);
-    }
-  }
+  grow(dirty_, r.value().dirty);
+  grow(changed_, r.value().dirty);
 }
 
 const volume::Volume& TissueScene::render_volume() {
@@ -396,11 +399,7 @@ void TissueScene::carve(const Groove& g, double previous_width) {
         const double open = 0.5 * g.width * std::sin(M_PI * s / total) * (1.0 - std::max(h, 0.0) / depth);
         if (std::sqrt(best) <= open) render_.data[idx] = -1000.0f;
       }
-  const bool first = changed_.empty();
-  for (std::size_t a = 0; a < 3; ++a) {
-    changed_.lo[a] = first ? box.lo[a] : std::min(changed_.lo[a], box.lo[a]);
-    changed_.hi[a] = first ? box.hi[a] : std::max(changed_.hi[a], box.hi[a]);
-  }
+  grow(changed_, box);
 }
 
 volume::VoxelBox TissueScene::take_volume_changes() noexcept {
