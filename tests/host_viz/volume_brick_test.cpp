@@ -10,7 +10,7 @@
 #include <memory>
 
 #include "hybrid/block_volume.hpp"
-#include "hybrid/phantom_skin.hpp"
+#include "hybrid/tissue_scene.hpp"
 #include "volume/phantom.hpp"
 
 namespace lancet::hybrid {
@@ -112,10 +112,13 @@ TEST(VolumeBrick, BadInputGivesNoBrick) {
 }
 
 TEST(VolumeBrick, ThePhantomsBoneIsInTheBrickWhereTheVizPutsIt) {
-  // The viz's placement of the phantom: world (x, y, z) = volume (z, x, y − top).
-  const volume::Phantom ph = volume::make_phantom({});
-  VolumePlacement pl;
-  const surface::TriangleMesh skin = phantom_skin(ph, pl);
+  // The viz's placement of the phantom (its tissue scene): world (x, y, z) = volume (z, x, y − top).
+  auto made = TissueScene::create({});
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  const TissueScene& scene = *made.value();
+  const VolumePlacement pl = scene.placement();
+  surface::TriangleMesh skin;
+  scene.surface().to_triangle_mesh(skin);
   ASSERT_FALSE(skin.triangles.empty());
   EXPECT_EQ(pl.axis, (std::array<int, 3>{2, 0, 1}));
   float top = -1;
@@ -123,7 +126,7 @@ TEST(VolumeBrick, ThePhantomsBoneIsInTheBrickWhereTheVizPutsIt) {
   EXPECT_NEAR(top, 0.0f, 1e-6f) << "the skin's top at z = 0";
   auto brick = std::make_unique<VoxelBrick>();
   // The bone's centre: volume (6, −4) mm in x, y; mid-length.
-  fill_brick(ph.volume, pl, pl.to_world({0.006, -0.004, 0.0}), *brick);
+  fill_brick(scene.volume(), pl, pl.to_world({0.006, -0.004, 0.0}), *brick);
   ASSERT_EQ(brick->valid, 1u);
   EXPECT_GT(brick->hu[7 + kBrickDim * (7 + kBrickDim * 7)], 200) << "marrow at the centre";
 }

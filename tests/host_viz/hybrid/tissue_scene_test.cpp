@@ -7,12 +7,16 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 #include <memory>
+#include <span>
+#include <string>
 #include <vector>
 
-#include "hybrid/phantom_skin.hpp"
+#include "hybrid/scenario_scene.hpp"
 #include "volume/mesh_tools.hpp"
 
 namespace lancet::hybrid {
@@ -171,11 +175,16 @@ TEST(TissueScene, TheDrawnVolumeGapesWhereTheIncisionIsOpen) {
 TEST(TissueScene, ThePhantomIsPlacedAsItsSkinSaysAndItsPatchCarriesTheBrick) {
   auto scene = make({});
   ASSERT_TRUE(scene);
-  VolumePlacement expected;
-  (void)phantom_skin(volume::make_phantom({}), expected);
-  EXPECT_EQ(scene->placement().axis, expected.axis);
-  EXPECT_NEAR(scene->placement().offset.z, expected.offset.z, 1e-9);
+  // World (x, y, z) = volume (z, x, y): the limb along x, its front up, the skin's top at z = 0.
+  EXPECT_EQ(scene->placement().axis, (std::array<int, 3>{2, 0, 1}));
+  EXPECT_EQ(scene->placement().sign, (std::array<int, 3>{1, 1, 1}));
   EXPECT_NEAR(scene->placement().offset.x, 0, 1e-9);
+  EXPECT_NEAR(scene->placement().offset.y, 0, 1e-9);
+  surface::TriangleMesh skin;
+  scene->surface().to_triangle_mesh(skin);
+  float top = -1;
+  for (const auto& v : skin.vertices) top = std::max(top, v.z);
+  EXPECT_NEAR(top, 0.0f, 1e-6f);
   // Down from z = 0 at the limb's middle: air, then skin, fat and muscle in that order.
   std::vector<std::uint8_t> layers;
   for (double z = 0; z > -0.02; z -= 0.00025) {
@@ -317,6 +326,47 @@ TEST(TissueScene, BadDescriptionsAreRefusedWithTheReason) {
   r = TissueScene::create(std::move(iso));
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("skin < bone"), std::string::npos) << r.error().message;
+}
+
+}  // namespace
+}  // namespace lancet::hybrid
+
+namespace lancet::hybrid {
+namespace {
+
+// The task measured on the scene: an incision along the skin-incision scenario's line counts as
+// progress, and drilling into the artery under it names the artery as damaged.
+TEST(TaskMonitor, MeasuresTheIncisionAndNamesTheStructureReached) {
+  auto sc = scenario::load_scenario(std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml");
+  ASSERT_TRUE(sc.ok()) << sc.error().message;
+  auto d = scene_description(sc.value());
+  ASSERT_TRUE(d.ok()) << d.error().message;
+  auto scene = make(std::move(d).value());
+  ASSERT_TRUE(scene);
+  TaskMonitor task(sc.value(), *scene);
+  EXPECT_EQ(task.status().progress, 0.0);
+  // Cut along the line (x from -15 to 15 mm at y = -12 mm), on the skin.
+  Script hand;
+  const auto skin = [&](double x, double y) { return scene->surface_below(x, y).value_or(Vec3{x, y, 0}).z; };
+  cut_and_open(hand, skin, {-0.015, -0.012, 0}, 0.03, 0.004);
+  for (std::size_t i = 0; i < hand.samples.size(); i += 16) {
+    const auto frame = std::span<const ToolSample>(hand.samples).subspan(i, std::min<std::size_t>(16, hand.samples.size() - i));
+    (void)scene->apply(frame);
+    (void)task.update(*scene, frame);
+  }
+  hand.samples.clear();
+  EXPECT_GT(task.status().progress, 0.8) << task.status().line;
+  EXPECT_TRUE(task.status().damaged.empty()) << "a 6 mm cut does not reach the artery 27 mm down";
+  // The drill goes down to the artery.
+  const Vec3 artery{0, -0.012, -0.027};
+  ASSERT_EQ(scene->label_at(artery), volume::kVessel);
+  ToolSample& t = hand.add(Stage::kFree, artery, artery, event::kDrillRemove);
+  t.payload.magnitude = 0.002;
+  (void)scene->apply(hand.samples);
+  (void)task.update(*scene, hand.samples);
+  ASSERT_EQ(task.status().damaged.size(), 1u) << task.status().line;
+  EXPECT_EQ(task.status().damaged[0], "radial artery");
+  EXPECT_NE(task.status().line.find("DAMAGED: radial artery"), std::string::npos);
 }
 
 }  // namespace
