@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <system_error>
+#include <utility>
 
 #include "volume/dicom.hpp"
 #include "volume/metaimage.hpp"
@@ -103,12 +104,15 @@ const TaskStatus& TaskMonitor::update(const TissueScene& scene, std::span<const 
       if (s.avoid[i].kind != scenario::ShapeKind::kLabel && scenario::touches(s.avoid[i], t.payload.position, t.payload.magnitude))
         damaged_[i] = true;
   }
-  // ... and by a cut reaching down to the cut depth under its path.
+  // ... and by a cut reaching down to the cut depth under its path: the points added since the
+  // last update (paths only grow; a point once checked stays checked).
   const auto cuts = scene.cut_paths();
   const double depth = scene.description().cut_depth;
-  for (const auto& path : cuts)
-    for (const Vec3& p : path)
+  cut_points_checked_.resize(cuts.size(), 0);
+  for (std::size_t c = 0; c < cuts.size(); ++c)
+    for (std::size_t n = std::exchange(cut_points_checked_[c], cuts[c].size()); n < cuts[c].size(); ++n)
       for (double z = 0; z <= depth + 1e-9; z += 0.0005) {
+        const Vec3& p = cuts[c][n];
         const Vec3 q = p - Vec3{0, 0, z};
         for (std::size_t i = 0; i < s.avoid.size(); ++i) {
           if (damaged_[i]) continue;

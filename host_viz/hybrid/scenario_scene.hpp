@@ -47,6 +47,7 @@ class TaskMonitor {
   std::size_t drill_bone_ = 0;      ///< bone voxels in the drill window at the start
   std::vector<std::size_t> label_voxels_;  ///< per avoid entry with a label: its voxels at the start
   std::vector<bool> damaged_;
+  std::vector<std::size_t> cut_points_checked_;  ///< per cut: path points already checked for structures
   TaskStatus status_;
   std::size_t window_bone_now(const TissueScene& scene) const;
   std::size_t label_count(const TissueScene& scene, std::uint8_t label) const;
