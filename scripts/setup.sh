@@ -20,8 +20,9 @@ PACKAGES=(
   # volume files (compressed MetaImage, gzip NRRD, DICOM series)
   zlib1g-dev libgdcm-dev
   # tests and benchmarks (python3-vtk9: the marching-cubes cross-check against VTK, run by
-  # Debian's /usr/bin/python3)
-  libgtest-dev libgmock-dev libbenchmark-dev rt-tests python3-vtk9
+  # Debian's /usr/bin/python3, and the ray caster's side-by-side with VTK, whose GPU mapper
+  # renders only through GLX: xvfb for that benchmark alone)
+  libgtest-dev libgmock-dev libbenchmark-dev rt-tests python3-vtk9 xvfb
 )
 
 missing=()

@@ -1,39 +1,40 @@
 #include "render/volume_raycaster.hpp"
 
 #include <algorithm>
+#include <string>
 #include <vector>
 
 namespace lancet::render {
 namespace {
 
-// The reference's operations, in its order (volume/raycast.cpp).
-constexpr const char* kCompute = R"(#version 450 core
+// The reference's operations, in its order (volume/raycast.cpp). MIP, SHADE and SKIP are defined
+// before this text: one program per combination, so that no invocation carries the code of the
+// modes it does not run (a uniform branch costs the masked-out code too on a SIMD CPU such as
+// llvmpipe).
+constexpr const char* kCompute = R"(
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(rgba32f, binding = 0) uniform writeonly image2D u_out;
 uniform sampler2D u_depth;  // the opaque meshes' depth (same camera), when u_use_depth == 1
-layout(std430, binding = 1) readonly buffer Voxels { float voxel[]; };
+uniform sampler3D u_volume;  // R32F, trilinear: the texture unit's interpolation
 layout(std430, binding = 2) readonly buffer Table { vec4 table[256]; };
 layout(std430, binding = 3) readonly buffer Empty { uint empty_brick[]; };
+layout(std430, binding = 4) readonly buffer BrickMax { float brick_max[]; };
 uniform ivec3 u_dims;
 uniform ivec3 u_bricks;
 uniform vec3 u_origin;
 uniform vec3 u_spacing;
 uniform mat4 u_inv_vp;
 uniform ivec2 u_size;
-uniform float u_lo, u_hi, u_step, u_ref, u_early;
-uniform int u_jitter, u_skip, u_shade, u_mip, u_use_depth, u_clip;
+uniform float u_lo, u_hi, u_step, u_ref, u_early, u_mip_stop;
+uniform int u_jitter, u_use_depth, u_clip;
 uniform vec4 u_plane;
 
 float mixf(float a, float b, float t) { return a + (b - a) * t; }
-float at(int i, int j, int k) { return voxel[i + u_dims.x * (j + u_dims.y * k)]; }
+// The position in voxel indices, clamped to the voxel centres as the reference clamps it; texel
+// centres lie at (index + 0.5) / dims.
 float sample_at(vec3 p) {
-  float px = clamp(p.x, 0.0, float(u_dims.x - 1)), py = clamp(p.y, 0.0, float(u_dims.y - 1)), pz = clamp(p.z, 0.0, float(u_dims.z - 1));
-  int i = min(int(floor(px)), max(u_dims.x - 2, 0)), j = min(int(floor(py)), max(u_dims.y - 2, 0)), k = min(int(floor(pz)), max(u_dims.z - 2, 0));
-  int i1 = min(i + 1, u_dims.x - 1), j1 = min(j + 1, u_dims.y - 1), k1 = min(k + 1, u_dims.z - 1);
-  float fx = px - float(i), fy = py - float(j), fz = pz - float(k);
-  float c00 = mixf(at(i, j, k), at(i1, j, k), fx), c10 = mixf(at(i, j1, k), at(i1, j1, k), fx);
-  float c01 = mixf(at(i, j, k1), at(i1, j, k1), fx), c11 = mixf(at(i, j1, k1), at(i1, j1, k1), fx);
-  return mixf(mixf(c00, c10, fy), mixf(c01, c11, fy), fz);
+  vec3 hi = vec3(u_dims - ivec3(1));
+  return texture(u_volume, (clamp(p, vec3(0.0), hi) + 0.5) / vec3(u_dims)).r;
 }
 vec4 lookup(float v) {
   float x = clamp((v - u_lo) / (u_hi - u_lo) * 255.0, 0.0, 255.0);
@@ -95,11 +96,17 @@ void main() {
     float t = t_in + (float(k) + j) * ds;
     if (!(t <= t_out)) break;
     vec3 p = q0 + t * qd;
-    if (u_skip == 1 && u_mip == 0) {
+#if SKIP
+    {
       int bx = clamp(int(floor(p.x / 8.0)), 0, u_bricks.x - 1);
       int by = clamp(int(floor(p.y / 8.0)), 0, u_bricks.y - 1);
       int bz = clamp(int(floor(p.z / 8.0)), 0, u_bricks.z - 1);
-      if (empty_brick[bx + u_bricks.x * (by + u_bricks.y * bz)] != 0u) {
+      int b = bx + u_bricks.x * (by + u_bricks.y * bz);
+#if MIP
+      if (any && brick_max[b] <= vmax) {
+#else
+      if (empty_brick[b] != 0u) {
+#endif
         float t_exit = 3.402823466e+38;
         ivec3 bi = ivec3(bx, by, bz);
         for (int ax = 0; ax < 3; ++ax) {
@@ -112,24 +119,27 @@ void main() {
         continue;
       }
     }
+#endif
     float value = sample_at(p);
     any = true;
-    if (u_mip == 1) {
-      vmax = max(vmax, value);
-      ++k;
-      continue;
-    }
+#if MIP
+    vmax = max(vmax, value);
+    if (vmax >= u_mip_stop) break;
+    ++k;
+#else
     vec4 c = lookup(value);
     if (c.w > 0.0) {
       float alpha = 1.0 - pow(1.0 - c.w, u_step);
       float light = 1.0;
-      if (u_shade == 1) {
+#if SHADE
+      {
         float gx = (sample_at(p + vec3(1, 0, 0)) - sample_at(p - vec3(1, 0, 0))) * 0.5 / u_spacing.x;
         float gy = (sample_at(p + vec3(0, 1, 0)) - sample_at(p - vec3(0, 1, 0))) * 0.5 / u_spacing.y;
         float gz = (sample_at(p + vec3(0, 0, 1)) - sample_at(p - vec3(0, 0, 1))) * 0.5 / u_spacing.z;
         float gl = sqrt(gx * gx + gy * gy + gz * gz);
         if (gl > 1e-3) light = 0.3 + 0.7 * abs((gx * dir.x + gy * dir.y + gz * dir.z) / gl);
       }
+#endif
       float w = (1.0 - ca) * alpha;
       cr += w * c.x * light;
       cg += w * c.y * light;
@@ -138,11 +148,14 @@ void main() {
       if (ca >= u_early) break;
     }
     ++k;
+#endif
   }
-  if (u_mip == 1 && any) {
+#if MIP
+  if (any) {
     vec4 c = lookup(vmax);
     cr = c.x * c.w; cg = c.y * c.w; cb = c.z * c.w; ca = c.w;
   }
+#endif
   imageStore(u_out, px, vec4(cr, cg, cb, ca));
 }
 )";
@@ -155,9 +168,14 @@ GLuint new_buffer() {
 
 }  // namespace
 
-VolumeRaycaster::VolumeRaycaster() : program_(make_compute_program(kCompute)) {
-  voxels_ = Buffer(new_buffer());
+VolumeRaycaster::VolumeRaycaster() {
+  for (int v = 0; v < 8; ++v) {
+    const std::string defines = "#version 450 core\n#define MIP " + std::to_string(v & 1) + "\n#define SHADE " +
+                                std::to_string((v >> 1) & 1) + "\n#define SKIP " + std::to_string((v >> 2) & 1) + "\n";
+    programs_[static_cast<std::size_t>(v)] = make_compute_program(defines + kCompute);
+  }
   mask_ = Buffer(new_buffer());
+  brick_max_ = Buffer(new_buffer());
   table_ = Buffer(new_buffer());
   set_transfer_function(volume::tf_preset(volume::TfPreset::kCtSoftTissue));
 }
@@ -167,21 +185,30 @@ void VolumeRaycaster::set_volume(const volume::Volume& v) {
   origin_ = v.origin;
   spacing_ = v.spacing;
   reference_ = volume::reference_step(v);
-  glNamedBufferData(voxels_.get(), static_cast<GLsizeiptr>(std::max<std::size_t>(v.data.size(), 1) * sizeof(float)), v.data.data(),
-                    GL_DYNAMIC_DRAW);
+  GLuint t = 0;
+  glCreateTextures(GL_TEXTURE_3D, 1, &t);
+  voxels_ = Texture(t);
+  glTextureStorage3D(t, 1, GL_R32F, std::max(dims_[0], 1), std::max(dims_[1], 1), std::max(dims_[2], 1));
+  glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  for (GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTextureParameteri(t, wrap, GL_CLAMP_TO_EDGE);
+  if (!v.data.empty()) {
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    glTextureSubImage3D(t, 0, 0, 0, 0, dims_[0], dims_[1], dims_[2], GL_RED, GL_FLOAT, v.data.data());
+  }
   grid_ = volume::BrickGrid(v);
   upload_mask();
 }
 
 void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox box) {
   if (box.empty() || v.dims != dims_) return;
-  // Whole z-slabs of the box: one contiguous range of the buffer.
+  // Whole z-slabs of the box: one contiguous range of the voxels.
   const int k0 = std::clamp(box.lo[2], 0, dims_[2]), k1 = std::clamp(box.hi[2], 0, dims_[2]);
   if (k1 <= k0) return;
   const std::size_t slab = static_cast<std::size_t>(dims_[0]) * static_cast<std::size_t>(dims_[1]);
-  glNamedBufferSubData(voxels_.get(), static_cast<GLintptr>(slab * static_cast<std::size_t>(k0) * sizeof(float)),
-                       static_cast<GLsizeiptr>(slab * static_cast<std::size_t>(k1 - k0) * sizeof(float)),
-                       v.data.data() + slab * static_cast<std::size_t>(k0));
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  glTextureSubImage3D(voxels_.get(), 0, 0, 0, k0, dims_[0], dims_[1], k1 - k0, GL_RED, GL_FLOAT,
+                      v.data.data() + slab * static_cast<std::size_t>(k0));
   grid_.update(v, box);
   upload_mask();
 }
@@ -197,6 +224,9 @@ void VolumeRaycaster::upload_mask() {
   std::vector<std::uint32_t> u(m.begin(), m.end());
   if (u.empty()) u.push_back(0);
   glNamedBufferData(mask_.get(), static_cast<GLsizeiptr>(u.size() * sizeof(std::uint32_t)), u.data(), GL_DYNAMIC_DRAW);
+  std::vector<float> mx(grid_.max().begin(), grid_.max().end());
+  if (mx.empty()) mx.push_back(0);
+  glNamedBufferData(brick_max_.get(), static_cast<GLsizeiptr>(mx.size() * sizeof(float)), mx.data(), GL_DYNAMIC_DRAW);
 }
 
 void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::RaycastParams& params, GLuint depth_texture) {
@@ -210,7 +240,8 @@ void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::Raycast
     image_w_ = cam.width;
     image_h_ = cam.height;
   }
-  const GLuint p = program_.get();
+  const bool shade = params.shade && !tf_.mip;
+  const GLuint p = programs_[(tf_.mip ? 1u : 0u) | (shade ? 2u : 0u) | (params.skip_empty ? 4u : 0u)].get();
   glUseProgram(p);
   const auto bricks = grid_.dims();
   glUniform3i(glGetUniformLocation(p, "u_dims"), dims_[0], dims_[1], dims_[2]);
@@ -225,19 +256,19 @@ void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::Raycast
   glUniform1f(glGetUniformLocation(p, "u_step"), params.step);
   glUniform1f(glGetUniformLocation(p, "u_ref"), reference_);
   glUniform1f(glGetUniformLocation(p, "u_early"), params.early_stop);
+  glUniform1f(glGetUniformLocation(p, "u_mip_stop"), tf_.constant_from());
   glUniform1i(glGetUniformLocation(p, "u_jitter"), params.jitter ? 1 : 0);
-  glUniform1i(glGetUniformLocation(p, "u_skip"), params.skip_empty ? 1 : 0);
-  glUniform1i(glGetUniformLocation(p, "u_shade"), params.shade ? 1 : 0);
-  glUniform1i(glGetUniformLocation(p, "u_mip"), tf_.mip ? 1 : 0);
   glUniform1i(glGetUniformLocation(p, "u_use_depth"), depth_texture != 0 ? 1 : 0);
   glUniform1i(glGetUniformLocation(p, "u_clip"), params.clip ? 1 : 0);
   glUniform4f(glGetUniformLocation(p, "u_plane"), params.clip_plane[0], params.clip_plane[1], params.clip_plane[2], params.clip_plane[3]);
   glUniform1i(glGetUniformLocation(p, "u_depth"), 0);
+  glUniform1i(glGetUniformLocation(p, "u_volume"), 1);
   glBindTextureUnit(0, depth_texture);
+  glBindTextureUnit(1, voxels_.get());
   glBindImageTexture(0, image_.get(), 0, GL_FALSE, 0, GL_WRITE_ONLY, GL_RGBA32F);
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, voxels_.get());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, table_.get());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, mask_.get());
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, brick_max_.get());
   glDispatchCompute(static_cast<GLuint>((cam.width + 7) / 8), static_cast<GLuint>((cam.height + 7) / 8), 1);
   glMemoryBarrier(GL_SHADER_IMAGE_ACCESS_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT | GL_TEXTURE_UPDATE_BARRIER_BIT);
 }

@@ -2,10 +2,13 @@
 // VolumeRaycaster: GPU direct volume rendering, one GL 4.5 compute shader invocation per pixel,
 // the same sampling, table, opacity correction, jitter, early termination, empty-space skipping
 // and shading as volume::raycast_cpu (its reference; volume/raycast.hpp states the algorithm).
-// The voxels, the brick grid's empty mask and the table live in storage buffers (the voxels are
-// interpolated by hand, in float, as the reference does, so the two agree to rounding); the
-// image is an RGBA32F texture, premultiplied. Needs a current GL 4.5 context.
+// The voxels are an R32F 3-D texture, interpolated by the texture unit (llvmpipe blends in float,
+// so the two agree to rounding; a GPU's 8-bit blend weights differ from the reference by up to
+// 1/256 of a voxel step). The brick grid's empty mask and largest values, and the table, live in
+// storage buffers; the image is an RGBA32F texture, premultiplied. The shader is compiled once
+// per combination of MIP, shading and skipping (no masked-out code for the modes not run). Needs a current GL 4.5 context.
 
+#include <array>
 #include <cstdint>
 
 #include "render/gl_objects.hpp"
@@ -34,8 +37,9 @@ class VolumeRaycaster {
 
  private:
   void upload_mask();
-  Program program_;
-  Buffer voxels_, mask_, table_;
+  std::array<Program, 8> programs_;  ///< by MIP | SHADE << 1 | SKIP << 2
+  Texture voxels_;
+  Buffer mask_, brick_max_, table_;
   Texture image_;
   int image_w_ = 0, image_h_ = 0;
   volume::BrickGrid grid_;

@@ -130,6 +130,16 @@ float TransferFunction::max_alpha(float a, float b) const noexcept {
   return m;
 }
 
+float TransferFunction::constant_from() const noexcept {
+  int last = -1;  // the last entry that differs from the top one
+  for (int i = kSize - 2; i >= 0 && last < 0; --i)
+    if (table[static_cast<std::size_t>(i)] != table[kSize - 1]) last = i;
+  // lookup() blends entries i and i+1 with i = floor(x): from x >= last + 1 both are the top one.
+  // One entry more of margin, against rounding in the value-to-entry mapping.
+  if (last + 2 > kSize - 1) return std::numeric_limits<float>::infinity();
+  return lo + (hi - lo) * static_cast<float>(last + 2) / static_cast<float>(kSize - 1);
+}
+
 std::string_view tf_preset_name(TfPreset p) noexcept {
   switch (p) {
     case TfPreset::kCtSkin: return "CT-Skin";
@@ -233,6 +243,8 @@ void raycast_cpu(const Volume& v, const BrickGrid& grid, const TransferFunction&
   const float ref = reference_step(v);
   const float ds = params.step * ref;
   const std::vector<std::uint8_t> empty = grid.empty_mask(tf);
+  const std::span<const float> brick_max = grid.max();
+  const float mip_stop = tf.constant_from();
   const auto bd = grid.dims();
   RaycastStats st;
   for (int y = 0; y < cam.height; ++y)
@@ -278,11 +290,12 @@ void raycast_cpu(const Volume& v, const BrickGrid& grid, const TransferFunction&
         const float t = t_in + (static_cast<float>(k) + j) * ds;
         if (!(t <= t_out)) break;
         const F3 p = q0 + t * qd;
-        if (params.skip_empty && !tf.mip) {
+        if (params.skip_empty) {
           const int bx = std::clamp(static_cast<int>(std::floor(p.x / 8.0f)), 0, bd[0] - 1);
           const int by = std::clamp(static_cast<int>(std::floor(p.y / 8.0f)), 0, bd[1] - 1);
           const int bz = std::clamp(static_cast<int>(std::floor(p.z / 8.0f)), 0, bd[2] - 1);
-          if (empty[static_cast<std::size_t>(bx) + static_cast<std::size_t>(bd[0]) * (static_cast<std::size_t>(by) + static_cast<std::size_t>(bd[1]) * static_cast<std::size_t>(bz))] != 0) {
+          const std::size_t brick = static_cast<std::size_t>(bx) + static_cast<std::size_t>(bd[0]) * (static_cast<std::size_t>(by) + static_cast<std::size_t>(bd[1]) * static_cast<std::size_t>(bz));
+          if (tf.mip ? any && brick_max[brick] <= vmax : empty[brick] != 0) {
             float t_exit = std::numeric_limits<float>::max();
             const int bi[3] = {bx, by, bz};
             for (int ax = 0; ax < 3; ++ax) {
@@ -301,6 +314,10 @@ void raycast_cpu(const Volume& v, const BrickGrid& grid, const TransferFunction&
         any = true;
         if (tf.mip) {
           vmax = std::max(vmax, value);
+          if (vmax >= mip_stop) {  // the table gives every larger value the same colour
+            ++st.early_stops;
+            break;
+          }
           ++k;
           continue;
         }

@@ -18,13 +18,15 @@
 // differences of the interpolated field, one voxel apart) as the normal: c · (0.3 + 0.7 |n·l|).
 // Compositing is front to back (premultiplied); a ray stops once its opacity reaches
 // early_stop (0.99). MIP: the largest value along the ray, coloured by the table (no opacity
-// correction, no shading).
+// correction, no shading); a MIP ray stops once its maximum reaches a value above which the table
+// is constant (TransferFunction::constant_from), since nothing further can change its colour.
 //
 // Empty space. The grid holds, per 8³ brick, the smallest and largest value of the voxels any
 // sample inside it interpolates from (the brick and a one-voxel apron). A brick where the transfer
 // function's opacity is zero over [min, max] is empty: a ray entering it jumps to the first sample
-// past the brick's exit, on the same t lattice, so skipping never changes the image. Drilling or
-// cutting a region updates the bricks over it (update()).
+// past the brick's exit, on the same t lattice, so skipping never changes the image. For MIP, a
+// brick is skipped once the ray's maximum so far is at least the brick's largest value (no sample
+// in it can raise the maximum). Drilling or cutting a region updates the bricks over it (update()).
 
 #include <array>
 #include <cstdint>
@@ -57,6 +59,9 @@ struct TransferFunction {
   [[nodiscard]] std::array<float, 4> lookup(float v) const noexcept;
   /// The largest opacity the table gives any value in [a, b] (the entries lookup() may blend).
   [[nodiscard]] float max_alpha(float a, float b) const noexcept;
+  /// A value from which lookup() gives the same colour for every larger value (infinity when
+  /// the table's last two entries differ): a MIP ray may stop once its maximum reaches it.
+  [[nodiscard]] float constant_from() const noexcept;
 };
 
 enum class TfPreset : std::uint8_t { kCtSkin, kCtSoftTissue, kCtBone, kCtVessels, kMip };

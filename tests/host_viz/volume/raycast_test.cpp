@@ -63,11 +63,47 @@ TEST(Raycast, SkippingEmptyBricksNeverChangesTheImage) {
     raycast_cpu(v, grid, tf, cam, p, {}, without, &so);
     EXPECT_EQ(with.rgba, without.rgba) << tf_preset_name(preset);
     EXPECT_GT(mean_alpha(with), 0.01) << tf_preset_name(preset) << " shows something";
-    if (preset != TfPreset::kMip) {
-      EXPECT_GT(sw.skipped_bricks, 1000u) << tf_preset_name(preset) << ": the air around the ball is skipped";
-      EXPECT_LT(sw.samples, so.samples / 2) << tf_preset_name(preset);
-    }
+    // MIP too: a brick whose largest value the ray's maximum already reaches is jumped over.
+    EXPECT_GT(sw.skipped_bricks, 1000u) << tf_preset_name(preset) << ": the air around the ball is skipped";
+    EXPECT_LT(sw.samples, so.samples / 2) << tf_preset_name(preset);
   }
+}
+
+TEST(Raycast, AMipRayStopsWhereTheTableTurnsConstant) {
+  const Volume v = ball_volume();
+  const BrickGrid grid(v);
+  const RayCamera cam = camera_on(v, 64, 64);
+  // A MIP table that saturates low (at -500 HU, below the ball's values): every ray through the
+  // ball stops at its first sample above the saturation, with the image unchanged.
+  const TfPoint points[] = {{-1000, 0, 0, 0, 0}, {-500, 1, 1, 1, 1}};
+  TransferFunction tf = TransferFunction::from_points(points, -1000, 3000);
+  tf.mip = true;
+  const float from = tf.constant_from();
+  EXPECT_GT(from, -500.0f);
+  EXPECT_LT(from, -500.0f + 2.5f * 4000.0f / 255.0f) << "within two entries of where the table stops changing";
+  for (float x : {from, from + 1.0f, 2500.0f, 1e6f}) EXPECT_EQ(tf.lookup(x), tf.lookup(3000.0f)) << x;
+  EXPECT_NE(tf.lookup(-600.0f), tf.lookup(3000.0f));
+  // A table whose last two entries differ never stops a ray.
+  const TfPoint rising[] = {{-1000, 0, 0, 0, 0}, {3000, 1, 1, 1, 1}};
+  EXPECT_TRUE(std::isinf(TransferFunction::from_points(rising, -1000, 3000).constant_from()));
+
+  RaycastParams p;
+  p.skip_empty = false;
+  RgbaImage img;
+  RaycastStats st;
+  raycast_cpu(v, grid, tf, cam, p, {}, img, &st);
+  EXPECT_GT(st.early_stops, 100u) << "the rays through the ball stop";
+  EXPECT_GT(mean_alpha(img), 0.05);
+  // Against the same table with one more, higher point: identical colours, but no early stop.
+  const TfPoint late[] = {{-1000, 0, 0, 0, 0}, {-500, 1, 1, 1, 1}, {2999, 1, 1, 1, 1}, {3000, 1, 1, 1, 0.999f}};
+  TransferFunction tf_late = TransferFunction::from_points(late, -1000, 3000);
+  tf_late.mip = true;
+  RgbaImage full;
+  RaycastStats st_full;
+  raycast_cpu(v, grid, tf_late, cam, p, {}, full, &st_full);
+  EXPECT_EQ(st_full.early_stops, 0u);
+  EXPECT_GT(st_full.samples, st.samples);
+  EXPECT_EQ(img.rgba, full.rgba);
 }
 
 TEST(Raycast, RaysStopAtFullOpacityAndAtTheSurfacesDepth) {
