@@ -354,6 +354,7 @@ void RtServo::publish_status(const rt::TickContext& ctx, const haptics::HapticOu
   st.wake_max_ns = ctx.live.wake_max_ns;
   st.compute_p99_ns = ctx.live.compute_p99_ns;
   st.longest_stall_ns = ctx.live.longest_stall_ns;
+  for (std::size_t i = 0; i < kWakeBins; ++i) st.wake_histogram[i] = ctx.live.wake_histogram[i];
   st.watchdog_tripped = ctx.watchdog.tripped() ? 1u : 0u;
   st.watchdog_reason = static_cast<std::uint32_t>(ctx.watchdog.reason());
   st.fifo = d.fifo ? 1u : 0u;

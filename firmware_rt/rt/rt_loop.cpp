@@ -38,6 +38,19 @@ void RtLoop::refresh_live() noexcept {
   l.compute_p99_ns = s.compute.percentile_ns(99);
   l.compute_max_ns = s.compute.max_ns();
   l.longest_stall_ns = s.longest_stall_ns;
+  l.wake_histogram = wake_bins(s.wake_latency);
+}
+
+std::array<std::uint64_t, kWakeBins> wake_bins(const LatencyHistogram& h) noexcept {
+  // Every coarse edge is an edge of the fine buckets, so each bucket falls in one bin.
+  std::array<std::uint64_t, kWakeBins> bins{};
+  std::size_t bin = 0;
+  for (std::size_t b = 0; b < LatencyHistogram::kBuckets; ++b) {
+    const std::int64_t lower = LatencyHistogram::bucket_lower_ns(b);
+    while (bin + 1 < kWakeBins && lower >= static_cast<std::int64_t>(kWakeBinLowerUs[bin + 1]) * 1000) ++bin;
+    bins[bin] += h.bucket_count(b);
+  }
+  return bins;
 }
 
 void RtLoop::thread_faults(long& minor, long& major) noexcept {

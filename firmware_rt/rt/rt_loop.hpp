@@ -16,6 +16,7 @@
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cerrno>
 #include <cstdint>
@@ -23,6 +24,7 @@
 #include <memory>
 #include <vector>
 
+#include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/units.hpp"
 #include "rt/latency_histogram.hpp"
 #include "rt/watchdog.hpp"
@@ -50,7 +52,11 @@ struct LoopLive {
   std::int64_t wake_p50_ns = 0, wake_p99_ns = 0, wake_p999_ns = 0, wake_max_ns = 0;
   std::int64_t compute_p99_ns = 0, compute_max_ns = 0;
   std::int64_t longest_stall_ns = 0;
+  std::array<std::uint64_t, kWakeBins> wake_histogram{};  ///< wake-ups per bin of kWakeBinLowerUs, since start
 };
+
+/// A latency histogram in RtStatus's coarse bins (kWakeBinLowerUs). O(buckets), no allocation.
+[[nodiscard]] std::array<std::uint64_t, kWakeBins> wake_bins(const LatencyHistogram& h) noexcept;
 
 /// Everything the loop measures, allocated once.
 struct LoopStats {

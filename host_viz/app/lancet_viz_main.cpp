@@ -10,6 +10,7 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -18,12 +19,15 @@
 #include <cstdio>
 #include <cstring>
 #include <ctime>
+#include <deque>
 #include <limits>
 #include <map>
 #include <memory>
+#include <numeric>
 #include <optional>
 #include <span>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "app/viz_session.hpp"
@@ -33,6 +37,7 @@
 #include "render/scene_renderer.hpp"
 #include "render/volume_raycaster.hpp"
 #include "render/window.hpp"
+#include "volume/tf_editor.hpp"
 
 namespace {
 
@@ -343,6 +348,9 @@ int main(int argc, char** argv) {
     std::unique_ptr<lancet::render::VolumeRaycaster> raycaster;  // made when the volume is first shown
     int shown_preset = -1;
     float shown_level = 0, shown_width = 1;
+    lancet::volume::TfEditor tf_editor;   // the shown table: the preset after window/level, then the user's edits
+    lancet::volume::Histogram histogram;  // of the volume, under the editor
+    bool tf_edited = false;
     if (scenario) {
       ui.yaw = static_cast<float>(scenario->camera.yaw);
       ui.pitch = static_cast<float>(scenario->camera.pitch);
@@ -360,6 +368,7 @@ int main(int argc, char** argv) {
     bool want_snapshot = false;       // F12 or the panel's button: a PNG of this frame
     bool f12_down = false;
     std::vector<float> force_history, wake_history;
+    std::deque<std::pair<std::int64_t, std::array<std::uint64_t, lancet::kWakeBins>>> wake_snapshots;  // (time, RtStatus bins)
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) {
@@ -472,14 +481,19 @@ int main(int argc, char** argv) {
           raycaster = std::make_unique<lancet::render::VolumeRaycaster>();
           raycaster->set_volume(scene.render_volume());
           shown_preset = -1;
+          const lancet::volume::TfSpec range = lancet::volume::tf_preset_spec(lancet::volume::kTfPresets[0]);
+          histogram = lancet::volume::histogram(scene.render_volume(), range.lo, range.hi, 128);
         } else if (!changed.empty()) {
           raycaster->update_region(scene.render_volume(), changed);
         }
         if (shown_preset != ui.preset || shown_level != ui.level || shown_width != ui.width) {
-          raycaster->set_transfer_function(
-              lancet::volume::tf_preset(lancet::volume::kTfPresets[ui.preset], ui.level, ui.width));
+          // A preset or a window/level drag starts the editor afresh from the preset's points.
+          tf_editor = lancet::volume::TfEditor(lancet::volume::tf_preset_spec(lancet::volume::kTfPresets[ui.preset], ui.level, ui.width));
           shown_preset = ui.preset, shown_level = ui.level, shown_width = ui.width;
+          tf_edited = true;
         }
+        if (tf_edited) raycaster->set_transfer_function(tf_editor.table());
+        tf_edited = false;
         in.volume = raycaster.get();
         in.volume_to_world = scene.volume_to_world();
         in.volume_params.step = 1.0f;  // a voxel a sample: interactive on llvmpipe
@@ -508,6 +522,26 @@ int main(int argc, char** argv) {
       wake_history.push_back(rs ? static_cast<float>(rs->wake_p99_ns) * 1e-3f : 0.0f);
       for (auto* h : {&force_history, &wake_history})
         if (h->size() > 300) h->erase(h->begin(), h->begin() + static_cast<std::ptrdiff_t>(h->size() - 300));
+      // The latency histogram over the last seconds: today's counts less those of a snapshot
+      // at least kWakeWindow old (RtStatus counts since lancet-rt started).
+      std::vector<std::uint64_t> wake_recent;
+      float wake_window_s = 0;
+      if (rs) {
+        std::array<std::uint64_t, lancet::kWakeBins> bins{};
+        std::copy(std::begin(rs->wake_histogram), std::end(rs->wake_histogram), bins.begin());
+        const auto total = [](const auto& b) { return std::accumulate(b.begin(), b.end(), std::uint64_t{0}); };
+        if (!wake_snapshots.empty() && total(bins) < total(wake_snapshots.back().second)) wake_snapshots.clear();  // lancet-rt restarted
+        wake_snapshots.emplace_back(now, bins);
+        constexpr std::int64_t kWakeWindow = 5'000'000'000;
+        while (wake_snapshots.size() > 1 && now - wake_snapshots[1].first >= kWakeWindow) wake_snapshots.pop_front();
+        const auto& old = wake_snapshots.front();
+        wake_recent.resize(lancet::kWakeBins);
+        for (std::size_t i = 0; i < lancet::kWakeBins; ++i) wake_recent[i] = bins[i] >= old.second[i] ? bins[i] - old.second[i] : 0;
+        wake_window_s = static_cast<float>(static_cast<double>(now - old.first) * 1e-9);
+        if (wake_snapshots.size() == 1) wake_recent.assign(bins.begin(), bins.end()), wake_window_s = 0;
+      } else {
+        wake_snapshots.clear();
+      }
       lancet::render::PanelState panel;
       if (task) {
         panel.task_progress = static_cast<float>(task->status().progress);
@@ -520,6 +554,8 @@ int main(int argc, char** argv) {
       panel.tool = session.has_sample() ? static_cast<int>(session.latest().mode) : -1;
       panel.force_history = force_history;
       panel.wake_p99_history = wake_history;
+      panel.wake_bins = wake_recent;
+      panel.wake_window_s = wake_window_s;
       panel.watchdog_tripped = rs && rs->watchdog_tripped != 0;
       panel.connected = session.link() == lancet::viz::Link::kConnected;
       panel.view = ui.view;
@@ -527,6 +563,7 @@ int main(int argc, char** argv) {
       panel.preset = ui.preset;
       panel.level = ui.level, panel.width = ui.width;
       panel.clip = ui.clip, panel.clip_mm = ui.clip_mm;
+      if (raycaster) panel.tf_editor = &tf_editor, panel.histogram = &histogram;
       // ImGui sizes a panel from the frame before: the screenshot's extra frame (a line more) is
       // laid out once before it is drawn.
       if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height(), &panel);
@@ -546,6 +583,7 @@ int main(int argc, char** argv) {
       if (act.preset >= 0) ui.preset = act.preset, ui.level = 0, ui.width = 1;
       if (act.window_changed) ui.level = act.level, ui.width = act.width;
       if (act.clip_changed) ui.clip = act.clip, ui.clip_mm = act.clip_mm;
+      if (act.tf_edited) tf_edited = true;
       if (act.screenshot) want_snapshot = true;
       if (want_snapshot) {  // lancet-YYYYmmdd-HHMMSS.png in the working directory
         want_snapshot = false;

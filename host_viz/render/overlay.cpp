@@ -2,12 +2,113 @@
 
 #include <imgui.h>
 
+#include <algorithm>
 #include <cfloat>
+#include <cmath>
 #include <cstdio>
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
 
 namespace lancet::render {
+namespace {
+
+ImU32 colour_u32(float r, float g, float b, float a = 1.0f) { return ImGui::ColorConvertFloat4ToU32(ImVec4(r, g, b, a)); }
+
+/// The transfer-function editor: the histogram (grey, log scale), the table as a colour strip,
+/// the opacity curve through the control points. Left drag moves a point, double-click adds one,
+/// right-click removes one; the selected point's colour is edited below the canvas.
+bool tf_editor_widget(volume::TfEditor& e, const volume::Histogram* hist, std::array<float, 4>& canvas_out) {
+  const ImVec2 size(260, 110);
+  const ImVec2 p0 = ImGui::GetCursorScreenPos();
+  canvas_out = {p0.x, p0.y, size.x, size.y};
+  ImGui::InvisibleButton("##tf_canvas", size, ImGuiButtonFlags_MouseButtonLeft | ImGuiButtonFlags_MouseButtonRight);
+  ImDrawList* dl = ImGui::GetWindowDrawList();
+  const ImVec2 p1(p0.x + size.x, p0.y + size.y);
+  dl->AddRectFilled(p0, p1, colour_u32(0.08f, 0.08f, 0.08f, 0.9f));
+  const auto to_screen = [&](float x, float y) { return ImVec2(p0.x + x * size.x, p0.y + (1.0f - y) * size.y); };
+  if (hist != nullptr && !hist->counts.empty()) {
+    const std::vector<float> h = hist->log_heights();
+    const float n = static_cast<float>(h.size());
+    for (std::size_t i = 0; i < h.size(); ++i) {
+      // The bin's value range, placed on the editor's value axis.
+      const float v0 = hist->lo + (hist->hi - hist->lo) * static_cast<float>(i) / n;
+      const float v1 = hist->lo + (hist->hi - hist->lo) * static_cast<float>(i + 1) / n;
+      const float x0 = std::clamp(e.x_of(v0), 0.0f, 1.0f), x1 = std::clamp(e.x_of(v1), 0.0f, 1.0f);
+      if (x1 <= x0 || h[i] <= 0.0f) continue;
+      dl->AddRectFilled(to_screen(x0, h[i]), to_screen(x1, 0), colour_u32(0.45f, 0.45f, 0.45f, 0.8f));
+    }
+  }
+  const volume::TransferFunction tf = e.table();
+  const int strip = 64;
+  for (int i = 0; i < strip; ++i) {  // the table's colour at full opacity, along the bottom
+    const float x0 = static_cast<float>(i) / strip, x1 = static_cast<float>(i + 1) / strip;
+    const auto c = tf.lookup(e.value_at(0.5f * (x0 + x1)));
+    dl->AddRectFilled(ImVec2(p0.x + x0 * size.x, p1.y - 6), ImVec2(p0.x + x1 * size.x, p1.y), colour_u32(c[0], c[1], c[2]));
+  }
+  const auto& pts = e.points();
+  for (std::size_t i = 1; i < pts.size(); ++i)
+    dl->AddLine(to_screen(e.x_of(pts[i - 1].value), pts[i - 1].a), to_screen(e.x_of(pts[i].value), pts[i].a),
+                colour_u32(1, 1, 1, 0.9f), 1.5f);
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const ImVec2 c = to_screen(e.x_of(pts[i].value), pts[i].a);
+    dl->AddCircleFilled(c, 5.0f, colour_u32(pts[i].r, pts[i].g, pts[i].b));
+    dl->AddCircle(c, 5.0f, static_cast<int>(i) == e.selected() ? colour_u32(1, 0.85f, 0.2f) : colour_u32(1, 1, 1), 0, 1.5f);
+  }
+  // Pointer gestures, in canvas coordinates ([0, 1]², y up); a point is hit within 7 px.
+  const ImGuiIO& io = ImGui::GetIO();
+  const float mx = (io.MousePos.x - p0.x) / size.x, my = 1.0f - (io.MousePos.y - p0.y) / size.y;
+  const float rx = 7.0f / size.x, ry = 7.0f / size.y;
+  bool changed = false;
+  if (ImGui::IsItemHovered() && ImGui::IsMouseDoubleClicked(ImGuiMouseButton_Left) && e.pick(mx, my, rx, ry) < 0) {
+    changed = e.add(mx, my) >= 0;
+  } else if (ImGui::IsItemActivated() && ImGui::IsMouseClicked(ImGuiMouseButton_Left)) {
+    e.press(mx, my, rx, ry);
+  }
+  if (ImGui::IsItemActive() && ImGui::IsMouseDragging(ImGuiMouseButton_Left, 0.0f)) changed = e.drag_to(mx, my) || changed;
+  if (ImGui::IsItemDeactivated()) e.release();
+  if (ImGui::IsItemHovered() && ImGui::IsMouseClicked(ImGuiMouseButton_Right)) changed = e.remove(e.pick(mx, my, rx, ry)) || changed;
+  const int sel = e.selected();
+  if (sel >= 0 && sel < static_cast<int>(pts.size())) {
+    const volume::TfPoint& p = pts[static_cast<std::size_t>(sel)];
+    float rgb[3] = {p.r, p.g, p.b};
+    ImGui::SetNextItemWidth(140);
+    if (ImGui::ColorEdit3("##tf_colour", rgb, ImGuiColorEditFlags_NoInputs)) {
+      e.set_colour(sel, rgb[0], rgb[1], rgb[2]);
+      changed = true;
+    }
+    ImGui::SameLine();
+    ImGui::Text("%.0f HU, opacity %.2f", static_cast<double>(p.value), static_cast<double>(p.a));
+  } else {
+    // As tall as the colour button's line: the panel (anchored at its bottom) must not move the
+    // canvas under the pointer when a point is picked.
+    ImGui::AlignTextToFramePadding();
+    ImGui::TextDisabled("drag points; double-click adds, right-click removes");
+  }
+  return changed;
+}
+
+/// The servo's wake-up latency over the recent window, one bar per RtStatus bin (log heights:
+/// the tail matters and is thousands of times rarer than the mode).
+void wake_histogram_widget(const std::vector<std::uint64_t>& bins, float window_s) {
+  std::uint64_t total = 0, late = 0;
+  float heights[kWakeBins] = {};
+  std::uint64_t most = 0;
+  for (std::size_t i = 0; i < bins.size() && i < kWakeBins; ++i) {
+    total += bins[i];
+    most = std::max(most, bins[i]);
+    if (kWakeBinLowerUs[i] >= 1000) late += bins[i];
+  }
+  for (std::size_t i = 0; i < bins.size() && i < kWakeBins; ++i)
+    heights[i] = most > 0 ? static_cast<float>(std::log1p(static_cast<double>(bins[i])) / std::log1p(static_cast<double>(most))) : 0.0f;
+  char label[96];
+  std::snprintf(label, sizeof label, "wake-up latency, last %.0f s (%llu)", static_cast<double>(window_s),
+                static_cast<unsigned long long>(total));
+  ImGui::PlotHistogram("##wake_hist", heights, static_cast<int>(kWakeBins), 0, label, 0.0f, 1.0f, ImVec2(260, 50));
+  ImGui::TextDisabled("bins from 0 2 5 10 20 35 50 75 100 150 200 300 500 750 1000 2000 us");
+  if (late > 0) ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%llu wake-ups 1 ms or more late", static_cast<unsigned long long>(late));
+}
+
+}  // namespace
 
 Overlay::Overlay(GLFWwindow* window, bool install_callbacks) {
   IMGUI_CHECKVERSION();
@@ -79,6 +180,7 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
       ImGui::PlotLines("##wake", p.wake_p99_history.data(), static_cast<int>(p.wake_p99_history.size()), 0, label, 0.0f,
                        FLT_MAX, ImVec2(260, 50));
     }
+    if (!p.wake_bins.empty()) wake_histogram_widget(p.wake_bins, p.wake_window_s);
     if (p.watchdog_tripped) ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "watchdog tripped: force held at zero");
     ImGui::BeginDisabled(!p.connected);
     if (ImGui::Button("Re-arm (W)")) act.rearm = true;
@@ -123,6 +225,10 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
         act.clip_changed = true;
         act.clip = clip;
         act.clip_mm = clip_mm;
+      }
+      if (p.tf_editor != nullptr) {
+        ImGui::TextUnformatted("Transfer function (opacity over the histogram)");
+        act.tf_edited = tf_editor_widget(*p.tf_editor, p.histogram, act.tf_canvas);
       }
     }
     ImGui::End();

@@ -2,8 +2,13 @@
 // Overlay: the on-screen status panel (Dear ImGui, drawn into the scene's framebuffer so that
 // screenshots show it too).
 
+#include <array>
+#include <cstdint>
 #include <string>
 #include <vector>
+
+#include "lancet/shared_model/messages.hpp"
+#include "volume/tf_editor.hpp"
 
 struct GLFWwindow;
 
@@ -25,6 +30,10 @@ struct PanelState {
   int tool = -1;                        ///< the tool in use (ToolMode), -1 unknown
   std::vector<float> force_history;     ///< |F| in N, oldest first
   std::vector<float> wake_p99_history;  ///< µs, oldest first
+  /// Wake-ups per RtStatus latency bin (kWakeBinLowerUs) over the last wake_window_s seconds;
+  /// empty: no servo.
+  std::vector<std::uint64_t> wake_bins;
+  float wake_window_s = 0;
   bool watchdog_tripped = false, connected = false;
   int view = 0;                         ///< 0 mesh, 1 composite, 2 volume
   std::vector<std::string> presets;
@@ -32,6 +41,10 @@ struct PanelState {
   float level = 0, width = 1;
   bool clip = false;                    ///< the volume is cut away above clip_mm (world z)
   float clip_mm = 0;
+  /// The volume's table, edited in place by the panel's editor (nullptr: no editor), drawn over
+  /// the volume's histogram (same range as the editor; may be nullptr).
+  volume::TfEditor* tf_editor = nullptr;
+  const volume::Histogram* histogram = nullptr;
 };
 struct PanelActions {
   int tool = -1;            ///< ToolMode picked, -1 none
@@ -41,6 +54,8 @@ struct PanelActions {
   float level = 0, width = 1;
   bool clip_changed = false, clip = false;
   float clip_mm = 0;
+  bool tf_edited = false;                  ///< the editor changed the table: upload editor->table()
+  std::array<float, 4> tf_canvas{};        ///< the editor's canvas on screen: x, y (top left), w, h in pixels
 };
 
 class Overlay {

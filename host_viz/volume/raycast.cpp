@@ -47,13 +47,7 @@ std::array<float, 4> mul(const std::array<float, 16>& m, float x, float y, float
   return r;
 }
 
-struct PresetSpec {
-  std::vector<TfPoint> points;
-  float lo, hi;
-  bool mip;
-};
-
-PresetSpec preset_spec(TfPreset p) {
+TfSpec preset_spec(TfPreset p) {
   switch (p) {
     case TfPreset::kCtSkin:
       return {{{-1000, 0, 0, 0, 0}, {-600, 0.76f, 0.50f, 0.40f, 0.0f}, {-400, 0.90f, 0.65f, 0.55f, 0.6f},
@@ -153,8 +147,8 @@ std::string_view tf_preset_name(TfPreset p) noexcept {
 
 TransferFunction tf_preset(TfPreset p) { return tf_preset(p, 0.0f, 1.0f); }
 
-TransferFunction tf_preset(TfPreset p, float level_shift, float width_scale) {
-  PresetSpec s = preset_spec(p);
+TfSpec tf_preset_spec(TfPreset p, float level_shift, float width_scale) {
+  TfSpec s = preset_spec(p);
   // The window's centre: the middle of the inner control points (the ends only pin the table).
   float centre = 0;
   if (s.points.size() > 2) {
@@ -164,9 +158,17 @@ TransferFunction tf_preset(TfPreset p, float level_shift, float width_scale) {
   const float w = std::max(width_scale, 0.01f);
   for (std::size_t i = 1; i + 1 < s.points.size(); ++i) s.points[i].value = centre + (s.points[i].value - centre) * w + level_shift;
   std::sort(s.points.begin(), s.points.end(), [](const TfPoint& a, const TfPoint& b) { return a.value < b.value; });
-  TransferFunction tf = TransferFunction::from_points(s.points, s.lo, s.hi);
-  tf.mip = s.mip;
+  return s;
+}
+
+TransferFunction TfSpec::table() const {
+  TransferFunction tf = TransferFunction::from_points(points, lo, hi);
+  tf.mip = mip;
   return tf;
+}
+
+TransferFunction tf_preset(TfPreset p, float level_shift, float width_scale) {
+  return tf_preset_spec(p, level_shift, width_scale).table();
 }
 
 // ---- bricks -------------------------------------------------------------------------------------

@@ -67,6 +67,14 @@ struct TransferFunction {
 enum class TfPreset : std::uint8_t { kCtSkin, kCtSoftTissue, kCtBone, kCtVessels, kMip };
 inline constexpr TfPreset kTfPresets[] = {TfPreset::kCtSkin, TfPreset::kCtSoftTissue, TfPreset::kCtBone, TfPreset::kCtVessels,
                                           TfPreset::kMip};
+/// A table's control points (sorted by value) and range: what the transfer-function editor edits.
+struct TfSpec {
+  std::vector<TfPoint> points;
+  float lo = -1000, hi = 3000;
+  bool mip = false;
+  [[nodiscard]] TransferFunction table() const;
+};
+
 /// 3D Slicer's names ("CT-Skin", ...), for the UI.
 [[nodiscard]] std::string_view tf_preset_name(TfPreset p) noexcept;
 /// The preset over HU (window/level shifts and scales its points: see apply_window).
@@ -74,6 +82,8 @@ inline constexpr TfPreset kTfPresets[] = {TfPreset::kCtSkin, TfPreset::kCtSoftTi
 /// Moves a table's control points as a window/level drag does: `level` shifts (HU) and `width`
 /// scales around the preset's centre (1 = as designed). Rebuilds from the preset's points.
 [[nodiscard]] TransferFunction tf_preset(TfPreset p, float level_shift, float width_scale);
+/// The preset's points after window/level, as tf_preset uses them.
+[[nodiscard]] TfSpec tf_preset_spec(TfPreset p, float level_shift = 0, float width_scale = 1);
 
 /// Per-brick value ranges for empty-space skipping.
 class BrickGrid {

@@ -59,6 +59,29 @@ TEST(RtLoop, AccountsForEveryDeadlineOfFiveSecondsAtOneKilohertz) {
   EXPECT_EQ(s.compute.count(), s.ticks);
 }
 
+TEST(RtLoop, TheWakeUpHistogramsCoarseBinsHoldEveryWakeUpInTheRightBin) {
+  LatencyHistogram h;
+  // On each side of some edges, and beyond the last one.
+  for (std::int64_t ns : {0ll, 1'999ll, 2'000ll, 4'999ll, 99'999ll, 100'000ll, 999'999ll, 1'000'000ll, 1'999'999ll, 2'000'000ll,
+                          5'000'000'000ll})
+    h.record(ns);
+  const auto bins = wake_bins(h);
+  const std::array<std::uint64_t, kWakeBins> expected = {2, 2, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 1, 2, 2};
+  EXPECT_EQ(bins, expected);
+  // A live loop publishes them: they add up to the wake-ups counted by the last refresh.
+  LoopParams p;
+  p.duration_ns = 400'000'000;
+  RtLoop loop(p);
+  std::uint64_t live_sum = 0, live_ticks = 0;
+  run_on_rt_thread(loop, [&](const TickContext& c) {
+    live_sum = 0;
+    for (std::uint64_t n : c.live.wake_histogram) live_sum += n;
+    live_ticks = c.live.ticks;
+  });
+  EXPECT_GT(live_ticks, 0u);
+  EXPECT_EQ(live_sum, live_ticks) << "one wake-up per tick, all in some bin";
+}
+
 TEST(RtLoop, AnInjectedSlowTickIsAnOverrunAndTripsTheWatchdog) {
   LoopParams p;
   p.duration_ns = 200'000'000;

@@ -191,6 +191,11 @@ struct SegmentHealth {
 /// Fixed text on the wire, always NUL-terminated by its writer (readers check).
 inline constexpr std::size_t kStatusTextSize = 112;
 
+/// The wake-up latency histogram's bins in RtStatus: bin i counts wake-ups with latency in
+/// [kWakeBinLowerUs[i], kWakeBinLowerUs[i + 1]) µs, the last bin everything from 2 ms up.
+inline constexpr std::size_t kWakeBins = 16;
+inline constexpr std::uint32_t kWakeBinLowerUs[kWakeBins] = {0, 2, 5, 10, 20, 35, 50, 75, 100, 150, 200, 300, 500, 750, 1000, 2000};
+
 /// lancet-rt → anyone (seqlock): live figures of the servo loop, for the viz overlay, lancetctl
 /// and test rigs.
 struct RtStatus {
@@ -233,6 +238,7 @@ struct RtStatus {
   std::uint64_t operator_requests; ///< re-arm requests taken from lancetctl (OperatorRequest)
   char rearm_text[kStatusTextSize];///< outcome of the last re-arm of the arm ("" when none)
   SegmentHealth health;            ///< what lancet-rt rejected of its peers' writes
+  std::uint64_t wake_histogram[kWakeBins]; ///< wake-ups per latency bin since start (kWakeBinLowerUs), refreshed with the percentiles
 };
 
 /// An operator's request to lancet-rt outside the viz (lancetctl rearm), through its own seqlock

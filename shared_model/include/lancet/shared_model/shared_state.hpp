@@ -21,7 +21,8 @@ namespace lancet {
 
 /// Bump when the meaning of a field changes without changing the layout.
 /// 2: Command::check (was reserved0) must match wire::command_check.
-inline constexpr std::uint64_t kProtocolVersion = 5;
+/// 6: RtStatus::wake_histogram.
+inline constexpr std::uint64_t kProtocolVersion = 6;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -78,7 +79,7 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(RtStatus, force_zero_ns), offsetof(RtStatus, device_state), offsetof(RtStatus, has_arm),
            offsetof(RtStatus, fault_text), offsetof(RtStatus, error_text), offsetof(RtStatus, bus), offsetof(RtStatus, rearms),
            offsetof(RtStatus, rearm_text), offsetof(RtStatus, health), sizeof(BusCounters), sizeof(SegmentHealth),
-           kStatusTextSize);
+           kStatusTextSize, offsetof(RtStatus, wake_histogram), kWakeBins);
   h = fold(h, sizeof(OperatorRequest), offsetof(OperatorRequest, kind), offsetof(OperatorRequest, check));
   h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
