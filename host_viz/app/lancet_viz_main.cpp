@@ -143,10 +143,11 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   lines.push_back({s.link_message(), s.link() != lancet::viz::Link::kConnected});
   char buf[256];
   if (const auto& st = s.rt_status(); st && s.link() == lancet::viz::Link::kConnected) {
-    std::snprintf(buf, sizeof buf, "servo: tick %llu at %.0f Hz%s, missed %llu, wake p99 %.0f us, max %.0f us",
+    std::snprintf(buf, sizeof buf, "servo: tick %llu at %.0f Hz%s, missed %llu, wake p50 %.0f us, p99 %.0f us, max %.0f us",
                   static_cast<unsigned long long>(st->tick), 1e9 / static_cast<double>(st->period_ns),
                   st->fifo ? " (SCHED_FIFO)" : " (not real-time)", static_cast<unsigned long long>(st->missed),
-                  static_cast<double>(st->wake_p99_ns) / 1e3, static_cast<double>(st->wake_max_ns) / 1e3);
+                  static_cast<double>(st->wake_p50_ns) / 1e3, static_cast<double>(st->wake_p99_ns) / 1e3,
+                  static_cast<double>(st->wake_max_ns) / 1e3);
     lines.push_back({buf});
     if (st->watchdog_tripped) lines.push_back({"WATCHDOG TRIPPED: force held at zero; press W to re-arm", true});
     if (st->has_arm != 0 && st->device_state == 3) {  // device::Lifecycle::kFault

@@ -12,6 +12,8 @@
 namespace lancet::render {
 namespace {
 
+constexpr float kPanelWidth = 380;
+
 ImU32 colour_u32(float r, float g, float b, float a = 1.0f) { return ImGui::ColorConvertFloat4ToU32(ImVec4(r, g, b, a)); }
 
 /// The transfer-function editor: the histogram (grey, log scale), the table as a colour strip,
@@ -82,7 +84,7 @@ bool tf_editor_widget(volume::TfEditor& e, const volume::Histogram* hist, std::a
     // As tall as the colour button's line: the panel (anchored at its bottom) must not move the
     // canvas under the pointer when a point is picked.
     ImGui::AlignTextToFramePadding();
-    ImGui::TextDisabled("drag points; double-click adds, right-click removes");
+    ImGui::TextDisabled("drag; double-click: add; right-click: remove");
   }
   return changed;
 }
@@ -104,8 +106,21 @@ void wake_histogram_widget(const std::vector<std::uint64_t>& bins, float window_
   std::snprintf(label, sizeof label, "wake-up latency, last %.0f s (%llu)", static_cast<double>(window_s),
                 static_cast<unsigned long long>(total));
   ImGui::PlotHistogram("##wake_hist", heights, static_cast<int>(kWakeBins), 0, label, 0.0f, 1.0f, ImVec2(260, 50));
-  ImGui::TextDisabled("bins from 0 2 5 10 20 35 50 75 100 150 200 300 500 750 1000 2000 us");
-  if (late > 0) ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%llu wake-ups 1 ms or more late", static_cast<unsigned long long>(late));
+  // The axis: a few bin edges under their bars (the bins are not of equal width).
+  const ImVec2 lo = ImGui::GetItemRectMin(), hi = ImGui::GetItemRectMax();
+  const float bar = (hi.x - lo.x) / static_cast<float>(kWakeBins);
+  ImDrawList* dl = ImGui::GetWindowDrawList();
+  const ImU32 grey = ImGui::GetColorU32(ImGuiCol_TextDisabled);
+  const struct {
+    std::size_t bin;
+    const char* text;
+  } ticks[] = {{0, "0"}, {3, "10"}, {8, "100 us"}, {14, "1 ms"}};
+  static_assert(kWakeBinLowerUs[3] == 10 && kWakeBinLowerUs[8] == 100 && kWakeBinLowerUs[14] == 1000, "the labels name these edges");
+  for (const auto& t : ticks) dl->AddText(ImVec2(lo.x + bar * static_cast<float>(t.bin), hi.y), grey, t.text);
+  ImGui::Dummy(ImVec2(hi.x - lo.x, ImGui::GetTextLineHeight()));
+  if (late > 0)
+    ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%llu wake-up%s 1 ms or more late", static_cast<unsigned long long>(late),
+                       late == 1 ? "" : "s");
 }
 
 }  // namespace
@@ -155,6 +170,9 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
     ImGui::SetNextWindowPos(ImVec2(static_cast<float>(width) - 10, static_cast<float>(height) - 10), ImGuiCond_Always,
                             ImVec2(1, 1));
     ImGui::SetNextWindowBgAlpha(0.7f);
+    // A fixed width: anchored at its bottom right, a panel whose width followed its widest line
+    // would move the editor's canvas under the pointer as its lines change.
+    ImGui::SetNextWindowSizeConstraints(ImVec2(kPanelWidth, 0), ImVec2(kPanelWidth, FLT_MAX));
     ImGui::Begin("Controls", nullptr, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoSavedSettings);
     if (p.task_progress >= 0) {
       ImGui::TextUnformatted(p.task_label.c_str());
