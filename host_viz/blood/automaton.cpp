@@ -1,0 +1,314 @@
+#include "blood/automaton.hpp"
+
+#include <algorithm>
+#include <barrier>
+#include <cmath>
+#include <thread>
+
+namespace lancet::blood {
+
+// ---- the network ----------------------------------------------------------------------------
+
+std::uint32_t NetworkBuilder::add_cell(float area, float elevation, float film) {
+  area_.push_back(std::max(area, 1e-12f));
+  elevation_.push_back(elevation);
+  film_.push_back(std::max(film, 0.0f));
+  return static_cast<std::uint32_t>(area_.size() - 1);
+}
+
+void NetworkBuilder::add_pipe(std::uint32_t a, std::uint32_t b, float width, float length) {
+  if (a == b || a >= area_.size() || b >= area_.size() || !(width > 0.0f) || !(length > 0.0f)) return;
+  pipes_.push_back({std::min(a, b), std::max(a, b), width / length});
+}
+
+Network NetworkBuilder::build() const {
+  Network n;
+  n.area = area_;
+  n.elevation = elevation_;
+  n.film = film_;
+  const std::size_t cells = area_.size();
+  // Merge duplicates (a mesh edge seen from both its faces).
+  std::vector<Pipe> pipes = pipes_;
+  std::sort(pipes.begin(), pipes.end(), [](const Pipe& x, const Pipe& y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
+  std::vector<Pipe> merged;
+  for (const Pipe& p : pipes) {
+    if (!merged.empty() && merged.back().a == p.a && merged.back().b == p.b) {
+      merged.back().conductance += p.conductance;
+    } else {
+      merged.push_back(p);
+    }
+  }
+  // Half-edges a→b and b→a, grouped by their source in CSR order (neighbours ascending).
+  std::vector<std::uint32_t> count(cells + 1, 0);
+  for (const Pipe& p : merged) ++count[p.a], ++count[p.b];
+  n.first.assign(cells + 1, 0);
+  for (std::size_t i = 0; i < cells; ++i) n.first[i + 1] = n.first[i] + count[i];
+  struct Half {
+    std::uint32_t from, to;
+    float conductance;
+  };
+  std::vector<Half> halves;
+  halves.reserve(2 * merged.size());
+  for (const Pipe& p : merged) {
+    halves.push_back({p.a, p.b, p.conductance});
+    halves.push_back({p.b, p.a, p.conductance});
+  }
+  std::sort(halves.begin(), halves.end(), [](const Half& x, const Half& y) { return x.from != y.from ? x.from < y.from : x.to < y.to; });
+  n.to.resize(halves.size());
+  n.conductance.resize(halves.size());
+  for (std::size_t k = 0; k < halves.size(); ++k) {
+    n.to[k] = halves[k].to;
+    n.conductance[k] = halves[k].conductance;
+  }
+  n.twin.resize(halves.size());
+  for (std::size_t i = 0; i < cells; ++i)
+    for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) {
+      const std::uint32_t j = n.to[k];
+      // The half-edge j→i: neighbours are sorted, so a binary search in j's range.
+      const auto begin = n.to.begin() + n.first[j], end = n.to.begin() + n.first[j + 1];
+      n.twin[k] = static_cast<std::uint32_t>(std::lower_bound(begin, end, static_cast<std::uint32_t>(i)) - n.to.begin());
+    }
+  // Tile links: the tiles a tile's cells send to (itself included), sorted.
+  const std::size_t tiles = n.tiles();
+  n.tile_first.assign(tiles + 1, 0);
+  std::vector<std::uint32_t> links;
+  for (std::size_t t = 0; t < tiles; ++t) {
+    std::vector<std::uint32_t> to_tiles{static_cast<std::uint32_t>(t)};
+    for (std::size_t i = t * kTile; i < std::min(cells, (t + 1) * kTile); ++i)
+      for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) to_tiles.push_back(static_cast<std::uint32_t>(n.to[k] / kTile));
+    std::sort(to_tiles.begin(), to_tiles.end());
+    to_tiles.erase(std::unique(to_tiles.begin(), to_tiles.end()), to_tiles.end());
+    links.insert(links.end(), to_tiles.begin(), to_tiles.end());
+    n.tile_first[t + 1] = static_cast<std::uint32_t>(links.size());
+  }
+  n.tile_links = std::move(links);
+  return n;
+}
+
+Network mesh_network(std::span<const float> xyz, std::span<const std::uint32_t> triangles, const float gravity_dir[3],
+                     float film_depth) {
+  const std::size_t nv = xyz.size() / 3;
+  const auto p = [&](std::uint32_t v) { return std::array<double, 3>{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
+  const double gl = std::sqrt(gravity_dir[0] * gravity_dir[0] + gravity_dir[1] * gravity_dir[1] + gravity_dir[2] * gravity_dir[2]);
+  const double g[3] = {gravity_dir[0] / gl, gravity_dir[1] / gl, gravity_dir[2] / gl};
+  std::vector<double> area(nv, 0.0);
+  struct Edge {
+    std::uint32_t a, b;
+    double dual;  // midpoint-to-centroid length contributed by one face
+  };
+  std::vector<Edge> edges;
+  edges.reserve(triangles.size());
+  for (std::size_t f = 0; f + 2 < triangles.size(); f += 3) {
+    const std::uint32_t v[3] = {triangles[f], triangles[f + 1], triangles[f + 2]};
+    if (v[0] >= nv || v[1] >= nv || v[2] >= nv) continue;
+    const auto a = p(v[0]), b = p(v[1]), c = p(v[2]);
+    const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, w[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    const double cr[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+    const double fa = 0.5 * std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
+    for (auto vi : v) area[vi] += fa / 3.0;
+    const double centroid[3] = {(a[0] + b[0] + c[0]) / 3, (a[1] + b[1] + c[1]) / 3, (a[2] + b[2] + c[2]) / 3};
+    for (int e = 0; e < 3; ++e) {
+      const std::uint32_t x = v[e], y = v[(e + 1) % 3];
+      const auto px = p(x), py = p(y);
+      const double mid[3] = {0.5 * (px[0] + py[0]) - centroid[0], 0.5 * (px[1] + py[1]) - centroid[1], 0.5 * (px[2] + py[2]) - centroid[2]};
+      edges.push_back({x, y, std::sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2])});
+    }
+  }
+  NetworkBuilder nb;
+  for (std::size_t v = 0; v < nv; ++v) {
+    const auto q = p(static_cast<std::uint32_t>(v));
+    const double elevation = -(q[0] * g[0] + q[1] * g[1] + q[2] * g[2]);
+    const double a = area[v] > 0 ? area[v] : 1e-12;
+    nb.add_cell(static_cast<float>(a), static_cast<float>(elevation), static_cast<float>(film_depth * a));
+  }
+  for (const Edge& e : edges) {
+    const auto a = p(e.a), b = p(e.b);
+    const double l = std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
+    nb.add_pipe(e.a, e.b, static_cast<float>(e.dual), static_cast<float>(l));
+  }
+  return nb.build();
+}
+
+// ---- the ledger ---------------------------------------------------------------------------
+
+double Ledger::relative_error() const noexcept {
+  const double scale = std::max({std::abs(expected()), sources, initial});
+  return scale > 0 ? std::abs(now - expected()) / scale : 0.0;
+}
+
+// ---- the automaton ------------------------------------------------------------------------
+
+Automaton::Automaton(Network net, Params params) : p_(params) { reshape(std::move(net)); }
+
+void Automaton::reshape(Network net) {
+  const std::size_t keep = std::min(net.cells(), s_.volume.size());
+  double lost = 0;
+  for (std::size_t i = keep; i < s_.volume.size(); ++i) lost += s_.volume[i];
+  net_ = std::move(net);
+  const std::size_t n = net_.cells();
+  s_.volume.resize(n, 0.0f);
+  s_.born.resize(n, 0.0f);
+  s_.conc.assign(n, 0.0f);
+  s_.flux.assign(net_.pipes(), 0.0f);
+  source_.assign(n, 0.0f);
+  sink_.assign(n, 0.0f);
+  active_.assign(net_.tiles(), 0);
+  receive_.assign(net_.tiles(), 0);
+  tile_added_.assign(net_.tiles(), 0.0);
+  tile_removed_.assign(net_.tiles(), 0.0);
+  ledger_.sinks += lost;
+  double now = 0;
+  for (float v : s_.volume) now += v;
+  ledger_.now = now;
+}
+
+void Automaton::place(std::uint32_t i, float v) {
+  if (i >= s_.volume.size() || !(v > 0.0f)) return;
+  s_.volume[i] += v;
+  s_.born[i] += v * static_cast<float>(s_.time);
+  ledger_.initial += v;
+  ledger_.now += v;
+}
+
+void Automaton::set_sources(std::span<const float> rate) {
+  if (rate.empty()) {
+    std::fill(source_.begin(), source_.end(), 0.0f);
+  } else if (rate.size() == source_.size()) {
+    for (std::size_t i = 0; i < rate.size(); ++i) source_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
+  }
+}
+
+void Automaton::set_sinks(std::span<const float> rate) {
+  if (rate.empty()) {
+    std::fill(sink_.begin(), sink_.end(), 0.0f);
+  } else if (rate.size() == sink_.size()) {
+    for (std::size_t i = 0; i < rate.size(); ++i) sink_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
+  }
+}
+
+void Automaton::plan() {
+  const std::size_t n = net_.cells();
+  active_count_ = 0;
+  for (std::size_t t = 0; t < net_.tiles(); ++t) {
+    bool on = false;
+    for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile) && !on; ++i) {
+      on = s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f);
+      for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1] && !on; ++k) on = s_.flux[k] > 0.0f;
+    }
+    if (!p_.skip_idle_tiles) on = true;
+    active_[t] = on ? 1 : 0;
+    active_count_ += on ? 1 : 0;
+  }
+  std::fill(receive_.begin(), receive_.end(), 0);
+  for (std::size_t t = 0; t < net_.tiles(); ++t)
+    if (active_[t])
+      for (std::uint32_t l = net_.tile_first[t]; l < net_.tile_first[t + 1]; ++l) receive_[net_.tile_links[l]] = 1;
+}
+
+void Automaton::sources_and_sinks(std::size_t t, double& added, double& removed) {
+  const std::size_t n = net_.cells();
+  const float dt = p_.dt, now = static_cast<float>(s_.time);
+  added = removed = 0;
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
+    if (source_[i] > 0.0f) {
+      const float v = source_[i] * dt;
+      s_.volume[i] += v;
+      s_.born[i] += v * now;
+      added += v;
+    }
+    if (sink_[i] > 0.0f && s_.volume[i] > 0.0f) {
+      const float f = std::min(1.0f, sink_[i] * dt);
+      const float v = s_.volume[i] * f;
+      removed += v;
+      s_.volume[i] -= v;
+      s_.born[i] -= s_.born[i] * f;
+      if (f >= 1.0f) s_.volume[i] = 0.0f, s_.born[i] = 0.0f;
+    }
+  }
+}
+
+void Automaton::fluxes(std::size_t t) {
+  const std::size_t n = net_.cells();
+  const float dt = p_.dt;
+  const float keep = std::pow(p_.damping, dt);
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
+    const float v = s_.volume[i], a = net_.area[i];
+    const float head = net_.elevation[i] + v / a;
+    const float mobile = std::max(0.0f, v - net_.film[i]);
+    const float d = mobile / a / p_.ref_depth;
+    const float m = std::min(1.0f, d * d);
+    float sum = 0.0f;
+    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
+      const std::uint32_t j = net_.to[k];
+      const float head_j = net_.elevation[j] + s_.volume[j] / net_.area[j];
+      const float f = std::max(0.0f, keep * s_.flux[k] + dt * (p_.mobility * net_.conductance[k]) * m * (head - head_j));
+      s_.flux[k] = f;
+      sum += f;
+    }
+    const float out = sum * dt;
+    if (out > mobile) {
+      const float scale = out > 0.0f ? 0.999999f * mobile / out : 0.0f;
+      for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) s_.flux[k] *= scale;
+    }
+    s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
+  }
+}
+
+void Automaton::volumes(std::size_t t) {
+  const std::size_t n = net_.cells();
+  const float dt = p_.dt;
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
+    float in = 0.0f, out = 0.0f, born_in = 0.0f;
+    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
+      const float f_in = s_.flux[net_.twin[k]];
+      in += f_in;
+      born_in += f_in * s_.conc[net_.to[k]];
+      out += s_.flux[k];
+    }
+    if (in == 0.0f && out == 0.0f) continue;
+    const float v = s_.volume[i] + dt * in - dt * out;
+    const float b = s_.born[i] + dt * born_in - dt * out * s_.conc[i];
+    s_.volume[i] = std::max(v, 0.0f);
+    s_.born[i] = std::max(b, 0.0f);
+  }
+}
+
+template <class F>
+void Automaton::for_tiles(const std::vector<std::uint8_t>& mask, int threads, F&& f) {
+  const std::size_t tiles = mask.size();
+  if (threads <= 1 || tiles < 2) {
+    for (std::size_t t = 0; t < tiles; ++t)
+      if (mask[t]) f(t);
+    return;
+  }
+  std::vector<std::jthread> pool;
+  for (int w = 1; w < threads; ++w)
+    pool.emplace_back([&, w] {
+      for (std::size_t t = static_cast<std::size_t>(w); t < tiles; t += static_cast<std::size_t>(threads))
+        if (mask[t]) f(t);
+    });
+  for (std::size_t t = 0; t < tiles; t += static_cast<std::size_t>(threads))
+    if (mask[t]) f(t);
+}
+
+void Automaton::step(int threads) {
+  plan();
+  // 1. Sources and sinks (each tile's own cells), 2. fluxes (reading the neighbours' volumes
+  // after 1), 3. volumes (reading the fluxes after 2): each pass completes before the next.
+  for_tiles(active_, threads, [&](std::size_t t) { sources_and_sinks(t, tile_added_[t], tile_removed_[t]); });
+  for_tiles(active_, threads, [&](std::size_t t) { fluxes(t); });
+  for_tiles(receive_, threads, [&](std::size_t t) { volumes(t); });
+  double added = 0, removed = 0;
+  for (std::size_t t = 0; t < active_.size(); ++t)
+    if (active_[t]) added += tile_added_[t], removed += tile_removed_[t];
+  ledger_.sources += added;
+  ledger_.sinks += removed;
+  last_sink_ = removed;
+  double now = 0;
+  for (float v : s_.volume) now += v;
+  ledger_.now = now;
+  s_.time += p_.dt;
+  ++steps_;
+}
+
+}  // namespace lancet::blood

@@ -1,0 +1,179 @@
+// The bleeding automaton (CPU reference): the mass ledger over 10,000 steps with sources and
+// sinks, depths never negative, blood running down a tilted plane at the rate the pipe model
+// predicts, a pool levelling out in a bowl, blood crossing a cut through the groove's cells
+// without loss, and results that do not depend on the threads or on skipping idle tiles.
+
+#include "blood/automaton.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numeric>
+
+#include "blood_support.hpp"
+
+namespace lancet::blood {
+namespace {
+
+using test::grid;
+using test::kDown;
+
+constexpr float kH = 0.0007f;  // 0.7 mm between cells
+
+TEST(BloodAutomaton, TheLedgerHoldsOverTenThousandStepsWithSourcesAndSinksAndNoDepthGoesNegative) {
+  // A shallow bowl, 48 × 48 cells: sources on one side, a swab on the other.
+  const auto g = grid(48, 48, kH, [](float x, float y) {
+    const float cx = x - 24 * kH, cy = y - 24 * kH;
+    return 8.0f * (cx * cx + cy * cy);
+  });
+  Automaton a(mesh_network(g.xyz, g.tri, kDown, 2e-5f), Params{});
+  ASSERT_GT(a.network().tiles(), 4u);
+  std::vector<float> src(a.network().cells(), 0.0f), sink(a.network().cells(), 0.0f);
+  src[g.at(5, 24)] = 2e-8f;  // 0.02 mL/s
+  src[g.at(6, 30)] = 1e-8f;
+  for (int i = 28; i < 36; ++i)
+    for (int j = 20; j < 28; ++j) sink[g.at(i, j)] = 3.0f;
+  a.set_sources(src);
+  a.set_sinks(sink);
+  a.place(g.at(24, 40), 2e-8f);
+  double worst = 0;
+  float lowest = 0;
+  for (int s = 0; s < 10000; ++s) {
+    a.step();
+    worst = std::max(worst, a.ledger().relative_error());
+    for (float v : a.state().volume) lowest = std::min(lowest, v);
+  }
+  const Ledger& l = a.ledger();
+  EXPECT_GT(l.sources, 5e-7) << "the sources bled 20 s";
+  EXPECT_GT(l.sinks, 1e-8) << "blood reached the swab";
+  EXPECT_LE(worst, 1e-5) << "mass = initial + sources - sinks, every step";
+  EXPECT_GE(lowest, 0.0f);
+  // And the check can fail: a lost flux shows at once.
+  Ledger wrong = l;
+  wrong.now *= 1.0001;
+  EXPECT_GT(wrong.relative_error(), 1e-5);
+}
+
+TEST(BloodAutomaton, BloodRunsDownATiltedPlaneAtTheRateThePipeModelPredicts) {
+  const float slope = 0.3f;
+  const auto g = grid(64, 8, kH, [&](float x, float) { return -slope * x; });
+  Params p;
+  Automaton a(mesh_network(g.xyz, g.tri, kDown, 0.0f), p);
+  const Network& n = a.network();
+  // A uniform 1 mm film (mobile depth above ref_depth: m = 1).
+  for (std::uint32_t i = 0; i < n.cells(); ++i) a.place(i, 1e-3f * n.area[i]);
+  for (int s = 0; s < 400; ++s) a.step();
+  // Through the section between columns 31 and 32: every pipe crossing it carries, at steady
+  // state, the fixed point of 5.17, f = Δt·mobility·C·m·Δh / (1 − δ), with Δh the head
+  // difference across it (nearly the elevation's: the film stays nearly uniform there).
+  const float keep = std::pow(p.damping, p.dt);
+  double measured = 0, predicted = 0;
+  for (int j = 0; j < g.ny; ++j) {
+    const std::uint32_t i = g.at(31, j);
+    for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) {
+      const std::uint32_t to = n.to[k];
+      if (static_cast<int>(to % static_cast<std::uint32_t>(g.nx)) != 32) continue;
+      measured += a.state().flux[k] - a.state().flux[n.twin[k]];
+      const double dh = (n.elevation[i] + a.depth(i)) - (n.elevation[to] + a.depth(to));
+      predicted += std::max(0.0, p.dt * p.mobility * n.conductance[k] * dh / (1.0f - keep));
+      EXPECT_NEAR(a.depth(to), 1e-3f, 1e-4f) << "the film is still about 1 mm deep here";
+    }
+  }
+  ASSERT_GT(predicted, 0.0);
+  EXPECT_NEAR(measured / predicted, 1.0, 0.01) << "measured " << measured << " m³/s, predicted " << predicted;
+  // Downhill: the upper end has drained, the lower end holds more than it started with.
+  EXPECT_LT(a.depth(g.at(0, 4)), 0.9e-3f);
+  EXPECT_GT(a.depth(g.at(63, 4)), 1.1e-3f);
+  EXPECT_LE(a.ledger().relative_error(), 1e-6);
+}
+
+TEST(BloodAutomaton, APoolInABowlLevelsOut) {
+  const auto g = grid(40, 40, kH, [](float x, float y) {
+    const float cx = x - 20 * kH, cy = y - 20 * kH;
+    return 10.0f * (cx * cx + cy * cy);
+  });
+  Automaton a(mesh_network(g.xyz, g.tri, kDown, 1e-5f), Params{});
+  a.place(g.at(14, 20), 3e-7f);  // 0.3 mL poured on the bowl's side
+  for (int s = 0; s < 10000; ++s) a.step();
+  // The surface of the pool (elevation + depth) is level where the pool is deep.
+  const Network& n = a.network();
+  double lo = 1e9, hi = -1e9, deepest = 0;
+  int wet = 0;
+  for (std::uint32_t i = 0; i < n.cells(); ++i) {
+    const double d = a.depth(i);
+    deepest = std::max(deepest, d);
+    if (d < 1e-3) continue;
+    ++wet;
+    lo = std::min(lo, n.elevation[i] + d);
+    hi = std::max(hi, n.elevation[i] + d);
+  }
+  ASSERT_GT(wet, 20) << "the pool covers the bottom";
+  EXPECT_GT(deepest, 1e-3);
+  EXPECT_LT(hi - lo, 0.02 * deepest) << "surface from " << lo << " to " << hi << " m";
+  // The deepest point is the bowl's bottom, not where it was poured.
+  EXPECT_GT(a.depth(g.at(20, 20)), a.depth(g.at(14, 20)));
+}
+
+TEST(BloodAutomaton, BloodCrossesACutThroughTheGrooveWithoutLoss) {
+  // Two sheets of tissue down a slope, split by a cut along y between them: no pipe joins their
+  // lips. The groove under the cut is a chain of cells 3 mm below the lips, joined to both.
+  const float slope = 0.2f;
+  const int nx = 20, ny = 10;
+  const auto left = grid(nx, ny, kH, [&](float x, float) { return -slope * x; });
+  NetworkBuilder b;
+  const auto add_sheet = [&](float x0) {
+    const auto first = static_cast<std::uint32_t>(b.cells());
+    Network sheet = mesh_network(left.xyz, left.tri, kDown, 1e-5f);
+    for (std::uint32_t i = 0; i < sheet.cells(); ++i) b.add_cell(sheet.area[i], sheet.elevation[i] - slope * x0, sheet.film[i]);
+    for (std::uint32_t i = 0; i < sheet.cells(); ++i)
+      for (std::uint32_t k = sheet.first[i]; k < sheet.first[i + 1]; ++k)
+        if (i < sheet.to[k]) b.add_pipe(first + i, first + sheet.to[k], sheet.conductance[k] * kH, kH);
+    return first;
+  };
+  const std::uint32_t l0 = add_sheet(0.0f), r0 = add_sheet(nx * kH);
+  std::vector<std::uint32_t> groove;
+  for (int j = 0; j < ny; ++j) {
+    const std::uint32_t lip_l = l0 + left.at(nx - 1, j), lip_r = r0 + left.at(0, j);
+    const float rim = -slope * (nx - 0.5f) * kH;
+    groove.push_back(b.add_cell(kH * 0.002f, rim - 0.003f, 0.0f));
+    b.add_pipe(groove.back(), lip_l, kH, 0.001f);
+    b.add_pipe(groove.back(), lip_r, kH, 0.001f);
+    if (j > 0) b.add_pipe(groove[static_cast<std::size_t>(j - 1)], groove.back(), 0.002f, kH);
+  }
+  Automaton a(b.build(), Params{});
+  std::vector<float> src(a.network().cells(), 0.0f);
+  src[l0 + left.at(2, 5)] = 5e-8f;  // upstream on the left sheet
+  a.set_sources(src);
+  double right_sheet = 0, in_groove = 0;
+  for (int s = 0; s < 8000; ++s) a.step();
+  for (int i = 0; i < nx * ny; ++i) right_sheet += a.state().volume[r0 + static_cast<std::uint32_t>(i)];
+  for (auto c : groove) in_groove += a.state().volume[c];
+  EXPECT_GT(in_groove, 0.5 * 0.003 * 0.002 * kH * ny) << "the groove filled (at least half)";
+  EXPECT_GT(right_sheet, 0.05 * a.ledger().sources) << "blood overflowed the groove onto the far side";
+  EXPECT_LE(a.ledger().relative_error(), 1e-5);
+}
+
+TEST(BloodAutomaton, ThreadsAndSkippedIdleTilesChangeNothing) {
+  const auto g = grid(64, 40, kH, [](float x, float y) { return -0.2f * x + 0.05f * std::sin(400.0f * y); });
+  std::vector<Automaton> runs;
+  for (int variant = 0; variant < 3; ++variant) {
+    Params p;
+    p.skip_idle_tiles = variant != 2;
+    runs.emplace_back(mesh_network(g.xyz, g.tri, kDown, 2e-5f), p);
+    std::vector<float> src(runs.back().network().cells(), 0.0f);
+    src[g.at(3, 20)] = 3e-8f;
+    runs.back().set_sources(src);
+  }
+  for (int s = 0; s < 1500; ++s) {
+    runs[0].step(1);
+    runs[1].step(2);
+    runs[2].step(1);
+  }
+  EXPECT_LT(runs[0].active_tiles(), runs[0].network().tiles()) << "the blood has not reached every tile";
+  EXPECT_EQ(runs[0].state().volume, runs[1].state().volume) << "two threads";
+  EXPECT_EQ(runs[0].state().volume, runs[2].state().volume) << "every tile stepped";
+  EXPECT_EQ(runs[0].state().born, runs[2].state().born);
+}
+
+}  // namespace
+}  // namespace lancet::blood
