@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
+#include "hybrid/bleeding.hpp"
 #include "hybrid/scenario_scene.hpp"
 #include "hybrid/tissue_scene.hpp"
 #include "render/overlay.hpp"
@@ -81,13 +82,15 @@ struct VizOptions {
 };
 
 bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uint64_t frames, double variance,
-                 const lancet::hybrid::TissueScene& scene, const lancet::hybrid::TaskStatus* task) {
+                 const lancet::hybrid::TissueScene& scene, const lancet::hybrid::TaskStatus* task,
+                 const lancet::hybrid::Bleeding* blood, double blood_ms_per_frame) {
   std::FILE* f = std::fopen(o.stats.c_str(), "w");
   if (f == nullptr) return false;
   const auto& st = s.stats();
   const auto& ev = scene.events();
   const auto cuts = scene.cut_figures();
   const auto grooves = scene.grooves();
+  const lancet::hybrid::BloodFigures bf = blood != nullptr ? blood->figures() : lancet::hybrid::BloodFigures{};
   lancet::hybrid::GrooveFigures groove{};  // the widest
   for (const auto& g : grooves)
     if (g.top_gap >= groove.top_gap) groove = g;
@@ -104,6 +107,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                "  \"grabs\": %llu,\n  \"releases\": %llu,\n  \"pulls\": %llu,\n"
                "  \"clamped_ticks\": %llu,\n  \"faded_ticks\": %llu,\n  \"fault_ticks\": %llu,\n"
                "  \"scenario\": \"%s\",\n  \"task_progress\": %.3f,\n  \"task_damaged\": %zu,\n"
+               "  \"blood_lost_ml\": %.4f,\n  \"blood_on_tissue_ml\": %.4f,\n  \"blood_swabbed_ml\": %.4f,\n"
+               "  \"vessel_bleeding\": %s,\n  \"blood_ledger_error\": %.3g,\n  \"blood_cells\": %zu,\n  \"blood_ms_per_frame\": %.3f,\n"
                "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
                static_cast<unsigned long long>(frames), s.connections(), s.rt_losses(),
                s.link() == lancet::viz::Link::kConnected ? "connected"
@@ -125,7 +130,8 @@ bool write_stats(const VizOptions& o, const lancet::viz::VizSession& s, std::uin
                static_cast<unsigned long long>(ev.pulls),
                static_cast<unsigned long long>(ev.clamped_ticks), static_cast<unsigned long long>(ev.faded_ticks),
                static_cast<unsigned long long>(ev.fault_ticks), o.scenario_name.c_str(), task ? task->progress : 0.0,
-               task ? task->damaged.size() : std::size_t{0},
+               task ? task->damaged.size() : std::size_t{0}, bf.lost_ml, bf.on_tissue_ml, bf.swabbed_ml,
+               bf.vessel_bleeding ? "true" : "false", bf.ledger_error, bf.cells, blood_ms_per_frame,
                o.screenshot.c_str(), std::isfinite(variance) ? variance : -1.0);
   return std::fclose(f) == 0;
 }
@@ -283,6 +289,10 @@ int main(int argc, char** argv) {
     return 3;
   }
   lancet::hybrid::TissueScene& scene = *made.value();
+  // Blood on the skin and in the grooves (not on exposed bone: that surface is another mesh).
+  std::unique_ptr<lancet::hybrid::Bleeding> bleeding;
+  if (scene.description().surface == lancet::hybrid::SceneSurface::kSkin) bleeding = std::make_unique<lancet::hybrid::Bleeding>(scene);
+  double blood_ms = 0;  // spent on the blood, all frames
   std::optional<lancet::hybrid::TaskMonitor> task;
   std::vector<lancet::Vec3> guide;
   if (scenario) {
@@ -293,7 +303,8 @@ int main(int argc, char** argv) {
   // The tools on offer and their keys.
   std::vector<lancet::ToolMode> offered = scenario ? scenario->tools
                                                    : std::vector<lancet::ToolMode>{lancet::ToolMode::kProbe, lancet::ToolMode::kScalpel,
-                                                                                   lancet::ToolMode::kRetractor, lancet::ToolMode::kDrill};
+                                                                                   lancet::ToolMode::kRetractor, lancet::ToolMode::kDrill,
+                                                                                   lancet::ToolMode::kSwab};
   std::string keys;
   for (auto m : offered) {
     keys += keys.empty() ? "" : " / ";
@@ -328,6 +339,7 @@ int main(int argc, char** argv) {
     }
     (void)scene.apply(batch);
     if (task) (void)task->update(scene, batch);
+    if (bleeding) bleeding->observe(batch);
   };
   const auto fill_patch = [&](lancet::Vec3 at, lancet::TissuePatch& patch) { (void)scene.export_patch(at, patch); };
 
@@ -363,13 +375,15 @@ int main(int argc, char** argv) {
     const auto start = std::chrono::steady_clock::now();
     const auto frame_period = std::chrono::duration<double>(1.0 / o.fps);
     std::string last_message;
-    bool key_down[9] = {};
+    bool key_down[10] = {};
     std::uint32_t tool_sent_for = 0;  // the connection the starting tool was last sent on
     bool screenshot_frame = false;    // the extra frame drawn in --screenshot-view
     bool want_snapshot = false;       // F12 or the panel's button: a PNG of this frame
     bool f12_down = false;
     std::vector<float> force_history, wake_history;
     std::deque<std::pair<std::int64_t, std::array<std::uint64_t, lancet::kWakeBins>>> wake_snapshots;  // (time, RtStatus bins)
+    std::vector<float> blood_depth, blood_age;
+    auto last_frame = std::chrono::steady_clock::now();
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) {
@@ -394,6 +408,15 @@ int main(int argc, char** argv) {
         scene.draw_mesh(mesh, !shown_walls_off);
         renderer.set_mesh(mesh);
       }
+      // The blood: the frame's time simulated (at most 0.1 s after a stall), then onto the mesh.
+      if (bleeding) {
+        const auto t0 = std::chrono::steady_clock::now();
+        bleeding->advance(scene, std::chrono::duration<double>(t0 - last_frame).count());
+        bleeding->vertex_blood(mesh, blood_depth, blood_age);
+        renderer.set_blood(blood_depth, blood_age);
+        blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      }
+      last_frame = frame_start;
       if (session.link_message() != last_message) {
         last_message = session.link_message();
         std::printf("lancet-viz: %s\n", last_message.c_str());
@@ -406,10 +429,10 @@ int main(int argc, char** argv) {
         if (fw > 0 && fh > 0) renderer.resize(fw, fh);
         GLFWwindow* h = win.handle();
         if (glfwGetKey(h, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
-        // Edge-triggered keys: M toggles mouse drive, 1-4 pick an offered tool, R resets, W re-arms.
-        const int key_codes[9] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4,
-                                  GLFW_KEY_R, GLFW_KEY_W, GLFW_KEY_V, GLFW_KEY_P};
-        for (int k = 0; k < 9; ++k) {
+        // Edge-triggered keys: M toggles mouse drive, 1-5 pick an offered tool, R resets, W re-arms.
+        const int key_codes[10] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4,
+                                   GLFW_KEY_R, GLFW_KEY_W, GLFW_KEY_V, GLFW_KEY_P, GLFW_KEY_5};
+        for (int k = 0; k < 10; ++k) {
           const bool down = glfwGetKey(h, key_codes[k]) == GLFW_PRESS;
           if (down && !key_down[k]) {
             if (k == 7) {
@@ -424,7 +447,7 @@ int main(int argc, char** argv) {
               lancet::Command c{};
               c.kind = k == 5 ? lancet::CommandKind::kReset : lancet::CommandKind::kRearm;
               (void)session.send(c, now);
-            } else if (const auto mode = static_cast<lancet::ToolMode>(k - 1);
+            } else if (const auto mode = static_cast<lancet::ToolMode>(k == 9 ? 4 : k - 1);
                        std::find(offered.begin(), offered.end(), mode) != offered.end()) {
               lancet::Command c{};
               c.kind = lancet::CommandKind::kSetToolMode;
@@ -565,6 +588,19 @@ int main(int argc, char** argv) {
       panel.level = ui.level, panel.width = ui.width;
       panel.clip = ui.clip, panel.clip_mm = ui.clip_mm;
       if (raycaster) panel.tf_editor = &tf_editor, panel.histogram = &histogram;
+      if (bleeding) {
+        const lancet::hybrid::BloodFigures bf = bleeding->figures();
+        char buf[160];
+        std::snprintf(buf, sizeof buf, "blood lost %.2f mL (on the tissue %.2f, swabbed %.2f)", bf.lost_ml, bf.on_tissue_ml,
+                      bf.swabbed_ml);
+        panel.blood.push_back({buf, false});
+        for (const auto& src : bleeding->sources()) {
+          if (src.kind != lancet::hybrid::BloodSource::Kind::kVessel) continue;
+          std::snprintf(buf, sizeof buf, "%s: %s", src.name.c_str(),
+                        src.stopped ? "stopped" : src.pressed_s > 0 ? "pressed..." : "BLEEDING: press it 3 s with the probe");
+          panel.blood.push_back({buf, !src.stopped});
+        }
+      }
       // ImGui sizes a panel from the frame before: the screenshot's extra frame (a line more) is
       // laid out once before it is drawn.
       if (screenshot_frame) overlay.layout("Lancet", lines, renderer.width(), renderer.height(), &panel);
@@ -621,7 +657,9 @@ int main(int argc, char** argv) {
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
   if (task) std::printf("lancet-viz: %s\n", task->status().line.c_str());
-  if (!o.stats.empty() && !write_stats(o, session, frames, variance, scene, task ? &task->status() : nullptr)) {
+  if (!o.stats.empty() &&
+      !write_stats(o, session, frames, variance, scene, task ? &task->status() : nullptr, bleeding.get(),
+                   frames > 0 ? blood_ms / static_cast<double>(frames) : 0.0)) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;
   }

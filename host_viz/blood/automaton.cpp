@@ -87,6 +87,14 @@ Network NetworkBuilder::build() const {
 
 Network mesh_network(std::span<const float> xyz, std::span<const std::uint32_t> triangles, const float gravity_dir[3],
                      float film_depth) {
+  NetworkBuilder nb;
+  add_mesh(nb, xyz, triangles, gravity_dir, film_depth);
+  return nb.build();
+}
+
+void add_mesh(NetworkBuilder& nb, std::span<const float> xyz, std::span<const std::uint32_t> triangles, const float gravity_dir[3],
+              float film_depth) {
+  const auto first = static_cast<std::uint32_t>(nb.cells());
   const std::size_t nv = xyz.size() / 3;
   const auto p = [&](std::uint32_t v) { return std::array<double, 3>{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
   const double gl = std::sqrt(gravity_dir[0] * gravity_dir[0] + gravity_dir[1] * gravity_dir[1] + gravity_dir[2] * gravity_dir[2]);
@@ -114,7 +122,6 @@ Network mesh_network(std::span<const float> xyz, std::span<const std::uint32_t> 
       edges.push_back({x, y, std::sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2])});
     }
   }
-  NetworkBuilder nb;
   for (std::size_t v = 0; v < nv; ++v) {
     const auto q = p(static_cast<std::uint32_t>(v));
     const double elevation = -(q[0] * g[0] + q[1] * g[1] + q[2] * g[2]);
@@ -124,9 +131,8 @@ Network mesh_network(std::span<const float> xyz, std::span<const std::uint32_t> 
   for (const Edge& e : edges) {
     const auto a = p(e.a), b = p(e.b);
     const double l = std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-    nb.add_pipe(e.a, e.b, static_cast<float>(e.dual), static_cast<float>(l));
+    nb.add_pipe(first + e.a, first + e.b, static_cast<float>(e.dual), static_cast<float>(l));
   }
-  return nb.build();
 }
 
 // ---- the ledger ---------------------------------------------------------------------------
@@ -140,14 +146,23 @@ double Ledger::relative_error() const noexcept {
 
 Automaton::Automaton(Network net, Params params) : p_(params) { reshape(std::move(net)); }
 
-void Automaton::reshape(Network net) {
-  const std::size_t keep = std::min(net.cells(), s_.volume.size());
+void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
+  const std::size_t n = net.cells(), old_n = s_.volume.size();
+  std::vector<float> volume(n, 0.0f), born(n, 0.0f);
+  std::vector<std::uint8_t> taken(old_n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t o = from_old.empty() ? i : from_old.size() == n ? from_old[i] : kNoCell;
+    if (o >= old_n || taken[o]) continue;
+    taken[o] = 1;
+    volume[i] = s_.volume[o];
+    born[i] = s_.born[o];
+  }
   double lost = 0;
-  for (std::size_t i = keep; i < s_.volume.size(); ++i) lost += s_.volume[i];
+  for (std::size_t o = 0; o < old_n; ++o)
+    if (!taken[o]) lost += s_.volume[o];
   net_ = std::move(net);
-  const std::size_t n = net_.cells();
-  s_.volume.resize(n, 0.0f);
-  s_.born.resize(n, 0.0f);
+  s_.volume = std::move(volume);
+  s_.born = std::move(born);
   s_.conc.assign(n, 0.0f);
   s_.flux.assign(net_.pipes(), 0.0f);
   source_.assign(n, 0.0f);
@@ -160,6 +175,12 @@ void Automaton::reshape(Network net) {
   double now = 0;
   for (float v : s_.volume) now += v;
   ledger_.now = now;
+}
+
+void Automaton::set_geometry(std::span<const float> elevation, std::span<const float> area) {
+  if (elevation.size() == net_.elevation.size()) std::copy(elevation.begin(), elevation.end(), net_.elevation.begin());
+  if (area.size() == net_.area.size())
+    for (std::size_t i = 0; i < area.size(); ++i) net_.area[i] = std::max(area[i], 1e-12f);
 }
 
 void Automaton::place(std::uint32_t i, float v) {
@@ -222,7 +243,6 @@ void Automaton::sources_and_sinks(std::size_t t, double& added, double& removed)
       removed += v;
       s_.volume[i] -= v;
       s_.born[i] -= s_.born[i] * f;
-      if (f >= 1.0f) s_.volume[i] = 0.0f, s_.born[i] = 0.0f;
     }
   }
 }

@@ -18,9 +18,10 @@
 //        f_k = max(0, δ · f_k + Δt · C_k · m_i · (h_i − h_j))             (thesis 5.17)
 //      δ = damping^Δt (so the damping does not depend on the step), m_i = min(1, (d_i/d_ref)²)
 //      with d_i = max(0, V_i − F_i)/A_i the mobile depth (the thesis's viscous look: thin films
-//      cling, thick ones run); then all of cell i's fluxes are scaled by
-//      K_i = min(1, (1 − 1e-6) · max(0, V_i − F_i) / (Σ_k f_k · Δt)), so that a cell never sends
-//      more than it holds above its film (Mei, Decaudin & Hu 2007);
+//      cling, thick ones run); then, where Σ_k f_k · Δt exceeds the mobile volume
+//      M_i = max(0, V_i − F_i), all of cell i's fluxes are scaled by (1 − 1e-6) · M_i / (Σ_k f_k · Δt)
+//      (the margin keeps rounding from overdrawing), so that a cell never sends more than it
+//      holds above its film (Mei, Decaudin & Hu 2007);
 //   3. volumes: V_i += Δt·Σ inflows − Δt·Σ outflows, the tracer likewise in flux form at the
 //      sender's concentration. V never goes negative; the total changes only by sources and sinks
 //      (the ledger checks it every step, in double).
@@ -74,6 +75,11 @@ class NetworkBuilder {
   };
   std::vector<Pipe> pipes_;
 };
+
+/// Appends a triangle mesh to a network being built (its vertex v becomes cell first + v, where
+/// first is the builder's cell count before the call), as mesh_network describes.
+void add_mesh(NetworkBuilder& b, std::span<const float> xyz, std::span<const std::uint32_t> triangles,
+              const float gravity_dir[3], float film_depth);
 
 /// A triangle mesh as a network: a cell per vertex with a third of its faces' area, a pipe per
 /// edge whose width is the edge's dual (midpoint to the two faces' centroids), elevation the
@@ -139,14 +145,18 @@ class Automaton {
   [[nodiscard]] float age(std::uint32_t i) const noexcept {
     return s_.volume[i] > 0.0f ? static_cast<float>(s_.time) - s_.born[i] / s_.volume[i] : 0.0f;
   }
-  /// Whole tiles that the last step left active (the next step's work), for the GPU twin's check.
+  /// The tiles the last step worked on (its fluxes), for the GPU twin's check.
   [[nodiscard]] std::span<const std::uint8_t> tile_active() const noexcept { return active_; }
 
-  /// Replaces the network (the mesh changed), keeping the blood of the cells that exist in both
-  /// (cells are matched by index: the first min(old, new) cells keep their volume and tracer;
-  /// fluxes start again from zero); blood in cells that no longer exist is counted as a sink
-  /// (lost with the tissue).
-  void reshape(Network net);
+  /// Replaces the network (the mesh changed). New cell i takes the blood of old cell
+  /// from_old[i] (kNoCell: none); without from_old, cells are matched by index. Fluxes start
+  /// again from zero. Old cells that pass their blood to no new cell (or to a second one: only
+  /// the first taker gets it) count it as a sink: lost with the tissue.
+  static constexpr std::uint32_t kNoCell = 0xffffffffu;
+  void reshape(Network net, std::span<const std::uint32_t> from_old = {});
+  /// Moves the network's elevations and areas (the tissue moved or opened without changing its
+  /// topology); the blood (its volume) stays where it is. Spans of another size are ignored.
+  void set_geometry(std::span<const float> elevation, std::span<const float> area);
 
  private:
   void sources_and_sinks(std::size_t t, double& added, double& removed);

@@ -178,6 +178,13 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
       ImGui::TextUnformatted(p.task_label.c_str());
       ImGui::ProgressBar(p.task_progress, ImVec2(260, 0));
     }
+    for (const OverlayLine& l : p.blood) {
+      if (l.alert) {
+        ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%s", l.text.c_str());
+      } else {
+        ImGui::TextUnformatted(l.text.c_str());
+      }
+    }
     ImGui::TextUnformatted("Tool");
     for (std::size_t i = 0; i < p.tools.size(); ++i) {
       if (i > 0) ImGui::SameLine();

@@ -43,6 +43,8 @@ struct PanelState {
   float clip_mm = 0;
   /// The volume's table, edited in place by the panel's editor (nullptr: no editor), drawn over
   /// the volume's histogram (same range as the editor; may be nullptr).
+  /// The bleeding: blood loss and each bleeding vessel (alert: red); empty: no blood simulated.
+  std::vector<OverlayLine> blood;
   volume::TfEditor* tf_editor = nullptr;
   const volume::Histogram* histogram = nullptr;
 };

@@ -16,12 +16,17 @@ constexpr const char* kVertex = R"(#version 450 core
 layout(location = 0) in vec3 a_pos;
 layout(location = 1) in vec3 a_nrm;
 layout(location = 2) in float a_mat;
+layout(location = 3) in vec2 a_blood;  // the surface's blood: depth (m), mean age (s); (0, 0) elsewhere
 uniform mat4 u_mvp;
 uniform mat4 u_model;
 out vec3 v_nrm;
+out vec3 v_world;
+out vec2 v_blood;
 flat out int v_mat;
 void main() {
   v_nrm = mat3(u_model) * a_nrm;
+  v_world = (u_model * vec4(a_pos, 1.0)).xyz;
+  v_blood = a_blood;
   v_mat = int(a_mat + 0.5);
   gl_Position = u_mvp * vec4(a_pos, 1.0);
 }
@@ -29,11 +34,14 @@ void main() {
 
 constexpr const char* kFragment = R"(#version 450 core
 in vec3 v_nrm;
+in vec3 v_world;
+in vec2 v_blood;
 flat in int v_mat;
 uniform vec3 u_color;
 uniform int u_mode;      // 0: lit by material id, 1: lit u_color, 2: flat u_color
 uniform int u_face_materials;  // 1: the material of face gl_PrimitiveID from the buffer, 0: v_mat
 uniform vec3 u_light;
+uniform vec3 u_eye;
 layout(std430, binding = 0) readonly buffer FaceMaterials { uint face_material[]; };
 out vec4 o_color;
 void main() {
@@ -45,8 +53,27 @@ void main() {
   if (u_mode == 0) base = palette[clamp(mat, 0, 7)];
   if (u_mode == 2) { o_color = vec4(base, 1.0); return; }
   vec3 n = normalize(v_nrm);
-  float diffuse = abs(dot(n, normalize(u_light)));   // two-sided
-  o_color = vec4(base * (0.25 + 0.75 * diffuse), 1.0);
+  vec3 l = normalize(u_light);
+  if (dot(n, normalize(u_eye - v_world)) < 0.0) n = -n;  // two-sided
+  float wet = 0.0;
+  if (u_mode == 0 && v_blood.x > 0.0) {
+    // Blood (thesis 5.5): its colour blended over the surface by depth (full from 0.3 mm), the
+    // surface dimmed beneath, darker as it ages; the normal tilted by the depth's slope (a bump
+    // map of the blood's height, from screen-space derivatives); a wet specular highlight.
+    float d = v_blood.x;
+    wet = clamp(d / 0.0003, 0.0, 1.0);
+    vec3 fresh = vec3(0.62, 0.03, 0.04), old = vec3(0.30, 0.02, 0.03);
+    vec3 blood = mix(fresh, old, clamp(v_blood.y / 120.0, 0.0, 1.0));
+    base = mix(base * (1.0 - 0.5 * wet), blood, wet);
+    vec3 dpdx = dFdx(v_world), dpdy = dFdy(v_world);
+    vec3 r1 = cross(dpdy, n), r2 = cross(n, dpdx);
+    float det = dot(dpdx, r1);
+    vec3 grad = sign(det) * (dFdx(d) * r1 + dFdy(d) * r2);
+    n = normalize(abs(det) * n - 40.0 * grad);
+  }
+  float diffuse = abs(dot(n, l));
+  float spec = pow(max(dot(reflect(-l, n), normalize(u_eye - v_world)), 0.0), 48.0);
+  o_color = vec4(base * (0.25 + 0.75 * diffuse) + vec3(0.6 * wet * spec), 1.0);
 }
 )";
 
@@ -187,13 +214,18 @@ std::size_t sync_buffer(Buffer& buffer, std::vector<T>& before, const std::vecto
 void SceneRenderer::set_mesh(const surface::TriangleMesh& mesh) {
   SurfaceBuffers& g = surface_;
   if (g.vao.get() == 0) {
-    GLuint vao = 0, bufs[3] = {0, 0, 0};
+    GLuint vao = 0, bufs[4] = {0, 0, 0, 0};
     glCreateVertexArrays(1, &vao);
-    glCreateBuffers(3, bufs);
+    glCreateBuffers(4, bufs);
     g.vao = VertexArray(vao);
     g.vertices = Buffer(bufs[0]);
     g.indices = Buffer(bufs[1]);
     g.materials = Buffer(bufs[2]);
+    g.blood = Buffer(bufs[3]);
+    glVertexArrayVertexBuffer(vao, 1, bufs[3], 0, 2 * sizeof(float));
+    glEnableVertexArrayAttrib(vao, 3);
+    glVertexArrayAttribFormat(vao, 3, 2, GL_FLOAT, GL_FALSE, 0);
+    glVertexArrayAttribBinding(vao, 3, 1);
     glVertexArrayVertexBuffer(vao, 0, bufs[0], 0, 6 * sizeof(float));
     glVertexArrayElementBuffer(vao, bufs[1]);
     glEnableVertexArrayAttrib(vao, 0);
@@ -215,10 +247,21 @@ void SceneRenderer::set_mesh(const surface::TriangleMesh& mesh) {
     mat[f] = f < mesh.material.size() ? mesh.material[f] : 1u;
   }
   last_upload_bytes_ = sync_buffer(g.vertices, g.v, v) + sync_buffer(g.indices, g.i, idx) + sync_buffer(g.materials, g.m, mat);
+  // Dry until set_blood says otherwise (the blood buffer must cover every vertex).
+  if (g.b.size() != 2 * mesh.vertices.size()) last_upload_bytes_ += sync_buffer(g.blood, g.b, std::vector<float>(2 * mesh.vertices.size(), 0.0f));
+}
+
+void SceneRenderer::set_blood(std::span<const float> depth, std::span<const float> age) {
+  SurfaceBuffers& g = surface_;
+  const std::size_t n = g.v.size() / 6;
+  std::vector<float> b(2 * n, 0.0f);
+  if (depth.size() == n && age.size() == n)
+    for (std::size_t k = 0; k < n; ++k) b[2 * k] = depth[k], b[2 * k + 1] = age[k];
+  last_upload_bytes_ += sync_buffer(g.blood, g.b, b);
 }
 
 std::size_t SceneRenderer::mesh_bytes() const noexcept {
-  return surface_.v.size() * sizeof(float) + (surface_.i.size() + surface_.m.size()) * sizeof(std::uint32_t);
+  return (surface_.v.size() + surface_.b.size()) * sizeof(float) + (surface_.i.size() + surface_.m.size()) * sizeof(std::uint32_t);
 }
 
 void SceneRenderer::resize(int width, int height) {
@@ -272,6 +315,7 @@ void SceneRenderer::render(const SceneInput& in) {
   glEnable(GL_DEPTH_TEST);
   glUseProgram(program_.get());
   glUniform3f(glGetUniformLocation(program_.get(), "u_light"), eye.x, eye.y, eye.z + 0.2f);
+  glUniform3f(glGetUniformLocation(program_.get(), "u_eye"), eye.x, eye.y, eye.z);
 
   if (!surface_.i.empty() && in.draw_surface) {
     const GLuint p = program_.get();

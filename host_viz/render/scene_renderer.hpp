@@ -5,6 +5,7 @@
 
 #include <glm/glm.hpp>
 #include <array>
+#include <span>
 #include <vector>
 
 #include "lancet/shared_model/messages.hpp"
@@ -44,6 +45,9 @@ class SceneRenderer {
   /// only the blocks of vertices, indices and face materials that differ from the last mesh
   /// are sent (a dent or a cut's opening moves a few hundred vertices of a million).
   void set_mesh(const surface::TriangleMesh& mesh);
+  /// The blood on the surface mesh's vertices (hybrid::Bleeding::vertex_blood): depth (m) and
+  /// mean age (s) per vertex of the last set_mesh; other sizes: dry. Only changed blocks are sent.
+  void set_blood(std::span<const float> depth, std::span<const float> age);
   /// Bytes set_mesh sent to the GPU last time, and what sending everything would have been.
   [[nodiscard]] std::size_t last_upload_bytes() const noexcept { return last_upload_bytes_; }
   [[nodiscard]] std::size_t mesh_bytes() const noexcept;
@@ -82,8 +86,9 @@ class SceneRenderer {
   // CPU copies are what the GPU holds, to find what changed.
   struct SurfaceBuffers {
     VertexArray vao;
-    Buffer vertices, indices, materials;
+    Buffer vertices, indices, materials, blood;
     std::vector<float> v;           ///< position and normal per vertex
+    std::vector<float> b;           ///< blood depth and age per vertex
     std::vector<std::uint32_t> i;   ///< 3 per face
     std::vector<std::uint32_t> m;   ///< material per face
   } surface_;

@@ -409,7 +409,8 @@ class Section {
 // Sections
 
 const std::initializer_list<Choice<ToolMode>> kToolChoices{
-    {"probe", ToolMode::kProbe}, {"scalpel", ToolMode::kScalpel}, {"retractor", ToolMode::kRetractor}, {"drill", ToolMode::kDrill}};
+    {"probe", ToolMode::kProbe}, {"scalpel", ToolMode::kScalpel}, {"retractor", ToolMode::kRetractor}, {"drill", ToolMode::kDrill},
+    {"swab", ToolMode::kSwab}};
 
 std::string tool_list_text(const std::vector<ToolMode>& tools) {
   std::string s = "[";
@@ -418,8 +419,8 @@ std::string tool_list_text(const std::vector<ToolMode>& tools) {
 }
 
 void parse_tools(Section& top, Scenario& out) {
-  const std::string expected = "an array of 1..4 tool names (\"probe\", \"scalpel\", \"retractor\", \"drill\")";
-  const toml::array* a = top.array("tools", kReq, 1, 4, expected);
+  const std::string expected = "an array of 1..5 tool names (\"probe\", \"scalpel\", \"retractor\", \"drill\", \"swab\")";
+  const toml::array* a = top.array("tools", kReq, 1, kToolCount, expected);
   if (a == nullptr) return;
   std::vector<std::size_t> index_of;  // file index of each entry of out.tools
   for (std::size_t i = 0; i < a->size(); ++i) {

@@ -64,17 +64,22 @@ Phantom make_phantom(const PhantomParams& p) {
     const Vec3 bone{0.006, -0.004, 0};
     const Vec3 artery{-0.012 + 0.003 * std::sin(3.0 * zn), 0.012 + 0.002 * std::cos(2.0 * zn), 0};
     const Vec3 vein{0.018 + 0.002 * std::cos(2.5 * zn), 0.014, 0};
+    // A superficial vein (2 mm radius) in the fat under the skin's top (+y is the front: up in the
+    // scene), its centre 5.5 mm below the surface, so that a 6 mm incision across it opens it.
+    const double top_x = 0.012 + 0.002 * std::sin(2.0 * zn);
+    const Vec3 superficial{top_x, ey * std::sqrt(std::max(outer * outer - top_x * top_x, 0.0)) - 0.0055, 0};
     for (int j = 0; j < p.dims[1]; ++j) {
       for (int i = 0; i < p.dims[0]; ++i) {
         const Vec3 w = v.position(i, j, k);
         const double r = std::hypot(w.x, w.y / ey);
         const double rb = std::hypot(w.x - bone.x, w.y - bone.y);
         const double ra = std::hypot(w.x - artery.x, w.y - artery.y), rv = std::hypot(w.x - vein.x, w.y - vein.y);
+        const double rs = std::hypot(w.x - superficial.x, w.y - superficial.y);
         PhantomMaterial m = kAir;
         if (r <= outer) {
           m = r > outer - p.skin ? kSkin : r > outer - p.skin - p.fat ? kFat : kMuscle;
           if (rb <= p.bone_radius) m = rb > p.bone_radius - p.cortex ? kCorticalBone : kMarrow;
-          if (ra <= 0.003 || rv <= 0.0022) m = kVessel;
+          if (ra <= 0.003 || rv <= 0.0022 || rs <= 0.002) m = kVessel;
         }
         const std::size_t idx = v.index(i, j, k);
         ph.material[idx] = m;
@@ -90,7 +95,8 @@ Phantom make_phantom(const PhantomParams& p) {
           hu = lerp(hu_of(kAir), skin_layer, partial_volume_fraction((outer - r) / g, h));
           const double bone_hu = lerp(hu_of(kCorticalBone), hu_of(kMarrow), partial_volume_fraction(p.bone_radius - p.cortex - rb, h));
           hu = lerp(hu, bone_hu, partial_volume_fraction(p.bone_radius - rb, h));
-          const double vessel = std::max(partial_volume_fraction(0.003 - ra, h), partial_volume_fraction(0.0022 - rv, h));
+          const double vessel = std::max({partial_volume_fraction(0.003 - ra, h), partial_volume_fraction(0.0022 - rv, h),
+                                          partial_volume_fraction(0.002 - rs, h)});
           hu = lerp(hu, hu_of(kVessel), vessel);
         }
         v.data[idx] = static_cast<float>(hu + p.noise_hu * gaussian(p.seed, idx));

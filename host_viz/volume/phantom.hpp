@@ -1,7 +1,7 @@
 #pragma once
 // The built-in phantom: the demo's default tissue, so the demo needs no data. A limb-like volume
-// along z: skin, subcutaneous fat, muscle, a bone (cortex and marrow) off centre, and two
-// contrast-filled vessels winding beside it, in Hounsfield units with CT-like noise and partial-
+// along z: skin, subcutaneous fat, muscle, a bone (cortex and marrow) off centre, two
+// contrast-filled vessels winding beside it and a superficial vein in the fat under the top, in Hounsfield units with CT-like noise and partial-
 // volume boundaries (each boundary a two-voxel ramp centred on its exact place). Deterministic
 // from the seed: every voxel's noise comes from a hash of (seed, voxel index), so it is the same on
 // every machine and independent of fill order. Allocating; configure time only.

@@ -85,7 +85,7 @@ const char* check(const Command& c) noexcept {
     case CommandKind::kReset:
     case CommandKind::kRearm: return nullptr;
     case CommandKind::kSetToolMode:
-      return static_cast<std::uint8_t>(c.mode) <= static_cast<std::uint8_t>(ToolMode::kDrill) ? nullptr
+      return static_cast<std::size_t>(c.mode) < kToolCount ? nullptr
                                                                                              : "command.mode: unknown tool";
     case CommandKind::kSetMaterial: {
       if (c.material_id > kMaxMaterialId) return "command.material_id: beyond the material table";
@@ -136,7 +136,7 @@ const char* check(const OperatorRequest& r, std::int64_t now_ns) noexcept {
 
 const char* check(const ToolSample& s) noexcept {
   if (s.n_joints > kMaxJoints) return "sample.n_joints: above kMaxJoints";
-  if (static_cast<std::uint8_t>(s.mode) > static_cast<std::uint8_t>(ToolMode::kDrill)) return "sample.mode: unknown tool";
+  if (static_cast<std::size_t>(s.mode) >= kToolCount) return "sample.mode: unknown tool";
   if (static_cast<std::uint8_t>(s.stage) > static_cast<std::uint8_t>(Stage::kDrilling)) return "sample.stage: unknown";
   if ((s.events & ~kKnownEvents) != 0) return "sample.events: unknown bits";
   for (std::uint32_t j = 0; j < s.n_joints; ++j) {

@@ -131,7 +131,7 @@ TEST(Scenario, SkinIncisionLoads) {
   EXPECT_EQ(s.tissue.source, TissueSource::kPhantom);
   EXPECT_EQ(s.tissue.surface, SurfaceKind::kSkin);
   EXPECT_NEAR(s.tissue.cut_depth, 6 * kMm, 1e-12);
-  EXPECT_EQ(s.tools, (std::vector<ToolMode>{ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor}));
+  EXPECT_EQ(s.tools, (std::vector<ToolMode>{ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor, ToolMode::kSwab}));
   EXPECT_EQ(s.start_tool, ToolMode::kProbe);
   EXPECT_NEAR(s.camera.target.y, -0.012, 1e-12);  // over the line (the view itself is tuned by eye)
   ASSERT_EQ(s.task, TaskKind::kIncision);
@@ -188,7 +188,7 @@ TEST(Scenario, CtIncisionLoads) {
   std::sort(axes.begin(), axes.end());
   EXPECT_EQ(axes, (std::array<int, 3>{0, 1, 2}));
   for (const int sign : s.tissue.sign) EXPECT_TRUE(sign == 1 || sign == -1);
-  EXPECT_EQ(s.tools.size(), 4u);
+  EXPECT_EQ(s.tools.size(), 5u);
   ASSERT_EQ(s.task, TaskKind::kIncision);
   ASSERT_EQ(s.incision.line.size(), 2u);
   EXPECT_NEAR(s.incision.line[0].x, -0.020, 1e-12);
@@ -290,7 +290,7 @@ TEST(ScenarioErrors, BadEnumString) {
              "expected one of \"phantom\", \"block\", \"file\", found string \"phantm\" (did you mean \"phantom\"?)");
   const std::string tool = replaced(kBase, "\"scalpel\"]", "\"knife\"]");
   expect_one(tool, line_of(tool, "knife"), "tools[1]",
-             "expected one of \"probe\", \"scalpel\", \"retractor\", \"drill\", found string \"knife\"");
+             "expected one of \"probe\", \"scalpel\", \"retractor\", \"drill\", \"swab\", found string \"knife\"");
 }
 
 TEST(ScenarioErrors, TaskKindDisagreesWithSection) {

@@ -21,19 +21,21 @@ inline constexpr std::uint32_t kPatchCapacity = 1024;
 /// Edge length, in voxels, of the cubic voxel brick carried by a TissuePatch.
 inline constexpr std::uint32_t kBrickDim = 16;
 
-/// What the stylus is being used as.
-enum class ToolMode : std::uint8_t { kProbe = 0, kScalpel = 1, kRetractor = 2, kDrill = 3 };
+/// What the stylus is being used as. The swab (suction) touches like the probe and removes the
+/// blood it touches (the visualizer's business: lancet-rt renders it as a probe).
+enum class ToolMode : std::uint8_t { kProbe = 0, kScalpel = 1, kRetractor = 2, kDrill = 3, kSwab = 4 };
+inline constexpr std::size_t kToolCount = 5;
 
 /// Each tool's name as people type it (command-line options, trajectory files), in ToolMode order.
-inline constexpr const char* kToolNames[4] = {"probe", "scalpel", "retractor", "drill"};
+inline constexpr const char* kToolNames[kToolCount] = {"probe", "scalpel", "retractor", "drill", "swab"};
 
 constexpr const char* tool_name(ToolMode m) noexcept {
-  return static_cast<std::size_t>(m) < 4 ? kToolNames[static_cast<std::size_t>(m)] : "?";
+  return static_cast<std::size_t>(m) < kToolCount ? kToolNames[static_cast<std::size_t>(m)] : "?";
 }
 
 /// The tool called `name`; false when no tool is.
 constexpr bool tool_from_name(std::string_view name, ToolMode& out) noexcept {
-  for (std::size_t i = 0; i < 4; ++i) {
+  for (std::size_t i = 0; i < kToolCount; ++i) {
     if (name == kToolNames[i]) {
       out = static_cast<ToolMode>(i);
       return true;

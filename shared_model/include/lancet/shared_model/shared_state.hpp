@@ -21,7 +21,7 @@ namespace lancet {
 
 /// Bump when the meaning of a field changes without changing the layout.
 /// 2: Command::check (was reserved0) must match wire::command_check.
-/// 6: RtStatus::wake_histogram.
+/// 6: RtStatus::wake_histogram; ToolMode::kSwab.
 inline constexpr std::uint64_t kProtocolVersion = 6;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
