@@ -18,7 +18,7 @@ std::uint32_t NetworkBuilder::add_cell(float area, float elevation, float film) 
 
 void NetworkBuilder::add_pipe(std::uint32_t a, std::uint32_t b, float width, float length) {
   if (a == b || a >= area_.size() || b >= area_.size() || !(width > 0.0f) || !(length > 0.0f)) return;
-  pipes_.push_back({std::min(a, b), std::max(a, b), width / length});
+  pipes_.push_back({a, b, width / length});
 }
 
 Network NetworkBuilder::build() const {
@@ -27,40 +27,39 @@ Network NetworkBuilder::build() const {
   n.elevation = elevation_;
   n.film = film_;
   const std::size_t cells = area_.size();
-  // Merge duplicates (a mesh edge seen from both its faces).
-  std::vector<Pipe> pipes = pipes_;
-  std::sort(pipes.begin(), pipes.end(), [](const Pipe& x, const Pipe& y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
-  std::vector<Pipe> merged;
-  for (const Pipe& p : pipes) {
-    if (!merged.empty() && merged.back().a == p.a && merged.back().b == p.b) {
-      merged.back().conductance += p.conductance;
-    } else {
-      merged.push_back(p);
-    }
-  }
-  // Half-edges a→b and b→a, grouped by their source in CSR order (neighbours ascending).
-  std::vector<std::uint32_t> count(cells + 1, 0);
-  for (const Pipe& p : merged) ++count[p.a], ++count[p.b];
-  n.first.assign(cells + 1, 0);
-  for (std::size_t i = 0; i < cells; ++i) n.first[i + 1] = n.first[i] + count[i];
+  // Bucket every pipe under both its ends (a counting sort by source), then per cell sort the
+  // few entries by neighbour (stable: duplicates, a mesh edge seen from both its faces, merge in
+  // the order they were added, so both directions get the same sum).
+  std::vector<std::uint32_t> start(cells + 1, 0);
+  for (const Pipe& p : pipes_) ++start[p.a + 1], ++start[p.b + 1];
+  for (std::size_t i = 0; i < cells; ++i) start[i + 1] += start[i];
   struct Half {
-    std::uint32_t from, to;
+    std::uint32_t to;
     float conductance;
   };
-  std::vector<Half> halves;
-  halves.reserve(2 * merged.size());
-  for (const Pipe& p : merged) {
-    halves.push_back({p.a, p.b, p.conductance});
-    halves.push_back({p.b, p.a, p.conductance});
+  std::vector<Half> bucket(start[cells]);
+  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+  for (const Pipe& p : pipes_) {
+    bucket[fill[p.a]++] = {p.b, p.conductance};
+    bucket[fill[p.b]++] = {p.a, p.conductance};
   }
-  std::sort(halves.begin(), halves.end(), [](const Half& x, const Half& y) { return x.from != y.from ? x.from < y.from : x.to < y.to; });
-  n.to.resize(halves.size());
-  n.conductance.resize(halves.size());
-  for (std::size_t k = 0; k < halves.size(); ++k) {
-    n.to[k] = halves[k].to;
-    n.conductance[k] = halves[k].conductance;
+  n.first.assign(cells + 1, 0);
+  n.to.reserve(bucket.size());
+  n.conductance.reserve(bucket.size());
+  for (std::size_t i = 0; i < cells; ++i) {
+    const auto b = bucket.begin() + start[i], e = bucket.begin() + start[i + 1];
+    std::stable_sort(b, e, [](const Half& x, const Half& y) { return x.to < y.to; });
+    for (auto it = b; it != e; ++it) {
+      if (n.to.size() > n.first[i] && n.to.back() == it->to) {
+        n.conductance.back() += it->conductance;
+      } else {
+        n.to.push_back(it->to);
+        n.conductance.push_back(it->conductance);
+      }
+    }
+    n.first[i + 1] = static_cast<std::uint32_t>(n.to.size());
   }
-  n.twin.resize(halves.size());
+  n.twin.resize(n.to.size());
   for (std::size_t i = 0; i < cells; ++i)
     for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) {
       const std::uint32_t j = n.to[k];
@@ -71,17 +70,19 @@ Network NetworkBuilder::build() const {
   // Tile links: the tiles a tile's cells send to (itself included), sorted.
   const std::size_t tiles = n.tiles();
   n.tile_first.assign(tiles + 1, 0);
-  std::vector<std::uint32_t> links;
+  std::vector<std::uint32_t> seen(tiles, 0xffffffffu), to_tiles;
   for (std::size_t t = 0; t < tiles; ++t) {
-    std::vector<std::uint32_t> to_tiles{static_cast<std::uint32_t>(t)};
+    to_tiles.assign(1, static_cast<std::uint32_t>(t));
+    seen[t] = static_cast<std::uint32_t>(t);
     for (std::size_t i = t * kTile; i < std::min(cells, (t + 1) * kTile); ++i)
-      for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) to_tiles.push_back(static_cast<std::uint32_t>(n.to[k] / kTile));
+      for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) {
+        const auto u = static_cast<std::uint32_t>(n.to[k] / kTile);
+        if (seen[u] != t) seen[u] = static_cast<std::uint32_t>(t), to_tiles.push_back(u);
+      }
     std::sort(to_tiles.begin(), to_tiles.end());
-    to_tiles.erase(std::unique(to_tiles.begin(), to_tiles.end()), to_tiles.end());
-    links.insert(links.end(), to_tiles.begin(), to_tiles.end());
-    n.tile_first[t + 1] = static_cast<std::uint32_t>(links.size());
+    n.tile_links.insert(n.tile_links.end(), to_tiles.begin(), to_tiles.end());
+    n.tile_first[t + 1] = static_cast<std::uint32_t>(n.tile_links.size());
   }
-  n.tile_links = std::move(links);
   return n;
 }
 
@@ -171,13 +172,20 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   receive_.assign(net_.tiles(), 0);
   tile_added_.assign(net_.tiles(), 0.0);
   tile_removed_.assign(net_.tiles(), 0.0);
+  tile_volume_.assign(net_.tiles(), 0.0);
+  tile_has_rate_.assign(net_.tiles(), 0);
+  candidate_.assign(net_.tiles(), 1);
   ledger_.sinks += lost;
   double now = 0;
-  for (float v : s_.volume) now += v;
+  for (std::size_t i = 0; i < n; ++i) {
+    tile_volume_[i / kTile] += s_.volume[i];
+    now += s_.volume[i];
+  }
   ledger_.now = now;
 }
 
 void Automaton::set_geometry(std::span<const float> elevation, std::span<const float> area) {
+  mark_all();
   if (elevation.size() == net_.elevation.size()) std::copy(elevation.begin(), elevation.end(), net_.elevation.begin());
   if (area.size() == net_.area.size())
     for (std::size_t i = 0; i < area.size(); ++i) net_.area[i] = std::max(area[i], 1e-12f);
@@ -189,6 +197,8 @@ void Automaton::place(std::uint32_t i, float v) {
   s_.born[i] += v * static_cast<float>(s_.time);
   ledger_.initial += v;
   ledger_.now += v;
+  tile_volume_[i / kTile] += v;
+  candidate_[i / kTile] = 1;
 }
 
 void Automaton::set_sources(std::span<const float> rate) {
@@ -197,6 +207,7 @@ void Automaton::set_sources(std::span<const float> rate) {
   } else if (rate.size() == source_.size()) {
     for (std::size_t i = 0; i < rate.size(); ++i) source_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
   }
+  mark_rates();
 }
 
 void Automaton::set_sinks(std::span<const float> rate) {
@@ -205,16 +216,32 @@ void Automaton::set_sinks(std::span<const float> rate) {
   } else if (rate.size() == sink_.size()) {
     for (std::size_t i = 0; i < rate.size(); ++i) sink_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
   }
+  mark_rates();
+}
+
+void Automaton::mark_rates() {
+  const std::size_t n = net_.cells();
+  for (std::size_t t = 0; t < tile_has_rate_.size(); ++t) {
+    bool any = false;
+    for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile) && !any; ++i) any = source_[i] > 0.0f || sink_[i] > 0.0f;
+    tile_has_rate_[t] = any ? 1 : 0;
+    if (any) candidate_[t] = 1;
+  }
 }
 
 void Automaton::plan() {
+  // Only tiles that the last step touched (worked on or sent to), or that hold a source or a
+  // sink, can be active now: an untouched idle tile has no mobile blood and no flux, and nothing
+  // changed it. reshape, place and set_geometry mark every tile.
   const std::size_t n = net_.cells();
   active_count_ = 0;
   for (std::size_t t = 0; t < net_.tiles(); ++t) {
     bool on = false;
-    for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile) && !on; ++i) {
-      on = s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f);
-      for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1] && !on; ++k) on = s_.flux[k] > 0.0f;
+    if (candidate_[t] != 0 || !p_.skip_idle_tiles) {
+      for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile) && !on; ++i) {
+        on = s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f);
+        for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1] && !on; ++k) on = s_.flux[k] > 0.0f;
+      }
     }
     if (!p_.skip_idle_tiles) on = true;
     active_[t] = on ? 1 : 0;
@@ -225,6 +252,8 @@ void Automaton::plan() {
     if (active_[t])
       for (std::uint32_t l = net_.tile_first[t]; l < net_.tile_first[t + 1]; ++l) receive_[net_.tile_links[l]] = 1;
 }
+
+void Automaton::mark_all() { std::fill(candidate_.begin(), candidate_.end(), 1); }
 
 void Automaton::sources_and_sinks(std::size_t t, double& added, double& removed) {
   const std::size_t n = net_.cells();
@@ -324,8 +353,18 @@ void Automaton::step(int threads) {
   ledger_.sources += added;
   ledger_.sinks += removed;
   last_sink_ = removed;
+  // The mass now: every tile's volume, summed afresh in the tiles this step changed.
+  const std::size_t n = net_.cells();
   double now = 0;
-  for (float v : s_.volume) now += v;
+  for (std::size_t t = 0; t < active_.size(); ++t) {
+    if (active_[t] || receive_[t]) {
+      double sum = 0;
+      for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) sum += s_.volume[i];
+      tile_volume_[t] = sum;
+    }
+    now += tile_volume_[t];
+    candidate_[t] = active_[t] || receive_[t] || tile_has_rate_[t] ? 1 : 0;
+  }
   ledger_.now = now;
   s_.time += p_.dt;
   ++steps_;

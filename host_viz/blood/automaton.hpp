@@ -163,6 +163,8 @@ class Automaton {
   void fluxes(std::size_t t);
   void volumes(std::size_t t);
   void plan();  // which tiles this step works on
+  void mark_all();    // every tile may be active
+  void mark_rates();  // the tiles with sources or sinks
   template <class F>
   void for_tiles(const std::vector<std::uint8_t>& mask, int threads, F&& f);
   Network net_;
@@ -171,6 +173,8 @@ class Automaton {
   std::vector<float> source_, sink_;
   std::vector<std::uint8_t> active_, receive_;
   std::vector<double> tile_added_, tile_removed_;  // per tile, this step
+  std::vector<double> tile_volume_;                // per tile, as of the last step that touched it
+  std::vector<std::uint8_t> tile_has_rate_, candidate_;  // a source or sink; may be active next step
   Ledger ledger_;
   std::uint64_t steps_ = 0;
   std::size_t active_count_ = 0;

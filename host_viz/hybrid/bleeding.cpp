@@ -57,9 +57,11 @@ void Bleeding::rebuild(const TissueScene& scene) {
   pair_born_.resize(cuts.size());
   pairs_seen_.resize(cuts.size(), 0);
   std::size_t pairs_total = 0;
+  pairs_built_.assign(cuts.size(), 0);
   for (std::size_t c = 0; c < cuts.size(); ++c) {
     const auto& pairs = cuts[c].pairs;
     pairs_total += pairs.size();
+    pairs_built_[c] = pairs.size();
     pair_born_[c].resize(pairs.size(), time_);
     const double width = std::max(cuts[c].opening, 3e-4);
     std::uint32_t previous = blood::Automaton::kNoCell;
@@ -199,15 +201,15 @@ void Bleeding::set_rates(const TissueScene& scene, double dt) {
     vessel_cell_.resize(sources_.size(), blood::Automaton::kNoCell);
     return sources_.back();
   };
-  std::size_t g = 0;  // groove_ runs over the cuts' pairs in order
-  for (std::size_t c = 0; c < cuts.size(); ++c) {
-    if (cuts[c].pairs.empty()) continue;
+  std::size_t g = 0;  // groove_ runs over the cuts' pairs in order, as the network was built
+  for (std::size_t c = 0; c < cuts.size() && c < pairs_built_.size(); ++c) {
+    if (pairs_built_[c] == 0) continue;
     double ooze = 0, walls = 0;
     const double opening = cuts[c].opening;
-    for (std::size_t k = 0; k < cuts[c].pairs.size(); ++k, ++g) {
+    for (std::size_t k = 0; k < pairs_built_[c]; ++k, ++g) {
       const auto& pair = cuts[c].pairs[k];
       const double age = time_ - pair_born_[c][k];
-      const std::size_t other = k + 1 < cuts[c].pairs.size() ? k + 1 : (k > 0 ? k - 1 : k);
+      const std::size_t other = k + 1 < pairs_built_[c] ? k + 1 : (k > 0 ? k - 1 : k);
       const double seg = std::max(3e-4, norm((cuts[c].pairs[other].rest_left + cuts[c].pairs[other].rest_right) * 0.5 -
                                              (pair.rest_left + pair.rest_right) * 0.5));
       const double clot = std::exp(-age / p_.ooze_clot_s);
@@ -262,8 +264,12 @@ void Bleeding::advance(const TissueScene& scene, double dt) {
   const surface::SurfaceModel& surf = scene.surface();
   std::size_t pairs_total = 0;
   for (const auto& c : surf.cuts()) pairs_total += c.pairs.size();
-  if (surf.faces().size() != faces_seen_ || surf.mesh().n_vertices() != vertices_seen_ || pairs_total != groove_pairs_seen_) {
+  // A changed topology rebuilds the network, at most every rebuild_interval while a cut grows
+  // (a rebuild costs tens of ms on a 65k-vertex skin); meanwhile the new cut steps wait.
+  const bool changed = surf.faces().size() != faces_seen_ || surf.mesh().n_vertices() != vertices_seen_ || pairs_total != groove_pairs_seen_;
+  if (changed && time_ - rebuilt_at_ >= p_.rebuild_interval) {
     rebuild(scene);
+    rebuilt_at_ = time_;
   } else if (scene.revision() != revision_seen_) {
     refresh_elevations(scene);
   }

@@ -34,17 +34,18 @@
 namespace lancet::hybrid {
 
 struct BleedingParams {
-  blood::Params automaton{0.004f, 1e-6f, 1.5e-4f, 5e-4f, true};
+  blood::Params automaton{0.004f, 1e-6f, 1.5e-4f, 4e-4f, true};
   double film_depth = 2e-5;          ///< m of blood a wetted surface keeps
-  double ooze_per_m = 7e-7;          ///< m³/s per m of fresh cut, closed (about 0.02 mL/s for 30 mm)
+  double ooze_per_m = 1e-6;          ///< m³/s per m of fresh cut, closed (0.03 mL/s for 30 mm; five times that opened 4 mm)
   double ooze_clot_s = 90;           ///< s, the ooze's decay time
-  double wall_ooze_per_m2 = 5e-5;    ///< m³/s per m² of opened groove wall
+  double wall_ooze_per_m2 = 7e-5;    ///< m³/s per m² of opened groove wall
   double vessel_rate = 3e-7;         ///< m³/s from a cut vessel (0.3 mL/s)
   double press_radius = 0.006;       ///< m, how near a pressing tool must be to a bleeding vessel
   double press_seconds = 3;          ///< s of continuous pressure that stops it
   double swab_radius = 0.004;        ///< m
   double swab_rate = 25;             ///< 1/s, the fraction per second a swab takes from a cell it touches
   double max_frame = 0.1;            ///< s: a longer frame is simulated as this long (the viz stalled)
+  double rebuild_interval = 0.5;    ///< s of scene time between two rebuilds of the network (topology changes)
 };
 
 /// One source of blood loss, for the panel and the training metrics.
@@ -113,13 +114,14 @@ class Bleeding {
   std::size_t skin_cells_ = 0;
   std::vector<GrooveCell> groove_;
   std::vector<std::size_t> pairs_seen_;      // per cut: pairs already examined for vessels
+  std::vector<std::size_t> pairs_built_;     // per cut: pairs in the network (the groove cells)
   std::vector<std::vector<double>> pair_born_;  // per cut, per pair: scene time the pair was cut
   std::vector<std::uint32_t> vessel_cell_;   // per source (vessels only; kNoCell otherwise)
   std::vector<BloodSource> sources_;
   std::vector<float> source_rate_, sink_rate_;
   std::size_t faces_seen_ = 0, vertices_seen_ = 0, groove_pairs_seen_ = 0;
   std::uint64_t revision_seen_ = 0, rebuilds_ = 0;
-  double time_ = 0;
+  double time_ = 0, rebuilt_at_ = -1e9;
   double swabbed_ = 0;
   // The tool, from the newest sample.
   Vec3 tool_{};

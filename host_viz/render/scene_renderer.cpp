@@ -57,11 +57,12 @@ void main() {
   if (dot(n, normalize(u_eye - v_world)) < 0.0) n = -n;  // two-sided
   float wet = 0.0;
   if (u_mode == 0 && v_blood.x > 0.0) {
-    // Blood (thesis 5.5): its colour blended over the surface by depth (full from 0.3 mm), the
-    // surface dimmed beneath, darker as it ages; the normal tilted by the depth's slope (a bump
-    // map of the blood's height, from screen-space derivatives); a wet specular highlight.
+    // Blood (thesis 5.5): its colour blended over the surface by depth (full from 0.2 mm; the
+    // film that blood leaves where it passed stains at 30 %), the surface dimmed beneath, darker
+    // as it ages; the normal tilted by the depth's slope (a bump map of the blood's height, from
+    // screen-space derivatives); a wet specular highlight.
     float d = v_blood.x;
-    wet = clamp(d / 0.0003, 0.0, 1.0);
+    wet = d > 1e-5 ? max(clamp(d / 0.0002, 0.0, 1.0), 0.3) : 0.0;
     vec3 fresh = vec3(0.62, 0.03, 0.04), old = vec3(0.30, 0.02, 0.03);
     vec3 blood = mix(fresh, old, clamp(v_blood.y / 120.0, 0.0, 1.0));
     base = mix(base * (1.0 - 0.5 * wet), blood, wet);
@@ -69,7 +70,7 @@ void main() {
     vec3 r1 = cross(dpdy, n), r2 = cross(n, dpdx);
     float det = dot(dpdx, r1);
     vec3 grad = sign(det) * (dFdx(d) * r1 + dFdy(d) * r2);
-    n = normalize(abs(det) * n - 40.0 * grad);
+    n = normalize(abs(det) * n - 15.0 * wet * grad);
   }
   float diffuse = abs(dot(n, l));
   float spec = pow(max(dot(reflect(-l, n), normalize(u_eye - v_world)), 0.0), 48.0);

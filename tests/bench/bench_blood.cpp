@@ -6,6 +6,15 @@
 //   lancet-bench-blood [--size N] [--seconds S]
 // --size: one grid of N × N cells instead of 512² and 2048²; --seconds: the least time each figure
 // is measured over (default 2).
+//
+// The memory-bandwidth bound, in the same run: the copy bandwidth (memcpy of 256 MB, read plus
+// write counted) over the bytes one cell-step must move at least, counting each array the step's
+// passes stream once per pass (neighbours' values of the same pass come from cache): plan reads
+// volume, film, source, sink (16 B) and every outgoing flux; sources and sinks read source, sink
+// (8 B); fluxes read volume, area, elevation, film, born and write conc (24 B), and per pipe read
+// to, conductance and read and write the flux (16 B); volumes read and write volume and born and
+// read conc (20 B), and per pipe read twin, the twin's flux and the own flux (12 B); the ledger
+// reads volume (4 B). 72 B + 32 B per pipe.
 
 #include <epoxy/gl.h>
 
@@ -28,6 +37,21 @@ namespace {
 
 using namespace lancet;
 using Clock = std::chrono::steady_clock;
+
+/// Copy bandwidth (bytes moved per second, read plus write) of memcpy over 256 MB, best of 5.
+double copy_bandwidth() {
+  const std::size_t n = std::size_t{256} << 20;
+  std::vector<char> a(n, 1), b(n, 2);
+  double best = 0;
+  for (int r = 0; r < 5; ++r) {
+    const auto t0 = Clock::now();
+    std::memcpy(b.data(), a.data(), n);
+    const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
+    best = std::max(best, 2.0 * static_cast<double>(n) / dt);
+    a[static_cast<std::size_t>(r)] = b[n - 1 - static_cast<std::size_t>(r)];  // keep the copies observable
+  }
+  return best;
+}
 
 /// Steps `step` in batches (`finish` after each) until `seconds` have passed: steps per second.
 template <class Step, class Finish>
@@ -72,7 +96,9 @@ int main(int argc, char** argv) {
     return 1;
   }
   const int threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  std::printf("{\n  \"gl\": \"%s\",\n  \"cpu_threads\": %d,\n  \"grids\": [\n", window.value()->gl_description().c_str(), threads);
+  const double bandwidth = copy_bandwidth();
+  std::printf("{\n  \"gl\": \"%s\",\n  \"cpu_threads\": %d,\n  \"copy_bandwidth_gb_s\": %.2f,\n  \"grids\": [\n",
+              window.value()->gl_description().c_str(), threads, bandwidth * 1e-9);
   for (std::size_t n = 0; n < sizes.size(); ++n) {
     const int size = sizes[n];
     constexpr float h = 0.0007f;
@@ -95,11 +121,14 @@ int main(int argc, char** argv) {
 
     const double cpu1_rate = steps_per_second(seconds, batch, [&] { cpu.step(1); }, [] {});
     const double cpun_rate = steps_per_second(seconds, batch, [&] { cpu.step(threads); }, [] {});
+    const double bytes = 72.0 + 32.0 * static_cast<double>(net.pipes()) / cells;  // per cell-step, see the top
+    const double bound = bandwidth / bytes;
     std::printf("    {\"cells\": %zu, \"grid\": \"%dx%d\", \"pipes\": %zu, \"tiles\": %zu, \"gpu_active_tiles\": %zu, "
                 "\"gpu_cell_steps_per_s\": %.4g, \"gpu_ms_per_step\": %.3f, \"cpu_1_thread_cell_steps_per_s\": %.4g, "
-                "\"cpu_%d_threads_cell_steps_per_s\": %.4g}%s\n",
+                "\"cpu_%d_threads_cell_steps_per_s\": %.4g, \"bytes_per_cell_step\": %.0f, \"bandwidth_bound_cell_steps_per_s\": %.4g, "
+                "\"cpu_%d_threads_over_bound\": %.2f}%s\n",
                 net.cells(), size, size, net.pipes(), net.tiles(), gpu_active, gpu_rate * cells, 1e3 / gpu_rate, cpu1_rate * cells,
-                threads, cpun_rate * cells, n + 1 < sizes.size() ? "," : "");
+                threads, cpun_rate * cells, bytes, bound, threads, cpun_rate * cells / bound, n + 1 < sizes.size() ? "," : "");
   }
   std::printf("  ]\n}\n");
   return 0;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <numeric>
 
 #include "blood_support.hpp"
@@ -44,6 +45,8 @@ TEST(BloodAutomaton, TheLedgerHoldsOverTenThousandStepsWithSourcesAndSinksAndNoD
     for (float v : a.state().volume) lowest = std::min(lowest, v);
   }
   const Ledger& l = a.ledger();
+  std::printf("[ info     ] after 10,000 steps: sources %.4g m³, sinks %.4g m³, worst relative ledger error %.3g\n", l.sources,
+              l.sinks, worst);
   EXPECT_GT(l.sources, 5e-7) << "the sources bled 20 s";
   EXPECT_GT(l.sinks, 1e-8) << "blood reached the swab";
   EXPECT_LE(worst, 1e-5) << "mass = initial + sources - sinks, every step";

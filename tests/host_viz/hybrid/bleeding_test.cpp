@@ -104,8 +104,12 @@ TEST(Bleeding, AFreshIncisionOozesIntoItsGrooveAndBloodRunsDownTheLimb) {
   const BloodFigures f = blood.figures();
   EXPECT_FALSE(f.vessel_bleeding) << "nothing under the line but fat";
   ASSERT_GT(blood.groove_cells(), 25u) << "a groove cell per pair of split vertices (about one a mm)";
-  EXPECT_GT(f.lost_ml, 0.2) << "20 s of ooze from a 30 mm opened incision";
-  EXPECT_LT(f.lost_ml, 3.0);
+  // 20 s of ooze from a 30 mm incision opened 4 mm, 6 mm deep, at most at the fresh rates (it
+  // clots, and it was open for less than all of it): not less than half that.
+  const BleedingParams bp;
+  const double most = (bp.ooze_per_m * 0.03 * (1 + 4) + bp.wall_ooze_per_m2 * 2 * 0.03 * 0.006) * 20.5 * 1e6;
+  EXPECT_GT(f.lost_ml, 0.5 * most);
+  EXPECT_LT(f.lost_ml, most);
   EXPECT_NEAR(f.on_tissue_ml, f.lost_ml, 1e-3 * f.lost_ml + 1e-6) << "nothing swabbed, nothing lost";
   EXPECT_LT(f.ledger_error, 1e-5);
   bool ooze = false, walls = false;
