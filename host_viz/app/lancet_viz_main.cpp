@@ -383,6 +383,8 @@ int main(int argc, char** argv) {
     std::vector<float> force_history, wake_history;
     std::deque<std::pair<std::int64_t, std::array<std::uint64_t, lancet::kWakeBins>>> wake_snapshots;  // (time, RtStatus bins)
     std::vector<float> blood_depth, blood_age;
+    lancet::surface::TriangleMesh with_pools;  // the drawn mesh and the grooves' pools
+    bool pooled = false;
     auto last_frame = std::chrono::steady_clock::now();
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
@@ -413,6 +415,14 @@ int main(int argc, char** argv) {
         const auto t0 = std::chrono::steady_clock::now();
         bleeding->advance(scene, std::chrono::duration<double>(t0 - last_frame).count());
         bleeding->vertex_blood(mesh, blood_depth, blood_age);
+        // The pools in the grooves, drawn with the surface (they change every frame; only the
+        // blocks that differ are sent).
+        if (bleeding->groove_cells() > 0 || pooled) {
+          with_pools = mesh;
+          bleeding->append_pools(scene, with_pools, blood_depth, blood_age);
+          pooled = with_pools.triangles.size() > mesh.triangles.size();
+          renderer.set_mesh(with_pools);
+        }
         renderer.set_blood(blood_depth, blood_age);
         blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       }

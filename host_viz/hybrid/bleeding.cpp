@@ -313,6 +313,46 @@ void Bleeding::vertex_blood(const surface::TriangleMesh& drawn, std::vector<floa
   }
 }
 
+void Bleeding::append_pools(const TissueScene& scene, surface::TriangleMesh& drawn, std::vector<float>& depth,
+                            std::vector<float>& age) const {
+  const auto& cuts = scene.surface().cuts();
+  const double cut_depth = scene.description().cut_depth;
+  struct Edge {
+    Vec3 left, right;
+    float depth, age;
+  };
+  // Where the blood stands in groove cell g: its level, and the opening's width there.
+  const auto edge = [&](const GrooveCell& g, Edge& e) {
+    const float d = automaton_.depth(g.cell);
+    if (!(d > 1e-5f) || g.cut >= cuts.size() || g.pair >= cuts[g.cut].pairs.size()) return false;
+    const auto& pair = cuts[g.cut].pairs[g.pair];
+    const Vec3 l = scene.surface().position(pair.left), r = scene.surface().position(pair.right);
+    const double rim = std::min(l.z, r.z), level = std::min(static_cast<double>(g.floor + d), rim);
+    const double fill = std::clamp((level - (rim - cut_depth)) / cut_depth, 0.0, 1.0);
+    const Vec3 mid = (l + r) * 0.5;
+    const Vec3 half = (r - l) * (0.5 * fill);
+    e = {Vec3{mid.x - half.x, mid.y - half.y, level}, Vec3{mid.x + half.x, mid.y + half.y, level}, std::min(d, 0.001f),
+         automaton_.age(g.cell)};
+    return true;
+  };
+  for (std::size_t i = 0; i + 1 < groove_.size(); ++i) {
+    const GrooveCell& a = groove_[i];
+    const GrooveCell& b = groove_[i + 1];
+    Edge ea{}, eb{};
+    if (a.cut != b.cut || !edge(a, ea) || !edge(b, eb)) continue;
+    const auto v0 = static_cast<std::uint32_t>(drawn.vertices.size());
+    for (const Vec3& q : {ea.left, ea.right, eb.right, eb.left}) {
+      drawn.vertices.push_back(Vec3f{static_cast<float>(q.x), static_cast<float>(q.y), static_cast<float>(q.z)});
+      drawn.normals.push_back(Vec3f{0, 0, 1});
+    }
+    for (const Edge* e : {&ea, &ea, &eb, &eb}) depth.push_back(e->depth), age.push_back(e->age);
+    drawn.triangles.push_back({v0, v0 + 1, v0 + 2});
+    drawn.triangles.push_back({v0, v0 + 2, v0 + 3});
+    drawn.material.push_back(volume::kVessel);
+    drawn.material.push_back(volume::kVessel);
+  }
+}
+
 BloodFigures Bleeding::figures() const {
   BloodFigures f;
   for (const BloodSource& s : sources_) {

@@ -38,7 +38,7 @@ struct BleedingParams {
   double film_depth = 2e-5;          ///< m of blood a wetted surface keeps
   double ooze_per_m = 1e-6;          ///< m³/s per m of fresh cut, closed (0.03 mL/s for 30 mm; five times that opened 4 mm)
   double ooze_clot_s = 90;           ///< s, the ooze's decay time
-  double wall_ooze_per_m2 = 7e-5;    ///< m³/s per m² of opened groove wall
+  double wall_ooze_per_m2 = 2e-5;    ///< m³/s per m² of opened groove wall
   double vessel_rate = 3e-7;         ///< m³/s from a cut vessel (0.3 mL/s)
   double press_radius = 0.006;       ///< m, how near a pressing tool must be to a bleeding vessel
   double press_seconds = 3;          ///< s of continuous pressure that stops it
@@ -87,6 +87,13 @@ class Bleeding {
   /// grooves' walls and floors): blood depth (m) and mean age (s). Wall vertices under a groove's
   /// blood level get the depth of blood above them.
   void vertex_blood(const surface::TriangleMesh& drawn, std::vector<float>& depth, std::vector<float>& age) const;
+
+  /// Appends the blood standing in the grooves to `drawn`: between each two neighbouring groove
+  /// cells that hold blood, a flat quad at their blood level, as wide as the opening is at that
+  /// level (a V of the cut's depth), with its blood depth and age appended to depth and age (which
+  /// vertex_blood filled for `drawn`). What a trainee sees in the opening when the volume, not
+  /// the groove's walls, is drawn beneath.
+  void append_pools(const TissueScene& scene, surface::TriangleMesh& drawn, std::vector<float>& depth, std::vector<float>& age) const;
 
   [[nodiscard]] const std::vector<BloodSource>& sources() const noexcept { return sources_; }
   [[nodiscard]] BloodFigures figures() const;

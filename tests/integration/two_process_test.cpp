@@ -300,12 +300,13 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBlocksBonePlate) { drill_meets_bone(*this, 
 
 // The demo's scripted hand (docs/examples/demo_incision.csv, what ./lancet demo runs): the scalpel
 // presses until the skin ruptures, cuts along the line, lifts out; the retractor grabs beside the
-// incision and pulls it open. Measured on the viz's mesh: one cut, its length, its opening.
+// incision and pulls it open; the swab sweeps the opening. Measured on the viz's mesh: one cut, its
+// length, its opening; and the blood: it bled, the swab took some, the ledger held.
 TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   // As ./lancet demo runs it: lancet-viz on the skin-incision scenario first (building the
   // phantom's scene takes a while), then lancet-rt with the scripted hand once the viz waits.
   auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml", "--tool",
-                        "none", "--duration", "9", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
+                        "none", "--duration", "12", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
                         path("demo.png")});
   for (int i = 0; i < 600 && read_file(path("viz.log")).find("does not exist") == std::string::npos; ++i)
     std::this_thread::sleep_for(100ms);
@@ -345,6 +346,10 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   EXPECT_GT(json_number(stats, "groove_depth_mm").value_or(0), 5) << stats;
   EXPECT_GT(json_number(stats, "task_progress").value_or(0), 0.8) << "the line is cut along most of its length" << stats;
   EXPECT_EQ(json_number(stats, "task_damaged").value_or(-1), 0) << "the artery 29 mm down is untouched" << stats;
+  EXPECT_GT(json_number(stats, "blood_lost_ml").value_or(0), 0.2) << "the fresh incision oozes" << stats;
+  EXPECT_GT(json_number(stats, "blood_swabbed_ml").value_or(0), 0.0) << "the swab took blood from the opening" << stats;
+  EXPECT_LT(json_number(stats, "blood_ledger_error").value_or(1), 1e-5) << stats;
+  EXPECT_EQ(stats.find("\"vessel_bleeding\": true"), std::string::npos) << "no vessel under the line" << stats;
 }
 
 // The bone-drilling scenario with a scripted drill: the burr stops at the exposed bone, lancet-rt
