@@ -201,21 +201,27 @@ void Automaton::place(std::uint32_t i, float v) {
   candidate_[i / kTile] = 1;
 }
 
-void Automaton::set_sources(std::span<const float> rate) {
+namespace {
+
+// A caller's rates: empty clears them, another size is ignored, and a rate that is negative or
+// not finite counts as none.
+void copy_rates(std::vector<float>& to, std::span<const float> rate) {
   if (rate.empty()) {
-    std::fill(source_.begin(), source_.end(), 0.0f);
-  } else if (rate.size() == source_.size()) {
-    for (std::size_t i = 0; i < rate.size(); ++i) source_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
+    std::fill(to.begin(), to.end(), 0.0f);
+  } else if (rate.size() == to.size()) {
+    for (std::size_t i = 0; i < rate.size(); ++i) to[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
   }
+}
+
+}  // namespace
+
+void Automaton::set_sources(std::span<const float> rate) {
+  copy_rates(source_, rate);
   mark_rates();
 }
 
 void Automaton::set_sinks(std::span<const float> rate) {
-  if (rate.empty()) {
-    std::fill(sink_.begin(), sink_.end(), 0.0f);
-  } else if (rate.size() == sink_.size()) {
-    for (std::size_t i = 0; i < rate.size(); ++i) sink_[i] = std::isfinite(rate[i]) ? std::max(rate[i], 0.0f) : 0.0f;
-  }
+  copy_rates(sink_, rate);
   mark_rates();
 }
 

@@ -21,6 +21,15 @@ const std::string kHeader = "#version 450 core\n#define TILE " + std::to_string(
 layout(local_size_x = TILE) in;
 uniform uint u_cells, u_tiles;
 uint tile_index() { return gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x; }
+// The tree sum of a shared array of TILE entries into its entry 0 (the whole workgroup takes part).
+#define SUM_TILE(s) \
+  memoryBarrierShared(); \
+  barrier(); \
+  for (uint r = uint(TILE) / 2u; r > 0u; r >>= 1) { \
+    if (gl_LocalInvocationID.x < r) s[gl_LocalInvocationID.x] += s[gl_LocalInvocationID.x + r]; \
+    memoryBarrierShared(); \
+    barrier(); \
+  }
 )";
 
 // The blocks, by name (each pass includes the ones it uses).
@@ -97,13 +106,7 @@ void main() {
     born[i] = b;
   }
   s_sum[gl_LocalInvocationID.x] = moved;
-  memoryBarrierShared();
-  barrier();
-  for (uint s = uint(TILE) / 2u; s > 0u; s >>= 1) {
-    if (gl_LocalInvocationID.x < s) s_sum[gl_LocalInvocationID.x] += s_sum[gl_LocalInvocationID.x + s];
-    memoryBarrierShared();
-    barrier();
-  }
+  SUM_TILE(s_sum)
   if (gl_LocalInvocationID.x == 0u) ledger[t] += s_sum[0];
 }
 )";
@@ -184,13 +187,7 @@ void main() {
   uint t = tile_index(), i = t * uint(TILE) + gl_LocalInvocationID.x;
   if (t >= u_tiles) return;
   s_sum[gl_LocalInvocationID.x] = i < u_cells ? double(volume[i]) : 0.0;
-  memoryBarrierShared();
-  barrier();
-  for (uint s = uint(TILE) / 2u; s > 0u; s >>= 1) {
-    if (gl_LocalInvocationID.x < s) s_sum[gl_LocalInvocationID.x] += s_sum[gl_LocalInvocationID.x + s];
-    memoryBarrierShared();
-    barrier();
-  }
+  SUM_TILE(s_sum)
   if (gl_LocalInvocationID.x == 0u) tile_sum[t] = s_sum[0];
 }
 )";

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "hybrid/scenario_scene.hpp"
+#include "scripted_sample.hpp"
 #include "volume/phantom.hpp"
 
 namespace lancet::hybrid {
@@ -41,16 +42,7 @@ struct Hand {
   // The returned sample may be changed until the next add (a full frame is played first).
   ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0) {
     if (samples.size() == 16) play();
-    ToolSample t{};
-    t.seq = ++seq;
-    t.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
-    t.mode = mode;
-    t.stage = stage;
-    t.proxy.position = proxy;
-    t.tool.position = tool;
-    t.events = events;
-    t.payload.position = proxy;
-    samples.push_back(t);
+    samples.push_back(test::scripted_sample(++seq, mode, stage, proxy, tool, events));
     return samples.back();
   }
   void play() {

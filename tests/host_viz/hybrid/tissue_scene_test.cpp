@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "hybrid/scenario_scene.hpp"
+#include "scripted_sample.hpp"
 #include "volume/mesh_tools.hpp"
 
 namespace lancet::hybrid {
@@ -33,15 +34,7 @@ struct Script {
   std::vector<ToolSample> samples;
   std::uint64_t seq = 0;
   ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0) {
-    ToolSample t{};
-    t.seq = ++seq;
-    t.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
-    t.stage = stage;
-    t.proxy.position = proxy;
-    t.tool.position = tool;
-    t.events = events;
-    t.payload.position = proxy;
-    samples.push_back(t);
+    samples.push_back(test::scripted_sample(++seq, ToolMode::kProbe, stage, proxy, tool, events));
     return samples.back();
   }
   // Feeds the samples in frames of 16, as lancet-viz drains them.
