@@ -161,8 +161,8 @@ void Bleeding::find_vessels(const TissueScene& scene) {
       const Vec3 top = (pair.rest_left + pair.rest_right) * 0.5;
       for (double dz = 0; dz <= depth; dz += 5e-4) {
         const Vec3 q{top.x, top.y, top.z - dz};
-        if (scene.label_at(q) == volume::kVessel) {
-          add_vessel(scene, "vessel cut by incision " + std::to_string(c + 1), q);
+        if (const std::uint8_t l = scene.label_at(q); l == volume::kVessel || l == volume::kVein) {
+          add_vessel(scene, std::string(l == volume::kVein ? "vein" : "artery") + " cut by incision " + std::to_string(c + 1), q);
           break;
         }
       }
@@ -174,8 +174,8 @@ void Bleeding::find_vessels(const TissueScene& scene) {
     for (int a = 0; a < 6; ++a) {
       const double r = 0.0015;
       const Vec3 q = at + Vec3{a == 0 ? r : a == 1 ? -r : 0, a == 2 ? r : a == 3 ? -r : 0, a == 4 ? r : a == 5 ? -r : 0};
-      if (scene.label_at(q) == volume::kVessel) {
-        add_vessel(scene, "vessel opened by the drill", q);
+      if (const std::uint8_t l = scene.label_at(q); l == volume::kVessel || l == volume::kVein) {
+        add_vessel(scene, std::string(l == volume::kVein ? "vein" : "artery") + " opened by the drill", q);
         break;
       }
     }

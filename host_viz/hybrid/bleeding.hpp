@@ -12,8 +12,8 @@
 //     (thesis 5.16: it grows with the cut's width), decaying as it clots (time constant
 //     ooze_clot_s from when that piece of the cut was made);
 //   - the groove's walls ooze into the groove cells once the incision is opened, ∝ wall area;
-//   - a cut vessel: where a cut's depth reaches the scene's vessel label (PhantomMaterial
-//     kVessel), or the drill removes it, a strong constant bleed into that point's groove cell (or
+//   - a cut vessel: where a cut's depth reaches one of the scene's vessel labels (PhantomMaterial
+//     kVessel, the contrast-filled arteries, or kVein), or the drill removes one, a strong constant bleed into that point's groove cell (or
 //     onto the skin) that stops only once the probe or the retractor presses on it (in contact,
 //     within press_radius) for press_seconds without letting go.
 // The swab (ToolMode::kSwab) removes blood within swab_radius of its tip: a sink. Blood loss

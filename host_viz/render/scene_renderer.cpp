@@ -47,9 +47,9 @@ out vec4 o_color;
 void main() {
   vec3 base = u_color;
   int mat = u_face_materials == 1 ? int(face_material[gl_PrimitiveID]) : v_mat;
-  // By material (PhantomMaterial): air/skin, fat, muscle, cortical bone, marrow, vessel.
+  // By material (PhantomMaterial): air/skin, fat, muscle, cortical bone, marrow, vessel, vein.
   const vec3 palette[8] = vec3[8](vec3(0.93, 0.73, 0.63), vec3(0.93, 0.73, 0.63), vec3(0.95, 0.85, 0.45), vec3(0.70, 0.25, 0.22),
-                                   vec3(0.92, 0.90, 0.82), vec3(0.80, 0.55, 0.40), vec3(0.72, 0.12, 0.16), vec3(0.93, 0.73, 0.63));
+                                   vec3(0.92, 0.90, 0.82), vec3(0.80, 0.55, 0.40), vec3(0.72, 0.12, 0.16), vec3(0.35, 0.12, 0.30));
   if (u_mode == 0) base = palette[clamp(mat, 0, 7)];
   if (u_mode == 2) { o_color = vec4(base, 1.0); return; }
   vec3 n = normalize(v_nrm);

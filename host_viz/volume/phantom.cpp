@@ -38,6 +38,7 @@ float phantom_hu(PhantomMaterial m) noexcept {
     case kCorticalBone: return 1200.0f;
     case kMarrow: return 300.0f;
     case kVessel: return 250.0f;  // contrast-enhanced blood
+    case kVein: return 45.0f;     // blood without contrast
   }
   return -1000.0f;
 }
@@ -79,7 +80,8 @@ Phantom make_phantom(const PhantomParams& p) {
         if (r <= outer) {
           m = r > outer - p.skin ? kSkin : r > outer - p.skin - p.fat ? kFat : kMuscle;
           if (rb <= p.bone_radius) m = rb > p.bone_radius - p.cortex ? kCorticalBone : kMarrow;
-          if (ra <= 0.003 || rv <= 0.0022 || rs <= 0.002) m = kVessel;
+          if (ra <= 0.003 || rv <= 0.0022) m = kVessel;
+          if (rs <= 0.002) m = kVein;
         }
         const std::size_t idx = v.index(i, j, k);
         ph.material[idx] = m;
@@ -95,9 +97,9 @@ Phantom make_phantom(const PhantomParams& p) {
           hu = lerp(hu_of(kAir), skin_layer, partial_volume_fraction((outer - r) / g, h));
           const double bone_hu = lerp(hu_of(kCorticalBone), hu_of(kMarrow), partial_volume_fraction(p.bone_radius - p.cortex - rb, h));
           hu = lerp(hu, bone_hu, partial_volume_fraction(p.bone_radius - rb, h));
-          const double vessel = std::max({partial_volume_fraction(0.003 - ra, h), partial_volume_fraction(0.0022 - rv, h),
-                                          partial_volume_fraction(0.002 - rs, h)});
+          const double vessel = std::max(partial_volume_fraction(0.003 - ra, h), partial_volume_fraction(0.0022 - rv, h));
           hu = lerp(hu, hu_of(kVessel), vessel);
+          hu = lerp(hu, hu_of(kVein), partial_volume_fraction(0.002 - rs, h));
         }
         v.data[idx] = static_cast<float>(hu + p.noise_hu * gaussian(p.seed, idx));
       }

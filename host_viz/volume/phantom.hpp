@@ -1,7 +1,8 @@
 #pragma once
 // The built-in phantom: the demo's default tissue, so the demo needs no data. A limb-like volume
 // along z: skin, subcutaneous fat, muscle, a bone (cortex and marrow) off centre, two
-// contrast-filled vessels winding beside it and a superficial vein in the fat under the top, in Hounsfield units with CT-like noise and partial-
+// contrast-filled vessels winding beside it (kVessel) and a superficial vein in the fat under the
+// top (kVein, unenhanced), in Hounsfield units with CT-like noise and partial-
 // volume boundaries (each boundary a two-voxel ramp centred on its exact place). Deterministic
 // from the seed: every voxel's noise comes from a hash of (seed, voxel index), so it is the same on
 // every machine and independent of fill order. Allocating; configure time only.
@@ -17,6 +18,7 @@ namespace lancet::volume {
 /// Material ids of the phantom's voxels (and of TissuePatch triangles cut from it).
 enum PhantomMaterial : std::uint8_t {
   kAir = 0, kSkin = 1, kFat = 2, kMuscle = 3, kCorticalBone = 4, kMarrow = 5, kVessel = 6,
+  kVein = 7,  ///< the superficial vein: blood without contrast
 };
 
 struct PhantomParams {

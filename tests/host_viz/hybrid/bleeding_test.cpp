@@ -142,7 +142,7 @@ TEST(Bleeding, ACutVesselBleedsUntilPressedForThreeSecondsAndTheSwabTakesBloodAw
   ASSERT_TRUE(scene);
   // The superficial vein runs along the limb about 12 mm to the side of the top, 4 to 7 mm deep.
   const Vec3 over_vein = scene->surface_below(0.0, 0.012).value();
-  ASSERT_EQ(scene->label_at(over_vein + Vec3{0, 0, -0.0055}), volume::kVessel);
+  ASSERT_EQ(scene->label_at(over_vein + Vec3{0, 0, -0.0055}), volume::kVein);
   Bleeding blood(*scene);
   Hand hand(*scene, blood);
   hand.cut({0.0, 0.004, 0}, {0.0, 0.020, 0});  // across it, 6 mm deep
