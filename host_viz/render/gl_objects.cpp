@@ -28,8 +28,8 @@ GLuint compile(GLenum kind, const std::string& src) {
   if (!ok) {
     const std::string log = info_log(s, glGetShaderiv, glGetShaderInfoLog);
     glDeleteShader(s);
-    throw std::runtime_error(std::string(kind == GL_VERTEX_SHADER ? "vertex" : "fragment") +
-                             " shader failed to compile: " + log);
+    const char* name = kind == GL_VERTEX_SHADER ? "vertex" : kind == GL_FRAGMENT_SHADER ? "fragment" : kind == GL_COMPUTE_SHADER ? "compute" : "other";
+    throw std::runtime_error(std::string(name) + " shader failed to compile: " + log);
   }
   return s;
 }

@@ -1,5 +1,6 @@
 // SceneRenderer on llvmpipe (headless: EGL, no X server): the surface is drawn indexed with its
-// face materials, and a changed mesh sends only the blocks that changed.
+// face materials, and a changed mesh sends only the blocks that changed; a shader that does not
+// compile is reported with its stage.
 
 #include "render/scene_renderer.hpp"
 
@@ -7,6 +8,8 @@
 
 #include <cstdlib>
 #include <memory>
+#include <stdexcept>
+#include <string>
 
 #include "render/window.hpp"
 #include "surface/placeholder_mesh.hpp"
@@ -65,6 +68,22 @@ TEST_F(SceneRendererTest, ADentSendsOnlyWhatChangedAndMaterialsColourTheFaces) {
   const auto vessel = centre_colour(r.read_back());
   EXPECT_GT(skin[1], vessel[1] + 40) << "skin is pale, the vessel dark red";
   EXPECT_GT(vessel[0], 2 * vessel[1]);
+}
+
+TEST_F(SceneRendererTest, AShaderThatDoesNotCompileIsNamedByItsStage) {
+  const auto message = [](auto make) {
+    try {
+      make();
+    } catch (const std::runtime_error& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string bad = "#version 450 core\nlayout(local_size_x = 1) in;\nvoid main() { not glsl }\n";
+  EXPECT_NE(message([&] { (void)make_compute_program(bad); }).find("compute shader failed to compile"), std::string::npos);
+  const std::string vs = "#version 450 core\nvoid main() { gl_Position = vec4(0.0); }\n";
+  EXPECT_NE(message([&] { (void)make_program(vs, "#version 450 core\nvoid main() { oops }\n"); }).find("fragment shader failed"),
+            std::string::npos);
 }
 
 }  // namespace
