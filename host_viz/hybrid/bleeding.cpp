@@ -16,6 +16,12 @@ constexpr double kMl = 1e6;  // mL per m³
 
 double planar(Vec3 a, Vec3 b) { return std::hypot(a.x - b.x, a.y - b.y); }
 
+// A groove cell's geometry: its floor half the cut's depth below the lower lip (a V-shaped
+// groove's capacity in a flat-bottomed cell), and its width the opening (at least 0.3 mm: a cut
+// not yet opened still holds a little).
+float groove_floor(Vec3 left, Vec3 right, double cut_depth) { return static_cast<float>(std::min(left.z, right.z) - 0.5 * cut_depth); }
+double groove_width(const surface::Cut& cut) { return std::max(cut.opening, 3e-4); }
+
 }  // namespace
 
 Bleeding::Bleeding(const TissueScene& scene, BleedingParams params) : p_(params) {
@@ -47,8 +53,7 @@ void Bleeding::rebuild(const TissueScene& scene) {
   blood::NetworkBuilder nb;
   blood::add_mesh(nb, xyz, tri, kDown, static_cast<float>(p_.film_depth));
 
-  // The grooves: a cell per pair of split vertices, between the lips, its floor half the cut's
-  // depth below the lower lip (a V-shaped groove's capacity in a flat-bottomed cell).
+  // The grooves: a cell per pair of split vertices, between the lips.
   const double depth = scene.description().cut_depth;
   std::map<std::pair<std::size_t, std::size_t>, std::uint32_t> old_groove;
   for (const GrooveCell& g : groove_) old_groove[{g.cut, g.pair}] = g.cell;
@@ -57,13 +62,11 @@ void Bleeding::rebuild(const TissueScene& scene) {
   pair_born_.resize(cuts.size());
   pairs_seen_.resize(cuts.size(), 0);
   std::size_t pairs_total = 0;
-  pairs_built_.assign(cuts.size(), 0);
   for (std::size_t c = 0; c < cuts.size(); ++c) {
     const auto& pairs = cuts[c].pairs;
     pairs_total += pairs.size();
-    pairs_built_[c] = pairs.size();
     pair_born_[c].resize(pairs.size(), time_);
-    const double width = std::max(cuts[c].opening, 3e-4);
+    const double width = groove_width(cuts[c]);
     std::uint32_t previous = blood::Automaton::kNoCell;
     for (std::size_t k = 0; k < pairs.size(); ++k) {
       const Vec3 l = surf.position(pairs[k].left), r = surf.position(pairs[k].right);
@@ -71,7 +74,7 @@ void Bleeding::rebuild(const TissueScene& scene) {
       const std::size_t other = k + 1 < pairs.size() ? k + 1 : (k > 0 ? k - 1 : k);
       const double spacing =
           std::max(3e-4, norm((pairs[other].rest_left + pairs[other].rest_right) * 0.5 - mid_rest));
-      const float floor = static_cast<float>(std::min(l.z, r.z) - 0.5 * depth);
+      const float floor = groove_floor(l, r, depth);
       const std::uint32_t cell = nb.add_cell(static_cast<float>(spacing * width), floor, 0.0f);
       const float reach = static_cast<float>(std::max(0.5 * width, 5e-4));
       nb.add_pipe(cell, pairs[k].left, static_cast<float>(spacing), reach);
@@ -115,9 +118,9 @@ void Bleeding::refresh_elevations(const TissueScene& scene) {
     const auto& pair = cut.pairs[g.pair];
     const Vec3 l = surf.position(pair.left), r = surf.position(pair.right);
     g.centre = (l + r) * 0.5;
-    g.floor = static_cast<float>(std::min(l.z, r.z) - 0.5 * depth);
+    g.floor = groove_floor(l, r, depth);
     e[g.cell] = g.floor;
-    area[g.cell] = static_cast<float>(g.spacing * std::max(cut.opening, 3e-4));
+    area[g.cell] = static_cast<float>(g.spacing * groove_width(cut));
   }
   automaton_.set_geometry(e, area);
   revision_seen_ = scene.revision();
@@ -201,35 +204,33 @@ void Bleeding::set_rates(const TissueScene& scene, double dt) {
     vessel_cell_.resize(sources_.size(), blood::Automaton::kNoCell);
     return sources_.back();
   };
-  std::size_t g = 0;  // groove_ runs over the cuts' pairs in order, as the network was built
-  for (std::size_t c = 0; c < cuts.size() && c < pairs_built_.size(); ++c) {
-    if (pairs_built_[c] == 0) continue;
-    double ooze = 0, walls = 0;
-    const double opening = cuts[c].opening;
-    for (std::size_t k = 0; k < pairs_built_[c]; ++k, ++g) {
-      const auto& pair = cuts[c].pairs[k];
-      const double age = time_ - pair_born_[c][k];
-      const std::size_t other = k + 1 < pairs_built_[c] ? k + 1 : (k > 0 ? k - 1 : k);
-      const double seg = std::max(3e-4, norm((cuts[c].pairs[other].rest_left + cuts[c].pairs[other].rest_right) * 0.5 -
-                                             (pair.rest_left + pair.rest_right) * 0.5));
-      const double clot = std::exp(-age / p_.ooze_clot_s);
-      const double r = p_.ooze_per_m * seg * (1.0 + opening / 1e-3) * clot;  // thesis 5.16: more as it opens
-      source_rate_[pair.left] += static_cast<float>(0.5 * r);
-      source_rate_[pair.right] += static_cast<float>(0.5 * r);
-      ooze += r;
-      if (opening > 5e-4 && g < groove_.size()) {
-        const double w = p_.wall_ooze_per_m2 * 2.0 * seg * depth * clot;
-        source_rate_[groove_[g].cell] += static_cast<float>(w);
-        walls += w;
-      }
+  // Ooze from both lips of every pair in the network (pairs cut since the last rebuild wait for
+  // the next), and, once the incision is open, from the groove's walls into its cell.
+  std::vector<double> ooze(cuts.size(), 0.0), walls(cuts.size(), 0.0);
+  for (const GrooveCell& g : groove_) {
+    const surface::Cut& cut = cuts[g.cut];
+    const auto& pair = cut.pairs[g.pair];
+    const double clot = std::exp(-(time_ - pair_born_[g.cut][g.pair]) / p_.ooze_clot_s);
+    const double r = p_.ooze_per_m * g.spacing * (1.0 + cut.opening / 1e-3) * clot;  // thesis 5.16: more as it opens
+    source_rate_[pair.left] += static_cast<float>(0.5 * r);
+    source_rate_[pair.right] += static_cast<float>(0.5 * r);
+    ooze[g.cut] += r;
+    if (cut.opening > 5e-4) {
+      const double w = p_.wall_ooze_per_m2 * 2.0 * g.spacing * depth * clot;
+      source_rate_[g.cell] += static_cast<float>(w);
+      walls[g.cut] += w;
     }
-    BloodSource& o = source_for(BloodSource::Kind::kCutOoze, c);
-    o.rate_ml_s = ooze * kMl;
-    o.loss_ml += ooze * dt * kMl;
-    if (walls > 0) {
+  }
+  for (std::size_t c = 0; c < cuts.size(); ++c) {
+    if (ooze[c] > 0) {
+      BloodSource& o = source_for(BloodSource::Kind::kCutOoze, c);
+      o.rate_ml_s = ooze[c] * kMl;
+      o.loss_ml += ooze[c] * dt * kMl;
+    }
+    if (walls[c] > 0) {
       BloodSource& w = source_for(BloodSource::Kind::kGrooveWall, c);
-      w.rate_ml_s = walls * kMl;
-      w.loss_ml += walls * dt * kMl;
+      w.rate_ml_s = walls[c] * kMl;
+      w.loss_ml += walls[c] * dt * kMl;
     }
   }
   // Vessels bleed until pressed for press_seconds without a break (pressure slows them).

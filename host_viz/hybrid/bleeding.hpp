@@ -121,7 +121,6 @@ class Bleeding {
   std::size_t skin_cells_ = 0;
   std::vector<GrooveCell> groove_;
   std::vector<std::size_t> pairs_seen_;      // per cut: pairs already examined for vessels
-  std::vector<std::size_t> pairs_built_;     // per cut: pairs in the network (the groove cells)
   std::vector<std::vector<double>> pair_born_;  // per cut, per pair: scene time the pair was cut
   std::vector<std::uint32_t> vessel_cell_;   // per source (vessels only; kNoCell otherwise)
   std::vector<BloodSource> sources_;
