@@ -384,7 +384,6 @@ int main(int argc, char** argv) {
     std::deque<std::pair<std::int64_t, std::array<std::uint64_t, lancet::kWakeBins>>> wake_snapshots;  // (time, RtStatus bins)
     std::vector<float> blood_depth, blood_age;
     lancet::surface::TriangleMesh with_pools;  // the drawn mesh and the grooves' pools
-    bool pooled = false;
     auto last_frame = std::chrono::steady_clock::now();
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
@@ -404,25 +403,31 @@ int main(int argc, char** argv) {
       }
       // Redraw only what changed shape; with the volume beneath, the grooves' walls are the
       // volume's to show.
+      bool mesh_changed = false;
       if (scene.revision() != shown_revision || (ui.view == 1) != shown_walls_off) {
         shown_revision = scene.revision();
         shown_walls_off = ui.view == 1;
         scene.draw_mesh(mesh, !shown_walls_off);
-        renderer.set_mesh(mesh);
+        mesh_changed = true;
       }
-      // The blood: the frame's time simulated (at most 0.1 s after a stall), then onto the mesh.
+      // The blood: the frame's time simulated (at most 0.1 s after a stall), then onto the mesh,
+      // with the pools in the grooves (they change every frame: the mesh with them is sent every
+      // frame, only the blocks that differ).
       if (bleeding) {
         const auto t0 = std::chrono::steady_clock::now();
         bleeding->advance(scene, std::chrono::duration<double>(t0 - last_frame).count());
         bleeding->vertex_blood(mesh, blood_depth, blood_age);
-        // The pools in the grooves, drawn with the surface (they change every frame; only the
-        // blocks that differ are sent).
-        if (bleeding->groove_cells() > 0 || pooled) {
+        if (bleeding->groove_cells() > 0) {
           with_pools = mesh;
           bleeding->append_pools(scene, with_pools, blood_depth, blood_age);
-          pooled = with_pools.triangles.size() > mesh.triangles.size();
           renderer.set_mesh(with_pools);
+          mesh_changed = false;
         }
+        blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      }
+      if (mesh_changed) renderer.set_mesh(mesh);
+      if (bleeding) {
+        const auto t0 = std::chrono::steady_clock::now();
         renderer.set_blood(blood_depth, blood_age);
         blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       }
