@@ -13,6 +13,15 @@ namespace lancet::render {
 namespace {
 
 constexpr float kPanelWidth = 380;
+const ImVec4 kAlert(1.0f, 0.35f, 0.3f, 1.0f);  // red: what needs the user
+
+void text_line(const OverlayLine& l) {
+  if (l.alert) {
+    ImGui::TextColored(kAlert, "%s", l.text.c_str());
+  } else {
+    ImGui::TextUnformatted(l.text.c_str());
+  }
+}
 
 ImU32 colour_u32(float r, float g, float b, float a = 1.0f) { return ImGui::ColorConvertFloat4ToU32(ImVec4(r, g, b, a)); }
 
@@ -119,7 +128,7 @@ void wake_histogram_widget(const std::vector<std::uint64_t>& bins, float window_
   for (const auto& t : ticks) dl->AddText(ImVec2(lo.x + bar * static_cast<float>(t.bin), hi.y), grey, t.text);
   ImGui::Dummy(ImVec2(hi.x - lo.x, ImGui::GetTextLineHeight()));
   if (late > 0)
-    ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%llu wake-up%s 1 ms or more late", static_cast<unsigned long long>(late),
+    ImGui::TextColored(kAlert, "%llu wake-up%s 1 ms or more late", static_cast<unsigned long long>(late),
                        late == 1 ? "" : "s");
 }
 
@@ -156,13 +165,7 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin(title.c_str(), nullptr,
                ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoSavedSettings);
-  for (const auto& l : lines) {
-    if (l.alert) {
-      ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%s", l.text.c_str());
-    } else {
-      ImGui::TextUnformatted(l.text.c_str());
-    }
-  }
+  for (const auto& l : lines) text_line(l);
   ImGui::End();
   PanelActions act;
   if (panel != nullptr) {
@@ -178,13 +181,7 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
       ImGui::TextUnformatted(p.task_label.c_str());
       ImGui::ProgressBar(p.task_progress, ImVec2(260, 0));
     }
-    for (const OverlayLine& l : p.blood) {
-      if (l.alert) {
-        ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "%s", l.text.c_str());
-      } else {
-        ImGui::TextUnformatted(l.text.c_str());
-      }
-    }
+    for (const OverlayLine& l : p.blood) text_line(l);
     ImGui::TextUnformatted("Tool");
     for (std::size_t i = 0; i < p.tools.size(); ++i) {
       if (i > 0) ImGui::SameLine();
@@ -206,7 +203,7 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
                        FLT_MAX, ImVec2(260, 50));
     }
     if (!p.wake_bins.empty()) wake_histogram_widget(p.wake_bins, p.wake_window_s);
-    if (p.watchdog_tripped) ImGui::TextColored(ImVec4(1.0f, 0.35f, 0.3f, 1.0f), "watchdog tripped: force held at zero");
+    if (p.watchdog_tripped) ImGui::TextColored(kAlert, "watchdog tripped: force held at zero");
     ImGui::BeginDisabled(!p.connected);
     if (ImGui::Button("Re-arm (W)")) act.rearm = true;
     ImGui::SameLine();
