@@ -36,6 +36,7 @@
 #include <string>
 #include <vector>
 
+#include "hybrid/scripted_sample.hpp"
 #include "hybrid/tissue_scene.hpp"
 #include "surface/placeholder_mesh.hpp"
 #include "surface/surface_model.hpp"
@@ -108,16 +109,8 @@ struct Hand {
   std::uint64_t seq = 0;
   std::vector<ToolSample> pending;
   ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0, std::int64_t dt_ms = 1) {
-    ToolSample t{};
-    t.seq = ++seq;
-    t.t_ns = (pending.empty() ? last_t_ns : pending.back().t_ns) + dt_ms * 1'000'000;
-    t.mode = mode;
-    t.stage = stage;
-    t.proxy.position = proxy;
-    t.tool.position = tool;
-    t.events = events;
-    t.payload.position = proxy;
-    pending.push_back(t);
+    const std::int64_t t_ns = (pending.empty() ? last_t_ns : pending.back().t_ns) + dt_ms * 1'000'000;
+    pending.push_back(hybrid::scripted_sample(++seq, t_ns, mode, stage, proxy, tool, events));
     return pending.back();
   }
   void flush() {

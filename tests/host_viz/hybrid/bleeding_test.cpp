@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "hybrid/scenario_scene.hpp"
-#include "scripted_sample.hpp"
+#include "hybrid/scripted_sample.hpp"
 #include "volume/phantom.hpp"
 
 namespace lancet::hybrid {
@@ -42,7 +42,8 @@ struct Hand {
   // The returned sample may be changed until the next add (a full frame is played first).
   ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0) {
     if (samples.size() == 16) play();
-    samples.push_back(test::scripted_sample(++seq, mode, stage, proxy, tool, events));
+    ++seq;
+    samples.push_back(scripted_sample(seq, static_cast<std::int64_t>(seq) * 1'000'000, mode, stage, proxy, tool, events));
     return samples.back();
   }
   void play() {

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "hybrid/scenario_scene.hpp"
-#include "scripted_sample.hpp"
+#include "hybrid/scripted_sample.hpp"
 #include "volume/mesh_tools.hpp"
 
 namespace lancet::hybrid {
@@ -34,7 +34,8 @@ struct Script {
   std::vector<ToolSample> samples;
   std::uint64_t seq = 0;
   ToolSample& add(Stage stage, Vec3 proxy, Vec3 tool, std::uint32_t events = 0) {
-    samples.push_back(test::scripted_sample(++seq, ToolMode::kProbe, stage, proxy, tool, events));
+    ++seq;
+    samples.push_back(scripted_sample(seq, static_cast<std::int64_t>(seq) * 1'000'000, ToolMode::kProbe, stage, proxy, tool, events));
     return samples.back();
   }
   // Feeds the samples in frames of 16, as lancet-viz drains them.
