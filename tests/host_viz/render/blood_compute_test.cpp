@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "../blood/blood_support.hpp"
-#include "render/window.hpp"
+#include "headless_gl.hpp"
 
 namespace lancet::render {
 namespace {
@@ -26,16 +26,7 @@ using blood::test::kDown;
 
 constexpr float kH = 0.0007f;  // 0.7 mm between cells
 
-class BloodComputeTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    unsetenv("DISPLAY");  // EGL needs none
-    auto w = Window::create({64, 64, false, "test"});
-    ASSERT_TRUE(w) << "no headless GL context: " << w.error().message;
-    window_ = std::move(w).value();
-  }
-  std::unique_ptr<Window> window_;
-};
+using BloodComputeTest = test::HeadlessGl<64, 64>;
 
 /// The largest |a − b| over the largest |a| (0 when a is all zeros), and the largest |a − b|.
 struct Diff {

@@ -17,7 +17,7 @@
 #include "render/image.hpp"
 #include "render/scene_renderer.hpp"
 #include "render/volume_raycaster.hpp"
-#include "render/window.hpp"
+#include "headless_gl.hpp"
 #include "volume/marching_cubes.hpp"
 
 namespace lancet::render {
@@ -25,16 +25,7 @@ namespace {
 
 const std::string kGolden = std::string(LANCET_SOURCE_DIR) + "/tests/host_viz/render/golden/";
 
-class Golden : public ::testing::Test {
- protected:
-  void SetUp() override {
-    unsetenv("DISPLAY");  // EGL needs none
-    auto w = Window::create({160, 120, false, "golden"});
-    ASSERT_TRUE(w) << "no headless GL context: " << w.error().message;
-    window_ = std::move(w).value();
-  }
-  std::unique_ptr<Window> window_;
-};
+using Golden = test::HeadlessGl<160, 120>;
 
 surface::TriangleMesh iso_mesh(const volume::Volume& v, float iso) {
   volume::IsoOptions o;

@@ -11,7 +11,7 @@
 #include <cstdlib>
 #include <memory>
 
-#include "render/window.hpp"
+#include "headless_gl.hpp"
 #include "volume/raycast.hpp"
 
 namespace lancet::render {
@@ -19,13 +19,11 @@ namespace {
 
 constexpr int kW = 640, kH = 560;
 
-class OverlayTest : public ::testing::Test {
+class OverlayTest : public test::HeadlessGl<kW, kH> {
  protected:
   void SetUp() override {
-    unsetenv("DISPLAY");  // EGL needs none
-    auto w = Window::create({kW, kH, false, "test"});
-    ASSERT_TRUE(w) << "no headless GL context: " << w.error().message;
-    window_ = std::move(w).value();
+    HeadlessGl::SetUp();
+    if (HasFatalFailure()) return;
     glCreateFramebuffers(1, &fbo_);
     glCreateTextures(GL_TEXTURE_2D, 1, &colour_);
     glTextureStorage2D(colour_, 1, GL_RGBA8, kW, kH);
@@ -41,7 +39,6 @@ class OverlayTest : public ::testing::Test {
     glClear(GL_COLOR_BUFFER_BIT);
     return o.draw("Lancet", {{"status"}}, kW, kH, &p);
   }
-  std::unique_ptr<Window> window_;
   GLuint fbo_ = 0, colour_ = 0;
 };
 

@@ -11,22 +11,13 @@
 #include <stdexcept>
 #include <string>
 
-#include "render/window.hpp"
+#include "headless_gl.hpp"
 #include "surface/placeholder_mesh.hpp"
 
 namespace lancet::render {
 namespace {
 
-class SceneRendererTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    unsetenv("DISPLAY");  // EGL needs none
-    auto w = Window::create({320, 200, false, "test"});
-    ASSERT_TRUE(w) << "no headless GL context: " << w.error().message;
-    window_ = std::move(w).value();
-  }
-  std::unique_ptr<Window> window_;
-};
+using SceneRendererTest = test::HeadlessGl<320, 200>;
 
 // The mean colour of the image's middle.
 std::array<double, 3> centre_colour(const Image& img) {

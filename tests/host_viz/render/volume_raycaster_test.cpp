@@ -13,22 +13,13 @@
 #include <memory>
 
 #include "../volume/raycast_support.hpp"
-#include "render/window.hpp"
+#include "headless_gl.hpp"
 #include "volume/drill.hpp"
 
 namespace lancet::render {
 namespace {
 
-class VolumeRaycasterTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    unsetenv("DISPLAY");  // EGL needs none
-    auto w = Window::create({128, 128, false, "test"});
-    ASSERT_TRUE(w) << "no headless GL context: " << w.error().message;
-    window_ = std::move(w).value();
-  }
-  std::unique_ptr<Window> window_;
-};
+using VolumeRaycasterTest = test::HeadlessGl<128, 128>;
 
 struct Diff {
   double max = 0, mean = 0;
