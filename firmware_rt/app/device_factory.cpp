@@ -31,7 +31,6 @@ Result<MadeDevice> make_backend(const arm::ArmConfig& config) {
       auto sim = device::SimArm::create(config);
       if (!sim.ok()) return sim.error();
       MadeDevice m;
-      m.hand = &sim.value()->physics();
       m.device = std::move(sim).value();
       return m;
     }

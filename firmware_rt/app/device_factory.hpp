@@ -12,7 +12,6 @@ namespace lancet::app {
 
 struct MadeDevice {
   std::unique_ptr<device::Device> device;
-  device::ArmPhysics* hand = nullptr;  ///< the simulated hand, for the sim backend (owned by device)
 };
 
 /// The encoder plausibility limits of a config's joints (max speed, one count).

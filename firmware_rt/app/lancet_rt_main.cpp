@@ -109,11 +109,11 @@ bool write_stats(const std::string& path, const StatsInput& in) {
   if (in.data != nullptr) {
     const lancet::app::RtData& d = *in.data;
     field("patches_received", num(d.patches_received));
-    field("contact_ticks", num(d.contact_ticks));
-    field("max_force_n", num(d.max_force_seen, 6));
-    field("nan_guards", num(d.haptic.safety.nan_guards));
-    field("clamps", num(d.haptic.safety.clamps));
-    field("commands_applied", num(d.commands_applied));
+    field("contact_ticks", num(d.servo.contact_ticks));
+    field("max_force_n", num(d.servo.max_force_seen, 6));
+    field("nan_guards", num(d.servo.haptic.safety.nan_guards));
+    field("clamps", num(d.servo.haptic.safety.clamps));
+    field("commands_applied", num(d.servo.commands_applied));
     field("viz_lost_at_beat_ns", num(d.viz_lost_at_beat_ns));
     field("force_zero_ns", num(d.force_zero_ns));
   }
@@ -194,7 +194,7 @@ int main(int argc, char** argv) {
   double stiffness = 0;
   cli.add_option("--stiffness", stiffness, "contact stiffness of every material (N/m); default: per material")
       ->check(CLI::Range(1.0, 5000.0));
-  cli.add_option("--max-force", model.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
+  cli.add_option("--max-force", model.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
   cli.add_option("--viz-timeout-ms", timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
   cli.add_option("--fade-ms", fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
@@ -241,7 +241,6 @@ int main(int argc, char** argv) {
   std::optional<lancet::arm::ArmConfig> arm_config;
   std::optional<lancet::arm::Kinematics> kinematics;
   std::unique_ptr<lancet::device::Device> arm;
-  lancet::device::ArmPhysics* hand = nullptr;
   if (!config_path.empty()) {
     auto cfg = lancet::arm::load_arm_config(config_path);
     if (!cfg.ok()) {
@@ -280,10 +279,9 @@ int main(int argc, char** argv) {
       return 2;
     }
     arm = std::move(dev.value().device);
-    hand = dev.value().hand;
     install_signal_handlers();
-    if (const lancet::device::Outcome o = arm->configure(); !o.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+    if (const lancet::Result<void> o = arm->configure(); !o.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", o.error().message.c_str());
       return 2;
     }
     // No fault before the first good read: wait for it with the arm still disabled (errors while
@@ -293,22 +291,22 @@ int main(int argc, char** argv) {
                    arm->name().c_str(), first_read_timeout_ms, why.c_str());
       return 2;
     }
-    model.kinematics = &*kinematics;
+    model.servo.kinematics = *kinematics;
     const auto& ws = arm_config->safety;
-    model.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
-    for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < model.max_joint_torque.size(); ++j)
-      model.max_joint_torque[j] = ws.max_joint_torque[j];
-    model.haptic.safety.max_force = std::min(model.haptic.safety.max_force, ws.max_force);
+    model.servo.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
+    for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < model.servo.max_joint_torque.size(); ++j)
+      model.servo.max_joint_torque[j] = ws.max_joint_torque[j];
+    model.servo.haptic.safety.max_force = std::min(model.servo.haptic.safety.max_force, ws.max_force);
   }
 
   lancet::rt::LoopParams loop_params = rt_opts.loop();
   loop_params.duration_ns = lancet::seconds_to_ns(duration);
-  model.period_ns = loop_params.period_ns;
+  model.servo.period_ns = loop_params.period_ns;
   if (stiffness > 0) {
-    for (auto& mat : model.haptic.materials) mat.stiffness = stiffness;
+    for (auto& mat : model.servo.haptic.materials) mat.stiffness = stiffness;
   }
-  model.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
-  model.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
+  model.servo.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
+  model.servo.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
 
   lancet::ShmSegment::CreateOptions seg_opts;
   seg_opts.creator_name = "lancet-rt";
@@ -329,14 +327,14 @@ int main(int argc, char** argv) {
   // Enable the arm as late as possible: a drive-side watchdog counts from the end of activate(),
   // so the servo's first tick follows within a period or two.
   if (arm) {
-    if (const lancet::device::Outcome o = arm->activate(); !o.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", o.error->message.c_str());
+    if (const lancet::Result<void> o = arm->activate(); !o.ok()) {
+      std::fprintf(stderr, "lancet-rt: %s\n", o.error().message.c_str());
       return 2;
     }
     std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm_config->name.c_str(), arm->name().c_str(),
                  arm->joint_count(), lancet::device::to_string(arm->state()));
   }
-  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get(), hand);  // after mlockall: locked too
+  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get());  // after mlockall: locked too
   lancet::rt::RtLoop loop(loop_params);
   std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
@@ -355,7 +353,7 @@ int main(int argc, char** argv) {
   for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
   std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
-               1e9 / static_cast<double>(model.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
+               1e9 / static_cast<double>(model.servo.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
 
   // This thread supervises: device re-arms and reconnects, what changed (said the moment it is
   // seen), a servo tick that stops advancing, signals, and the status line once a second. It
@@ -437,7 +435,7 @@ int main(int argc, char** argv) {
                static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
                static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
                static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
-               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().max_force_seen);
+               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().servo.max_force_seen);
   stats.loop = &ls;
   stats.watchdog_trips = loop.watchdog().trips();
   stats.data = &servo.data();

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstring>
 #include <memory>
+#include <stdexcept>
+#include <string>
 
 #include "lancet/shared_model/validate.hpp"
 
@@ -14,7 +16,7 @@ namespace lancet::app {
 namespace {
 // The haptic model's time step is the servo period.
 RtModel with_period(RtModel m) {
-  m.haptic.dt = static_cast<double>(m.period_ns) * 1e-9;
+  m.servo.haptic.dt = static_cast<double>(m.servo.period_ns) * 1e-9;
   return m;
 }
 
@@ -42,20 +44,36 @@ void copy_text(char* dst, std::size_t size, const char* src) noexcept {
   dst[n] = '\0';
 }
 
-RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm, device::ArmPhysics* hand)
-    : model_(with_period(model)), shared_(shared), arm_(model.kinematics != nullptr ? arm : nullptr), hand_(hand),
-      data_(std::make_unique<RtData>()) {
-  data_->start_ns = start_ns;
-  data_->pid = static_cast<std::int32_t>(getpid());
-  data_->stylus.position = device::scripted_target(0.0, model_.script_depth);
-  if (arm_ != nullptr) data_->command.n = arm_->joint_count();
+RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm)
+    : model_(with_period(model)), shared_(shared), device_(arm), has_arm_(arm != nullptr), data_(std::make_unique<RtData>()) {
+  RtData& d = *data_;
+  d.start_ns = start_ns;
+  d.pid = static_cast<std::int32_t>(getpid());
+  if (has_arm_) {
+    if (arm->joint_count() != model_.servo.kinematics.joint_count())
+      throw std::invalid_argument("RtServo: the arm " + arm->name() + " has " + std::to_string(arm->joint_count()) +
+                                  " joints, its kinematics " + std::to_string(model_.servo.kinematics.joint_count()));
+  } else {
+    // The built-in stylus: a Device like the arms, at the script's start, Cartesian.
+    const double dt = static_cast<double>(model_.servo.period_ns) * 1e-9;
+    stylus_ = std::make_unique<device::SimStylus>(model_.stylus, dt, device::scripted_target(0.0, model_.script_depth));
+    if (!stylus_->configure().ok() || !stylus_->activate().ok()) throw std::logic_error("RtServo: the built-in stylus did not start");
+    device_ = stylus_.get();
+    model_.servo.kinematics = arm::Kinematics::cartesian();
+    model_.servo.device_origin = {};
+    model_.servo.max_joint_torque.fill(0.0);
+    for (std::size_t j = 0; j < 3; ++j) model_.servo.max_joint_torque[j] = model_.servo.haptic.safety.max_force;
+  }
+  // The model, for whoever records the session (a replay needs exactly it).
+  shared_.servo_model.write(servo::to_blob(model_.servo));
   // Requests made before this servo existed are not for it.
   OperatorRequest r{};
-  if (shared_.operator_request.try_read_if_newer(r, data_->request_version) == ReadStatus::kOk) data_->request_seq = r.seq;
+  if (shared_.operator_request.try_read_if_newer(r, d.request_version) == ReadStatus::kOk) d.request_seq = r.seq;
 }
 
 bool RtServo::supervise(std::int64_t now_ns) {
-  if (arm_ == nullptr) return false;
+  if (!has_arm_) return false;
+  device::Device* const arm = device_;
   RtData& d = *data_;
   const auto phase = static_cast<Handover>(d.handover.load(std::memory_order_acquire));
   if (phase == Handover::kIdle) {
@@ -80,22 +98,22 @@ bool RtServo::supervise(std::int64_t now_ns) {
   const auto job = static_cast<DeviceJob>(d.job.load(std::memory_order_relaxed));
   bool ok = false;
   if (job == DeviceJob::kRearm) {
-    if (arm_->state() == device::Lifecycle::kFault) {
-      const device::Outcome o = arm_->rearm();
+    if (arm->state() == device::Lifecycle::kFault) {
+      const Result<void> o = arm->rearm();
       ok = o.ok();
       if (ok) {
         copy_text(d.rearm_text.data(), d.rearm_text.size(), "re-armed");
       } else {
         ++d.rearm_failures;
-        copy_text(d.rearm_text.data(), d.rearm_text.size(), o.error->message.c_str());
+        copy_text(d.rearm_text.data(), d.rearm_text.size(), o.error().message.c_str());
       }
     }
   } else if (job == DeviceJob::kReconnect) {
-    if (arm_->state() == device::Lifecycle::kFault && arm_->link_lost()) {
-      const device::Outcome o = arm_->reconnect();
+    if (arm->state() == device::Lifecycle::kFault && arm->link_lost()) {
+      const Result<void> o = arm->reconnect();
       ok = o.ok();
       copy_text(d.rearm_text.data(), d.rearm_text.size(),
-                ok ? "bus link reopened; the arm stays faulted until re-armed" : o.error->message.c_str());
+                ok ? "bus link reopened; the arm stays faulted until re-armed" : o.error().message.c_str());
     }
   }
   d.job_ok = ok;
@@ -108,32 +126,14 @@ void RtServo::reject(std::uint64_t& counter, const char* why) noexcept {
   data_->last_reject.store(why, std::memory_order_relaxed);
 }
 
-void RtServo::request_rearm(rt::Watchdog& watchdog) noexcept {
-  RtData& d = *data_;
-  if (watchdog.tripped()) ++d.rearms;
-  watchdog.rearm();
-  if (arm_ != nullptr) d.rearm_wanted.store(true, std::memory_order_release);
-}
-
-void RtServo::apply(const Command& c, rt::Watchdog& watchdog) noexcept {
-  RtData& d = *data_;
-  ++d.commands_applied;
-  switch (c.kind) {
-    case CommandKind::kSetToolMode: d.mode = c.mode; break;
-    case CommandKind::kReset: d.mode = ToolMode::kProbe; break;
-    case CommandKind::kRearm: request_rearm(watchdog); break;
-    case CommandKind::kSetMaterial:  // materials arrive with the haptic core; the penalty model ignores them
-    case CommandKind::kNone: break;
-  }
-}
-
-void RtServo::drain_commands(rt::Watchdog& watchdog, std::int64_t now_ns) noexcept {
+std::size_t RtServo::drain_commands(std::int64_t now_ns, bool& operator_rearm) noexcept {
   RtData& d = *data_;
   // At most one bounded batch per tick, whatever the ring's indices say; each command checked.
   const std::size_t cap = std::min(model_.max_commands_per_tick, d.command_batch.size());
   bool reset = false;
   const std::size_t n = shared_.commands.try_pop_n(d.command_batch.data(), cap, &reset);
   if (reset) reject(d.health.ring_resets, "commands ring: indices impossible, reset");
+  std::size_t taken = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const Command& c = d.command_batch[i];
     if (const char* why = wire::check(c)) {
@@ -147,11 +147,12 @@ void RtServo::drain_commands(rt::Watchdog& watchdog, std::int64_t now_ns) noexce
       continue;
     }
     d.last_command_t_ns = c.t_ns;
-    apply(c, watchdog);
+    d.commands[taken++] = servo::pack_command(c.kind, c.mode);
   }
   if (n == cap && !shared_.commands.empty_approx()) ++d.health.commands_deferred;
 
   // An operator's re-arm request (lancetctl rearm), through its own seqlock.
+  operator_rearm = false;
   if (shared_.operator_request.try_read_if_newer(d.request, d.request_version, 2) == ReadStatus::kOk) {
     if (const char* why = wire::check(d.request, now_ns)) {
       reject(d.health.commands_rejected, why);
@@ -159,14 +160,15 @@ void RtServo::drain_commands(rt::Watchdog& watchdog, std::int64_t now_ns) noexce
       d.request_seq = d.request.seq;
       if (now_ns - d.request.t_ns <= model_.operator_request_max_age_ns) {
         ++d.operator_requests;
-        request_rearm(watchdog);
+        operator_rearm = true;
       }
     }
   }
+  return taken;
 }
 
 bool RtServo::take_device() noexcept {
-  if (arm_ == nullptr) return false;
+  if (!has_arm_) return true;  // the built-in stylus needs no supervisor
   RtData& d = *data_;
   auto phase = static_cast<Handover>(d.handover.load(std::memory_order_acquire));
   if (phase == Handover::kRequested) {
@@ -186,14 +188,27 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   RtData& d = *data_;
   const std::int64_t deadline_ns = ctx.deadline_ns;
   const std::int64_t now_ns = ctx.woke_ns;
-  const double dt = static_cast<double>(model_.period_ns) * 1e-9;
   const double t = static_cast<double>(deadline_ns - d.start_ns) * 1e-9;
-  ++d.tick;
 
   // The device handover first: a requested device is granted before anything else touches it.
   const bool device_owned = take_device();
 
-  drain_commands(ctx.watchdog, now_ns);
+  // Commands: the ring's, then the script's tool changes, each when its time comes (a later key
+  // in the viz wins until the script's next change).
+  servo::ServoInput in;
+  std::size_t n = drain_commands(now_ns, in.operator_rearm);
+  if (model_.trajectory != nullptr) {
+    const auto& changes = model_.trajectory->tools;
+    while (d.next_tool_change < changes.size() && changes[d.next_tool_change].t <= t) {
+      if (n < d.commands.size()) {
+        d.commands[n++] = servo::pack_command(CommandKind::kSetToolMode, changes[d.next_tool_change].mode);
+      } else {
+        in.commands_cut = true;
+      }
+      ++d.next_tool_change;
+    }
+  }
+  in.commands = std::span<const std::uint8_t>(d.commands.data(), n);
 
   // Where the hand pulls the stylus: the viz's target while it is fresh, else the script.
   if (shared_.stylus_target.try_read_if_newer(d.target_scratch, d.target_version, 2) == ReadStatus::kOk) {
@@ -207,15 +222,6 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   const Vec3 target = target_fresh              ? d.target.target.position
                       : model_.trajectory != nullptr ? model_.trajectory->at(t)
                                                      : device::scripted_target(t, model_.script_depth);
-  // A scripted hand also picks its tools, each when its time comes (a later key in the viz wins
-  // until the script's next change).
-  if (model_.trajectory != nullptr) {
-    const auto& changes = model_.trajectory->tools;
-    while (d.next_tool_change < changes.size() && changes[d.next_tool_change].t <= t) {
-      d.mode = changes[d.next_tool_change].mode;
-      ++d.next_tool_change;
-    }
-  }
 
   // Newest patch, into the back buffer; swap only on a consistent read of a valid patch.
   TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];
@@ -228,125 +234,63 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
       ++d.patches_received;
     }
   }
-  const TissuePatch& patch = d.patches[static_cast<std::size_t>(d.front)];
 
-  // Read the arm: encoders → forward kinematics → the tool in the tissue frame. While the
-  // supervisor holds the device the servo keeps its hands off it.
-  bool device_ok = true;
-  if (arm_ != nullptr) {
-    if (hand_ != nullptr && device_owned) hand_->set_hand_target(target + model_.device_origin);
-    d.last_read = device_owned ? arm_->read(d.joints) : device::IoStatus::kFault;
-    device_ok = d.last_read == device::IoStatus::kOk;
-    if (device_ok) {
-      const std::span<const double> q(d.joints.q.data(), static_cast<std::size_t>(d.joints.n));
-      d.jacobian = model_.kinematics->jacobian(q);
-      d.tool = model_.kinematics->position(q) - model_.device_origin;
-      Vec3 v{};
-      for (int j = 0; j < d.joints.n; ++j) v += d.jacobian.column[static_cast<std::size_t>(j)] * d.joints.qd[static_cast<std::size_t>(j)];
-      d.tool_velocity = v;
-    }
-  } else {
-    d.tool = d.stylus.position;
-    d.tool_velocity = d.stylus.velocity;
-  }
+  // Read the device (the hand steering a simulated one first). While the supervisor holds it the
+  // servo keeps its hands off.
+  if (device_owned) device_->steer_hand(target + model_.servo.device_origin);
+  d.last_read = device_owned ? device_->read(d.joints) : device::IoStatus::kFault;
 
-  // The haptic step: proxy against the patch, stage machine, cut friction, force safety.
-  haptics::HapticInput in;
-  in.device = d.tool;
-  in.velocity = d.tool_velocity;
-  in.orientation = Quat{};  // the simulated stylus does not rotate: the blade points along +x
-  in.mode = d.mode;
-  in.patch = d.patch_version != 0 ? &patch : nullptr;
-  in.tick = d.tick;
-  in.patch_age_ns = d.patch_version != 0 ? now_ns - patch.t_ns : -1;
-  haptics::HapticOutput& h = d.haptic_out;
-  haptics::haptic_step(model_.haptic, d.haptic, in, h);
-  std::uint32_t events = h.events;
-  d.contact = h.contact;
-  if (h.contact) ++d.contact_ticks;
-
-  // The viz owns the tissue: without its heartbeat the patch is stale, so fade the force out.
+  // The viz owns the tissue: its heartbeat says whether the patch can be trusted.
   const std::int64_t beat = shared_.viz_heartbeat.last_ns();
-  const bool alive = shared_.viz_heartbeat.fresh(now_ns, model_.fade.timeout_ns);
+  const bool alive = shared_.viz_heartbeat.fresh(now_ns, model_.servo.fade.timeout_ns);
   if (d.viz_alive && !alive) {
     d.viz_lost_at_beat_ns = d.viz_last_beat_ns;
     d.force_zero_ns = 0;
   }
   d.viz_alive = alive;
   if (alive) d.viz_last_beat_ns = beat;
-  const double scale = d.fade.update(alive, model_.period_ns, model_.fade);
-  if (scale < 1.0) events |= event::kForceFaded;
 
-  // The viz fade and the watchdog only ever shrink the force that the safety layer made safe.
-  Vec3 f = scale * h.force;
-  if (ctx.watchdog.tripped()) {
-    f = Vec3{};
-    ++d.watchdog_faulted_ticks;
-    events |= event::kFault;
+  // The step.
+  in.deadline_ns = deadline_ns;
+  in.woke_ns = now_ns;
+  in.reading = d.joints;
+  in.read_status = d.last_read;
+  in.device_held = !device_owned;
+  in.patch = d.patch_version != 0 ? &d.patches[static_cast<std::size_t>(d.front)] : nullptr;
+  in.patch_version = d.patch_version;
+  in.viz_alive = alive;
+  in.watchdog_tripped = ctx.watchdog.tripped();
+  servo::ServoOutput& out = d.out;
+  servo::servo_step(model_.servo, d.servo, in, out);
+  if (out.rearm) {
+    if (ctx.watchdog.tripped()) ++d.rearms;
+    ctx.watchdog.rearm();
+    if (has_arm_) d.rearm_wanted.store(true, std::memory_order_release);
   }
-  if (!device_ok) {  // no fresh pose: no force (and the device layer counts why)
-    f = Vec3{};
-    ++d.device_error_ticks;
-    events |= event::kFault;
-  }
-  d.force = f;
-  d.max_force_seen = std::max(d.max_force_seen, norm(f));
-  if (!alive && d.viz_lost_at_beat_ns != 0 && d.force_zero_ns == 0 && f == Vec3{}) d.force_zero_ns = deadline_ns;
+  if (!alive && d.viz_lost_at_beat_ns != 0 && d.force_zero_ns == 0 && d.servo.force == Vec3{}) d.force_zero_ns = deadline_ns;
 
-  // Write the device: joint torques τ = Jᵀ F within each joint's limit, or the built-in stylus.
-  if (arm_ != nullptr) {
-    const auto tau = arm::joint_torques(d.jacobian, f);
-    for (int j = 0; j < d.command.n; ++j) {
-      const auto uj = static_cast<std::size_t>(j);
-      const double lim = model_.max_joint_torque[uj] > 0 ? model_.max_joint_torque[uj] : 0.0;
-      d.command.tau[uj] = device_ok ? std::clamp(tau[uj], -lim, lim) : 0.0;
-    }
-    // (Ownership cannot change within a tick: only this thread grants, at the start of the tick.)
-    d.last_write = device_owned ? arm_->write(d.command) : device::IoStatus::kFault;
-    if (d.last_write != device::IoStatus::kOk) events |= event::kFault;
-  } else {
-    device::step_sim_stylus(model_.stylus, d.stylus, target, f, dt);
-  }
+  // Write the device. (Ownership cannot change within a tick: only this thread grants, at the
+  // start of the tick.)
+  d.last_write = device_owned ? device_->write(out.command) : device::IoStatus::kFault;
+  ToolSample& s = out.sample;
+  s.write_status = static_cast<std::uint8_t>(d.last_write);
+  if (d.last_write != device::IoStatus::kOk) s.events |= event::kFault;
 
-  // One ToolSample per tick.
-  ToolSample& s = d.sample;
-  s.seq = d.tick;
-  s.t_ns = deadline_ns;
-  s.mode = d.mode;
-  s.stage = h.stage;
-  if (arm_ != nullptr) {
-    s.n_joints = static_cast<std::uint32_t>(d.joints.n);
-    for (int j = 0; j < d.joints.n; ++j) {
-      const auto uj = static_cast<std::size_t>(j);
-      s.q[uj] = d.joints.q[uj], s.qd[uj] = d.joints.qd[uj], s.tau[uj] = d.command.tau[uj];
-    }
-  } else {
-    s.n_joints = 3;  // the sim stylus is a Cartesian 3-DOF point: q = position
-    s.q[0] = d.stylus.position.x, s.q[1] = d.stylus.position.y, s.q[2] = d.stylus.position.z;
-    s.qd[0] = d.stylus.velocity.x, s.qd[1] = d.stylus.velocity.y, s.qd[2] = d.stylus.velocity.z;
-    s.tau[0] = f.x, s.tau[1] = f.y, s.tau[2] = f.z;
-  }
-  s.tool = Pose{d.tool, Quat{}};
-  s.proxy = Pose{h.proxy, Quat{}};
-  s.force = f;
-  s.patch_version = d.patch_version;
-  s.events = events;
-  s.payload = h.payload;
   bool reset = false;
   (void)shared_.samples.try_push(s, &reset);  // a full ring is counted by the ring itself
   if (reset) reject(d.health.sample_ring_resets, "samples ring: indices impossible, reset");
 
-  publish_status(ctx, h, scale, alive, device_owned);
+  publish_status(ctx, device_owned);
   shared_.rt_heartbeat.beat(now_ns, d.pid);
 }
 
-void RtServo::publish_status(const rt::TickContext& ctx, const haptics::HapticOutput& h, double scale, bool alive,
-                             bool device_owned) noexcept {
+void RtServo::publish_status(const rt::TickContext& ctx, bool device_owned) noexcept {
   RtData& d = *data_;
+  const bool alive = d.viz_alive;
   RtStatus& st = d.status;
-  st.tick = d.tick;
+  st.tick = d.servo.tick;
   st.t_ns = ctx.deadline_ns;
-  st.period_ns = model_.period_ns;
+  st.period_ns = model_.servo.period_ns;
   st.overruns = ctx.live.overruns;
   st.missed = ctx.live.missed;
   st.wake_p50_ns = ctx.live.wake_p50_ns;
@@ -358,29 +302,30 @@ void RtServo::publish_status(const rt::TickContext& ctx, const haptics::HapticOu
   st.watchdog_tripped = ctx.watchdog.tripped() ? 1u : 0u;
   st.watchdog_reason = static_cast<std::uint32_t>(ctx.watchdog.reason());
   st.fifo = d.fifo ? 1u : 0u;
-  st.force = d.force;
-  st.force_scale = scale;
+  st.force = d.servo.force;
+  st.force_scale = d.out.fade_scale;
   st.patch_version = d.patch_version;
   st.viz_alive = alive ? 1u : 0u;
-  st.contact = h.contact ? 1u : 0u;
+  st.contact = d.servo.contact ? 1u : 0u;
   st.samples_pushed = shared_.samples.pushed_count();
   st.samples_dropped = shared_.samples.overflow_count();
   st.viz_last_beat_ns = alive ? d.viz_last_beat_ns : d.viz_lost_at_beat_ns;
   st.force_zero_ns = d.force_zero_ns;
-  st.tool = d.tool;
-  st.has_arm = arm_ != nullptr ? 1u : 0u;
-  if (arm_ != nullptr && device_owned) {
+  st.tool = d.servo.tool;
+  st.has_arm = has_arm_ ? 1u : 0u;
+  if (has_arm_ && device_owned) {
+    const device::Device* const arm = device_;
     // The device is this thread's now: its state, counters and words are safe to copy.
-    const device::FaultDetail& fd = arm_->fault_detail();
-    st.device_state = static_cast<std::uint32_t>(arm_->state());
-    st.device_fault_cause = static_cast<std::uint32_t>(arm_->fault_cause());
-    st.link_lost = arm_->link_lost() ? 1u : 0u;
+    const device::FaultDetail& fd = arm->fault_detail();
+    st.device_state = static_cast<std::uint32_t>(arm->state());
+    st.device_fault_cause = static_cast<std::uint32_t>(arm->fault_cause());
+    st.link_lost = arm->link_lost() ? 1u : 0u;
     st.fault_node = fd.node;
     st.fault_code = fd.code;
     copy_text(st.fault_text, sizeof st.fault_text, fd.status == device::IoStatus::kOk ? "" : fd.c_str());
-    const device::FaultDetail& le = arm_->last_error();
+    const device::FaultDetail& le = arm->last_error();
     copy_text(st.error_text, sizeof st.error_text, le.status == device::IoStatus::kOk ? "" : le.c_str());
-    st.bus = to_wire(arm_->counters());
+    st.bus = to_wire(arm->counters());
     st.rearm_failures = d.rearm_failures;
     copy_text(st.rearm_text, sizeof st.rearm_text, d.rearm_text.data());
   }
@@ -390,7 +335,7 @@ void RtServo::publish_status(const rt::TickContext& ctx, const haptics::HapticOu
                          : 0u;
   st.rearms = d.rearms;
   st.operator_requests = d.operator_requests;
-  st.device_errors = d.device_error_ticks;
+  st.device_errors = d.servo.device_error_ticks;
   st.health = d.health;
   shared_.rt_status.write(st);
   d.own_status.write(st);

@@ -3,11 +3,13 @@
 // and RtServo::tick(), which never allocates, locks, blocks, throws or logs.
 //
 // One tick: hand the device over if the supervisor asked → commands (at most
-// max_commands_per_tick, each checked) and operator requests → stylus target (viz or script;
-// checked) → read the device → take the newest TissuePatch (seqlock, never waits; checked) →
-// haptic step (proxy, stages, cut friction, force safety) → fade by viz liveness → watchdog →
-// write the device → push one ToolSample → publish RtStatus (shared, and a private copy for the
-// supervisor) and the heartbeat.
+// max_commands_per_tick, each checked), the script's tool changes and operator requests → the
+// hand's target (viz or script; checked) → take the newest TissuePatch (seqlock, never waits;
+// checked) → read the device → servo::servo_step (firmware_rt/servo: sense, haptics, fade and
+// watchdog, actuate, the sample) → write the device → push the ToolSample → publish RtStatus
+// (shared, and a private copy for the supervisor) and the heartbeat. The step is a pure function
+// of what this wrapper reads; everything it was given goes into the ToolSample, so a recording
+// replays it exactly.
 //
 // The segment is untrusted input: whatever the viz (or anything else) wrote is checked before use
 // (lancet/shared_model/validate.hpp), the work it can cause per tick is bounded, and what was
@@ -24,35 +26,27 @@
 #include <cstdint>
 #include <memory>
 
-#include "arm/kinematics.hpp"
-#include "device/arm_physics.hpp"
 #include "device/device.hpp"
 #include "device/sim_stylus.hpp"
 #include "device/trajectory.hpp"
-#include "haptics/force_fade.hpp"
-#include "haptics/haptic_step.hpp"
 #include "lancet/shared_model/shared_state.hpp"
 #include "rt/rt_loop.hpp"
+#include "servo/servo_step.hpp"
 
 namespace lancet::app {
 
-/// Immutable configuration of the servo (built once at start-up).
+/// Immutable configuration of lancet-rt's servo (built once at start-up): the step's model and
+/// what the I/O around it needs.
 struct RtModel {
-  std::int64_t period_ns = 1'000'000;            ///< 1 kHz
-  haptics::HapticModel haptic = haptics::HapticModel::defaults();  ///< materials, proxy, safety
-  haptics::ForceFadeParams fade{};
+  servo::ServoModel servo{};  ///< the step's model (period, haptics, fade, kinematics, torque limits)
+  /// Without an arm: the built-in simulated stylus (a Device like the others, Cartesian).
   device::SimStylusParams stylus{};
   double script_depth = 0.004;                   ///< m below z = 0 the script presses to
   std::int64_t target_timeout_ns = 250'000'000;  ///< a StylusTarget older than this is ignored
   const device::Trajectory* trajectory = nullptr;  ///< replayed instead of the script (optional)
-  // An arm from hw_configs (optional; RtServo's `arm` argument): its kinematics, the device-frame
-  // point that maps to the tissue's origin (the centre of its workspace box) and the per-joint
-  // torque limits from its safety section.
-  const arm::Kinematics* kinematics = nullptr;
-  Vec3 device_origin{};
-  std::array<double, device::kMaxJoints> max_joint_torque{};
   /// Commands taken from the ring per tick at most (the rest wait for the next tick): whatever the
-  /// ring's indices say, a tick's work stays bounded.
+  /// ring's indices say, a tick's work stays bounded. At most kSampleCommands (every command a
+  /// tick applies is recorded in its ToolSample).
   std::size_t max_commands_per_tick = 16;
   /// An operator request (lancetctl rearm) older than this when seen is ignored.
   std::int64_t operator_request_max_age_ns = 2'000'000'000;
@@ -68,13 +62,13 @@ enum class Handover : int { kIdle = 0, kRequested = 1, kGranted = 2, kDone = 3 }
 /// What the supervisor does with the device once granted.
 enum class DeviceJob : int { kNone = 0, kRearm = 1, kReconnect = 2 };
 
-/// Everything the tick reads and writes, allocated once.
+/// Everything the tick reads and writes, allocated once: the step's data and the I/O's.
 struct RtData {
-  std::uint64_t tick = 0;
-  std::size_t next_tool_change = 0;  ///< the trajectory's next tool change not yet applied
+  servo::ServoData servo{};              ///< the step's state (what a recording replays)
+  servo::ServoOutput out{};              ///< the step's output this tick
+  std::size_t next_tool_change = 0;      ///< the trajectory's next tool change not yet applied
   std::int32_t pid = 0;
   std::int64_t start_ns = 0;
-  device::SimStylusState stylus{};
   StylusTarget target{};                 ///< the last valid target
   StylusTarget target_scratch{};         ///< read from the segment, checked before it is taken
   std::uint64_t target_version = 0;
@@ -85,23 +79,12 @@ struct RtData {
   std::uint64_t patch_seen = 0;          ///< seqlock version last read (accepted or not)
   std::uint64_t patch_version = 0;       ///< version of the patch in use (0: none)
   std::uint64_t patches_received = 0;
-  haptics::ForceFade fade{};
-  haptics::HapticData haptic{};
-  haptics::HapticOutput haptic_out{};
   bool viz_alive = false;
-  bool contact = false;
-  ToolMode mode = ToolMode::kProbe;
-  Vec3 force{};
-  double max_force_seen = 0;
-  std::uint64_t contact_ticks = 0;
-  std::uint64_t commands_applied = 0;
   std::int64_t viz_last_beat_ns = 0;
   std::int64_t viz_lost_at_beat_ns = 0;  ///< last beat seen before the viz was judged lost
   std::int64_t force_zero_ns = 0;        ///< first tick at zero force after the loss
-  std::uint64_t watchdog_faulted_ticks = 0;  ///< ticks rendered at zero force by the watchdog
-  std::uint64_t rearms = 0;                  ///< re-arms done (watchdog, and the arm by the supervisor)
-  bool fifo = false;                         ///< reported in RtStatus
-  ToolSample sample{};
+  std::uint64_t rearms = 0;              ///< re-arms done (watchdog, and the arm by the supervisor)
+  bool fifo = false;                     ///< reported in RtStatus
   RtStatus status{};
   SegmentHealth health{};
   /// The check that rejected the last bad message (a static string; nullptr: none yet). Read by the
@@ -111,15 +94,12 @@ struct RtData {
   std::uint64_t request_version = 0;
   std::uint64_t request_seq = 0;         ///< seq of the last operator request taken
   std::uint64_t operator_requests = 0;
-  std::array<Command, 64> command_batch{};
+  std::array<Command, kSampleCommands> command_batch{};
+  std::array<std::uint8_t, kSampleCommands> commands{};  ///< this tick's, packed for the step
   std::int64_t last_command_t_ns = 0;    ///< stamp of the last command applied (commands must be newer)
-  // The arm, when there is one.
+  // The device (the arm, or the built-in stylus).
   device::JointState joints{};
-  device::JointCommand command{};
-  arm::Jacobian jacobian{};              ///< of the last good read
-  Vec3 tool{}, tool_velocity{};          ///< tissue frame (m, m/s)
   device::IoStatus last_read = device::IoStatus::kOk, last_write = device::IoStatus::kOk;
-  std::uint64_t device_error_ticks = 0;  ///< ticks at zero force because the arm could not be read or written
   // The device handover (see the header comment).
   std::atomic<int> handover{0};          ///< Handover
   std::atomic<int> job{0};               ///< DeviceJob, set by the supervisor before kRequested
@@ -137,11 +117,11 @@ struct RtData {
 class RtServo {
  public:
   /// shared must outlive the servo. Not real-time safe (it is the configure step). With `arm`
-  /// (configured and activated, model.kinematics set) the servo reads and writes it instead of the
-  /// built-in stylus; with `hand` (the sim backend's physics) the viz target or script steers the
-  /// simulated hand.
-  RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm = nullptr,
-          device::ArmPhysics* hand = nullptr);
+  /// (configured and activated; model.servo.kinematics its kinematics: the joint counts must agree,
+  /// or std::invalid_argument) the servo reads and writes it; without, it makes the built-in
+  /// simulated stylus (Cartesian kinematics, the force limit as its joint limits). Either way the
+  /// viz's target or the script steers the simulated hand (Device::steer_hand; real arms ignore it).
+  RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm = nullptr);
 
   /// The supervisor's side of the device handover: call from one non-real-time thread, repeatedly
   /// (every few ms). Asks for the device when a re-arm was requested (and the arm is faulted) or
@@ -164,22 +144,25 @@ class RtServo {
 
   [[nodiscard]] const RtData& data() const noexcept { return *data_; }
   [[nodiscard]] const RtModel& model() const noexcept { return model_; }
-  [[nodiscard]] device::Device* arm() const noexcept { return arm_; }
+  /// The arm given to the constructor (null: the built-in stylus is in use).
+  [[nodiscard]] device::Device* arm() const noexcept { return has_arm_ ? device_ : nullptr; }
+  /// The device the servo drives: the arm, or the built-in stylus.
+  [[nodiscard]] device::Device& device() const noexcept { return *device_; }
 
  private:
-  void apply(const Command& c, rt::Watchdog& watchdog) noexcept;
-  void request_rearm(rt::Watchdog& watchdog) noexcept;
   void reject(std::uint64_t& counter, const char* why) noexcept;
-  void drain_commands(rt::Watchdog& watchdog, std::int64_t now_ns) noexcept;
+  /// Takes this tick's checked commands from the ring (into data_->commands, packed) and the
+  /// operator's re-arm request; returns how many commands.
+  std::size_t drain_commands(std::int64_t now_ns, bool& operator_rearm) noexcept;
   /// The device handover, at the start of a tick. Returns whether the servo owns the device now.
   bool take_device() noexcept;
-  void publish_status(const rt::TickContext& ctx, const haptics::HapticOutput& h, double scale, bool alive,
-                      bool device_owned) noexcept;
+  void publish_status(const rt::TickContext& ctx, bool device_owned) noexcept;
 
-  const RtModel model_;
+  RtModel model_;
   SharedState& shared_;
-  device::Device* arm_ = nullptr;
-  device::ArmPhysics* hand_ = nullptr;
+  std::unique_ptr<device::SimStylus> stylus_;  // the built-in stylus, when no arm was given
+  device::Device* device_ = nullptr;           // the arm, or stylus_
+  bool has_arm_ = false;
   std::unique_ptr<RtData> data_;  // large (two patches): on the heap, allocated once here
 };
 

@@ -213,20 +213,51 @@ JointArray joint_torques(const SpatialJacobian& j, Vec3 force, Vec3 moment) noex
 // ---------------------------------------------------------------------------------------------
 // Kinematics
 
+namespace {
+Vec3 cartesian_position(std::span<const double> q) noexcept {
+  return q.size() >= 3 ? Vec3{q[0], q[1], q[2]} : Vec3{};
+}
+}  // namespace
+
 int Kinematics::joint_count() const noexcept {
-  return model_ == KinematicModel::kDh ? dh_.joint_count() : PhantomArm::joint_count();
+  switch (model_) {
+    case KinematicModel::kDh: return dh_.joint_count();
+    case KinematicModel::kPhantom: return PhantomArm::joint_count();
+    case KinematicModel::kCartesian: return 3;
+  }
+  return 0;
 }
 
 Vec3 Kinematics::position(std::span<const double> q) const noexcept {
-  return model_ == KinematicModel::kDh ? dh_.position(q) : phantom_.position(q);
+  switch (model_) {
+    case KinematicModel::kDh: return dh_.position(q);
+    case KinematicModel::kPhantom: return phantom_.position(q);
+    case KinematicModel::kCartesian: return cartesian_position(q);
+  }
+  return {};
 }
 
 Pose Kinematics::forward(std::span<const double> q) const noexcept {
-  return model_ == KinematicModel::kDh ? dh_.forward(q) : phantom_.forward(q);
+  switch (model_) {
+    case KinematicModel::kDh: return dh_.forward(q);
+    case KinematicModel::kPhantom: return phantom_.forward(q);
+    case KinematicModel::kCartesian: return Pose{cartesian_position(q), Quat{}};
+  }
+  return {};
 }
 
 Jacobian Kinematics::jacobian(std::span<const double> q) const noexcept {
-  return model_ == KinematicModel::kDh ? dh_.jacobian(q) : phantom_.jacobian(q);
+  switch (model_) {
+    case KinematicModel::kDh: return dh_.jacobian(q);
+    case KinematicModel::kPhantom: return phantom_.jacobian(q);
+    case KinematicModel::kCartesian: {
+      Jacobian j;
+      j.n = 3;
+      j.column[0] = {1, 0, 0}, j.column[1] = {0, 1, 0}, j.column[2] = {0, 0, 1};
+      return j;
+    }
+  }
+  return {};
 }
 
 namespace {

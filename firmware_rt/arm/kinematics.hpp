@@ -19,6 +19,7 @@
 #include <span>
 
 #include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 
 namespace lancet::arm {
@@ -26,7 +27,7 @@ namespace lancet::arm {
 struct ArmConfig;
 
 /// Most joints any model handles; sizes the fixed arrays of the real-time path.
-inline constexpr int kMaxJoints = 8;
+using lancet::kMaxJoints;  // the one limit, shared with the wire (messages.hpp)
 
 /// Joint-space values (rad or m, N·m or N), entries [0, joint_count) used, the rest zero.
 using JointArray = std::array<double, kMaxJoints>;
@@ -39,6 +40,7 @@ enum class JointType : std::uint8_t {
 enum class KinematicModel : std::uint8_t {
   kDh,       ///< DhChain
   kPhantom,  ///< PhantomArm
+  kCartesian,  ///< three prismatic joints along x, y, z: q is the position (the built-in simulated stylus)
 };
 
 /// Rigid transform: row-major rotation (r[3*row + col]) and translation (m).
@@ -165,6 +167,8 @@ class Kinematics {
  public:
   explicit Kinematics(const DhChain& chain) noexcept : model_(KinematicModel::kDh), dh_(chain) {}
   explicit Kinematics(const PhantomArm& arm) noexcept : model_(KinematicModel::kPhantom), phantom_(arm) {}
+  /// Three prismatic joints along x, y, z: position = q, Jacobian = identity.
+  [[nodiscard]] static Kinematics cartesian() noexcept { return Kinematics(KinematicModel::kCartesian); }
 
   [[nodiscard]] KinematicModel model() const noexcept { return model_; }
   [[nodiscard]] int joint_count() const noexcept;
@@ -182,6 +186,7 @@ class Kinematics {
   }
 
  private:
+  explicit Kinematics(KinematicModel m) noexcept : model_(m) {}
   KinematicModel model_;
   DhChain dh_{};
   PhantomArm phantom_{};

@@ -186,7 +186,7 @@ int main(int argc, char** argv) {
   if (rtu_fd >= 0) {
     const auto started = s.start_rtu(rtu_fd);
     if (!started.ok()) {
-      std::fprintf(stderr, "%s\n", started.error->message.c_str());
+      std::fprintf(stderr, "%s\n", started.error().message.c_str());
       return 2;
     }
     std::printf("lancet-armsim: serving '%s' on fd %d (rtu, unit %d)\n", name.c_str(), rtu_fd, config.value().modbus->unit_id);

@@ -66,8 +66,8 @@ Result<std::unique_ptr<ArmServer>> ArmServer::create(const arm::ArmConfig& confi
   auto physics = device::ArmPhysics::create(config);
   if (!physics.ok()) return physics.error();
   std::unique_ptr<ArmServer> s(new ArmServer(config, options, std::move(physics).value()));
-  const device::Outcome o = s->init_mapping();
-  if (!o.ok()) return *o.error;
+  const Result<void> o = s->init_mapping();
+  if (!o.ok()) return o.error();
   return s;
 }
 
@@ -77,7 +77,7 @@ ArmServer::~ArmServer() {
   if (mapping_ != nullptr) modbus_mapping_free(mapping_);
 }
 
-device::Outcome ArmServer::init_mapping() {
+Result<void> ArmServer::init_mapping() {
   const arm::ModbusRegisterMap& map = config_.modbus->registers;
   const int n = physics_->joint_count();
   const auto field = [](const arm::RegisterField& f) {
@@ -116,7 +116,7 @@ device::Outcome ArmServer::init_mapping() {
   const auto count = [](const Span& s) { return s.hi > s.lo ? s.hi - s.lo : 0u; };
   mapping_ = modbus_mapping_new_start_address(0, 0, 0, 0, start(holding), count(holding), start(input), count(input));
   if (mapping_ == nullptr)
-    return device::Outcome::failure(ErrorCode::kSystem, std::string("lancet-armsim: cannot allocate the register mapping: ") + modbus_strerror(errno));
+    return Result<void>::failure(ErrorCode::kSystem, std::string("lancet-armsim: cannot allocate the register mapping: ") + modbus_strerror(errno));
   // The enable register starts `off`, the fault reset released.
   if (enable_.present) put_word(enable_, map.enable_off);
 
@@ -131,7 +131,7 @@ device::Outcome ArmServer::init_mapping() {
   std::lock_guard lock(mu_);
   apply_control();
   publish();
-  return device::Outcome::success();
+  return Result<void>::success();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -367,19 +367,19 @@ Result<int> ArmServer::start_tcp(int port) {
   return port_;
 }
 
-device::Outcome ArmServer::start_rtu(int fd) {
-  if (started_) return device::Outcome::failure(ErrorCode::kInUse, "lancet-armsim: already serving");
+Result<void> ArmServer::start_rtu(int fd) {
+  if (started_) return Result<void>::failure(ErrorCode::kInUse, "lancet-armsim: already serving");
   // The serial settings do not matter: the context never opens a device, it is given fd.
   ctx_ = modbus_new_rtu("/dev/null", 115200, 'N', 8, 1);
   if (ctx_ == nullptr)
-    return device::Outcome::failure(ErrorCode::kSystem, std::string("lancet-armsim: modbus_new_rtu: ") + modbus_strerror(errno));
+    return Result<void>::failure(ErrorCode::kSystem, std::string("lancet-armsim: modbus_new_rtu: ") + modbus_strerror(errno));
   if (modbus_set_slave(ctx_, config_.modbus->unit_id) == -1)
-    return device::Outcome::failure(ErrorCode::kInvalid, "lancet-armsim: bad unit id " + std::to_string(config_.modbus->unit_id));
+    return Result<void>::failure(ErrorCode::kInvalid, "lancet-armsim: bad unit id " + std::to_string(config_.modbus->unit_id));
   (void)modbus_set_indication_timeout(ctx_, 1, 0);
   (void)modbus_set_socket(ctx_, fd);
   start_threads();
   serve_thread_ = std::thread([this, fd] { rtu_loop(fd); });
-  return device::Outcome::success();
+  return Result<void>::success();
 }
 
 void ArmServer::start_threads() {

@@ -124,7 +124,7 @@ class ArmServer {
   [[nodiscard]] Result<int> start_tcp(int port);
   /// Serves Modbus RTU on an open descriptor (e.g. a pty master; not closed by the server) and
   /// starts the threads.
-  [[nodiscard]] device::Outcome start_rtu(int fd);
+  [[nodiscard]] Result<void> start_rtu(int fd);
   /// Stops and joins the threads, closes the clients and the listening socket. Idempotent.
   void stop();
 
@@ -161,7 +161,7 @@ class ArmServer {
 
   ArmServer(const arm::ArmConfig& config, const ServerOptions& options, std::unique_ptr<device::ArmPhysics> physics);
 
-  device::Outcome init_mapping();
+  Result<void> init_mapping();
   void start_threads();
   void physics_loop();
   void tcp_loop();

@@ -1097,9 +1097,9 @@ IoStatus CanopenArm::on_write(const JointCommand& cmd) noexcept {
 // ---------------------------------------------------------------------------------------------
 // Configure-time steps
 
-Outcome CanopenArm::fail(const std::string& what) const { return Outcome::failure(ErrorCode::kSystem, name() + ": " + what); }
+Result<void> CanopenArm::fail(const std::string& what) const { return Result<void>::failure(ErrorCode::kSystem, name() + ": " + what); }
 
-Outcome CanopenArm::open_socket() {
+Result<void> CanopenArm::open_socket() {
   if (fd_ >= 0) {
     ::close(fd_);
     fd_ = -1;
@@ -1161,7 +1161,7 @@ Outcome CanopenArm::open_socket() {
     return give_up("CAN interface '" + ifname + "': bind: " + errno_text(err));
   }
   fd_ = fd;
-  return Outcome::success();
+  return Result<void>::success();
 }
 
 
@@ -1193,7 +1193,7 @@ Result<std::uint32_t> CanopenArm::sdo_transfer(int i, const ::can_frame& request
   return Error{ErrorCode::kSystem, std::move(msg)};
 }
 
-Outcome CanopenArm::sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes) {
+Result<void> CanopenArm::sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes) {
   ::can_frame f{};
   f.can_id = canopen::kCobSdoRx + static_cast<std::uint32_t>(nodes_[static_cast<std::size_t>(i)].info.node_id);
   f.len = 8;
@@ -1202,8 +1202,8 @@ Outcome CanopenArm::sdo_download(int i, std::uint16_t index, std::uint8_t sub, s
   f.data[3] = sub;
   put_le(f.data + 4, value, bytes);
   auto r = sdo_transfer(i, f, index, sub, false, "download " + object_name(index, sub) + " = " + std::to_string(value));
-  if (!r.ok()) return Outcome{r.error()};
-  return Outcome::success();
+  if (!r.ok()) return r.error();
+  return Result<void>::success();
 }
 
 Result<std::uint32_t> CanopenArm::sdo_upload(int i, std::uint16_t index, std::uint8_t sub) {
@@ -1223,35 +1223,35 @@ void CanopenArm::wait_boot_ups(double timeout_s, std::uint32_t node_mask) {
   }
 }
 
-Outcome CanopenArm::identify_node(int i) {
+Result<void> CanopenArm::identify_node(int i) {
   Node& nd = nodes_[static_cast<std::size_t>(i)];
   auto type = sdo_upload(i, 0x1000, 0);
-  if (!type.ok()) return Outcome{type.error()};
+  if (!type.ok()) return type.error();
   if ((type.value() & 0xFFFF) != 402) {
-    return Outcome::failure(ErrorCode::kMismatch, name() + ": node " + std::to_string(nd.info.node_id) + ": device type (0x1000) is " +
+    return Result<void>::failure(ErrorCode::kMismatch, name() + ": node " + std::to_string(nd.info.node_id) + ": device type (0x1000) is " +
                                                       hex(type.value(), 8) + ", not a CiA 402 drive (402 = 0x0192 in the low 16 bits)");
   }
   auto vendor = sdo_upload(i, 0x1018, 1);
-  if (!vendor.ok()) return Outcome{vendor.error()};
+  if (!vendor.ok()) return vendor.error();
   nd.info.vendor_id = vendor.value();
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome CanopenArm::set_mode(int i) {
+Result<void> CanopenArm::set_mode(int i) {
   Node& nd = nodes_[static_cast<std::size_t>(i)];
   const std::int8_t mode = bus_.mode == arm::Cia402Mode::kCyclicSyncTorque ? canopen::kModeCyclicSyncTorque : canopen::kModeProfileTorque;
-  if (Outcome r = sdo_download(i, 0x6060, 0, static_cast<std::uint8_t>(mode), 1); !r.ok()) return r;
+  if (Result<void> r = sdo_download(i, 0x6060, 0, static_cast<std::uint8_t>(mode), 1); !r.ok()) return r;
   // A drive may take a moment to switch; one that cannot says so only in 0x6061.
   const std::int64_t deadline = monotonic_ns() + ns_of(timing_.mode_timeout);
   for (;;) {
     auto shown = sdo_upload(i, 0x6061, 0);
-    if (!shown.ok()) return Outcome{shown.error()};
+    if (!shown.ok()) return shown.error();
     nd.info.mode_display = static_cast<std::int8_t>(shown.value());
-    if (nd.info.mode_display == mode) return Outcome::success();
+    if (nd.info.mode_display == mode) return Result<void>::success();
     if (monotonic_ns() >= deadline) break;
     sleep_until(monotonic_ns() + 1'000'000);
   }
-  return Outcome::failure(ErrorCode::kMismatch,
+  return Result<void>::failure(ErrorCode::kMismatch,
                           name() + ": node " + std::to_string(nd.info.node_id) + ": modes of operation display (0x6061) reads " +
                               std::to_string(nd.info.mode_display) + " (" + canopen::mode_name(nd.info.mode_display) +
                               ") after modes of operation (0x6060) = " + std::to_string(mode) + " (" + canopen::mode_name(mode) +
@@ -1259,9 +1259,9 @@ Outcome CanopenArm::set_mode(int i) {
                               ": the drive refused the mode; check its supported drive modes (0x6502) and the config's mode");
 }
 
-Outcome CanopenArm::configure_node(int i) {
+Result<void> CanopenArm::configure_node(int i) {
   Node& nd = nodes_[static_cast<std::size_t>(i)];
-  if (Outcome o = identify_node(i); !o.ok()) return o;
+  if (Result<void> o = identify_node(i); !o.ok()) return o;
   const auto& o = bus_.objects;
   const auto hb_ms = static_cast<std::uint32_t>(std::lround(bus_.heartbeat_period * 1e3));
   const auto period_us = static_cast<std::uint32_t>(std::llround(bus_.sync_period * 1e6));
@@ -1279,22 +1279,22 @@ Outcome CanopenArm::configure_node(int i) {
       {0x1006, 0, period_us, 4},  // communication cycle period (µs): the SYNC the drive can expect
   };
   for (const Write& w : basics) {
-    if (Outcome r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
   }
   nd.info.controlword = canopen::kCwDisableVoltage;
   nd.info.target_torque = 0;
   if (interpolation_) {
     // Interpolation time period (cyclic synchronous modes): value · 10^index s, the SYNC period.
-    if (Outcome r = sdo_download(i, 0x60C2, 1, interpolation_->value, 1); !r.ok()) return r;
-    if (Outcome r = sdo_download(i, 0x60C2, 2, static_cast<std::uint8_t>(interpolation_->index), 1); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, 0x60C2, 1, interpolation_->value, 1); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, 0x60C2, 2, static_cast<std::uint8_t>(interpolation_->index), 1); !r.ok()) return r;
   }
-  if (Outcome r = set_mode(i); !r.ok()) return r;
+  if (Result<void> r = set_mode(i); !r.ok()) return r;
   const Write torques[] = {
       {0x6076, 0, nd.info.rated_torque_mnm, 4},                         // motor rated torque (mN·m): the unit of 0x6071
       {0x6072, 0, static_cast<std::uint16_t>(nd.info.max_torque), 2},  // max torque (‰)
   };
   for (const Write& w : torques) {
-    if (Outcome r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, w.index, w.sub, w.value, w.bytes); !r.ok()) return r;
   }
 
   // PDOs (CiA 301): invalidate, transmission type, clear the mapping, map, count, validate. The
@@ -1306,18 +1306,18 @@ Outcome CanopenArm::configure_node(int i) {
       const auto comm = static_cast<std::uint16_t>((tx ? 0x1800 : 0x1400) + number - 1);
       const auto map = static_cast<std::uint16_t>((tx ? 0x1A00 : 0x1600) + number - 1);
       const std::uint32_t cob = tx ? canopen::tpdo_cob_id(number, nd.info.node_id) : canopen::rpdo_cob_id(number, nd.info.node_id);
-      if (Outcome r = sdo_download(i, comm, 1, 0x8000'0000u | cob, 4); !r.ok()) return r;
+      if (Result<void> r = sdo_download(i, comm, 1, 0x8000'0000u | cob, 4); !r.ok()) return r;
       const auto it = std::find_if(pdos.begin(), pdos.end(), [&](const arm::PdoConfig& p) { return p.number == number; });
       if (it == pdos.end()) continue;
-      if (Outcome r = sdo_download(i, comm, 2, static_cast<std::uint32_t>(it->sync_divider), 1); !r.ok()) return r;
-      if (Outcome r = sdo_download(i, map, 0, 0, 1); !r.ok()) return r;
+      if (Result<void> r = sdo_download(i, comm, 2, static_cast<std::uint32_t>(it->sync_divider), 1); !r.ok()) return r;
+      if (Result<void> r = sdo_download(i, map, 0, 0, 1); !r.ok()) return r;
       for (std::size_t e = 0; e < it->entries.size(); ++e) {
         const arm::PdoEntry& en = it->entries[e];
         const std::uint32_t v = static_cast<std::uint32_t>(en.index) << 16 | static_cast<std::uint32_t>(en.subindex) << 8 | en.bits;
-        if (Outcome r = sdo_download(i, map, static_cast<std::uint8_t>(e + 1), v, 4); !r.ok()) return r;
+        if (Result<void> r = sdo_download(i, map, static_cast<std::uint8_t>(e + 1), v, 4); !r.ok()) return r;
       }
-      if (Outcome r = sdo_download(i, map, 0, static_cast<std::uint32_t>(it->entries.size()), 1); !r.ok()) return r;
-      if (Outcome r = sdo_download(i, comm, 1, cob, 4); !r.ok()) return r;
+      if (Result<void> r = sdo_download(i, map, 0, static_cast<std::uint32_t>(it->entries.size()), 1); !r.ok()) return r;
+      if (Result<void> r = sdo_download(i, comm, 1, cob, 4); !r.ok()) return r;
     }
   }
 
@@ -1325,15 +1325,15 @@ Outcome CanopenArm::configure_node(int i) {
   // consumer, which starts watching at the master's next heartbeat (the master is producing).
   if (master_heartbeat_ns_ > 0) {
     const auto watchdog_ms = static_cast<std::uint32_t>(std::llround(bus_.drive_watchdog * 1e3));
-    if (Outcome r = sdo_download(i, 0x6007, 0, static_cast<std::uint16_t>(canopen::kAbortConnectionDisableVoltage), 2); !r.ok()) return r;
-    if (Outcome r = sdo_download(i, 0x1016, 1, static_cast<std::uint32_t>(bus_.master_node_id) << 16 | watchdog_ms, 4); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, 0x6007, 0, static_cast<std::uint16_t>(canopen::kAbortConnectionDisableVoltage), 2); !r.ok()) return r;
+    if (Result<void> r = sdo_download(i, 0x1016, 1, static_cast<std::uint32_t>(bus_.master_node_id) << 16 | watchdog_ms, 4); !r.ok()) return r;
     nd.consumer_set = true;
   }
   auto sw = sdo_upload(i, o.statusword, 0);
-  if (!sw.ok()) return Outcome{sw.error()};
+  if (!sw.ok()) return sw.error();
   nd.info.statusword = static_cast<std::uint16_t>(sw.value());
   nd.boot_seen = false;
-  return Outcome::success();
+  return Result<void>::success();
 }
 
 void CanopenArm::start_nodes(std::uint32_t node_mask) {
@@ -1352,7 +1352,7 @@ void CanopenArm::start_nodes(std::uint32_t node_mask) {
 
 
 template <class NextCw, class Done>
-Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& goal) {
+Result<void> CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& goal) {
   const std::int64_t deadline = monotonic_ns() + ns_of(timing_.state_timeout);
   const std::int64_t wait = std::max(read_budget_ns_, sync_period_ns_ / 2);
   for (;;) {
@@ -1367,7 +1367,7 @@ Outcome CanopenArm::drive_states(NextCw next_cw, Done done, const std::string& g
       if (fresh) nd.info.controlword = next_cw(nd.info.statusword, nd.info.controlword);
       nd.info.target_torque = 0;
     }
-    if (all) return Outcome::success();
+    if (all) return Result<void>::success();
     if (monotonic_ns() >= deadline) {
       std::string msg = "the drives did not reach " + goal + " within " + ms_text(timing_.state_timeout) + ":";
       for (int j = 0; j < n_; ++j) {
@@ -1406,8 +1406,8 @@ void CanopenArm::reset_nodes() noexcept {
   }
 }
 
-Outcome CanopenArm::on_configure() {
-  if (Outcome o = open_socket(); !o.ok()) return o;
+Result<void> CanopenArm::on_configure() {
+  if (Result<void> o = open_socket(); !o.ok()) return o;
   pdo_running_ = false;
   producing_ = false;
   sync_count_ = 0;
@@ -1418,15 +1418,15 @@ Outcome CanopenArm::on_configure() {
   // Observe only: what each node is, and its state. No download, no NMT command.
   (void)drain(monotonic_ns());
   for (int j = 0; j < n_; ++j) {
-    if (Outcome o = identify_node(j); !o.ok()) return o;
+    if (Result<void> o = identify_node(j); !o.ok()) return o;
     auto sw = sdo_upload(j, bus_.objects.statusword, 0);
-    if (!sw.ok()) return Outcome{sw.error()};
+    if (!sw.ok()) return sw.error();
     nodes_[static_cast<std::size_t>(j)].info.statusword = static_cast<std::uint16_t>(sw.value());
   }
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome CanopenArm::setup_bus() {
+Result<void> CanopenArm::setup_bus() {
   pdo_running_ = false;
   bus_off_ = false;
   reset_nodes();
@@ -1440,7 +1440,7 @@ Outcome CanopenArm::setup_bus() {
   wait_boot_ups(timing_.boot_timeout, all);
   for (int j = 0; j < n_; ++j) send_nmt(canopen::NmtCommand::kEnterPreOperational, nodes_[static_cast<std::size_t>(j)].info.node_id);
   for (int j = 0; j < n_; ++j) {
-    if (Outcome o = configure_node(j); !o.ok()) return o;
+    if (Result<void> o = configure_node(j); !o.ok()) return o;
   }
   std::array<std::uint64_t, kMaxJoints> heartbeats_before{};
   for (int j = 0; j < n_; ++j) heartbeats_before[static_cast<std::size_t>(j)] = nodes_[static_cast<std::size_t>(j)].info.heartbeats;
@@ -1480,11 +1480,11 @@ Outcome CanopenArm::setup_bus() {
     sleep_until(t0 + sync_period_ns_);
   }
   restart_tracking(monotonic_ns());
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome CanopenArm::stop_bus() {
-  Outcome result = Outcome::success();
+Result<void> CanopenArm::stop_bus() {
+  Result<void> result = Result<void>::success();
   if (pdo_running_) {
     send_zero_torque();
     result = drive_states([](std::uint16_t, std::uint16_t) { return canopen::kCwShutdown; },
@@ -1502,15 +1502,15 @@ Outcome CanopenArm::stop_bus() {
     Node& nd = nodes_[static_cast<std::size_t>(j)];
     if (!nd.consumer_set) continue;
     nd.consumer_set = false;
-    if (Outcome r = sdo_download(j, 0x1016, 1, 0, 4); !r.ok() && result.ok()) result = r;
+    if (Result<void> r = sdo_download(j, 0x1016, 1, 0, 4); !r.ok() && result.ok()) result = r;
   }
   producing_ = false;
   restart_tracking(monotonic_ns());
   return result;
 }
 
-Outcome CanopenArm::on_activate() {
-  Outcome o = setup_bus();
+Result<void> CanopenArm::on_activate() {
+  Result<void> o = setup_bus();
   if (o.ok()) {
     for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
     o = enable_drives("operation enabled");
@@ -1521,8 +1521,8 @@ Outcome CanopenArm::on_activate() {
 }
 
 // Every drive through the CiA 402 state machine to operation enabled; zero torque on failure.
-Outcome CanopenArm::enable_drives(const char* goal) {
-  Outcome o = drive_states([](std::uint16_t sw, std::uint16_t prev) { return canopen::controlword_toward_enabled(sw, prev); },
+Result<void> CanopenArm::enable_drives(const char* goal) {
+  Result<void> o = drive_states([](std::uint16_t sw, std::uint16_t prev) { return canopen::controlword_toward_enabled(sw, prev); },
                            [](std::uint16_t sw) { return canopen::cia402_state(sw) == canopen::Cia402State::kOperationEnabled; },
                            goal);
   if (!o.ok()) {
@@ -1535,18 +1535,18 @@ Outcome CanopenArm::enable_drives(const char* goal) {
     nd.emcy_pending = false;
   }
   restart_tracking(monotonic_ns());
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome CanopenArm::on_rearm() {
+Result<void> CanopenArm::on_rearm() {
   bus_off_ = false;
   socket_failed_ = false;
   // No bus set up (a reconnect did not get through): set it up first, drives disabled.
   if (!pdo_running_) {
     if (fd_ < 0) {
-      if (Outcome o = open_socket(); !o.ok()) return o;
+      if (Result<void> o = open_socket(); !o.ok()) return o;
     }
-    if (Outcome o = setup_bus(); !o.ok()) return o;
+    if (Result<void> o = setup_bus(); !o.ok()) return o;
   }
   send_zero_torque();
   // Every node must answer; one that rebooted or left operational is configured again.
@@ -1554,11 +1554,11 @@ Outcome CanopenArm::on_rearm() {
   for (int j = 0; j < n_; ++j) {
     Node& nd = nodes_[static_cast<std::size_t>(j)];
     auto sw = sdo_upload(j, bus_.objects.statusword, 0);
-    if (!sw.ok()) return Outcome{sw.error()};
+    if (!sw.ok()) return sw.error();
     nd.info.statusword = static_cast<std::uint16_t>(sw.value());
     if (nd.boot_seen || (nd.info.nmt != canopen::NmtState::kOperational && nd.info.nmt != canopen::NmtState::kUnknown)) {
       send_nmt(canopen::NmtCommand::kEnterPreOperational, nd.info.node_id);
-      if (Outcome o = configure_node(j); !o.ok()) return o;
+      if (Result<void> o = configure_node(j); !o.ok()) return o;
       restart |= 1u << j;
     }
   }
@@ -1568,23 +1568,23 @@ Outcome CanopenArm::on_rearm() {
   return enable_drives("operation enabled after a fault reset");
 }
 
-Outcome CanopenArm::on_reconnect() {
+Result<void> CanopenArm::on_reconnect() {
   pdo_running_ = false;
   producing_ = false;
-  if (Outcome o = open_socket(); !o.ok()) return o;
+  if (Result<void> o = open_socket(); !o.ok()) return o;
   socket_failed_ = false;
   socket_errno_ = 0;
   // The whole set-up again (a node may have lost power, or its watchdog fired meanwhile); each
   // drive gets controlword 0 and zero torque and stays disabled: only rearm() enables.
-  if (Outcome o = setup_bus(); !o.ok()) {
+  if (Result<void> o = setup_bus(); !o.ok()) {
     producing_ = false;
     return o;
   }
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].emcy_pending = false;
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome CanopenArm::on_deactivate() { return stop_bus(); }
+Result<void> CanopenArm::on_deactivate() { return stop_bus(); }
 
 // ---------------------------------------------------------------------------------------------
 

@@ -290,11 +290,11 @@ class CanopenArm final : public Device {
   [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
 
  protected:
-  Outcome on_configure() override;
-  Outcome on_activate() override;
-  Outcome on_deactivate() override;
-  Outcome on_rearm() override;
-  Outcome on_reconnect() override;
+  Result<void> on_configure() override;
+  Result<void> on_activate() override;
+  Result<void> on_deactivate() override;
+  Result<void> on_rearm() override;
+  Result<void> on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -379,32 +379,32 @@ class CanopenArm final : public Device {
   [[nodiscard]] IoStatus report_send_failure(IoStatus s) noexcept;
 
   // Configure-time steps (may allocate); failures name the interface, the node and the object.
-  Outcome open_socket();
-  Outcome fail(const std::string& what) const;
-  Outcome sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes);
+  Result<void> open_socket();
+  Result<void> fail(const std::string& what) const;
+  Result<void> sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes);
   Result<std::uint32_t> sdo_upload(int i, std::uint16_t index, std::uint8_t sub);
   Result<std::uint32_t> sdo_transfer(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
                                      const std::string& what);
   void wait_boot_ups(double timeout_s, std::uint32_t node_mask);
   /// Device type (must be CiA 402) and vendor id, by SDO upload.
-  Outcome identify_node(int i);
-  Outcome configure_node(int i);
+  Result<void> identify_node(int i);
+  Result<void> configure_node(int i);
   /// 0x6060 = the config's mode, then 0x6061 until it shows it (mode_timeout).
-  Outcome set_mode(int i);
+  Result<void> set_mode(int i);
   void start_nodes(std::uint32_t node_mask);
   /// activate() and reconnect(): every node reset, configured (drives disabled, zero torque),
   /// started; returns once every node's TPDOs (and heartbeat) arrive.
-  Outcome setup_bus();
+  Result<void> setup_bus();
   /// deactivate(), and a failed activate(): drives shut down, NMT pre-operational, the drives'
   /// heartbeat consumer off, then the master's heartbeat stops.
-  Outcome stop_bus();
+  Result<void> stop_bus();
   /// Every node's decoding state back to "nothing heard", keeping what create() computed.
   void reset_nodes() noexcept;
   /// Runs paced SYNC cycles, each node's controlword from `next_cw`, zero torque, until `done`
   /// holds for every node or the timeout; the error names the nodes that did not get there.
   template <class NextCw, class Done>
-  Outcome drive_states(NextCw next_cw, Done done, const std::string& goal);
-  Outcome enable_drives(const char* goal);
+  Result<void> drive_states(NextCw next_cw, Done done, const std::string& goal);
+  Result<void> enable_drives(const char* goal);
   void restart_tracking(std::int64_t now) noexcept;
 
   arm::ArmConfig config_;

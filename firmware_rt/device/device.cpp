@@ -13,8 +13,8 @@ namespace lancet::device {
 
 namespace {
 
-Outcome wrong_state(const std::string& name, const char* step, Lifecycle s) {
-  return Outcome::failure(ErrorCode::kInvalid, name + ": cannot " + step + " from state " + to_string(s));
+Result<void> wrong_state(const std::string& name, const char* step, Lifecycle s) {
+  return Result<void>::failure(ErrorCode::kInvalid, name + ": cannot " + step + " from state " + to_string(s));
 }
 
 }  // namespace
@@ -44,16 +44,16 @@ const char* to_string(Lifecycle s) noexcept {
   return "?";
 }
 
-Outcome Device::configure() {
+Result<void> Device::configure() {
   if (state_ != Lifecycle::kUnconfigured) return wrong_state(name_, "configure", state_);
-  Outcome o = on_configure();
+  Result<void> o = on_configure();
   if (o.ok()) state_ = Lifecycle::kInactive;
   return o;
 }
 
-Outcome Device::activate() {
+Result<void> Device::activate() {
   if (state_ != Lifecycle::kInactive) return wrong_state(name_, "activate", state_);
-  Outcome o = on_activate();
+  Result<void> o = on_activate();
   if (o.ok()) {
     state_ = Lifecycle::kActive;
     counters_.consecutive_errors = 0;
@@ -61,16 +61,16 @@ Outcome Device::activate() {
   return o;
 }
 
-Outcome Device::deactivate() {
+Result<void> Device::deactivate() {
   if (state_ != Lifecycle::kActive && state_ != Lifecycle::kFault) return wrong_state(name_, "deactivate", state_);
-  Outcome o = on_deactivate();
+  Result<void> o = on_deactivate();
   state_ = Lifecycle::kInactive;  // whatever the bus said, we no longer drive it
   return o;
 }
 
-Outcome Device::rearm() {
+Result<void> Device::rearm() {
   if (state_ != Lifecycle::kFault) return wrong_state(name_, "rearm", state_);
-  Outcome o = on_rearm();
+  Result<void> o = on_rearm();
   if (!o.ok()) return o;
   state_ = Lifecycle::kActive;
   counters_.consecutive_errors = 0;
@@ -82,9 +82,9 @@ Outcome Device::rearm() {
   return o;
 }
 
-Outcome Device::reconnect() {
+Result<void> Device::reconnect() {
   if (state_ != Lifecycle::kFault) return wrong_state(name_, "reconnect", state_);
-  Outcome o = on_reconnect();
+  Result<void> o = on_reconnect();
   if (o.ok()) {
     link_lost_ = false;
     ++counters_.reconnects;
@@ -93,8 +93,8 @@ Outcome Device::reconnect() {
   return o;
 }
 
-Outcome Device::on_reconnect() {
-  return Outcome::failure(ErrorCode::kUnsupported, name_ + ": reconnect is not supported by this backend");
+Result<void> Device::on_reconnect() {
+  return Result<void>::failure(ErrorCode::kUnsupported, name_ + ": reconnect is not supported by this backend");
 }
 
 void Device::note_error(IoStatus status, std::int32_t node, std::uint32_t code, const char* text) noexcept {

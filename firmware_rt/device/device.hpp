@@ -33,11 +33,13 @@
 #include <optional>
 #include <string>
 
+#include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 
 namespace lancet::device {
 
-inline constexpr int kMaxJoints = 8;
+/// Joints per arm: the one limit, shared with the wire (messages.hpp).
+using lancet::kMaxJoints;
 
 enum class Lifecycle : std::uint8_t { kUnconfigured, kInactive, kActive, kFault };
 
@@ -86,13 +88,6 @@ struct JointCommand {
   std::array<double, kMaxJoints> tau{};  ///< N·m at each joint (N for prismatic)
 };
 
-/// Success, or the error that stopped a lifecycle step.
-struct [[nodiscard]] Outcome {
-  std::optional<Error> error;
-  [[nodiscard]] bool ok() const noexcept { return !error; }
-  static Outcome success() { return {}; }
-  static Outcome failure(ErrorCode code, std::string message) { return Outcome{Error{code, std::move(message)}}; }
-};
 
 struct FaultPolicy {
   std::uint32_t max_consecutive_errors = 3;  ///< errors in a row that trip kFault (1: any error)
@@ -124,13 +119,13 @@ class Device {
   Device(const Device&) = delete;
   Device& operator=(const Device&) = delete;
 
-  Outcome configure();
-  Outcome activate();
-  Outcome deactivate();
-  Outcome rearm();
+  Result<void> configure();
+  Result<void> activate();
+  Result<void> deactivate();
+  Result<void> rearm();
   /// fault → fault: reopens a lost bus link (the backend's on_reconnect) so that a later rearm()
   /// finds the arm; never resumes torque. Not real-time. kUnsupported from backends without it.
-  Outcome reconnect();
+  Result<void> reconnect();
   /// Whether the last error says the link itself is gone (a disconnect), so reconnect() is due.
   [[nodiscard]] bool link_lost() const noexcept { return link_lost_; }
   /// Encoder plausibility limits (configure time). n = 0 turns the check off.
@@ -149,14 +144,17 @@ class Device {
   /// The last error of any kind, in words (status kOk: none yet).
   [[nodiscard]] const FaultDetail& last_error() const noexcept { return last_error_; }
   [[nodiscard]] virtual int joint_count() const noexcept = 0;
+  /// Where the simulated hand holding a simulated device pulls it (device frame, m): the sim
+  /// backends' hand. A real arm has a real hand: the default ignores it. Real-time safe.
+  virtual void steer_hand(Vec3 target) noexcept { (void)target; }
 
  protected:
-  virtual Outcome on_configure() = 0;
-  virtual Outcome on_activate() = 0;
-  virtual Outcome on_deactivate() = 0;  ///< must leave the drives at zero torque
-  virtual Outcome on_rearm() = 0;       ///< clear bus/drive faults; the device is then activated again
+  virtual Result<void> on_configure() = 0;
+  virtual Result<void> on_activate() = 0;
+  virtual Result<void> on_deactivate() = 0;  ///< must leave the drives at zero torque
+  virtual Result<void> on_rearm() = 0;       ///< clear bus/drive faults; the device is then activated again
   /// Reopen the bus link after a disconnect, leaving the drives disabled (zero torque).
-  virtual Outcome on_reconnect();       ///< default: kUnsupported, "<name>: reconnect is not supported"
+  virtual Result<void> on_reconnect();       ///< default: kUnsupported, "<name>: reconnect is not supported"
   virtual IoStatus on_read(JointState& out) noexcept = 0;
   virtual IoStatus on_write(const JointCommand& cmd) noexcept = 0;
 

@@ -348,21 +348,21 @@ Result<std::unique_ptr<ModbusArm>> ModbusArm::create(const arm::ArmConfig& confi
 // ---------------------------------------------------------------------------------------------
 // Configure-time steps
 
-Outcome ModbusArm::fail(const std::string& what) const {
+Result<void> ModbusArm::fail(const std::string& what) const {
   const std::string where = tcp() ? "tcp " + endpoint_ + ", unit " + std::to_string(bus_.unit_id)
                                   : "rtu " + endpoint_ + " " + std::to_string(bus_.baud) + " baud, unit " + std::to_string(bus_.unit_id);
-  return Outcome::failure(ErrorCode::kInvalid, name() + " (" + where + "): " + what);
+  return Result<void>::failure(ErrorCode::kInvalid, name() + " (" + where + "): " + what);
 }
 
-Outcome ModbusArm::check(IoStatus s, const std::string& what) const {
-  if (s == IoStatus::kOk) return Outcome::success();
-  Outcome o = fail(what + " failed: " + last_error().c_str());
+Result<void> ModbusArm::check(IoStatus s, const std::string& what) const {
+  if (s == IoStatus::kOk) return Result<void>::success();
+  Result<void> o = fail(what + " failed: " + last_error().c_str());
   // The link (refused, gone, silent) is a system failure; an arm that answers wrongly is invalid.
-  if (s == IoStatus::kDisconnected || s == IoStatus::kTimeout) o.error->code = ErrorCode::kSystem;
+  if (s == IoStatus::kDisconnected || s == IoStatus::kTimeout) o.error().code = ErrorCode::kSystem;
   return o;
 }
 
-Outcome ModbusArm::open_link(const std::string& what) {
+Result<void> ModbusArm::open_link(const std::string& what) {
   ::_modbus* c = ctx_.get();
   // connect() waits the response timeout; give it a sensible minimum.
   const auto us = std::max<std::int64_t>(1, std::llround(std::max(bus_.response_timeout, 1.0) * 1e6));
@@ -372,16 +372,16 @@ Outcome ModbusArm::open_link(const std::string& what) {
   if (modbus_connect(c) == -1) {
     const int err = errno;
     last_errno_ = err;
-    Outcome o = fail(what + ": " + modbus_strerror(err));
-    o.error->code = ErrorCode::kSystem;
+    Result<void> o = fail(what + ": " + modbus_strerror(err));
+    o.error().code = ErrorCode::kSystem;
     return o;
   }
   reset_stream();
   if (!tcp()) (void)modbus_flush(c);  // what the line held before we opened it is nobody's reply
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome ModbusArm::reopen_link(const std::string& what) {
+Result<void> ModbusArm::reopen_link(const std::string& what) {
   modbus_close(ctx_.get());
   link_broken_ = false;
   return open_link(what);
@@ -394,7 +394,7 @@ void ModbusArm::reset_stream() noexcept {
   need_flush_ = false;
 }
 
-Outcome ModbusArm::write_word(const arm::RegisterField& f, std::uint32_t word, const std::string& what) {
+Result<void> ModbusArm::write_word(const arm::RegisterField& f, std::uint32_t word, const std::string& what) {
   std::array<std::uint16_t, 2> regs{};
   modbus::encode_word(modbus::layout_of(f), word, regs);
   const int count = modbus::register_count(f.type);
@@ -408,31 +408,31 @@ void ModbusArm::put_enable_word() noexcept {
   if (enable_.present) modbus::encode_word(enable_.layout, enable_word_, std::span(wbuf_).subspan(enable_.offset));
 }
 
-Outcome ModbusArm::write_enable(std::uint32_t word, const std::string& what) {
+Result<void> ModbusArm::write_enable(std::uint32_t word, const std::string& what) {
   enable_word_ = word;
   put_enable_word();
-  if (!bus_.registers.enable) return Outcome::success();
+  if (!bus_.registers.enable) return Result<void>::success();
   return write_word(*bus_.registers.enable, word, what);
 }
 
-Outcome ModbusArm::write_zero_setpoints(const std::string& what) {
+Result<void> ModbusArm::write_zero_setpoints(const std::string& what) {
   JointCommand zero{};
   zero.n = n_;
   encode_setpoints(zero);
   return check(write_blocks(), what + " (" + describe(write_blocks_) + ")");
 }
 
-Outcome ModbusArm::read_status(const std::string& what, std::uint32_t& word) {
-  Outcome o = check(read_blocks(), what + " (" + describe(read_blocks_) + ")");
+Result<void> ModbusArm::read_status(const std::string& what, std::uint32_t& word) {
+  Result<void> o = check(read_blocks(), what + " (" + describe(read_blocks_) + ")");
   word = o.ok() && status_.present ? modbus::decode_word(status_.layout, std::span<const std::uint16_t>(rbuf_).subspan(status_.offset)) : 0;
   return o;
 }
 
-Outcome ModbusArm::enable_drives(const std::string& step, bool always_reset) {
+Result<void> ModbusArm::enable_drives(const std::string& step, bool always_reset) {
   const arm::ModbusRegisterMap& m = bus_.registers;
   const arm::StatusBits& bits = m.status_bits;
   std::uint32_t word = 0;
-  Outcome o = read_status(step + ": reading the status", word);
+  Result<void> o = read_status(step + ": reading the status", word);
   if (!o.ok()) return o;
   const auto faulted = [&](std::uint32_t w) { return bits.fault.active(w) || bits.comm_lost.active(w) || bits.estop.active(w); };
   if (m.fault_reset && (always_reset || faulted(word))) {
@@ -466,7 +466,7 @@ Outcome ModbusArm::enable_drives(const std::string& step, bool always_reset) {
   return o;
 }
 
-Outcome ModbusArm::on_configure() {
+Result<void> ModbusArm::on_configure() {
   ctx_.reset();
   link_broken_ = drives_on_ = false;
   ::_modbus* c = nullptr;
@@ -488,17 +488,17 @@ Outcome ModbusArm::on_configure() {
     return fail("cannot set unit id " + std::to_string(bus_.unit_id) + ": " + modbus_strerror(err));
   }
   (void)modbus_set_error_recovery(c, MODBUS_ERROR_RECOVERY_NONE);  // we flush and reconnect ourselves
-  Outcome o = open_link(tcp() ? "cannot connect" : "cannot open the serial device");
+  Result<void> o = open_link(tcp() ? "cannot connect" : "cannot open the serial device");
   if (o.ok()) o = check(read_blocks(), "connected, but the arm does not answer: reading the " + describe(read_blocks_));
   if (!o.ok()) ctx_.reset();
   link_broken_ = false;
   return o;
 }
 
-Outcome ModbusArm::on_activate() {
+Result<void> ModbusArm::on_activate() {
   // The link may have gone while inactive (or on the way out of a fault): connect afresh.
-  Outcome o = link_broken_ || modbus_get_socket(ctx_.get()) < 0 ? reopen_link(tcp() ? "activate: cannot reconnect" : "activate: cannot reopen the serial device")
-                                                               : Outcome::success();
+  Result<void> o = link_broken_ || modbus_get_socket(ctx_.get()) < 0 ? reopen_link(tcp() ? "activate: cannot reconnect" : "activate: cannot reopen the serial device")
+                                                               : Result<void>::success();
   if (need_flush_) flush_input();
   const arm::ModbusRegisterMap& m = bus_.registers;
   if (o.ok() && m.watchdog_timeout) {
@@ -513,19 +513,19 @@ Outcome ModbusArm::on_activate() {
   return o;
 }
 
-Outcome ModbusArm::on_deactivate() {
+Result<void> ModbusArm::on_deactivate() {
   if (need_flush_) flush_input();
   drives_on_ = false;
   // Both, whatever the first one says: the drives must end at zero and disabled.
   enable_word_ = bus_.registers.enable_off;
-  Outcome zero = write_zero_setpoints("cannot zero the setpoints");
-  Outcome off = write_enable(bus_.registers.enable_off, "cannot switch the drives off");
+  Result<void> zero = write_zero_setpoints("cannot zero the setpoints");
+  Result<void> off = write_enable(bus_.registers.enable_off, "cannot switch the drives off");
   return zero.ok() ? off : zero;
 }
 
-Outcome ModbusArm::on_rearm() {
+Result<void> ModbusArm::on_rearm() {
   // A broken link needs a new connection; so does a TCP stream that stopped making sense.
-  Outcome o = Outcome::success();
+  Result<void> o = Result<void>::success();
   const bool garbled = tcp() && fault_cause() == IoStatus::kProtocolError;
   if (link_broken_ || garbled || modbus_get_socket(ctx_.get()) < 0)
     o = reopen_link(tcp() ? "rearm: cannot reconnect" : "rearm: cannot reopen the serial device");
@@ -536,11 +536,11 @@ Outcome ModbusArm::on_rearm() {
   return o;
 }
 
-Outcome ModbusArm::on_reconnect() {
+Result<void> ModbusArm::on_reconnect() {
   // The drives stay off: zero setpoints, enable `off`, in every write from now until rearm().
   drives_on_ = false;
   enable_word_ = bus_.registers.enable_off;
-  Outcome o = reopen_link(tcp() ? "reconnect: cannot connect" : "reconnect: cannot reopen the serial device");
+  Result<void> o = reopen_link(tcp() ? "reconnect: cannot connect" : "reconnect: cannot reopen the serial device");
   if (o.ok()) o = write_zero_setpoints("reconnect: cannot zero the setpoints");
   if (o.ok()) o = write_enable(bus_.registers.enable_off, "reconnect: cannot keep the drives off");
   if (o.ok()) o = check(read_blocks(), "reconnect: reading the " + describe(read_blocks_));

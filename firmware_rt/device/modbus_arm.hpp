@@ -146,11 +146,11 @@ class ModbusArm final : public Device {
   [[nodiscard]] double commanded_current(int j) const noexcept { return sent_current_[static_cast<std::size_t>(j)]; }
 
  protected:
-  Outcome on_configure() override;
-  Outcome on_activate() override;
-  Outcome on_deactivate() override;
-  Outcome on_rearm() override;
-  Outcome on_reconnect() override;
+  Result<void> on_configure() override;
+  Result<void> on_activate() override;
+  Result<void> on_deactivate() override;
+  Result<void> on_rearm() override;
+  Result<void> on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -176,15 +176,15 @@ class ModbusArm final : public Device {
   [[nodiscard]] bool tcp() const noexcept { return bus_.transport == arm::ModbusTransport::kTcp; }
 
   // Configure-time steps (may allocate); failures name the endpoint and what failed.
-  Outcome open_link(const std::string& what);
-  Outcome reopen_link(const std::string& what);
-  Outcome fail(const std::string& what) const;
-  Outcome check(IoStatus s, const std::string& what) const;
-  Outcome write_word(const arm::RegisterField& f, std::uint32_t word, const std::string& what);
-  Outcome write_enable(std::uint32_t word, const std::string& what);
-  Outcome write_zero_setpoints(const std::string& what);
-  Outcome enable_drives(const std::string& step, bool always_reset);
-  Outcome read_status(const std::string& what, std::uint32_t& word);
+  Result<void> open_link(const std::string& what);
+  Result<void> reopen_link(const std::string& what);
+  Result<void> fail(const std::string& what) const;
+  Result<void> check(IoStatus s, const std::string& what) const;
+  Result<void> write_word(const arm::RegisterField& f, std::uint32_t word, const std::string& what);
+  Result<void> write_enable(std::uint32_t word, const std::string& what);
+  Result<void> write_zero_setpoints(const std::string& what);
+  Result<void> enable_drives(const std::string& step, bool always_reset);
+  Result<void> read_status(const std::string& what, std::uint32_t& word);
   void reset_stream() noexcept;
 
   // Real-time path.

@@ -17,22 +17,22 @@ Result<std::unique_ptr<SimArm>> SimArm::create(const arm::ArmConfig& config, Fau
   return std::unique_ptr<SimArm>(new SimArm(std::move(p).value(), policy));
 }
 
-Outcome SimArm::on_activate() {
+Result<void> SimArm::on_activate() {
   last_write_ns_ = 0;
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome SimArm::on_deactivate() {
+Result<void> SimArm::on_deactivate() {
   JointCommand zero{};
   zero.n = joint_count();
   physics_->step(zero, fixed_dt_ > 0 ? fixed_dt_ : 1e-3);
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome SimArm::on_rearm() {
+Result<void> SimArm::on_rearm() {
   inject_count_ = 0;
   last_write_ns_ = 0;
-  return Outcome::success();
+  return Result<void>::success();
 }
 
 IoStatus SimArm::on_read(JointState& out) noexcept {

@@ -31,12 +31,13 @@ class SimArm final : public Device {
     glitch_reads_ = reads;
   }
   [[nodiscard]] int joint_count() const noexcept override { return physics_->joint_count(); }
+  void steer_hand(Vec3 target) noexcept override { physics_->set_hand_target(target); }
 
  protected:
-  Outcome on_configure() override { return Outcome::success(); }
-  Outcome on_activate() override;
-  Outcome on_deactivate() override;
-  Outcome on_rearm() override;
+  Result<void> on_configure() override { return Result<void>::success(); }
+  Result<void> on_activate() override;
+  Result<void> on_deactivate() override;
+  Result<void> on_rearm() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 

@@ -15,6 +15,22 @@ void step_sim_stylus(const SimStylusParams& p, SimStylusState& s, Vec3 target, V
   s.position += dt * s.velocity;
 }
 
+SimStylus::SimStylus(SimStylusParams params, double dt, Vec3 start)
+    : Device("sim-stylus"), params_(params), dt_(dt), state_{start, {}}, target_(start) {}
+
+IoStatus SimStylus::on_read(JointState& out) noexcept {
+  out.n = 3;
+  out.q[0] = state_.position.x, out.q[1] = state_.position.y, out.q[2] = state_.position.z;
+  out.qd[0] = state_.velocity.x, out.qd[1] = state_.velocity.y, out.qd[2] = state_.velocity.z;
+  return IoStatus::kOk;
+}
+
+IoStatus SimStylus::on_write(const JointCommand& cmd) noexcept {
+  const Vec3 f = cmd.n >= 3 ? Vec3{cmd.tau[0], cmd.tau[1], cmd.tau[2]} : Vec3{};
+  step_sim_stylus(params_, state_, target_, f, dt_);
+  return IoStatus::kOk;
+}
+
 Vec3 scripted_target(double t, double depth) noexcept {
   constexpr double kStart = 0.015;  // m above the plane
   constexpr double kDescent = 1.0;  // s

@@ -1,9 +1,12 @@
 #pragma once
-// Simulated stylus for the in-process `sim` device: a point mass held by the user's hand, which
-// is modelled as a spring-damper pulling the stylus toward a target (a script or the viz's
-// StylusTarget). The force the device renders pushes on the same mass, so a stiff surface stops
-// the stylus short of a target below it, as a real hand would feel.
+// The built-in simulated stylus: a point mass (the stylus and the hand holding it) that a hand
+// spring pulls toward a target while the device force pushes back, integrated semi-implicitly.
+// It is a Device like the bus backends: read() gives its position and velocity as three Cartesian
+// joints (q = x, y, z in m; qd in m/s; the servo's model pairs it with arm::Kinematics::cartesian()),
+// write() applies the commanded force (tau = f_x, f_y, f_z in N) for one period. Where the hand
+// pulls comes through steer_hand(). Real-time safe after construction.
 
+#include "device/device.hpp"
 #include "lancet/shared_model/geometry.hpp"
 
 namespace lancet::device {
@@ -20,13 +23,35 @@ struct SimStylusState {
   Vec3 velocity;  ///< m/s
 };
 
-/// Advances the stylus by dt seconds (semi-implicit Euler) under the hand spring toward target
-/// and the device force (N). Real-time safe.
+/// One semi-implicit Euler step of dt seconds under the hand spring toward `target` and the device
+/// force (N, on the hand).
 void step_sim_stylus(const SimStylusParams& p, SimStylusState& s, Vec3 target, Vec3 device_force, double dt) noexcept;
 
-/// The demo's scripted hand motion (m, world frame, at time t seconds since start): descend from
-/// 15 mm above the z = 0 plane to `depth` below it during the first second, then stroke along x
-/// (±30 mm, 4 s period) with a slow sway in y, staying at that depth.
+/// The built-in script: descend to `depth` below z = 0 in 1 s, then a slow figure-of-eight.
 Vec3 scripted_target(double t, double depth) noexcept;
+
+class SimStylus final : public Device {
+ public:
+  /// Starts at `start` (m), at rest; each write() advances the stylus by dt seconds.
+  SimStylus(SimStylusParams params, double dt, Vec3 start);
+
+  [[nodiscard]] int joint_count() const noexcept override { return 3; }
+  void steer_hand(Vec3 target) noexcept override { target_ = target; }
+  [[nodiscard]] const SimStylusState& state() const noexcept { return state_; }
+
+ protected:
+  Result<void> on_configure() override { return Result<void>::success(); }
+  Result<void> on_activate() override { return Result<void>::success(); }
+  Result<void> on_deactivate() override { return Result<void>::success(); }
+  Result<void> on_rearm() override { return Result<void>::success(); }
+  IoStatus on_read(JointState& out) noexcept override;
+  IoStatus on_write(const JointCommand& cmd) noexcept override;
+
+ private:
+  SimStylusParams params_;
+  double dt_;
+  SimStylusState state_;
+  Vec3 target_;
+};
 
 }  // namespace lancet::device

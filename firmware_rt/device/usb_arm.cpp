@@ -207,12 +207,12 @@ void UsbArm::reset_estimator() noexcept {
 // --------------------------------------------------------------------------------------------
 // Opening the device (not real-time)
 
-Outcome UsbArm::open_and_claim() {
+Result<void> UsbArm::open_and_claim() {
   const std::string id = hex4(usb_.vid) + ":" + hex4(usb_.pid);
   libusb_device** list = nullptr;
   const ssize_t count = libusb_get_device_list(ctx_, &list);
   if (count < 0)
-    return Outcome::failure(ErrorCode::kSystem, name() + ": cannot list USB devices: " + libusb_strerror(static_cast<int>(count)));
+    return Result<void>::failure(ErrorCode::kSystem, name() + ": cannot list USB devices: " + libusb_strerror(static_cast<int>(count)));
   libusb_device* found = nullptr;
   std::string seen;
   for (ssize_t i = 0; i < count; ++i) {
@@ -225,7 +225,7 @@ Outcome UsbArm::open_and_claim() {
   }
   if (found == nullptr) {
     libusb_free_device_list(list, 1);
-    return Outcome::failure(ErrorCode::kNotFound,
+    return Result<void>::failure(ErrorCode::kNotFound,
                             name() + ": no USB device " + id + " (bus.usb vid/pid in " + config_.source + "); " +
                                 (seen.empty() ? std::string("no USB devices are visible at all (is /dev/bus/usb there? a container needs the device passed through)")
                                               : "devices seen: " + seen));
@@ -239,7 +239,7 @@ Outcome UsbArm::open_and_claim() {
   int r = libusb_get_active_config_descriptor(found, &cd);
   if (r != 0) {
     libusb_free_device_list(list, 1);
-    return Outcome::failure(ErrorCode::kSystem, at + ": cannot read the active configuration: " + libusb_strerror(r));
+    return Result<void>::failure(ErrorCode::kSystem, at + ": cannot read the active configuration: " + libusb_strerror(r));
   }
   std::string problem;
   const libusb_interface_descriptor* alt = nullptr;
@@ -268,7 +268,7 @@ Outcome UsbArm::open_and_claim() {
   libusb_free_config_descriptor(cd);
   if (!problem.empty()) {
     libusb_free_device_list(list, 1);
-    return Outcome::failure(ErrorCode::kMismatch, at + ": " + problem);
+    return Result<void>::failure(ErrorCode::kMismatch, at + ": " + problem);
   }
 
   r = libusb_open(found, &handle_);
@@ -277,7 +277,7 @@ Outcome UsbArm::open_and_claim() {
     handle_ = nullptr;
     std::string hint;
     if (r == LIBUSB_ERROR_ACCESS) hint = " (no permission on the device node: add a udev rule giving your user access to " + id + ")";
-    return Outcome::failure(r == LIBUSB_ERROR_NO_DEVICE ? ErrorCode::kNotFound : ErrorCode::kSystem,
+    return Result<void>::failure(r == LIBUSB_ERROR_NO_DEVICE ? ErrorCode::kNotFound : ErrorCode::kSystem,
                             at + ": cannot open: " + libusb_strerror(r) + hint);
   }
   lost_ = false;
@@ -288,7 +288,7 @@ Outcome UsbArm::open_and_claim() {
     r = libusb_detach_kernel_driver(handle_, usb_.interface_number);
     if (r != 0 && r != LIBUSB_ERROR_NOT_FOUND) {
       close_device();
-      return Outcome::failure(ErrorCode::kInUse, at + ": cannot detach the kernel driver from interface " +
+      return Result<void>::failure(ErrorCode::kInUse, at + ": cannot detach the kernel driver from interface " +
                                                      std::to_string(usb_.interface_number) + ": " + libusb_strerror(r));
     }
     detached_driver_ = detached_driver_ || r == 0;
@@ -297,7 +297,7 @@ Outcome UsbArm::open_and_claim() {
   if (r != 0) {
     const std::string why = r == LIBUSB_ERROR_BUSY ? " (another program or driver holds it)" : "";
     close_device();
-    return Outcome::failure(r == LIBUSB_ERROR_BUSY ? ErrorCode::kInUse : ErrorCode::kSystem,
+    return Result<void>::failure(r == LIBUSB_ERROR_BUSY ? ErrorCode::kInUse : ErrorCode::kSystem,
                             at + ": cannot claim interface " + std::to_string(usb_.interface_number) + ": " + libusb_strerror(r) + why);
   }
   claimed_ = true;
@@ -309,7 +309,7 @@ Outcome UsbArm::open_and_claim() {
       s->in_flight = false;
       if (s->transfer == nullptr) {
         close_device();
-        return Outcome::failure(ErrorCode::kSystem, at + ": cannot allocate a libusb transfer");
+        return Result<void>::failure(ErrorCode::kSystem, at + ": cannot allocate a libusb transfer");
       }
     }
   }
@@ -317,7 +317,7 @@ Outcome UsbArm::open_and_claim() {
                                  on_transfer_done, &in_.completed, timeout_ms_);
   libusb_fill_interrupt_transfer(out_.transfer, handle_, usb_.endpoint_out, out_.buffer.data(), static_cast<int>(usb_.out_size),
                                  on_transfer_done, &out_.completed, timeout_ms_);
-  return Outcome::success();
+  return Result<void>::success();
 }
 
 void UsbArm::close_device() noexcept {
@@ -335,24 +335,24 @@ void UsbArm::close_device() noexcept {
   handle_ = nullptr;
 }
 
-Outcome UsbArm::send_report(std::uint32_t enable_word, bool reset, const char* what) {
+Result<void> UsbArm::send_report(std::uint32_t enable_word, bool reset, const char* what) {
   enable_word_ = enable_word;
   encode_out(nullptr, enable_word, reset);
   IoStatus s = transfer(out_, usb_.endpoint_out);
   if (s == IoStatus::kOk && out_.actual_length != static_cast<int>(usb_.out_size)) s = IoStatus::kProtocolError;
-  if (s == IoStatus::kOk) return Outcome::success();
-  return Outcome::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
+  if (s == IoStatus::kOk) return Result<void>::success();
+  return Result<void>::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
                           name() + ": sending " + what + " (zero currents) to " + location(bus_number_, address_) + " failed: " +
                               to_string(s) + (s == IoStatus::kTimeout ? " after " + std::to_string(timeout_ms_) + " ms" : std::string()) +
                               (detail_[0] != '\0' ? std::string(" (") + detail_ + ")" : std::string()));
 }
 
-Outcome UsbArm::read_report(const std::string& what) {
+Result<void> UsbArm::read_report(const std::string& what) {
   IoStatus s = transfer(in_, usb_.endpoint_in);
   if (s == IoStatus::kOk && in_.actual_length != static_cast<int>(usb_.in_size)) s = IoStatus::kProtocolError;
   if (s == IoStatus::kOk && usb_.in_report_id && in_.buffer[0] != *usb_.in_report_id) s = IoStatus::kProtocolError;
-  if (s == IoStatus::kOk) return Outcome::success();
-  return Outcome::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
+  if (s == IoStatus::kOk) return Result<void>::success();
+  return Result<void>::failure(s == IoStatus::kDisconnected ? ErrorCode::kNotFound : ErrorCode::kSystem,
                           name() + ": " + what + ": no well-formed IN report from " + location(bus_number_, address_) + " (" + to_string(s) + ")");
 }
 
@@ -360,10 +360,10 @@ std::uint32_t UsbArm::status_in_report() const noexcept {
   return usb_.status ? read_bits(in_.buffer.data() + usb_.status->offset, usb_.status->type, usb_.status->byte_order) : 0u;
 }
 
-Outcome UsbArm::enable_drives(const std::string& step, bool always_reset) {
+Result<void> UsbArm::enable_drives(const std::string& step, bool always_reset) {
   const arm::StatusBits& bits = usb_.status_bits;
   const auto faulted = [&](std::uint32_t w) { return bits.fault.active(w) || bits.comm_lost.active(w) || bits.estop.active(w); };
-  Outcome o = usb_.status ? read_report(step + ": reading the status") : Outcome::success();
+  Result<void> o = usb_.status ? read_report(step + ": reading the status") : Result<void>::success();
   if (!o.ok()) return o;
   if (usb_.fault_reset && (always_reset || faulted(status_in_report()))) {
     o = send_report(usb_.enable_off, true, "the fault-reset report");
@@ -380,7 +380,7 @@ Outcome UsbArm::enable_drives(const std::string& step, bool always_reset) {
     const std::uint32_t word = status_in_report();
     if (describe_status(bits, word, true, text, sizeof text) == 0) break;
     if (monotonic_ns() >= give_up) {
-      o = Outcome::failure(ErrorCode::kNotReady, name() + ": " + step + (faulted(word) ? ": the device still reports a fault after the fault reset ("
+      o = Result<void>::failure(ErrorCode::kNotReady, name() + ": " + step + (faulted(word) ? ": the device still reports a fault after the fault reset ("
                                                                                         : ": the device is not ready after the enable (") +
                                                      text + ")");
       break;
@@ -396,8 +396,8 @@ Outcome UsbArm::enable_drives(const std::string& step, bool always_reset) {
 // --------------------------------------------------------------------------------------------
 // Lifecycle hooks
 
-Outcome UsbArm::on_configure() {
-  Outcome o = reopen();  // a fresh context each attempt: a retry sees a newly plugged arm
+Result<void> UsbArm::on_configure() {
+  Result<void> o = reopen();  // a fresh context each attempt: a retry sees a newly plugged arm
   if (!o.ok()) return o;
 
   // The arm must answer: wait a little for one well-formed IN report.
@@ -407,26 +407,26 @@ Outcome UsbArm::on_configure() {
     s = transfer(in_, usb_.endpoint_in);
     if (s == IoStatus::kOk && in_.actual_length != static_cast<int>(usb_.in_size)) {
       close_device();
-      return Outcome::failure(ErrorCode::kMismatch, name() + ": the first IN report from " + location(bus_number_, address_) + " has " +
+      return Result<void>::failure(ErrorCode::kMismatch, name() + ": the first IN report from " + location(bus_number_, address_) + " has " +
                                                         std::to_string(in_.actual_length) + " bytes, expected " +
                                                         std::to_string(usb_.in_size) + " (bus.usb.in_report.size)");
     }
     if (s == IoStatus::kOk && usb_.in_report_id && in_.buffer[0] != *usb_.in_report_id) {
       close_device();
-      return Outcome::failure(ErrorCode::kMismatch, name() + ": the first IN report from " + location(bus_number_, address_) +
+      return Result<void>::failure(ErrorCode::kMismatch, name() + ": the first IN report from " + location(bus_number_, address_) +
                                                         " has report id " + std::to_string(in_.buffer[0]) + ", expected " +
                                                         std::to_string(*usb_.in_report_id) + " (bus.usb.in_report.report_id)");
     }
   } while (s == IoStatus::kTimeout && monotonic_ns() < until);
   if (s != IoStatus::kOk) {
     close_device();
-    return Outcome::failure(ErrorCode::kNotReady, name() + ": the arm at " + location(bus_number_, address_) +
+    return Result<void>::failure(ErrorCode::kNotReady, name() + ": the arm at " + location(bus_number_, address_) +
                                                       " does not answer: no IN report on " + hex2(usb_.endpoint_in) + " (" + to_string(s) + ")");
   }
-  return Outcome::success();
+  return Result<void>::success();
 }
 
-Outcome UsbArm::reopen() {
+Result<void> UsbArm::reopen() {
   // A fresh context: its scan finds the arm wherever it came back, even if a hotplug event was
   // missed.
   close_device();
@@ -435,55 +435,55 @@ Outcome UsbArm::reopen() {
   const int r = libusb_init(&ctx_);
   if (r != 0) {
     ctx_ = nullptr;
-    return Outcome::failure(ErrorCode::kSystem, name() + ": libusb_init failed: " + libusb_strerror(r));
+    return Result<void>::failure(ErrorCode::kSystem, name() + ": libusb_init failed: " + libusb_strerror(r));
   }
   return open_and_claim();
 }
 
-Outcome UsbArm::on_activate() {
+Result<void> UsbArm::on_activate() {
   reset_estimator();
   if (handle_ == nullptr || lost_) {
-    Outcome o = reopen();
+    Result<void> o = reopen();
     if (!o.ok()) return o;
   } else if (!claimed_) {
     const int r = libusb_claim_interface(handle_, usb_.interface_number);
     if (r != 0)
-      return Outcome::failure(ErrorCode::kInUse, name() + ": cannot claim interface " + std::to_string(usb_.interface_number) +
+      return Result<void>::failure(ErrorCode::kInUse, name() + ": cannot claim interface " + std::to_string(usb_.interface_number) +
                                                      " again: " + libusb_strerror(r));
     claimed_ = true;
   }
   return enable_drives("activate", false);
 }
 
-Outcome UsbArm::on_deactivate() {
+Result<void> UsbArm::on_deactivate() {
   drives_on_ = false;
   if (handle_ == nullptr || lost_) {
     enable_word_ = usb_.enable_off;
-    return Outcome::success();  // nothing left to drive
+    return Result<void>::success();  // nothing left to drive
   }
   // The interface stays claimed: read() works while inactive (probing, monitoring); it is
   // released when the UsbArm goes.
-  return claimed_ ? send_report(usb_.enable_off, false, "the disable report") : Outcome::success();
+  return claimed_ ? send_report(usb_.enable_off, false, "the disable report") : Result<void>::success();
 }
 
-Outcome UsbArm::on_rearm() {
+Result<void> UsbArm::on_rearm() {
   reset_estimator();
   if (handle_ != nullptr && !lost_ && claimed_) {
-    Outcome o = enable_drives("rearm", true);
+    Result<void> o = enable_drives("rearm", true);
     // Only a bus error (gone, I/O) is worth a reopen; a timeout or a bad reply is reported.
-    if (o.ok() || o.error->code != ErrorCode::kNotFound) return o;
+    if (o.ok() || o.error().code != ErrorCode::kNotFound) return o;
   }
-  Outcome o = reopen();
+  Result<void> o = reopen();
   if (!o.ok()) return o;
   return enable_drives("rearm", true);
 }
 
-Outcome UsbArm::on_reconnect() {
+Result<void> UsbArm::on_reconnect() {
   // Open the arm wherever it is now (it may have come back at a new address) and keep its drives
   // off: zero currents, enable `off`, until rearm().
   drives_on_ = false;
   reset_estimator();
-  Outcome o = reopen();
+  Result<void> o = reopen();
   if (o.ok()) o = send_report(usb_.enable_off, false, "the disable report");
   if (o.ok()) o = read_report("reconnect");
   if (!o.ok()) lost_ = true;  // the next reconnect opens it again

@@ -92,11 +92,11 @@ class UsbArm final : public Device {
   [[nodiscard]] const TransferStats& transfer_stats() const noexcept { return stats_; }
 
  protected:
-  Outcome on_configure() override;
-  Outcome on_activate() override;
-  Outcome on_deactivate() override;
-  Outcome on_rearm() override;
-  Outcome on_reconnect() override;
+  Result<void> on_configure() override;
+  Result<void> on_activate() override;
+  Result<void> on_deactivate() override;
+  Result<void> on_rearm() override;
+  Result<void> on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -114,12 +114,12 @@ class UsbArm final : public Device {
 
   UsbArm(const arm::ArmConfig& config, FaultPolicy policy);
 
-  Outcome open_and_claim();   // find, open, detach, claim, check endpoints, bind the transfers
-  Outcome reopen();           // close, fresh libusb context, open_and_claim()
+  Result<void> open_and_claim();   // find, open, detach, claim, check endpoints, bind the transfers
+  Result<void> reopen();           // close, fresh libusb context, open_and_claim()
   void close_device() noexcept;  // cancel what is in flight, release, close (context kept)
-  Outcome send_report(std::uint32_t enable_word, bool reset, const char* what);  // zero setpoints; not real-time
-  Outcome read_report(const std::string& what);  // one well-formed IN report; not real-time
-  Outcome enable_drives(const std::string& step, bool always_reset);
+  Result<void> send_report(std::uint32_t enable_word, bool reset, const char* what);  // zero setpoints; not real-time
+  Result<void> read_report(const std::string& what);  // one well-formed IN report; not real-time
+  Result<void> enable_drives(const std::string& step, bool always_reset);
   [[nodiscard]] std::uint32_t status_in_report() const noexcept;  // of the last IN report
   IoStatus transfer(Slot& slot, unsigned char endpoint) noexcept;  // submit and wait, bounded
   IoStatus finish_in_flight(Slot& slot) noexcept;                   // drain a late completion

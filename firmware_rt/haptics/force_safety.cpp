@@ -7,7 +7,7 @@
 
 namespace lancet::haptics {
 
-Vec3 apply_safety(const SafetyParams& p, SafetyData& d, Vec3 f, Vec3 x, Vec3 v, std::int64_t patch_age_ns, double dt,
+Vec3 apply_safety(const SafetyParams& p, SafetyData& d, Vec3 f, Vec3 x, Vec3 v, double dt,
                   std::uint32_t& events) noexcept {
   if (!is_finite(f) || !is_finite(v) || !is_finite(x)) {
     f = Vec3{};
@@ -15,14 +15,6 @@ Vec3 apply_safety(const SafetyParams& p, SafetyData& d, Vec3 f, Vec3 x, Vec3 v, 
     events |= event::kFault;
     if (!is_finite(v)) v = Vec3{};
     if (!is_finite(x)) x = d.last_position;
-  }
-  // A stale patch no longer says where the tissue is: fade out.
-  if (patch_age_ns > p.stale_after_ns) {
-    const double over = static_cast<double>(patch_age_ns - p.stale_after_ns);
-    const double scale = p.stale_fade_ns > 0 ? std::max(0.0, 1.0 - over / static_cast<double>(p.stale_fade_ns)) : 0.0;
-    f = scale * f;
-    ++d.fades;
-    events |= event::kForceFaded;
   }
   // Passivity: the environment may give back only energy it was given.
   if (p.passivity) {

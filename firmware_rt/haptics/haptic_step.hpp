@@ -51,23 +51,32 @@ struct HapticModel {
   static HapticModel defaults();
 };
 
-struct HapticData {
-  Stage stage = Stage::kFree;
-  Vec3 proxy{};
-  bool initialised = false;
-  bool contact = false;
+/// The probe's (and the swab's, and the scalpel's before it ruptures) contact with the surface.
+struct ProbeData {
   bool sliding = false;        ///< dynamic friction last tick
-  Vec3 cut_normal{};           ///< surface normal where the cut entered
-  Vec3 cut_entry{};
-  std::uint32_t cut_material = 1;
-  Vec3 last_cut_event{};       ///< where the last kCutProgress was sent
   ProxyScratch scratch{};
-  SafetyData safety{};
+};
+
+/// The scalpel's cut, from the rupture on.
+struct ScalpelData {
+  Vec3 normal{};               ///< surface normal where the cut entered
+  Vec3 entry{};                ///< where it entered (m)
+  std::uint32_t material = 1;
+  Vec3 last_event{};           ///< where the last kCutProgress was sent
   std::uint64_t ruptures = 0;
-  bool grabbed = false;        ///< retractor holding the tissue
+};
+
+/// The retractor's grip.
+struct RetractorData {
+  bool grabbed = false;        ///< holding the tissue
   Vec3 control{};              ///< where it grabbed (m)
+  std::uint32_t material = 1;
   Vec3 last_pull_event{};
-  VoxelBrick brick{};          ///< the drill's own copy of the patch's brick, carved as it drills
+};
+
+/// The drill's own copy of the bone and what it has removed.
+struct DrillData {
+  VoxelBrick brick{};          ///< the patch's brick, carved as it drills
   std::uint64_t brick_seq = 0; ///< patch seq the copy came from
   /// The drill's recent removals (a ring): a newer brick from the viz may not reflect them yet
   /// (it was built before the viz saw their events), so they are carved into it again.
@@ -80,8 +89,20 @@ struct HapticData {
   std::array<Carve, kCarveMemory> carves{};
   std::size_t n_carves = 0, carve_head = 0;    ///< valid entries; where the next one goes
   std::uint64_t reapplied = 0;                 ///< removals carved again into a newer brick
-  double drill_progress = 0;   ///< accumulated removal (1 = remove one burr sphere)
+  double progress = 0;         ///< accumulated removal (1 = remove one burr sphere)
   std::uint64_t removals = 0;
+};
+
+struct HapticData {
+  Stage stage = Stage::kFree;
+  Vec3 proxy{};
+  bool initialised = false;
+  bool contact = false;
+  ProbeData probe{};
+  ScalpelData scalpel{};
+  RetractorData retractor{};
+  DrillData drill{};
+  SafetyData safety{};
 };
 
 struct HapticInput {
@@ -91,7 +112,6 @@ struct HapticInput {
   ToolMode mode = ToolMode::kProbe;
   const TissuePatch* patch = nullptr;  ///< null: no tissue known
   std::uint64_t tick = 0;              ///< seq of the ToolSample this tick pushes
-  std::int64_t patch_age_ns = -1;      ///< age of the patch (negative: none)
 };
 
 struct HapticOutput {
@@ -103,7 +123,9 @@ struct HapticOutput {
   EventPayload payload{};
 };
 
-/// One tick. Real-time safe: O(patch triangles), no allocation, no exceptions.
+/// One tick: the tool's own step (haptics/probe.cpp, scalpel.cpp, retractor.cpp, drill.cpp), then
+/// the contact events and the safety layer. Real-time safe: O(patch triangles), no allocation,
+/// no exceptions.
 void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept;
 
 }  // namespace lancet::haptics

@@ -69,9 +69,9 @@ std::optional<OpenArm> open_arm(const std::string& path, std::FILE* out, int& co
     return std::nullopt;
   }
   a.dev = std::move(dev).value();
-  const device::Outcome o = a.dev.device->configure();
+  const Result<void> o = a.dev.device->configure();
   if (!o.ok()) {
-    std::fprintf(out, "%s: %s\n", a.dev.device->name().c_str(), o.error->message.c_str());
+    std::fprintf(out, "%s: %s\n", a.dev.device->name().c_str(), o.error().message.c_str());
     code = 1;
     return std::nullopt;
   }
@@ -425,9 +425,9 @@ int run_jog(const std::string& path, int joint, double torque, double seconds, b
                  a->config.joints[uj].name.c_str(), torque, seconds);
     return 2;
   }
-  const device::Outcome on = dev.activate();
+  const Result<void> on = dev.activate();
   if (!on.ok()) {
-    std::fprintf(out, "jog: %s\n", on.error->message.c_str());
+    std::fprintf(out, "jog: %s\n", on.error().message.c_str());
     return 1;
   }
   device::JointState s{};

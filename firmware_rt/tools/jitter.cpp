@@ -112,7 +112,7 @@ JitterResult run_jitter(const JitterOptions& o) {
   fill_workload_patch(*patch);
   shared->patch.write(*patch);
   app::RtModel model;
-  model.period_ns = o.rt.loop().period_ns;
+  model.servo.period_ns = o.rt.loop().period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
 
   const int rounds = std::max(1, o.rounds);

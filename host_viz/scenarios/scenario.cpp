@@ -655,6 +655,46 @@ void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source
   }
 }
 
+// One band, `{ mean = x, sd = y }`; nullopt after reporting when it does not read.
+std::optional<ScoreBand> parse_band(Section& bands, const ScoreMetricInfo& m, std::optional<TaskKind> task) {
+  const toml::node* n = bands.get(m.name);
+  if (n == nullptr) return std::nullopt;
+  const std::string field = bands.field(m.name);
+  const auto* t = n->as_table();
+  if (t == nullptr) {
+    bands.sink().add(n->source(), field, "a table { mean = x, sd = y }", describe(*n));
+    return std::nullopt;
+  }
+  Section b(bands.sink(), *t, field);
+  const auto mean = b.number("mean", kReq, kAny);
+  const auto sd = b.number("sd", kReq, Range{0, kInf, true, false});
+  b.finish();
+  // A band for a metric the task never has would silently never be checked.
+  if (task && !(*task == TaskKind::kIncision ? m.incision : m.drill)) {
+    const std::string_view other = *task == TaskKind::kIncision ? "drill" : "incision";
+    bands.sink().add(n->source(), field, "a metric of a kind = " + quote(task_key(*task)) + " task",
+                     "a metric only for kind = " + quote(other));
+    return std::nullopt;
+  }
+  if (!mean || !sd) return std::nullopt;
+  return ScoreBand{std::string(m.name), *mean, *sd};
+}
+
+void parse_score(Section& s, Score& out, std::optional<TaskKind> task) {
+  if (auto v = s.number("force_limit_n", kOpt, positive_up_to(1000))) out.force_limit = *v;
+  if (auto v = s.number("movement_speed_mm_s", kOpt, positive_up_to(10'000))) out.movement_speed = *v * kMm;
+  if (auto v = s.number("movement_filter_hz", kOpt, positive_up_to(500))) out.movement_filter_hz = *v;
+  if (auto v = s.number("sd_multiple", kOpt, positive_up_to(10))) out.sd_multiple = *v;
+  if (const toml::table* bt = s.table("bands", kOpt)) {
+    // Every metric name is a key of this table, so finish() offers the nearest one for a typo.
+    Section bands(s.sink(), *bt, s.field("bands"));
+    for (const ScoreMetricInfo& m : kScoreMetrics) {
+      if (auto band = parse_band(bands, m, task)) out.bands.push_back(std::move(*band));
+    }
+    bands.finish();
+  }
+}
+
 Scenario parse_root(const toml::table& root, Sink& sink, const std::string& source_name) {
   Scenario sc;
   sc.file = source_name;
@@ -685,6 +725,11 @@ Scenario parse_root(const toml::table& root, Sink& sink, const std::string& sour
     t.finish();
   }
   parse_avoid(top, sc, source);
+  if (const toml::table* st = top.table("score", kOpt)) {
+    Section s(sink, *st, "score");
+    parse_score(s, sc.score, task);
+    s.finish();
+  }
 
   // The task needs its tool.
   if (task && tools_ok) {
@@ -829,6 +874,13 @@ Result<Scenario> load_scenario(const std::string& path) {
   ErrorCode code{};
   if (auto why = read_file(path, text, code)) return Error{code, path + ": " + *why};
   return parse_scenario(text, path);
+}
+
+const ScoreBand* find_band(const Score& score, std::string_view metric) noexcept {
+  for (const ScoreBand& b : score.bands) {
+    if (b.metric == metric) return &b;
+  }
+  return nullptr;
 }
 
 double xy_distance_to_polyline(Vec3 p, const std::vector<Vec3>& line) {

@@ -2,7 +2,8 @@
 // Scenario: one training exercise as data, loaded from a TOML file in host_viz/scenarios/ (schema:
 // host_viz/scenarios/README.md). Which tissue (the built-in phantom, the procedural block or a
 // CT file), which isosurface the trainee touches, the tools offered, where the camera starts, the
-// task (an incision line or a drill window) and the structures not to damage.
+// task (an incision line or a drill window), the structures not to damage and how a recorded
+// attempt is scored (the force limit, the movement threshold, the experts' bands).
 //
 // The file states its units in its key names (line_mm, tolerance_mm, yaw_deg, skin_iso_hu, ...);
 // everything here is SI (m, rad) except isovalues (HU). World frame: z up, the tissue's top
@@ -80,6 +81,56 @@ struct Structure {
   double radius = 0;       ///< kCapsule/kSphere (m)
 };
 
+/// A metric a [score.bands] table may name: what record/metrics.hpp computes, its unit in its
+/// name's suffix, and the tasks it applies to.
+struct ScoreMetricInfo {
+  std::string_view name;
+  bool incision = true;  ///< computed for kind = "incision"
+  bool drill = true;     ///< computed for kind = "drill"
+};
+/// Every metric a band may be set for, in the order the report lists them.
+inline constexpr std::array<ScoreMetricInfo, 16> kScoreMetrics{{
+    {"task_time_s", true, true},
+    {"path_length_mm", true, true},
+    {"angular_path_rad", true, true},
+    {"economy_of_motion_ratio", true, true},
+    {"movement_count", true, true},
+    {"jerk_rms_m_s3", true, true},
+    {"force_mean_n", true, true},
+    {"force_peak_n", true, true},
+    {"time_above_force_limit_s", true, true},
+    {"incision_deviation_mean_mm", true, false},
+    {"incision_deviation_max_mm", true, false},
+    {"incision_coverage_pct", true, false},
+    {"drill_progress_pct", false, true},
+    {"damaged_structures_count", true, true},
+    {"drilled_outside_mm3", false, true},
+    {"blood_loss_ml", true, true},
+}};
+
+/// An expert band for one metric (key [score.bands], `name = { mean = x, sd = y }`): the mean and
+/// standard deviation of experts' values, in the metric's own unit (its name's suffix: mm, s, N,
+/// ...; not converted to SI).
+struct ScoreBand {
+  std::string metric;  ///< one of kScoreMetrics, applying to the scenario's task
+  double mean = 0;     ///< finite
+  double sd = 1;       ///< > 0
+};
+
+/// How a recorded attempt is scored (key [score]); these defaults when the section is absent.
+/// With k = sd_multiple a lower-is-better metric passes at value <= mean + k·sd, a
+/// higher-is-better one at value >= mean - k·sd (record/metrics.hpp).
+struct Score {
+  double force_limit = 3.0;        ///< N (key force_limit_n, > 0): the time above it is counted
+  double movement_speed = 0.020;   ///< m/s (key movement_speed_mm_s, > 0): a movement is an upward crossing of it
+  double movement_filter_hz = 10;  ///< Hz (key movement_filter_hz, (0, 500]): low-pass cut-off applied before counting
+  double sd_multiple = 2;          ///< k (key sd_multiple, (0, 10])
+  std::vector<ScoreBand> bands;    ///< in kScoreMetrics order, at most one per metric
+};
+
+/// The band for `metric`, or nullptr when the score has none.
+[[nodiscard]] const ScoreBand* find_band(const Score& score, std::string_view metric) noexcept;
+
 struct Scenario {
   std::string name, description;
   std::string file;  ///< the path it was loaded from (parse_scenario: the source name)
@@ -91,6 +142,7 @@ struct Scenario {
   IncisionTask incision;  ///< when task == kIncision
   DrillTask drill;        ///< when task == kDrill
   std::vector<Structure> avoid;
+  Score score;  ///< key [score]: how a recording of this scenario is scored (lancet-report)
 };
 
 /// Name of each enum value as the file writes it ("phantom", "bone", "drill", "capsule", ...).

@@ -135,10 +135,12 @@ const char* check(const OperatorRequest& r, std::int64_t now_ns) noexcept {
 }
 
 const char* check(const ToolSample& s) noexcept {
-  if (s.n_joints > kMaxJoints) return "sample.n_joints: above kMaxJoints";
+  if (s.n_joints > static_cast<std::uint32_t>(kMaxJoints)) return "sample.n_joints: above kMaxJoints";
   if (static_cast<std::size_t>(s.mode) >= kToolCount) return "sample.mode: unknown tool";
   if (static_cast<std::uint8_t>(s.stage) > static_cast<std::uint8_t>(Stage::kDrilling)) return "sample.stage: unknown";
   if ((s.events & ~kKnownEvents) != 0) return "sample.events: unknown bits";
+  if ((s.inputs & ~input::kKnown) != 0) return "sample.inputs: unknown bits";
+  if (s.n_commands > kSampleCommands) return "sample.n_commands: above kSampleCommands";
   for (std::uint32_t j = 0; j < s.n_joints; ++j) {
     if (!finite(s.q[j]) || !finite(s.qd[j]) || !finite(s.tau[j])) return "sample.q/qd/tau: not finite";
   }

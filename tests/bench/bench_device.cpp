@@ -79,10 +79,10 @@ Stats measure(device::Device& dev, int ticks, double rate) {
 // gets three tries.
 bool bring_up(device::Device& dev, std::string& why) {
   for (auto step : {&device::Device::configure, &device::Device::activate}) {
-    device::Outcome o = (dev.*step)();
+    Result<void> o = (dev.*step)();
     for (int attempt = 1; attempt < 3 && !o.ok(); ++attempt) o = (dev.*step)();
     if (!o.ok()) {
-      why = o.error->message;
+      why = o.error().message;
       return false;
     }
   }
@@ -117,8 +117,8 @@ Stats bench_modbus(arm::ArmConfig config, bool rtu, int ticks, double rate, doub
     config.modbus->host.clear();
     config.modbus->device = name;
     config.modbus->baud = 115200;
-    const device::Outcome started = server.value()->start_rtu(master);
-    if (!started.ok()) st.note = started.error->message;
+    const Result<void> started = server.value()->start_rtu(master);
+    if (!started.ok()) st.note = started.error().message;
   } else {
     auto port = server.value()->start_tcp(0);
     if (port.ok())

@@ -50,7 +50,6 @@ Stats measure(int triangles, ToolMode mode, int ticks) {
   auto data = std::make_unique<haptics::HapticData>();
   haptics::HapticInput in;
   in.patch = patch.get();
-  in.patch_age_ns = 0;
   in.mode = mode;
   haptics::HapticOutput out;
   std::vector<double> ns(static_cast<std::size_t>(ticks));

@@ -87,7 +87,6 @@ struct Rig {
     in.velocity = vel;
     in.mode = mode;
     in.patch = p;
-    in.patch_age_ns = 0;
     haptic_step(m, *d, in, out);
     return out;
   }
@@ -431,7 +430,7 @@ TEST(Retractor, PullReportsDisplacementUpToTheElasticLimitThenReleases) {
   const HapticModel m = test_model(500);
   Rig rig(m);
   rig.step(p.get(), {0, 0, 0.001}, {}, ToolMode::kRetractor);
-  ASSERT_TRUE(rig.d->grabbed);
+  ASSERT_TRUE(rig.d->retractor.grabbed);
   double last_reported = 0;
   int pulls = 0;
   bool released = false;
@@ -520,7 +519,7 @@ double drilled_depth(std::int16_t hu, std::uint64_t& removals) {
       EXPECT_NEAR(rig.out.payload.magnitude, rig.m.drill_burr_radius, 1e-12);
     }
   }
-  removals = rig.d->removals;
+  removals = rig.d->drill.removals;
   EXPECT_EQ(static_cast<std::uint64_t>(events), removals);
   return -rig.out.proxy.z;
 }
@@ -552,30 +551,30 @@ TEST(Drill, ABrickFromTheVizThatHasNotSeenARemovalYetGetsItCarvedAgain) {
   // The voxels the removal turned from bone into air.
   std::vector<std::size_t> carved;
   for (std::size_t i = 0; i < std::size(p->brick.hu); ++i)
-    if (p->brick.hu[i] != rig.d->brick.hu[i]) carved.push_back(i);
+    if (p->brick.hu[i] != rig.d->drill.brick.hu[i]) carved.push_back(i);
   ASSERT_FALSE(carved.empty());
   const auto all_air = [&](const VoxelBrick& b) {
     return std::all_of(carved.begin(), carved.end(), [&](std::size_t i) { return b.hu[i] == kAirHu; });
   };
-  ASSERT_TRUE(all_air(rig.d->brick));
+  ASSERT_TRUE(all_air(rig.d->drill.brick));
   // A newer patch whose brick was built before the viz saw the removal: carved again.
   auto stale = bone_patch(1000);
   stale->seq = 2;
   stale->samples_applied = removal_tick - 1;
   rig.in.tick = removal_tick + 1;
   rig.step(stale.get(), rig.in.device, {}, ToolMode::kDrill);
-  EXPECT_TRUE(all_air(rig.d->brick)) << "the removal is kept";
-  EXPECT_GE(rig.d->reapplied, 1u);
+  EXPECT_TRUE(all_air(rig.d->drill.brick)) << "the removal is kept";
+  EXPECT_GE(rig.d->drill.reapplied, 1u);
   // One built after it (here, deliberately without the removal, to tell the cases apart): taken
   // as the viz sent it.
   auto fresh = bone_patch(1000);
   fresh->seq = 3;
   fresh->samples_applied = removal_tick;
-  const std::uint64_t reapplied = rig.d->reapplied;
+  const std::uint64_t reapplied = rig.d->drill.reapplied;
   rig.in.tick = removal_tick + 2;
   rig.step(fresh.get(), rig.in.device, {}, ToolMode::kDrill);
-  EXPECT_FALSE(all_air(rig.d->brick)) << "the viz's brick is trusted to reflect the removal itself";
-  EXPECT_EQ(rig.d->reapplied, reapplied);
+  EXPECT_FALSE(all_air(rig.d->drill.brick)) << "the viz's brick is trusted to reflect the removal itself";
+  EXPECT_EQ(rig.d->drill.reapplied, reapplied);
 }
 
 TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
@@ -625,7 +624,7 @@ TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
   EXPECT_LE(pc, 1.001) << "the passivity controller must keep the energy from growing (" << bounces_pc << " bounces)";
 }
 
-TEST(Safety, NaNGuardClampSlewAndStaleFade) {
+TEST(Safety, NaNGuardClampAndSlew) {
   SafetyParams sp;
   sp.max_force = 5;
   sp.max_slew = 1000;  // N/s: 1 N per 1 ms tick
@@ -633,24 +632,17 @@ TEST(Safety, NaNGuardClampSlewAndStaleFade) {
   SafetyData sd;
   std::uint32_t ev = 0;
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  EXPECT_EQ(apply_safety(sp, sd, {nan, 0, 0}, {}, {}, 0, 0.001, ev), Vec3{});
+  EXPECT_EQ(apply_safety(sp, sd, {nan, 0, 0}, {}, {}, 0.001, ev), Vec3{});
   EXPECT_NE(ev & event::kFault, 0u);
   EXPECT_EQ(sd.nan_guards, 1u);
   // A step to 100 N: clamped to 5 N, and reached at 1 N per tick.
   Vec3 f{};
   for (int i = 1; i <= 5; ++i) {
-    f = apply_safety(sp, sd, {0, 0, 100}, {}, {}, 0, 0.001, ev);
+    f = apply_safety(sp, sd, {0, 0, 100}, {}, {}, 0.001, ev);
     EXPECT_NEAR(f.z, i, 1e-9);
   }
-  EXPECT_NEAR(apply_safety(sp, sd, {0, 0, 100}, {}, {}, 0, 0.001, ev).z, 5, 1e-9);
+  EXPECT_NEAR(apply_safety(sp, sd, {0, 0, 100}, {}, {}, 0.001, ev).z, 5, 1e-9);
   EXPECT_GT(sd.clamps, 0u);
-  // Stale patch: full until 100 ms, linear to zero over the next 100 ms.
-  SafetyParams fp = sp;
-  fp.max_slew = 0;
-  SafetyData fd;
-  EXPECT_NEAR(apply_safety(fp, fd, {0, 0, 4}, {}, {}, 100'000'000, 0.001, ev).z, 4, 1e-9);
-  EXPECT_NEAR(apply_safety(fp, fd, {0, 0, 4}, {}, {}, 150'000'000, 0.001, ev).z, 2, 1e-9);
-  EXPECT_EQ(apply_safety(fp, fd, {0, 0, 4}, {}, {}, 200'000'000, 0.001, ev).z, 0);
 }
 
 // The slew limit bounds the change of the force vector per tick, whatever its direction: on each
@@ -668,7 +660,7 @@ TEST(Safety, SlewLimitHoldsOnEveryAxisAndOnReversals) {
     Vec3 prev{};
     // Up to 5 N along the axis: 1 N a tick, in the axis's direction only.
     for (int i = 1; i <= 8; ++i) {
-      const Vec3 f = apply_safety(sp, sd, 100.0 * a, {}, {}, 0, dt, ev);
+      const Vec3 f = apply_safety(sp, sd, 100.0 * a, {}, {}, dt, ev);
       EXPECT_LE(norm(f - prev), lim + 1e-12) << "axis (" << a.x << ", " << a.y << ", " << a.z << ") tick " << i;
       EXPECT_NEAR(norm(f), std::min(5.0, static_cast<double>(i)), 1e-9);
       EXPECT_NEAR(norm(cross(f, a)), 0, 1e-9) << "no sideways component";
@@ -677,7 +669,7 @@ TEST(Safety, SlewLimitHoldsOnEveryAxisAndOnReversals) {
     // A reversal: +5 N to −5 N asked at once. It takes ten ticks, through zero, never faster.
     int ticks = 0;
     while (norm(prev + 5.0 * a) > 1e-9 && ticks < 100) {
-      const Vec3 f = apply_safety(sp, sd, -5.0 * a, {}, {}, 0, dt, ev);
+      const Vec3 f = apply_safety(sp, sd, -5.0 * a, {}, {}, dt, ev);
       ASSERT_LE(norm(f - prev), lim + 1e-12) << "reversal tick " << ticks;
       prev = f;
       ++ticks;
@@ -686,7 +678,7 @@ TEST(Safety, SlewLimitHoldsOnEveryAxisAndOnReversals) {
     // A sideways swing of a held 5 N force by 90 degrees: the chord is limited too.
     const Vec3 side = normalized(cross(a, std::abs(a.z) < 0.9 ? Vec3{0, 0, 1} : Vec3{1, 0, 0}));
     for (int i = 0; i < 20; ++i) {
-      const Vec3 f = apply_safety(sp, sd, 5.0 * side, {}, {}, 0, dt, ev);
+      const Vec3 f = apply_safety(sp, sd, 5.0 * side, {}, {}, dt, ev);
       ASSERT_LE(norm(f - prev), lim + 1e-12) << "swing tick " << i;
       prev = f;
     }
@@ -697,8 +689,8 @@ TEST(Safety, SlewLimitHoldsOnEveryAxisAndOnReversals) {
   off.max_slew = 0;
   SafetyData sd;
   std::uint32_t ev = 0;
-  (void)apply_safety(off, sd, {5, 0, 0}, {}, {}, 0, dt, ev);
-  EXPECT_NEAR(apply_safety(off, sd, {-5, 0, 0}, {}, {}, 0, dt, ev).x, -5, 1e-12);
+  (void)apply_safety(off, sd, {5, 0, 0}, {}, {}, dt, ev);
+  EXPECT_NEAR(apply_safety(off, sd, {-5, 0, 0}, {}, {}, dt, ev).x, -5, 1e-12);
 }
 
 TEST(Safety, AMillionRandomTicksGiveFiniteForcesWithinTheClamp) {
@@ -742,6 +734,16 @@ TEST(ForceFade, RampsInAndOutAtTheConfiguredRate) {
   ticks = 0;
   while (f.update(false, 1'000'000, fp) > 0.0) ++ticks;
   EXPECT_EQ(ticks + 1, 100);
+}
+
+// The one fade trusts the tissue while the visualizer is alive and the patch fresh (or absent).
+TEST(ForceFade, TrustsTheTissueOnlyWhileTheVizIsAliveAndThePatchFresh) {
+  ForceFadeParams fp;
+  fp.stale_after_ns = 100'000'000;
+  EXPECT_TRUE(ForceFade::trusted(fp, true, -1)) << "no patch: nothing to fade";
+  EXPECT_TRUE(ForceFade::trusted(fp, true, 100'000'000));
+  EXPECT_FALSE(ForceFade::trusted(fp, true, 100'000'001)) << "stale patch";
+  EXPECT_FALSE(ForceFade::trusted(fp, false, 0)) << "visualizer lost";
 }
 
 }  // namespace

@@ -143,7 +143,7 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   p.max_windows = 16;
   auto shared = std::make_unique<SharedState>();
   app::RtModel model;
-  model.period_ns = p.period_ns;
+  model.servo.period_ns = p.period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
   auto patch = std::make_unique<TissuePatch>();
   patch->n_triangles = 2;
@@ -184,7 +184,7 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
     EXPECT_EQ(loop.stats().minor_faults, 0) << "page faults inside the loop after warm-up";
     EXPECT_EQ(loop.stats().major_faults, 0);
   }
-  EXPECT_GT(servo.data().contact_ticks, 0u);
+  EXPECT_GT(servo.data().servo.contact_ticks, 0u);
 }
 
 // In a child that has dropped its privileges: what does the setup report?

@@ -41,10 +41,10 @@ struct ArmRig {
     arm->set_fixed_dt(1e-3);
     EXPECT_TRUE(arm->configure().ok());
     EXPECT_TRUE(arm->activate().ok());
-    model.kinematics = &*kin;
-    model.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
-    for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.max_joint_torque[j] = config.safety.max_joint_torque[j];
-    servo = std::make_unique<RtServo>(model, *shared, t, arm.get(), &arm->physics());
+    model.servo.kinematics = *kin;
+    model.servo.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
+    for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.servo.max_joint_torque[j] = config.safety.max_joint_torque[j];
+    servo = std::make_unique<RtServo>(model, *shared, t, arm.get());
     // A flat tissue at the workspace centre's height (z = 0 in the tissue frame).
     const float s = 0.1f;
     patch->n_triangles = 2;
@@ -52,7 +52,7 @@ struct ArmRig {
     patch->triangles[1] = {{{-s, -s, 0}, {s, s, 0}, {-s, s, 0}}, 1, 0};
   }
   void tick() {
-    t += model.period_ns;
+    t += model.servo.period_ns;
     shared->viz_heartbeat.beat(t, 1);
     if (n % 16 == 0) {
       patch->t_ns = t;
@@ -79,22 +79,22 @@ TEST(RtServoArm, TheArmPressesIntoThePatchAndRendersJacobianTransposeTorques) {
   ArmRig rig;
   for (int i = 0; i < 3000; ++i) rig.tick();
   const RtData& d = rig.servo->data();
-  EXPECT_GT(d.contact_ticks, 300u) << "the scripted hand pushes the stylus into the tissue";
-  EXPECT_GT(d.force.z, 0.3);
+  EXPECT_GT(d.servo.contact_ticks, 300u) << "the scripted hand pushes the stylus into the tissue";
+  EXPECT_GT(d.servo.force.z, 0.3);
   EXPECT_EQ(d.last_read, device::IoStatus::kOk);
   // τ = Jᵀ F, within each joint's limit.
-  const auto tau = arm::joint_torques(d.jacobian, d.force);
+  const auto tau = arm::joint_torques(d.servo.jacobian, d.servo.force);
   for (int j = 0; j < 3; ++j) {
-    const double lim = rig.model.max_joint_torque[static_cast<std::size_t>(j)];
-    EXPECT_NEAR(d.command.tau[static_cast<std::size_t>(j)], std::clamp(tau[static_cast<std::size_t>(j)], -lim, lim), 1e-12);
+    const double lim = rig.model.servo.max_joint_torque[static_cast<std::size_t>(j)];
+    EXPECT_NEAR(d.out.command.tau[static_cast<std::size_t>(j)], std::clamp(tau[static_cast<std::size_t>(j)], -lim, lim), 1e-12);
   }
   // The sample carries the joints; the tool is the forward kinematics of the encoders.
   EXPECT_EQ(rig.last.n_joints, 3u);
-  const Vec3 fk = rig.kin->position(std::span<const double>(d.joints.q.data(), 3)) - rig.model.device_origin;
+  const Vec3 fk = rig.kin->position(std::span<const double>(d.joints.q.data(), 3)) - rig.model.servo.device_origin;
   EXPECT_NEAR(norm(rig.last.tool.position - fk), 0, 1e-12);
   // The motors' rendered force pushes back out of the tissue, as commanded.
   EXPECT_GT(rig.arm->physics().rendered_force().z, 0.0);
-  EXPECT_LE(norm(d.force), rig.model.haptic.safety.max_force + 1e-9);
+  EXPECT_LE(norm(d.servo.force), rig.model.servo.haptic.safety.max_force + 1e-9);
 }
 
 TEST(RtServoArm, TickWithTheArmAllocatesNothing) {
@@ -108,22 +108,22 @@ TEST(RtServoArm, TickWithTheArmAllocatesNothing) {
 TEST(RtServoArm, DeviceErrorsZeroTheForceAndAFaultWaitsForARearm) {
   ArmRig rig;
   for (int i = 0; i < 3000; ++i) rig.tick();
-  ASSERT_GT(norm(rig.servo->data().force), 0.3);
+  ASSERT_GT(norm(rig.servo->data().servo.force), 0.3);
   // Two lost replies: zero force on those ticks, no fault (the policy trips at three in a row).
   rig.arm->inject(device::IoStatus::kTimeout, 2);
   rig.tick();
-  EXPECT_EQ(rig.servo->data().force, Vec3{});
+  EXPECT_EQ(rig.servo->data().servo.force, Vec3{});
   EXPECT_NE(rig.last.events & event::kFault, 0u);
   rig.tick();
   rig.tick();
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
-  EXPECT_GT(norm(rig.servo->data().force), 0.3) << "back to normal after the glitch";
+  EXPECT_GT(norm(rig.servo->data().servo.force), 0.3) << "back to normal after the glitch";
   // Five in a row: the device faults and the force stays zero even after the bus recovers.
   rig.arm->inject(device::IoStatus::kTimeout, 5);
   for (int i = 0; i < 200; ++i) {
     rig.tick();
-    ASSERT_EQ(rig.servo->data().force, Vec3{}) << "tick " << i;
-    ASSERT_EQ(rig.servo->data().command.tau[0], 0.0);
+    ASSERT_EQ(rig.servo->data().servo.force, Vec3{}) << "tick " << i;
+    ASSERT_EQ(rig.servo->data().out.command.tau[0], 0.0);
   }
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kFault);
   EXPECT_EQ(rig.arm->fault_cause(), device::IoStatus::kTimeout);
@@ -140,14 +140,14 @@ TEST(RtServoArm, DeviceErrorsZeroTheForceAndAFaultWaitsForARearm) {
   EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kRequested));
   rig.tick();
   EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kGranted));
-  EXPECT_EQ(rig.servo->data().force, Vec3{}) << "the servo keeps off the device it granted";
+  EXPECT_EQ(rig.servo->data().servo.force, Vec3{}) << "the servo keeps off the device it granted";
   EXPECT_TRUE(rig.servo->supervise()) << "then the re-arm";
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive);
   rig.tick();
   EXPECT_EQ(rig.servo->data().handover.load(), static_cast<int>(Handover::kIdle));
   EXPECT_EQ(rig.servo->data().rearms, 1u);
   for (int i = 0; i < 300; ++i) rig.tick();
-  EXPECT_GT(norm(rig.servo->data().force), 0.3);
+  EXPECT_GT(norm(rig.servo->data().servo.force), 0.3);
   EXPECT_EQ(rig.arm->counters().faults, 1u);
 }
 
@@ -166,11 +166,11 @@ TEST(RtServoArm, ForcesAndTorquesStayFiniteAndBoundedForWildTargets) {
     }
     rig.tick();
     const RtData& d = rig.servo->data();
-    ASSERT_TRUE(is_finite(d.force));
-    ASSERT_LE(norm(d.force), rig.model.haptic.safety.max_force + 1e-9);
+    ASSERT_TRUE(is_finite(d.servo.force));
+    ASSERT_LE(norm(d.servo.force), rig.model.servo.haptic.safety.max_force + 1e-9);
     for (int j = 0; j < 3; ++j) {
-      ASSERT_TRUE(std::isfinite(d.command.tau[static_cast<std::size_t>(j)]));
-      ASSERT_LE(std::abs(d.command.tau[static_cast<std::size_t>(j)]), rig.model.max_joint_torque[static_cast<std::size_t>(j)] + 1e-12);
+      ASSERT_TRUE(std::isfinite(d.out.command.tau[static_cast<std::size_t>(j)]));
+      ASSERT_LE(std::abs(d.out.command.tau[static_cast<std::size_t>(j)]), rig.model.servo.max_joint_torque[static_cast<std::size_t>(j)] + 1e-12);
     }
   }
 }
@@ -179,16 +179,16 @@ TEST(RtServoArm, AGlitchingEncoderIsCountedZeroesTheForceAndRepeatedGlitchesFaul
   ArmRig rig;
   rig.arm->set_plausibility(plausibility_of(rig.config));
   for (int i = 0; i < 3000; ++i) rig.tick();
-  ASSERT_GT(norm(rig.servo->data().force), 0.3);
+  ASSERT_GT(norm(rig.servo->data().servo.force), 0.3);
   // One reading a motor revolution off on joint 0: impossible in a millisecond.
   rig.arm->inject_encoder_offset(0, rig.config.joints[0].counts_per_rev, 1);
   rig.tick();
   EXPECT_EQ(rig.servo->data().last_read, device::IoStatus::kImplausible);
-  EXPECT_EQ(rig.servo->data().force, Vec3{});
+  EXPECT_EQ(rig.servo->data().servo.force, Vec3{});
   EXPECT_EQ(rig.arm->counters().glitches, 1u);
   for (int i = 0; i < 50; ++i) rig.tick();
   EXPECT_EQ(rig.arm->state(), device::Lifecycle::kActive) << "one glitch is not a fault";
-  EXPECT_GT(norm(rig.servo->data().force), 0.3);
+  EXPECT_GT(norm(rig.servo->data().servo.force), 0.3);
   // Glitch after glitch: a fault, with the joint named. The fault path allocates nothing either.
   rig.arm->inject_encoder_offset(1, 4 * rig.config.joints[1].counts_per_rev, 3);
   {

@@ -57,7 +57,7 @@ struct Rig {
   /// One tick; the viz beats when `viz_beats` and republishes its patch every 16 ticks when
   /// `republish` (a live viz does both; the tests of each fade stop one of them).
   void tick(bool viz_beats, bool republish) {
-    t += model.period_ns;
+    t += model.servo.period_ns;
     if (viz_beats) shared->viz_heartbeat.beat(t, 1);
     if (republish && published && n % 16 == 0) {
       scratch->t_ns = t;
@@ -89,9 +89,9 @@ TEST(RtServo, ScriptedToolPressesIntoThePatchAndFeelsAForce) {
   }
   const RtData& d = rig.servo->data();
   EXPECT_GT(d.patches_received, 0u);
-  EXPECT_GT(d.contact_ticks, 500u);
-  EXPECT_GT(d.force.z, 0.5);               // pushed up, out of the tissue
-  EXPECT_LE(norm(d.force), rig.model.haptic.safety.max_force);
+  EXPECT_GT(d.servo.contact_ticks, 500u);
+  EXPECT_GT(d.servo.force.z, 0.5);               // pushed up, out of the tissue
+  EXPECT_LE(norm(d.servo.force), rig.model.servo.haptic.safety.max_force);
   EXPECT_EQ(rig.shared->samples.overflow_count(), 0u);
 }
 
@@ -107,23 +107,23 @@ TEST(RtServo, OneSamplePerTickInOrder) {
   EXPECT_EQ(expect, 101u);
 }
 
-// Each fade alone: the force holds while its input is fresh, holds until the timeout, then falls
-// monotonically to zero within the fade time. Removing either fade fails its test (the force
-// would stay at its held value), whatever the other one does.
+// The one fade (haptics/force_fade.hpp), by each of its two inputs alone: the force holds while
+// the input is fresh, holds until the timeout, then falls monotonically to zero within the fade
+// time. Dropping either input from the fade fails its test (the force would stay at its held value).
 constexpr Vec3 kHeld{0.0, 0.0, -0.003};  // 3 mm into the plane at z = 0
 
 /// Brings the rig to a steady press: the stylus held 3 mm deep, viz and patch fresh.
 double settle(Rig& rig) {
   rig.publish_plane();
   for (int i = 0; i < 1500; ++i) rig.hold_stylus(kHeld), rig.tick(true), rig.drain();
-  return norm(rig.servo->data().force);
+  return norm(rig.servo->data().servo.force);
 }
 
 TEST(RtServoFades, VizHeartbeatFadeAloneHoldsUntilTheTimeoutThenFallsMonotonically) {
   RtModel m;
-  m.fade.timeout_ns = 150 * kMs;
-  m.fade.fade_ns = 100 * kMs;
-  m.haptic.safety.stale_after_ns = 10'000 * kMs;  // the stale-patch fade cannot act in this test
+  m.servo.fade.timeout_ns = 150 * kMs;
+  m.servo.fade.fade_ns = 100 * kMs;
+  m.servo.fade.stale_after_ns = 10'000 * kMs;  // the stale-patch fade cannot act in this test
   Rig rig(m);
   const double f0 = settle(rig);
   ASSERT_GT(f0, 0.5);
@@ -134,14 +134,14 @@ TEST(RtServoFades, VizHeartbeatFadeAloneHoldsUntilTheTimeoutThenFallsMonotonical
     rig.hold_stylus(kHeld);
     rig.tick(/*viz_beats=*/false, /*republish=*/true);  // the patch stays fresh; only the heartbeat stops
     rig.drain();
-    const double f = norm(rig.servo->data().force);
+    const double f = norm(rig.servo->data().servo.force);
     const std::int64_t age = rig.t - last_beat;
-    if (age <= m.fade.timeout_ns) {
+    if (age <= m.servo.fade.timeout_ns) {
       ASSERT_NEAR(f, f0, 0.02 * f0) << "the force must hold until the timeout; " << age / kMs << " ms after the last beat";
     } else {
       ASSERT_LE(f, prev + 1e-9) << "the fade must fall monotonically; " << age / kMs << " ms after the last beat";
     }
-    if (age > m.fade.timeout_ns + m.fade.fade_ns + m.period_ns) {
+    if (age > m.servo.fade.timeout_ns + m.servo.fade.fade_ns + m.servo.period_ns) {
       ASSERT_EQ(f, 0.0) << "zero by timeout + fade + one tick";
       zero = true;
     }
@@ -150,15 +150,15 @@ TEST(RtServoFades, VizHeartbeatFadeAloneHoldsUntilTheTimeoutThenFallsMonotonical
   EXPECT_TRUE(zero);
   const RtData& d = rig.servo->data();
   EXPECT_EQ(d.viz_lost_at_beat_ns, last_beat);
-  EXPECT_LE(d.force_zero_ns - last_beat, m.fade.timeout_ns + m.fade.fade_ns + m.period_ns);
-  EXPECT_EQ(d.haptic.safety.fades, 0u) << "the patch was fresh: only the heartbeat fade acted";
+  EXPECT_LE(d.force_zero_ns - last_beat, m.servo.fade.timeout_ns + m.servo.fade.fade_ns + m.servo.period_ns);
+  EXPECT_EQ(d.servo.fade.scale(), 0.0);
 }
 
 TEST(RtServoFades, StalePatchFadeAloneHoldsUntilStaleThenFallsMonotonically) {
   RtModel m;
-  m.fade.timeout_ns = 10'000 * kMs;  // the heartbeat fade cannot act in this test
-  m.haptic.safety.stale_after_ns = 100 * kMs;
-  m.haptic.safety.stale_fade_ns = 100 * kMs;
+  m.servo.fade.timeout_ns = 10'000 * kMs;  // the heartbeat fade cannot act in this test
+  m.servo.fade.stale_after_ns = 100 * kMs;
+  m.servo.fade.fade_ns = 100 * kMs;
   Rig rig(m);
   const double f0 = settle(rig);
   ASSERT_GT(f0, 0.5);
@@ -169,38 +169,38 @@ TEST(RtServoFades, StalePatchFadeAloneHoldsUntilStaleThenFallsMonotonically) {
     rig.hold_stylus(kHeld);
     rig.tick(/*viz_beats=*/true, /*republish=*/false);  // the viz beats but publishes no new tissue
     rig.drain();
-    const double f = norm(rig.servo->data().force);
+    const double f = norm(rig.servo->data().servo.force);
     const std::int64_t age = rig.t - last_patch;
-    if (age <= m.haptic.safety.stale_after_ns) {
+    if (age <= m.servo.fade.stale_after_ns) {
       ASSERT_NEAR(f, f0, 0.02 * f0) << "the force must hold until the patch is stale; age " << age / kMs << " ms";
     } else {
       ASSERT_LE(f, prev + 1e-9) << "the fade must fall monotonically; age " << age / kMs << " ms";
     }
-    if (age >= m.haptic.safety.stale_after_ns + m.haptic.safety.stale_fade_ns) {
-      ASSERT_EQ(f, 0.0) << "zero once stale_after + stale_fade have passed";
+    if (age > m.servo.fade.stale_after_ns + m.servo.fade.fade_ns + m.servo.period_ns) {
+      ASSERT_EQ(f, 0.0) << "zero once stale_after + fade + one tick have passed";
       zero = true;
     }
     prev = f;
   }
   EXPECT_TRUE(zero);
-  EXPECT_EQ(rig.servo->data().fade.scale(), 1.0) << "the viz was alive: only the stale-patch fade acted";
-  EXPECT_GT(rig.servo->data().haptic.safety.fades, 0u);
+  EXPECT_EQ(rig.servo->data().servo.fade.scale(), 0.0) << "the viz was alive, but the patch went stale";
+  EXPECT_GT(rig.servo->data().servo.faded_ticks, 0u);
 }
 
 TEST(RtServo, ForceIsClampedAndNeverNaN) {
   RtModel m;
-  for (auto& mat : m.haptic.materials) mat.stiffness = 1e6;  // absurdly stiff: the clamp must hold
-  m.haptic.safety.max_force = 5.0;
+  for (auto& mat : m.servo.haptic.materials) mat.stiffness = 1e6;  // absurdly stiff: the clamp must hold
+  m.servo.haptic.safety.max_force = 5.0;
   Rig rig(m);
   rig.publish_plane();
   for (int i = 0; i < 3000; ++i) {
     rig.tick(true);
     rig.drain();
-    const Vec3 f = rig.servo->data().force;
+    const Vec3 f = rig.servo->data().servo.force;
     ASSERT_TRUE(is_finite(f));
-    ASSERT_LE(norm(f), m.haptic.safety.max_force * (1 + 1e-12));
+    ASSERT_LE(norm(f), m.servo.haptic.safety.max_force * (1 + 1e-12));
   }
-  EXPECT_GT(rig.servo->data().haptic.safety.clamps, 0u);
+  EXPECT_GT(rig.servo->data().servo.haptic.safety.clamps, 0u);
 
   // A patch with NaN vertices is rejected (the one in use stays): forces stay finite.
   auto bad = std::make_unique<TissuePatch>();
@@ -213,11 +213,11 @@ TEST(RtServo, ForceIsClampedAndNeverNaN) {
   for (int i = 0; i < 10; ++i) {
     rig.tick(true, false);
     rig.drain();
-    ASSERT_TRUE(is_finite(rig.servo->data().force));
+    ASSERT_TRUE(is_finite(rig.servo->data().servo.force));
   }
   EXPECT_EQ(rig.servo->data().health.patches_rejected, 1u);
   EXPECT_EQ(rig.servo->data().patch_version, in_use);
-  EXPECT_GT(norm(rig.servo->data().force), 0.5) << "the previous patch is still felt";
+  EXPECT_GT(norm(rig.servo->data().servo.force), 0.5) << "the previous patch is still felt";
 }
 
 TEST(RtServo, TickAllocatesNothing) {
@@ -234,7 +234,7 @@ TEST(RtServo, TickAllocatesNothing) {
     rig.drain();
   }
   EXPECT_EQ(guard.count(), 0u);
-  EXPECT_EQ(rig.servo->data().mode, ToolMode::kScalpel);
+  EXPECT_EQ(rig.servo->data().servo.mode, ToolMode::kScalpel);
 }
 
 TEST(RtServo, MallocGuardCanFail) {
@@ -247,13 +247,13 @@ TEST(RtServo, ATrippedWatchdogHoldsZeroForceUntilReArmed) {
   Rig rig;
   rig.publish_plane();
   for (int i = 0; i < 2000; ++i) rig.tick(true), rig.drain();
-  ASSERT_GT(norm(rig.servo->data().force), 0.5);
+  ASSERT_GT(norm(rig.servo->data().servo.force), 0.5);
   rt::WatchdogParams wp;
   wp.tick_budget_ns = 1;
   ASSERT_TRUE(rig.watchdog.observe(wp, false, 10));  // one slow tick
   for (int i = 0; i < 500; ++i) {
     rig.tick(true);
-    ASSERT_EQ(rig.servo->data().force, Vec3{}) << "tick " << i;
+    ASSERT_EQ(rig.servo->data().servo.force, Vec3{}) << "tick " << i;
   }
   ToolSample s{};
   while (rig.shared->samples.try_pop(s)) {
@@ -276,7 +276,7 @@ TEST(RtServo, ATrippedWatchdogHoldsZeroForceUntilReArmed) {
   rig.push(c);
   rig.tick(true);
   EXPECT_FALSE(rig.watchdog.tripped());
-  EXPECT_GT(norm(rig.servo->data().force), 0.5);
+  EXPECT_GT(norm(rig.servo->data().servo.force), 0.5);
   EXPECT_EQ(rig.servo->data().rearms, 1u);
 }
 
@@ -324,26 +324,26 @@ TEST(RtServoSegment, ACorruptCommandRingIndexIsResetCountedAndNeverLoopedOn) {
   for (int i = 0; i < 20; ++i) rig.tick(true), rig.drain();  // returns: the old code spun here for good
   const RtData& d = rig.servo->data();
   EXPECT_EQ(d.health.ring_resets, 1u);
-  EXPECT_EQ(d.tick, 70u);
+  EXPECT_EQ(d.servo.tick, 70u);
   // The ring works again from there: a sealed command from the viz is applied.
   Command c{};
   c.kind = CommandKind::kSetToolMode;
   c.mode = ToolMode::kRetractor;
   rig.push(c);
   rig.tick(true);
-  EXPECT_EQ(rig.servo->data().mode, ToolMode::kRetractor);
+  EXPECT_EQ(rig.servo->data().servo.mode, ToolMode::kRetractor);
   // A head just inside the ring's capacity: the stale slots (old sealed commands among them) are
   // drained at most a batch per tick and every one of them is rejected, replays included.
   std::uint64_t tail = 0;
   std::memcpy(&tail, ring + rig.shared->commands.tail_offset(), sizeof tail);
   const std::uint64_t near = tail + kCommandRingCapacity;
   std::memcpy(ring + rig.shared->commands.head_offset(), &near, sizeof near);
-  const std::uint64_t applied = rig.servo->data().commands_applied;
+  const std::uint64_t applied = rig.servo->data().servo.commands_applied;
   rig.tick(true);
   EXPECT_EQ(rig.servo->data().health.commands_rejected, rig.model.max_commands_per_tick) << "one bounded batch per tick";
   EXPECT_EQ(rig.servo->data().health.commands_deferred, 1u);
   for (int i = 0; i < 40; ++i) rig.tick(true);
-  EXPECT_EQ(rig.servo->data().commands_applied, applied) << "stale slots are not commands";
+  EXPECT_EQ(rig.servo->data().servo.commands_applied, applied) << "stale slots are not commands";
 }
 
 TEST(RtServoSegment, ACorruptSampleRingIndexIsResetAndSamplesFlowAgain) {
@@ -373,7 +373,7 @@ TEST(RtServoSegment, ACorruptSampleRingIndexIsResetAndSamplesFlowAgain) {
       rig.tick(false);
       while (rig.shared->samples.try_pop(s)) newest = s.seq;
     }
-    EXPECT_EQ(newest, rig.servo->data().tick) << "the newest sample arrives";
+    EXPECT_EQ(newest, rig.servo->data().servo.tick) << "the newest sample arrives";
     EXPECT_EQ(rig.shared->samples.producer_resets() + rig.shared->samples.consumer_resets(), resets + 1);
   }
 }
@@ -408,16 +408,16 @@ TEST(RtServoSegment, GarbageEverywhereIsRejectedCountedAndAllocatesNothing) {
     }
     rig.tick(true, false);
     rig.drain();
-    const Vec3 f = rig.servo->data().force;
+    const Vec3 f = rig.servo->data().servo.force;
     ASSERT_TRUE(is_finite(f));
-    ASSERT_LE(norm(f), rig.model.haptic.safety.max_force * (1 + 1e-12));
+    ASSERT_LE(norm(f), rig.model.servo.haptic.safety.max_force * (1 + 1e-12));
   }
   EXPECT_EQ(guard.count(), 0u);
   const SegmentHealth& h = rig.servo->data().health;
   EXPECT_EQ(h.commands_rejected, 3000u + 600u) << "every random command and request is rejected";
   EXPECT_GE(h.patches_rejected, 400u);
   EXPECT_GE(h.targets_rejected, 550u);
-  EXPECT_EQ(rig.servo->data().commands_applied, 0u);
+  EXPECT_EQ(rig.servo->data().servo.commands_applied, 0u);
 }
 
 TEST(RtServoSegment, APatchOrTargetFromTheFutureIsRejected) {

@@ -28,12 +28,12 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   ASSERT_TRUE(arm->configure().ok());
   ASSERT_TRUE(arm->activate().ok());
   RtModel model;
-  model.kinematics = &kin;
-  model.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
-  for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.max_joint_torque[j] = config.safety.max_joint_torque[j];
+  model.servo.kinematics = kin;
+  model.servo.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
+  for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.servo.max_joint_torque[j] = config.safety.max_joint_torque[j];
   auto shared = std::make_unique<SharedState>();
   std::int64_t t = 1'000'000'000;
-  RtServo servo(model, *shared, t, arm.get(), &arm->physics());
+  RtServo servo(model, *shared, t, arm.get());
 
   constexpr int kFaults = 20;
   std::atomic<bool> done{false};
@@ -46,7 +46,7 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
     int quiet_ticks = 0;
     while (faults_injected.load() < kFaults || servo.data().rearms < static_cast<std::uint64_t>(kFaults)) {
       if (n > 2'000'000) break;  // a hang would fail the expectations below, not the test runner
-      t += model.period_ns;
+      t += model.servo.period_ns;
       shared->viz_heartbeat.beat(t, 1);
       // The device is the servo's only while the handover is idle: inject then, and only then.
       const bool idle = servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kIdle);

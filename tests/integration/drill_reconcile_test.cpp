@@ -30,7 +30,6 @@ TEST(DrillReconcile, RemovedBoneNeverComesBackUnderTheBurr) {
   haptics::HapticOutput out;
   in.mode = ToolMode::kDrill;
   in.patch = patch.get();
-  in.patch_age_ns = 0;
   std::uint64_t frame = 0, applied = 0;
   std::vector<std::pair<std::uint64_t, EventPayload>> pending;  // removals the viz has not drained yet
   std::vector<EventPayload> all_removals;
@@ -74,15 +73,15 @@ TEST(DrillReconcile, RemovedBoneNeverComesBackUnderTheBurr) {
       all_removals.push_back(out.payload);
       ++removals;
     }
-    if (tick % 16 == 7 && d->brick.valid == 1) {
-      const int stale = count_stale(d->brick);
+    if (tick % 16 == 7 && d->drill.brick.valid == 1) {
+      const int stale = count_stale(d->drill.brick);
       EXPECT_EQ(stale, 0) << "tick " << tick << ": removed bone back in the brick";
       stale_voxels += stale;
       if (stale_voxels > 100) break;
     }
   }
   EXPECT_GT(removals, 3);
-  EXPECT_GT(d->reapplied, 0u) << "some removals came after the viz's drain and were carved again";
+  EXPECT_GT(d->drill.reapplied, 0u) << "some removals came after the viz's drain and were carved again";
 }
 
 }  // namespace

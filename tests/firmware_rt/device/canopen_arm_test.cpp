@@ -193,9 +193,9 @@ TEST(CanopenArmNoBus, AMissingInterfaceGivesAClearError) {
   cfg.canopen->interface_name = "lancetnocan7";
   auto a = CanopenArm::create(cfg);
   ASSERT_TRUE(a.ok()) << a.error().message;
-  const Outcome o = a.value()->configure();
+  const Result<void> o = a.value()->configure();
   ASSERT_FALSE(o.ok());
-  const std::string& m = o.error->message;
+  const std::string& m = o.error().message;
   EXPECT_NE(m.find("'lancetnocan7'"), std::string::npos) << m;
   // Here (no SocketCAN) or in the guest (SocketCAN, but no such interface):
   EXPECT_TRUE(m.find("does not exist") != std::string::npos || m.find("no SocketCAN") != std::string::npos) << m;
@@ -370,10 +370,10 @@ class CanopenArmBus : public ::testing::Test {
   void bring_up(FaultPolicy policy = {}) {
     start_nodes();
     make_arm(policy);
-    const Outcome c = arm_->configure();
-    ASSERT_TRUE(c.ok()) << c.error->message;
-    const Outcome a = arm_->activate();
-    ASSERT_TRUE(a.ok()) << a.error->message;
+    const Result<void> c = arm_->configure();
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    const Result<void> a = arm_->activate();
+    ASSERT_TRUE(a.ok()) << a.error().message;
     next_tick_ = now_ns();
   }
 
@@ -479,8 +479,8 @@ TEST_F(CanopenArmBus, ConfigureAndReadOnlyObserve) {
     p.reset(q0);
   });
   make_arm();
-  const Outcome c = arm_->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Result<void> c = arm_->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kInactive);
   EXPECT_FALSE(arm_->pdos_running());
   for (int j = 0; j < 4; ++j) EXPECT_EQ(arm_->node(j).vendor_id, CanopenNodeSet::Options{}.vendor_id);
@@ -510,8 +510,8 @@ TEST_F(CanopenArmBus, ActivateConfiguresTheNodesAndEnablesTheDrives) {
   start_nodes();
   make_arm();
   ASSERT_TRUE(arm_->configure().ok());
-  const Outcome a = arm_->activate();
-  ASSERT_TRUE(a.ok()) << a.error->message;
+  const Result<void> a = arm_->activate();
+  ASSERT_TRUE(a.ok()) << a.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
   EXPECT_TRUE(arm_->pdos_running());
   const auto period_us = static_cast<std::uint32_t>(std::llround(cfg_.canopen->sync_period * 1e6));
@@ -571,9 +571,9 @@ TEST_F(CanopenArmBus, AModeTheDriveRefusesFailsActivationNamingBoth) {
   nodes_->set_refused_mode(2, canopen::kModeCyclicSyncTorque);
   make_arm();
   ASSERT_TRUE(arm_->configure().ok());
-  const Outcome a = arm_->activate();
+  const Result<void> a = arm_->activate();
   ASSERT_FALSE(a.ok());
-  const std::string& m = a.error->message;
+  const std::string& m = a.error().message;
   EXPECT_NE(m.find("node 2: modes of operation display (0x6061) reads 0 (no mode)"), std::string::npos) << m;
   EXPECT_NE(m.find("(0x6060) = 10 (cyclic synchronous torque)"), std::string::npos) << m;
   std::printf("  error: %s\n", m.c_str());
@@ -706,8 +706,8 @@ TEST_F(CanopenArmBus, ANodeThatStopsAnsweringTimesOutToAFaultWithZeroTorque) {
 
   // The node comes back; an explicit rearm brings the torque back.
   nodes_->set_silent(2, false);
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;
   EXPECT_EQ(nodes_->node(2).target_torque, expected_per_mille(cfg_, 1, 0.2));
@@ -730,8 +730,8 @@ TEST_F(CanopenArmBus, AMissingHeartbeatIsADisconnect) {
   expect_all_torque_zero("after the heartbeat loss");
   std::printf("  after %d ticks: %s\n", n, arm_->describe(arm_->last_event()).c_str());
   nodes_->set_heartbeat_enabled(3, true);
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 100; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;  // > 2 heartbeat periods
 }
@@ -762,8 +762,8 @@ TEST_F(CanopenArmBus, AnEmcyIsADeviceFaultAndAFaultResetRecovers) {
   expect_all_torque_zero("after the EMCY");
   EXPECT_EQ(canopen::cia402_state(nodes_->node(1).statusword), Cia402State::kFault);
 
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
   EXPECT_EQ(nodes_->node(1).fault_resets, 1u);
   EXPECT_EQ(canopen::cia402_state(nodes_->node(1).statusword), Cia402State::kOperationEnabled);
@@ -795,8 +795,8 @@ TEST_F(CanopenArmBus, ARebootedNodeIsConfiguredAgainByRearm) {
   EXPECT_EQ(arm_->last_event().what, CanopenEvent::What::kNotOperational);
   EXPECT_STREQ(arm_->fault_detail().c_str(), "node 3: boot-up message (0x703): the node rebooted");
   EXPECT_EQ(nodes_->node(3).rated_torque_mnm, 1000u) << "the node's default after power-up";
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(nodes_->node(3).rated_torque_mnm, canopen::rated_torque_mnm(cfg_.actuators[2]));
   EXPECT_EQ(nodes_->node(3).nmt, 0x05);
   next_tick_ = now_ns();
@@ -834,8 +834,8 @@ TEST_F(CanopenArmBus, AnInterfaceGoingDownIsADisconnect) {
   EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("socket: Network is down (errno 100)"), std::string::npos)
       << arm_->fault_detail().c_str();
   std::printf("  %s\n", arm_->describe(arm_->last_event()).c_str());
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;
 }
@@ -844,19 +844,19 @@ TEST_F(CanopenArmBus, ConfigureNamesANodeThatDoesNotAnswer) {
   start_nodes();
   nodes_->set_silent(3, true);
   make_arm();
-  const Outcome c = arm_->configure();
+  const Result<void> c = arm_->configure();
   ASSERT_FALSE(c.ok());
-  EXPECT_NE(c.error->message.find("node 3 does not answer"), std::string::npos) << c.error->message;
+  EXPECT_NE(c.error().message.find("node 3 does not answer"), std::string::npos) << c.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kUnconfigured);
-  std::printf("  error: %s\n", c.error->message.c_str());
+  std::printf("  error: %s\n", c.error().message.c_str());
 }
 
 TEST_F(CanopenArmBus, DeactivateZeroesTorqueDisablesAndLeavesOperational) {
   bring_up();
   const JointCommand cmd = torques({0.2, 0.2, 1.0, 0.01});
   for (int i = 0; i < 3; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
-  const Outcome d = arm_->deactivate();
-  ASSERT_TRUE(d.ok()) << d.error->message;
+  const Result<void> d = arm_->deactivate();
+  ASSERT_TRUE(d.ok()) << d.error().message;
   for (int id : cfg_.canopen->node_ids) {
     EXPECT_TRUE(eventually([&] { return nodes_->node(id).nmt == 0x7F; })) << "node " << id;
     const auto v = nodes_->node(id);
@@ -875,8 +875,8 @@ TEST_F(CanopenArmBus, DeactivateZeroesTorqueDisablesAndLeavesOperational) {
   EXPECT_EQ(arm_->syncs(), syncs);
   EXPECT_EQ(arm_->master_heartbeats(), sent);
   for (int id : cfg_.canopen->node_ids) EXPECT_EQ(nodes_->node(id).heartbeat_losses, 0u) << "node " << id;
-  const Outcome a = arm_->activate();
-  ASSERT_TRUE(a.ok()) << a.error->message;
+  const Result<void> a = arm_->activate();
+  ASSERT_TRUE(a.ok()) << a.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 3; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
 }
@@ -901,8 +901,8 @@ TEST_F(CanopenArmBus, ATpdoLateWithinTheReadBudgetIsOnTime) {
   for (int id : cfg_.canopen->node_ids) nodes_->set_tpdo_delay_us(id, period_ns_ / 4000);
   make_arm();
   ASSERT_TRUE(arm_->configure().ok());
-  const Outcome a = arm_->activate();
-  ASSERT_TRUE(a.ok()) << a.error->message;
+  const Result<void> a = arm_->activate();
+  ASSERT_TRUE(a.ok()) << a.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 60; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk) << arm_->last_error().c_str();
   EXPECT_LE(late_, ticks_ / 4) << late_ << " of " << ticks_ << " ticks late";
@@ -955,8 +955,8 @@ TEST_F(CanopenArmBus, WhenTheMasterFallsSilentTheDrivesTakeTheirTorqueOff) {
   EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("EMCY 0x8130 heartbeat / life guard error"), std::string::npos)
       << arm_->fault_detail().c_str();
   std::printf("  then: %s\n", arm_->fault_detail().c_str());
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;
   EXPECT_NE(nodes_->node(1).torque_actual, 0);
@@ -972,11 +972,11 @@ TEST_F(CanopenArmBus, ReconnectAfterTheInterfaceCameBackLeavesTheDrivesDisabled)
   EXPECT_TRUE(arm_->link_lost());
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDisconnected);
   // While it is down, reconnect() says so and changes nothing.
-  const Outcome down = arm_->reconnect();
+  const Result<void> down = arm_->reconnect();
   EXPECT_FALSE(down.ok());
   if (!down.ok()) {
-    EXPECT_NE(down.error->message.find("is down"), std::string::npos) << down.error->message;
-    std::printf("  while down: %s\n", down.error->message.c_str());
+    EXPECT_NE(down.error().message.find("is down"), std::string::npos) << down.error().message;
+    std::printf("  while down: %s\n", down.error().message.c_str());
   }
   EXPECT_TRUE(arm_->link_lost());
   EXPECT_EQ(arm_->state(), Lifecycle::kFault);
@@ -984,8 +984,8 @@ TEST_F(CanopenArmBus, ReconnectAfterTheInterfaceCameBackLeavesTheDrivesDisabled)
   // The servo would keep ticking meanwhile: a faulted read reports the lost link.
   EXPECT_EQ(arm_->read(state_), IoStatus::kFault);
 
-  const Outcome up = arm_->reconnect();
-  ASSERT_TRUE(up.ok()) << up.error->message;
+  const Result<void> up = arm_->reconnect();
+  ASSERT_TRUE(up.ok()) << up.error().message;
   EXPECT_FALSE(arm_->link_lost());
   EXPECT_EQ(arm_->state(), Lifecycle::kFault) << "only rearm() resumes torque";
   EXPECT_EQ(arm_->counters().reconnects, 1u);
@@ -1006,8 +1006,8 @@ TEST_F(CanopenArmBus, ReconnectAfterTheInterfaceCameBackLeavesTheDrivesDisabled)
     EXPECT_EQ(v.consumer, static_cast<std::uint32_t>(kMasterNodeId) << 16 | kDriveWatchdogMs) << "node " << id;
   }
   EXPECT_EQ(state_.status & 0xFu, 0u) << "read in fault: no drive enabled";
-  const Outcome r = arm_->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = arm_->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
   next_tick_ = now_ns();
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;

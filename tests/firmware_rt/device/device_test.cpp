@@ -60,9 +60,9 @@ TEST(DeviceLifecycle, StepsOutOfOrderAreRefusedWithTheStateNamed) {
   EXPECT_EQ(a->state(), Lifecycle::kUnconfigured);
   EXPECT_EQ(a->read(s), IoStatus::kNotActive);
   EXPECT_EQ(a->write(torques(0, 0, 0)), IoStatus::kNotActive);
-  const Outcome early = a->activate();
+  const Result<void> early = a->activate();
   ASSERT_FALSE(early.ok());
-  EXPECT_NE(early.error->message.find("cannot activate from state unconfigured"), std::string::npos) << early.error->message;
+  EXPECT_NE(early.error().message.find("cannot activate from state unconfigured"), std::string::npos) << early.error().message;
   EXPECT_FALSE(a->deactivate().ok());
   EXPECT_FALSE(a->rearm().ok());
 
@@ -77,9 +77,9 @@ TEST(DeviceLifecycle, StepsOutOfOrderAreRefusedWithTheStateNamed) {
   ASSERT_TRUE(a->activate().ok());
   EXPECT_EQ(a->state(), Lifecycle::kActive);
   EXPECT_FALSE(a->activate().ok());  // twice
-  const Outcome not_faulted = a->rearm();
+  const Result<void> not_faulted = a->rearm();
   ASSERT_FALSE(not_faulted.ok());
-  EXPECT_NE(not_faulted.error->message.find("cannot rearm from state active"), std::string::npos);
+  EXPECT_NE(not_faulted.error().message.find("cannot rearm from state active"), std::string::npos);
   EXPECT_EQ(a->read(s), IoStatus::kOk);
   EXPECT_EQ(s.n, 3);
   EXPECT_GT(s.t_ns, 0);
@@ -442,13 +442,13 @@ TEST(DeviceFaultDetail, AnErrorWithoutWordsIsNamedByItsStatus) {
   EXPECT_STREQ(a->fault_detail().c_str(), "disconnected");
   EXPECT_TRUE(a->link_lost());
   // The sim backend cannot reconnect: an honest error, and the arm stays faulted.
-  const Outcome r = a->reconnect();
+  const Result<void> r = a->reconnect();
   ASSERT_FALSE(r.ok());
-  EXPECT_EQ(r.error->code, ErrorCode::kUnsupported);
-  EXPECT_NE(r.error->message.find("reconnect is not supported"), std::string::npos) << r.error->message;
+  EXPECT_EQ(r.error().code, ErrorCode::kUnsupported);
+  EXPECT_NE(r.error().message.find("reconnect is not supported"), std::string::npos) << r.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kFault);
   ASSERT_TRUE(a->rearm().ok());
   EXPECT_FALSE(a->link_lost());
-  const Outcome not_faulted = a->reconnect();
+  const Result<void> not_faulted = a->reconnect();
   EXPECT_FALSE(not_faulted.ok()) << "reconnect is for a faulted device only";
 }

@@ -149,11 +149,11 @@ struct TcpRig {
   }
   [[nodiscard]] bool ready() const { return server && arm; }
   bool bring_up() {
-    const Outcome c = arm->configure();
-    EXPECT_TRUE(c.ok()) << c.error->message;
+    const Result<void> c = arm->configure();
+    EXPECT_TRUE(c.ok()) << c.error().message;
     if (!c.ok()) return false;
-    const Outcome a = arm->activate();
-    EXPECT_TRUE(a.ok()) << a.error->message;
+    const Result<void> a = arm->activate();
+    EXPECT_TRUE(a.ok()) << a.error().message;
     return a.ok();
   }
   std::unique_ptr<ArmServer> server;
@@ -373,9 +373,9 @@ TEST(ModbusArm, ConfigureNamesTheEndpointWhenNobodyListens) {
   const int port = free_port();
   auto a = make_arm(tcp_config(port));
   ASSERT_TRUE(a);
-  const Outcome o = a->configure();
+  const Result<void> o = a->configure();
   ASSERT_FALSE(o.ok());
-  const std::string& m = o.error->message;
+  const std::string& m = o.error().message;
   EXPECT_TRUE(contains(m, "127.0.0.1:" + std::to_string(port))) << m;
   EXPECT_TRUE(contains(m, "cannot connect")) << m;
   EXPECT_TRUE(contains(m, "refused")) << m;
@@ -385,10 +385,10 @@ TEST(ModbusArm, ConfigureNamesTheEndpointWhenNobodyListens) {
 TEST(ModbusArm, ConfigureNamesTheSerialDeviceThatIsMissing) {
   auto a = make_arm(rtu_config("/dev/lancet-no-such-tty"));
   ASSERT_TRUE(a);
-  const Outcome o = a->configure();
+  const Result<void> o = a->configure();
   ASSERT_FALSE(o.ok());
-  EXPECT_TRUE(contains(o.error->message, "/dev/lancet-no-such-tty")) << o.error->message;
-  EXPECT_TRUE(contains(o.error->message, "cannot open the serial device")) << o.error->message;
+  EXPECT_TRUE(contains(o.error().message, "/dev/lancet-no-such-tty")) << o.error().message;
+  EXPECT_TRUE(contains(o.error().message, "cannot open the serial device")) << o.error().message;
 }
 
 TEST(ModbusArm, ConfigureFailsWhenTheArmDoesNotAnswerAndCanBeRetried) {
@@ -396,9 +396,9 @@ TEST(ModbusArm, ConfigureFailsWhenTheArmDoesNotAnswerAndCanBeRetried) {
   o.faults.drop_replies = 1.0;
   TcpRig rig(o, {}, 0.02);
   ASSERT_TRUE(rig.ready());
-  const Outcome c = rig.arm->configure();
+  const Result<void> c = rig.arm->configure();
   ASSERT_FALSE(c.ok());
-  const std::string& m = c.error->message;
+  const std::string& m = c.error().message;
   EXPECT_TRUE(contains(m, "127.0.0.1:" + std::to_string(rig.port))) << m;
   EXPECT_TRUE(contains(m, "does not answer")) << m;
   EXPECT_TRUE(contains(m, "input registers 0..7")) << m;
@@ -499,8 +499,8 @@ TEST(ModbusArmTcp, AHostNameIsResolved) {
   c.modbus->host = "localhost";
   auto a = make_arm(c);
   ASSERT_TRUE(a);
-  const Outcome o = a->configure();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  const Result<void> o = a->configure();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   JointState s;
   EXPECT_EQ(a->read(s), IoStatus::kOk);
 }
@@ -562,14 +562,14 @@ TEST(ModbusArmTcp, RearmFailsWhileTheDriveKeepsItsFault) {
   rig.server->set_drive_fault(true, /*sticky=*/true);
   JointState s;
   ASSERT_EQ(rig.arm->read(s), IoStatus::kFault);
-  const Outcome r = rig.arm->rearm();
+  const Result<void> r = rig.arm->rearm();
   ASSERT_FALSE(r.ok());
-  EXPECT_TRUE(contains(r.error->message, "still reports a fault")) << r.error->message;
+  EXPECT_TRUE(contains(r.error().message, "still reports a fault")) << r.error().message;
   EXPECT_EQ(rig.arm->state(), Lifecycle::kFault);
   EXPECT_FALSE(rig.server->snapshot().enabled);
   rig.server->set_drive_fault(false);
-  const Outcome again = rig.arm->rearm();
-  ASSERT_TRUE(again.ok()) << again.error->message;
+  const Result<void> again = rig.arm->rearm();
+  ASSERT_TRUE(again.ok()) << again.error().message;
   EXPECT_TRUE(rig.server->snapshot().enabled);
 }
 
@@ -647,8 +647,8 @@ TEST(ModbusArmRtu, EncodersAndTorquesOverAPty) {
   auto a = make_arm(config);
   ASSERT_TRUE(a);
   EXPECT_EQ(a->endpoint(), pty.path);
-  const Outcome c = a->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Result<void> c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
   ASSERT_TRUE(a->activate().ok());
   const double q[3] = {0.4, -0.2, 0.9};
   server->set_pose(q);
@@ -772,8 +772,8 @@ TEST(ModbusArmFaults, LateRepliesTimeOutWithinABoundAndRearmRecovers) {
   // thrown away and counted, never taken for the answer to rearm's requests.
   rig.server->set_faults({});
   ASSERT_TRUE(eventually([&] { const auto st = rig.server->snapshot().stats; return st.replies >= st.requests; }, 5.0));
-  const Outcome r = rig.arm->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = rig.arm->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(rig.arm->counters().stale_replies, 3u);
   EXPECT_EQ(rig.server->snapshot().stats.connections, 1u) << "no reconnect was needed";
   const double q[3] = {0.3, -0.2, 0.1};
@@ -804,9 +804,9 @@ TEST(ModbusArmFaults, ADisconnectFaultsAtOnceAndRearmReconnectsWhenTheServerIsBa
   EXPECT_TRUE(contains(rig.arm->fault_detail().c_str(), "127.0.0.1:" + std::to_string(rig.port) + ": connection")) << rig.arm->fault_detail().c_str();
   EXPECT_EQ(rig.arm->write(torques(0.1, 0, 0)), IoStatus::kFault);  // best effort, fails fast
   // While the server refuses connections, rearm fails and says where and why.
-  const Outcome refused = rig.arm->rearm();
+  const Result<void> refused = rig.arm->rearm();
   ASSERT_FALSE(refused.ok());
-  EXPECT_TRUE(contains(refused.error->message, "127.0.0.1:" + std::to_string(rig.port))) << refused.error->message;
+  EXPECT_TRUE(contains(refused.error().message, "127.0.0.1:" + std::to_string(rig.port))) << refused.error().message;
   EXPECT_EQ(rig.arm->state(), Lifecycle::kFault);
   // Once it listens again, rearm reconnects and the arm is active.
   ASSERT_TRUE(eventually([&] { return rig.arm->rearm().ok(); }, 5.0));
@@ -826,8 +826,8 @@ TEST(ModbusArmFaults, ActivateAfterADisconnectReconnects) {
   EXPECT_EQ(rig.arm->fault_cause(), IoStatus::kDisconnected);
   (void)rig.arm->deactivate();  // the link is gone: it may fail, the arm is inactive anyway
   EXPECT_EQ(rig.arm->state(), Lifecycle::kInactive);
-  const Outcome a = rig.arm->activate();
-  ASSERT_TRUE(a.ok()) << a.error->message;
+  const Result<void> a = rig.arm->activate();
+  ASSERT_TRUE(a.ok()) << a.error().message;
   EXPECT_EQ(rig.arm->read(s), IoStatus::kOk);
   EXPECT_TRUE(rig.server->snapshot().enabled);
 }
@@ -912,8 +912,8 @@ TEST_F(LancetArmsim, ServesTheArmAndExitsCleanlyOnSigterm) {
   ASSERT_TRUE(port) << test::read_file(out);
   auto a = make_arm(tcp_config(*port, 0.2));
   ASSERT_TRUE(a);
-  const Outcome c = a->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Result<void> c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
   ASSERT_TRUE(a->activate().ok());
   JointState s;
   ASSERT_EQ(a->read(s), IoStatus::kOk);
@@ -970,8 +970,8 @@ TEST_F(LancetArmsim, ServesRtuOnAnInheritedPty) {
   config.modbus->unit_id = 1;  // the shipped file's unit
   auto a = make_arm(config);
   ASSERT_TRUE(a);
-  const Outcome c = a->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Result<void> c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
   ASSERT_TRUE(a->activate().ok());
   JointState s;
   for (int i = 0; i < 50; ++i) {
@@ -1058,8 +1058,8 @@ TEST_F(PymodbusServer, ModbusArmReadsAndWritesTheShippedMapOnAForeignServer) {
   const arm::ArmConfig config = tcp_config(*port, 0.5);
   auto a = make_arm(config);
   ASSERT_TRUE(a);
-  const Outcome c = a->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
+  const Result<void> c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
   ASSERT_TRUE(a->activate().ok());
   JointState s;
   ASSERT_EQ(a->read(s), IoStatus::kOk);
@@ -1115,10 +1115,10 @@ TEST_F(PymodbusServer, ModbusArmReadsWritesAndNamesTheFaultsOfAForeignMap) {
   ASSERT_TRUE(a);
   EXPECT_EQ(a->read_transactions(), 4);   // input 3..4 (status, buttons), 10..11, 20..21, 30..31
   EXPECT_EQ(a->write_transactions(), 4);  // holding 60..61 (heartbeat), 100..101, 104..105, 108..109
-  const Outcome c = a->configure();
-  ASSERT_TRUE(c.ok()) << c.error->message;
-  const Outcome on = a->activate();
-  ASSERT_TRUE(on.ok()) << on.error->message;
+  const Result<void> c = a->configure();
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  const Result<void> on = a->activate();
+  ASSERT_TRUE(on.ok()) << on.error().message;
 
   // Encoders: scale and bias, low word first, bytes swapped; a fraction of a count moves q.
   JointState s;
@@ -1175,8 +1175,8 @@ TEST_F(PymodbusServer, ModbusArmReadsWritesAndNamesTheFaultsOfAForeignMap) {
   EXPECT_EQ(a->fault_cause(), IoStatus::kDeviceFault);
   EXPECT_STREQ(a->fault_detail().c_str(), "status 0x0024: fault (bit 2), not ready (bit 0 low)");
   // rearm writes the fault-reset value to the enable register (0x0080), then enable again.
-  const Outcome r = a->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   ASSERT_EQ(a->read(s), IoStatus::kOk);
   EXPECT_EQ(s.status, 0x0021u);
   // The e-stop is active low: pressed, bit 5 reads 0.
@@ -1209,8 +1209,8 @@ TEST(ModbusArmForeignMap, TheSimulatorServesItAndTheDriverDrivesItWithoutAllocat
   ASSERT_TRUE(a);
   ASSERT_TRUE(a->configure().ok());
   EXPECT_FALSE(server->snapshot().enabled);
-  const Outcome on = a->activate();
-  ASSERT_TRUE(on.ok()) << on.error->message;
+  const Result<void> on = a->activate();
+  ASSERT_TRUE(on.ok()) << on.error().message;
   ArmSnapshot snap = server->snapshot();
   EXPECT_TRUE(snap.enabled);
   EXPECT_EQ(snap.control, 0x000Fu);
@@ -1253,14 +1253,14 @@ TEST(ModbusArmForeignMap, ActivateWaitsForReadyAndNamesWhatIsMissing) {
   server->set_estop(true);
   JointState s;
   EXPECT_EQ(a->read(s), IoStatus::kOk) << "while the drives are off, the status is reported, not judged";
-  const Outcome o = a->activate();
+  const Result<void> o = a->activate();
   ASSERT_FALSE(o.ok());
-  EXPECT_TRUE(contains(o.error->message, "e-stop (bit 5 low)")) << o.error->message;
+  EXPECT_TRUE(contains(o.error().message, "e-stop (bit 5 low)")) << o.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kInactive);
   EXPECT_EQ(server->snapshot().control, 0x0006u) << "switched off again";
   server->set_estop(false);
-  const Outcome again = a->activate();
-  ASSERT_TRUE(again.ok()) << again.error->message;
+  const Result<void> again = a->activate();
+  ASSERT_TRUE(again.ok()) << again.error().message;
   EXPECT_TRUE(server->snapshot().enabled);
 }
 
@@ -1344,8 +1344,8 @@ TEST(ModbusArmStale, ActivateLeavesNoLateReplyBehind) {
   rig.server->set_faults({});
   // The late replies are all in the socket before activate sends anything.
   ASSERT_TRUE(eventually([&] { const auto st = rig.server->snapshot().stats; return st.replies >= st.requests; }, 5.0));
-  const Outcome a = rig.arm->activate();
-  ASSERT_TRUE(a.ok()) << a.error->message;
+  const Result<void> a = rig.arm->activate();
+  ASSERT_TRUE(a.ok()) << a.error().message;
   const double q[3] = {-0.3, 0.5, 0.2};
   rig.server->set_pose(q);
   const ArmSnapshot truth = rig.server->snapshot();
@@ -1366,9 +1366,9 @@ TEST(ModbusArmFaults, AnExceptionIsNamedWithItsRegisters) {
   c.modbus->registers.buttons->address = {50};
   auto a = make_arm(c, {.max_consecutive_errors = 1});
   ASSERT_TRUE(a);
-  const Outcome o = a->configure();
+  const Result<void> o = a->configure();
   ASSERT_FALSE(o.ok());
-  EXPECT_TRUE(contains(o.error->message, "exception 0x02 (illegal data address) to read input registers 50..50")) << o.error->message;
+  EXPECT_TRUE(contains(o.error().message, "exception 0x02 (illegal data address) to read input registers 50..50")) << o.error().message;
   EXPECT_EQ(a->last_errno(), MODBUS_ENOBASE + 2);
   EXPECT_EQ(a->last_error().status, IoStatus::kProtocolError);
   EXPECT_EQ(a->last_error().code, 2u);
@@ -1429,8 +1429,8 @@ TEST(ModbusArmWatchdog, TheDrivesGoTorqueFreeWhenTheHeartbeatStopsAndStayFaulted
   EXPECT_STREQ(a->fault_detail().c_str(), "status 0x0005: fault (bit 0), communication lost (bit 2), not enabled (bit 1 low)");
   for (int i = 0; i < 50; ++i) (void)a->write(torques(0.2, 0, 0));  // the heartbeat again: still latched
   EXPECT_TRUE(server->snapshot().comm_lost);
-  const Outcome r = a->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   snap = server->snapshot();
   EXPECT_TRUE(snap.enabled);
   EXPECT_FALSE(snap.comm_lost);
@@ -1468,10 +1468,10 @@ TEST_F(LancetArmsim, AKilledArmsimRestartedOnTheSamePortIsReconnectedAndTheArmSt
   }, 5.0));
   EXPECT_EQ(a->fault_cause(), IoStatus::kDisconnected);
   EXPECT_TRUE(a->link_lost());
-  const Outcome down = a->reconnect();
+  const Result<void> down = a->reconnect();
   ASSERT_FALSE(down.ok());
-  EXPECT_TRUE(contains(down.error->message, "127.0.0.1:" + std::to_string(*port))) << down.error->message;
-  EXPECT_TRUE(contains(down.error->message, "reconnect: cannot connect")) << down.error->message;
+  EXPECT_TRUE(contains(down.error().message, "127.0.0.1:" + std::to_string(*port))) << down.error().message;
+  EXPECT_TRUE(contains(down.error().message, "reconnect: cannot connect")) << down.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kFault);
 
   // It comes back on the same port: reconnect() reopens the link and leaves the drives off.
@@ -1479,11 +1479,11 @@ TEST_F(LancetArmsim, AKilledArmsimRestartedOnTheSamePortIsReconnectedAndTheArmSt
   child = std::make_unique<test::Child>(std::vector<std::string>{kArmsim, kTcpConfig, "--port", std::to_string(*port), "--hand", "hold"}, out2);
   const auto port2 = wait_for_port(*child, out2, 10.0);
   ASSERT_EQ(port2, port) << test::read_file(out2);
-  Outcome back = Outcome::failure(ErrorCode::kSystem, "not tried");
+  Result<void> back = Result<void>::failure(ErrorCode::kSystem, "not tried");
   ASSERT_TRUE(eventually([&] {
     back = a->reconnect();
     return back.ok();
-  }, 5.0)) << back.error->message;
+  }, 5.0)) << back.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kFault) << "a reconnect never re-arms";
   EXPECT_FALSE(a->link_lost());
   EXPECT_EQ(a->counters().reconnects, 1u);
@@ -1498,8 +1498,8 @@ TEST_F(LancetArmsim, AKilledArmsimRestartedOnTheSamePortIsReconnectedAndTheArmSt
   EXPECT_EQ(regs[0], 0u);
   EXPECT_EQ(regs[3], kEnableOff) << "the drives stay off until rearm";
   // Only rearm resumes.
-  const Outcome r = a->rearm();
-  ASSERT_TRUE(r.ok()) << r.error->message;
+  const Result<void> r = a->rearm();
+  ASSERT_TRUE(r.ok()) << r.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kActive);
   ASSERT_EQ(modbus_read_registers(peek, 0, 5, regs), 5);
   EXPECT_EQ(regs[3], kEnableOn);
@@ -1528,8 +1528,8 @@ TEST(ModbusArmRtu, ReconnectReopensTheSerialDevice) {
   JointState s;
   EXPECT_EQ(a->read(s), IoStatus::kFault);
   server->set_faults({});
-  const Outcome o = a->reconnect();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  const Result<void> o = a->reconnect();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(a->state(), Lifecycle::kFault);
   EXPECT_FALSE(server->snapshot().enabled) << "the drives stay off until rearm";
   ASSERT_TRUE(a->rearm().ok());

@@ -68,7 +68,7 @@ TEST_F(TrajectoryFile, AFifthCellPicksTheToolFromThatTimeOn) {
   rt::LoopLive live;
   ToolMode at_100ms = ToolMode::kProbe, at_600ms = ToolMode::kProbe;
   for (std::uint64_t n = 1; n <= 700; ++n) {
-    t += model.period_ns;
+    t += model.servo.period_ns;
     servo.tick(rt::TickContext{t, t, n, wd, live});
     ToolSample s;
     while (shared->samples.try_pop(s)) {
@@ -92,13 +92,13 @@ TEST(TrajectoryServo, TheSimulatedHandFollowsTheRecording) {
   rt::Watchdog wd;
   rt::LoopLive live;
   for (std::uint64_t n = 1; n <= 2000; ++n) {
-    t += model.period_ns;
+    t += model.servo.period_ns;
     servo.tick(rt::TickContext{t, t, n, wd, live});
     ToolSample s;
     while (shared->samples.try_pop(s)) {
     }
   }
-  EXPECT_LT(norm(servo.data().tool - tr.p.back()), 0.001) << "the hand spring brings the stylus to the recording's end";
+  EXPECT_LT(norm(servo.data().servo.tool - tr.p.back()), 0.001) << "the hand spring brings the stylus to the recording's end";
 }
 
 }  // namespace

@@ -625,10 +625,10 @@ class UsbArmTest : public ::testing::Test {
   void start_active(const arm::ArmConfig& cfg, FaultPolicy policy = {}) {
     start(cfg, policy);
     ASSERT_FALSE(HasFatalFailure());
-    Outcome o = arm_->configure();
-    ASSERT_TRUE(o.ok()) << o.error->message;
+    Result<void> o = arm_->configure();
+    ASSERT_TRUE(o.ok()) << o.error().message;
     o = arm_->activate();
-    ASSERT_TRUE(o.ok()) << o.error->message;
+    ASSERT_TRUE(o.ok()) << o.error().message;
   }
   void TearDown() override {
     arm_.reset();  // closes libusb before the testbed goes
@@ -680,8 +680,8 @@ TEST(UsbArmCreate, NeedsAUsbBusSectionAndAConsistentLayout) {
 TEST_F(UsbArmTest, FindsTheArmByVidPidTakesItFromUsbhidAndEnables) {
   start(usb_config());
   ASSERT_FALSE(HasFatalFailure());
-  Outcome o = arm_->configure();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->configure();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->device_location(), "bus 001 address 002");
   EmulatorSnapshot s = bench_->emu().snapshot();
   EXPECT_EQ(s.driver_detaches, 1) << "the HID interface was bound to usbhid: it must be detached";
@@ -695,7 +695,7 @@ TEST_F(UsbArmTest, FindsTheArmByVidPidTakesItFromUsbhidAndEnables) {
   EXPECT_EQ(bench_->emu().snapshot().out_reports, 0u);
 
   o = arm_->activate();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
   s = bench_->emu().snapshot();
   EXPECT_EQ(s.out_reports, 1u);
@@ -709,10 +709,10 @@ TEST_F(UsbArmTest, AWrongVidPidSaysWhatWasSeen) {
   c.usb->pid = 0x0002;
   start(c);
   ASSERT_FALSE(HasFatalFailure());
-  Outcome o = arm_->configure();
+  Result<void> o = arm_->configure();
   ASSERT_FALSE(o.ok());
-  EXPECT_EQ(o.error->code, ErrorCode::kNotFound);
-  const std::string& m = o.error->message;
+  EXPECT_EQ(o.error().code, ErrorCode::kNotFound);
+  const std::string& m = o.error().message;
   EXPECT_NE(m.find("no USB device 1209:0002"), std::string::npos) << m;
   EXPECT_NE(m.find("1209:0001 at bus 001 address 002"), std::string::npos) << m;
   EXPECT_NE(m.find("1d6b:0002 at bus 001 address 001"), std::string::npos) << m;
@@ -724,11 +724,11 @@ TEST_F(UsbArmTest, AMissingEndpointListsTheOnesThere) {
   c.usb->endpoint_in = 0x82;
   start(c);
   ASSERT_FALSE(HasFatalFailure());
-  Outcome o = arm_->configure();
+  Result<void> o = arm_->configure();
   ASSERT_FALSE(o.ok());
-  EXPECT_EQ(o.error->code, ErrorCode::kMismatch);
-  EXPECT_NE(o.error->message.find("0x82"), std::string::npos) << o.error->message;
-  EXPECT_NE(o.error->message.find("0x81 interrupt IN, 0x01 interrupt OUT"), std::string::npos) << o.error->message;
+  EXPECT_EQ(o.error().code, ErrorCode::kMismatch);
+  EXPECT_NE(o.error().message.find("0x82"), std::string::npos) << o.error().message;
+  EXPECT_NE(o.error().message.find("0x81 interrupt IN, 0x01 interrupt OUT"), std::string::npos) << o.error().message;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -909,8 +909,8 @@ TEST_F(UsbArmTest, ConsecutiveTimeoutsTripTheFault) {
   EXPECT_EQ(arm_->read(js), IoStatus::kFault);
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kTimeout);
   bench_->emu().withhold_in(false);
-  Outcome o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
 }
 
@@ -935,15 +935,15 @@ TEST_F(UsbArmTest, UnplugTripsTheFaultAndRearmFindsTheArmAtItsNewAddress) {
   EXPECT_EQ(arm_->write(cmd), IoStatus::kFault);
 
   // Still gone: rearm says so and the fault stays.
-  Outcome o = arm_->rearm();
+  Result<void> o = arm_->rearm();
   ASSERT_FALSE(o.ok());
-  EXPECT_NE(o.error->message.find("no USB device 1209:0001"), std::string::npos) << o.error->message;
+  EXPECT_NE(o.error().message.find("no USB device 1209:0001"), std::string::npos) << o.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kFault);
 
   // Back, enumerated at address 3.
   bench_->plug(3);
   o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
   EXPECT_EQ(arm_->device_location(), "bus 001 address 003");
   EXPECT_TRUE(bench_->emu().snapshot().enabled);
@@ -968,8 +968,8 @@ TEST_F(UsbArmTest, AnArmThatVanishesWithATransferInFlightIsDisconnected) {
   zero.n = 3;
   EXPECT_EQ(arm_->write(zero), IoStatus::kFault);
   bench_->plug(4);
-  Outcome o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->device_location(), "bus 001 address 004");
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
 }
@@ -1008,8 +1008,8 @@ TEST_F(UsbArmTest, TheStatusFaultBitIsADeviceFault) {
   EXPECT_EQ(js.status, 0x05u) << "the status word is delivered with the fault";
 
   bench_->emu().set_status(0x04);
-  Outcome o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
   EXPECT_EQ(js.status, 0x04u);
 }
@@ -1022,8 +1022,8 @@ TEST_F(UsbArmTest, DeactivateZeroesTheCurrentsAndDisablesAndReadingGoesOn) {
   cmd.tau = {0.05, 0.05, 0.05};
   ASSERT_EQ(arm_->write(cmd), IoStatus::kOk);
   EXPECT_NE(bench_->emu().snapshot().current_counts[0], 0);
-  Outcome o = arm_->deactivate();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->deactivate();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EmulatorSnapshot s = bench_->emu().snapshot();
   EXPECT_FALSE(s.enabled);
   for (int j = 0; j < 3; ++j) EXPECT_EQ(s.current_counts[static_cast<std::size_t>(j)], 0);
@@ -1035,7 +1035,7 @@ TEST_F(UsbArmTest, DeactivateZeroesTheCurrentsAndDisablesAndReadingGoesOn) {
   EXPECT_EQ(js.counts[0], counts[0]);
 
   o = arm_->activate();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_TRUE(bench_->emu().snapshot().claimed);
   EXPECT_TRUE(bench_->emu().snapshot().enabled);
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
@@ -1048,10 +1048,10 @@ TEST_F(UsbArmTest, AForeignLayoutWithFloatsScalesAndItsOwnBitsAndValues) {
   start(foreign_config());
   ASSERT_FALSE(HasFatalFailure());
   bench_->emu().set_status(0x0009);  // ready (bit 3), the active-low e-stop released (bit 0 high)
-  Outcome o = arm_->configure();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->configure();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   o = arm_->activate();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EmulatorSnapshot s = bench_->emu().snapshot();
   EXPECT_TRUE(s.enabled);
   EXPECT_EQ(s.enable_raw, 0x0Fu);
@@ -1087,7 +1087,7 @@ TEST_F(UsbArmTest, AForeignLayoutWithFloatsScalesAndItsOwnBitsAndValues) {
   // Cleared at the device: rearm sends one report with the fault-reset byte, then enables.
   bench_->emu().set_status(0x0009);
   o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   s = bench_->emu().snapshot();
   EXPECT_EQ(s.resets, 1u);
   EXPECT_TRUE(s.enabled);
@@ -1128,8 +1128,8 @@ TEST_F(UsbArmTest, WhenTheKeepAliveStopsTheEmulatedArmGoesTorqueFreeUntilAFaultR
   EXPECT_STREQ(arm_->fault_detail().c_str(), "status 0x0003: fault (bit 0), communication lost (bit 1)");
   for (int i = 0; i < 20; ++i) (void)arm_->write(cmd);  // the keep-alive again: still off
   EXPECT_TRUE(bench_->emu().snapshot().tripped);
-  Outcome o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->rearm();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   s = bench_->emu().snapshot();
   EXPECT_FALSE(s.tripped);
   EXPECT_TRUE(s.enabled);
@@ -1146,14 +1146,14 @@ TEST_F(UsbArmTest, ReconnectFindsTheReplugedArmAtItsNewAddressAndKeepsItOff) {
   EXPECT_EQ(arm_->read(js), IoStatus::kFault);
   EXPECT_TRUE(arm_->link_lost());
   EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("the device is"), std::string::npos) << "[" << arm_->fault_detail().c_str() << "]";
-  Outcome o = arm_->reconnect();
+  Result<void> o = arm_->reconnect();
   ASSERT_FALSE(o.ok());
-  EXPECT_NE(o.error->message.find("no USB device 1209:0001"), std::string::npos) << o.error->message;
+  EXPECT_NE(o.error().message.find("no USB device 1209:0001"), std::string::npos) << o.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kFault);
 
   bench_->plug(5);
   o = arm_->reconnect();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_EQ(arm_->state(), Lifecycle::kFault) << "a reconnect never re-arms";
   EXPECT_FALSE(arm_->link_lost());
   EXPECT_EQ(arm_->counters().reconnects, 1u);
@@ -1167,7 +1167,7 @@ TEST_F(UsbArmTest, ReconnectFindsTheReplugedArmAtItsNewAddressAndKeepsItOff) {
   EXPECT_EQ(arm_->write(cmd), IoStatus::kFault);
   for (int j = 0; j < 3; ++j) EXPECT_EQ(bench_->emu().snapshot().current_counts[static_cast<std::size_t>(j)], 0);
   o = arm_->rearm();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   EXPECT_TRUE(bench_->emu().snapshot().enabled);
   EXPECT_EQ(arm_->read(js), IoStatus::kOk);
 }
@@ -1244,10 +1244,10 @@ TEST_F(UsbArmTest, SteadyStateReadWriteAllocatesOnlyWhatLibusbDoesPerTransfer) {
   const double floor = libusb_allocations_per_transfer(*cfg_.usb, 200);
   ASSERT_GE(floor, 0) << "plain libusb could not run transfers on the emulated arm";
 
-  Outcome o = arm_->configure();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  Result<void> o = arm_->configure();
+  ASSERT_TRUE(o.ok()) << o.error().message;
   o = arm_->activate();
-  ASSERT_TRUE(o.ok()) << o.error->message;
+  ASSERT_TRUE(o.ok()) << o.error().message;
   JointState js{};
   JointCommand cmd{};
   cmd.n = 3;

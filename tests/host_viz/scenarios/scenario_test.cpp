@@ -526,5 +526,117 @@ TEST(Touches, LabelIsTheCallersJob) {
   EXPECT_FALSE(touches(s, {}, 1.0));
 }
 
+// --- [score] -----------------------------------------------------------------------------------
+
+TEST(ScenarioScore, DefaultsWithoutTheSection) {
+  auto r = parse_scenario(kBase, "t.toml");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Score& s = r.value().score;
+  EXPECT_EQ(s.force_limit, 3.0);
+  EXPECT_NEAR(s.movement_speed, 0.020, 1e-15);
+  EXPECT_EQ(s.movement_filter_hz, 10.0);
+  EXPECT_EQ(s.sd_multiple, 2.0);
+  EXPECT_TRUE(s.bands.empty());
+  EXPECT_EQ(find_band(s, "task_time_s"), nullptr);
+}
+
+TEST(ScenarioScore, ValuesAndBands) {
+  const std::string text = kBase +
+                           "\n[score]\nforce_limit_n = 4.5\nmovement_speed_mm_s = 25\nmovement_filter_hz = 8\nsd_multiple = 1.5\n"
+                           "[score.bands]\nincision_coverage_pct = { mean = 95, sd = 2 }\ntask_time_s = { mean = 12, sd = 3 }\n";
+  auto r = parse_scenario(text, "t.toml");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Score& s = r.value().score;
+  EXPECT_EQ(s.force_limit, 4.5);
+  EXPECT_NEAR(s.movement_speed, 0.025, 1e-15);  // mm/s in the file, m/s in code
+  EXPECT_EQ(s.movement_filter_hz, 8.0);
+  EXPECT_EQ(s.sd_multiple, 1.5);
+  ASSERT_EQ(s.bands.size(), 2u);
+  EXPECT_EQ(s.bands[0].metric, "task_time_s");  // kScoreMetrics order, not file order
+  EXPECT_EQ(s.bands[0].mean, 12.0);
+  EXPECT_EQ(s.bands[0].sd, 3.0);
+  const ScoreBand* cov = find_band(s, "incision_coverage_pct");
+  ASSERT_NE(cov, nullptr);
+  EXPECT_EQ(cov->mean, 95.0);  // in the metric's own unit: not converted
+  EXPECT_EQ(cov->sd, 2.0);
+}
+
+TEST(ScenarioScore, ShippedFilesHaveProvisionalBands) {
+  for (const char* name : {"skin_incision.toml", "bone_drilling.toml", "ct_incision.toml"}) {
+    auto r = load_scenario(scenario_dir() + name);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_FALSE(r.value().score.bands.empty()) << name;
+  }
+  auto r = load_scenario(scenario_dir() + "skin_incision.toml");
+  ASSERT_TRUE(r.ok());
+  const ScoreBand* t = find_band(r.value().score, "task_time_s");
+  ASSERT_NE(t, nullptr);
+  EXPECT_EQ(t->mean, 8.0);  // the scripted 30 mm incision in about 8 s
+}
+
+TEST(ScenarioScore, MetricNamesAreUniqueAndCarryAUnit) {
+  for (std::size_t i = 0; i < kScoreMetrics.size(); ++i) {
+    const std::string_view n = kScoreMetrics[i].name;
+    EXPECT_TRUE(kScoreMetrics[i].incision || kScoreMetrics[i].drill) << n;
+    EXPECT_EQ(n.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789_"), std::string_view::npos) << n;
+    for (std::size_t j = 0; j < i; ++j) EXPECT_NE(n, kScoreMetrics[j].name);
+  }
+}
+
+TEST(ScenarioScoreErrors, UnknownMetricWithSuggestion) {
+  const std::string text = kBase + "\n[score.bands]\ntask_time = { mean = 12, sd = 3 }\n";
+  expect_one(text, line_of(text, "task_time ="), "score.bands.task_time",
+             "unknown key \"task_time\" (did you mean \"task_time_s\"?); known keys here: task_time_s, path_length_mm,");
+}
+
+TEST(ScenarioScoreErrors, UnknownKeyInScoreWithSuggestion) {
+  const std::string text = kBase + "\n[score]\nforce_limit = 4\n";
+  expect_one(text, line_of(text, "force_limit ="), "score.force_limit",
+             "unknown key \"force_limit\" (did you mean \"force_limit_n\"?)");
+}
+
+TEST(ScenarioScoreErrors, LimitsOutOfRange) {
+  const std::string zero = kBase + "\n[score]\nforce_limit_n = 0\n";
+  expect_one(zero, line_of(zero, "force_limit_n"), "score.force_limit_n", "expected a number in (0, 1000], found integer 0");
+  const std::string neg = kBase + "\n[score]\nmovement_speed_mm_s = -5\n";
+  expect_one(neg, line_of(neg, "movement_speed_mm_s"), "score.movement_speed_mm_s",
+             "expected a number in (0, 10000], found integer -5");
+  const std::string hz = kBase + "\n[score]\nmovement_filter_hz = 600\n";
+  expect_one(hz, line_of(hz, "movement_filter_hz"), "score.movement_filter_hz", "expected a number in (0, 500], found integer 600");
+  const std::string k = kBase + "\n[score]\nsd_multiple = \"2\"\n";
+  expect_one(k, line_of(k, "sd_multiple"), "score.sd_multiple", "expected a number in (0, 10], found string \"2\"");
+}
+
+TEST(ScenarioScoreErrors, BandNeedsPositiveSdAndAMean) {
+  const std::string sd = kBase + "\n[score.bands]\ntask_time_s = { mean = 12, sd = 0 }\n";
+  expect_one(sd, line_of(sd, "task_time_s"), "score.bands.task_time_s.sd", "expected a number > 0, found integer 0");
+  const std::string mean = kBase + "\n[score.bands]\ntask_time_s = { sd = 3 }\n";
+  expect_one(mean, line_of(mean, "task_time_s"), "score.bands.task_time_s.mean", "required key is missing; expected a finite number");
+  const std::string typo = kBase + "\n[score.bands]\ntask_time_s = { mean = 12, sd = 3, mena = 1 }\n";
+  expect_one(typo, line_of(typo, "task_time_s"), "score.bands.task_time_s.mena",
+             "unknown key \"mena\" (did you mean \"mean\"?); known keys here: mean, sd");
+  const std::string bare = kBase + "\n[score.bands]\ntask_time_s = 12\n";
+  expect_one(bare, line_of(bare, "task_time_s"), "score.bands.task_time_s",
+             "expected a table { mean = x, sd = y }, found integer 12");
+}
+
+TEST(ScenarioScoreErrors, BandForAnotherTasksMetric) {
+  const std::string text = kBase + "\n[score.bands]\ndrill_progress_pct = { mean = 90, sd = 5 }\n";
+  expect_one(text, line_of(text, "drill_progress_pct"), "score.bands.drill_progress_pct",
+             "expected a metric of a kind = \"incision\" task, found a metric only for kind = \"drill\"");
+}
+
+TEST(ScenarioScoreErrors, SeveralAtOnceSortedByLine) {
+  const std::string text = kBase + "\n[score]\nforce_limit_n = -1\nsd_multiple = 20\n[score.bands]\npath_lenght_mm = { mean = 1, sd = 1 }\n";
+  const auto r = parse_scenario(text, "t.toml");
+  ASSERT_FALSE(r.ok());
+  const auto lines = lines_of(r);
+  ASSERT_EQ(lines.size(), 3u) << r.error().message;
+  EXPECT_TRUE(is_error(lines[0], line_of(text, "force_limit_n"), "score.force_limit_n", "expected a number in (0, 1000]"));
+  EXPECT_TRUE(is_error(lines[1], line_of(text, "sd_multiple"), "score.sd_multiple", "expected a number in (0, 10]"));
+  EXPECT_TRUE(is_error(lines[2], line_of(text, "path_lenght_mm"), "score.bands.path_lenght_mm",
+                       "(did you mean \"path_length_mm\"?)"));
+}
+
 }  // namespace
 }  // namespace lancet::scenario

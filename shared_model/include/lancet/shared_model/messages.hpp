@@ -15,7 +15,7 @@
 namespace lancet {
 
 /// Most joints any arm may have (DH chains up to 8 joints).
-inline constexpr std::uint32_t kMaxJoints = 8;
+inline constexpr int kMaxJoints = 8;
 /// Triangles a TissuePatch can carry.
 inline constexpr std::uint32_t kPatchCapacity = 1024;
 /// Edge length, in voxels, of the cubic voxel brick carried by a TissuePatch.
@@ -76,24 +76,46 @@ struct EventPayload {
   double magnitude;   ///< event-specific scalar (m for radius/displacement, N for force)
 };
 
-/// One servo tick, pushed by lancet-rt once per tick on the ToolSample ring.
+/// Bits of ToolSample::inputs: what the servo step was given this tick besides the reading.
+namespace input {
+inline constexpr std::uint32_t kVizAlive = 1u << 0;         ///< the visualizer's heartbeat was fresh
+inline constexpr std::uint32_t kWatchdogTripped = 1u << 1;  ///< the loop's watchdog had tripped
+inline constexpr std::uint32_t kOperatorRearm = 1u << 2;    ///< an operator's re-arm request arrived
+inline constexpr std::uint32_t kDeviceHeld = 1u << 3;       ///< the supervisor held the device: not read or written
+inline constexpr std::uint32_t kCommandsCut = 1u << 4;      ///< more commands arrived than `commands` holds (not replayable)
+inline constexpr std::uint32_t kKnown = (1u << 5) - 1;
+}  // namespace input
+
+/// Commands one ToolSample records (a tick applies at most this many).
+inline constexpr std::uint32_t kSampleCommands = 16;
+
+/// One servo tick, pushed by lancet-rt once per tick on the ToolSample ring. It carries the
+/// servo step's inputs (the device reading, the commands applied, the liveness flags, the patch
+/// version used) as well as its outputs, so a recording of the samples replays the step exactly
+/// (firmware_rt/servo/servo_step.hpp).
 struct ToolSample {
   std::uint64_t seq;              ///< tick number since lancet-rt started, +1 per tick
   std::int64_t t_ns;              ///< CLOCK_MONOTONIC deadline of this tick (ns)
+  std::int64_t woke_ns;           ///< CLOCK_MONOTONIC when the tick woke (ns): ages count from it
   std::uint32_t n_joints;         ///< valid entries in q, qd, tau
   ToolMode mode;                  ///< tool mode in force this tick
   Stage stage;                    ///< interaction stage
-  std::uint16_t reserved0;
-  double q[kMaxJoints];           ///< joint positions (rad, or m for prismatic) (n_joints)
-  double qd[kMaxJoints];          ///< joint velocities (rad/s or m/s) (n_joints)
+  std::uint8_t read_status;       ///< the device read's device::IoStatus (0: ok)
+  std::uint8_t write_status;      ///< the device write's device::IoStatus (0: ok)
+  double q[kMaxJoints];           ///< joint positions read (rad, or m for prismatic) (n_joints)
+  double qd[kMaxJoints];          ///< joint velocities read (rad/s or m/s) (n_joints)
   double tau[kMaxJoints];         ///< commanded joint torques (N·m, or N) (n_joints)
   Pose tool;                      ///< tool tip (haptic interface point) pose
   Pose proxy;                     ///< proxy pose (equals tool when free)
-  Vec3 force;                     ///< force commanded on the hand, after safety (N)
+  Vec3 force;                     ///< force commanded on the hand, after safety and fade (N)
   std::uint64_t patch_version;    ///< TissuePatch version this force used (0: none)
   std::uint32_t events;           ///< event:: bits
-  std::uint32_t reserved1;
+  std::uint32_t inputs;           ///< input:: bits
   EventPayload payload;           ///< see event::
+  std::uint32_t buttons;          ///< the device's buttons read (bit i: button i)
+  std::uint32_t n_commands;       ///< valid entries in commands
+  std::uint8_t commands[kSampleCommands];  ///< commands applied this tick, in order: kind << 4 | mode
+  std::uint64_t state_hash;       ///< hash of the servo's state after this tick; 0 on ticks it is not taken
 };
 
 /// Kinds of Command.
@@ -255,6 +277,20 @@ struct OperatorRequest {
 };
 inline constexpr std::uint32_t kOperatorRearm = 1;
 
+/// Bytes a ServoModelBlob can carry.
+inline constexpr std::uint32_t kServoModelCapacity = 4096;
+
+/// lancet-rt → anyone, once at start: the servo's model (firmware_rt/servo's ServoModel, its bytes
+/// as they are: both processes are one build, which the layout hash checks) so that a recording
+/// can replay the servo step exactly. layout is servo::kServoModelLayout of the writer; a reader
+/// checks it, the size and every value (servo::model_from_blob) before using any of it.
+struct ServoModelBlob {
+  std::uint64_t layout;    ///< the writer's servo::kServoModelLayout
+  std::uint32_t size;      ///< valid bytes
+  std::uint32_t reserved;
+  std::uint8_t bytes[kServoModelCapacity];
+};
+
 #define LANCET_ASSERT_WIRE_TYPE(T)                                                        \
   static_assert(std::is_trivially_copyable_v<T>, #T " must be trivially copyable");       \
   static_assert(std::is_standard_layout_v<T>, #T " must be standard-layout")
@@ -270,6 +306,7 @@ LANCET_ASSERT_WIRE_TYPE(RtStatus);
 LANCET_ASSERT_WIRE_TYPE(BusCounters);
 LANCET_ASSERT_WIRE_TYPE(SegmentHealth);
 LANCET_ASSERT_WIRE_TYPE(OperatorRequest);
+LANCET_ASSERT_WIRE_TYPE(ServoModelBlob);
 #undef LANCET_ASSERT_WIRE_TYPE
 
 }  // namespace lancet

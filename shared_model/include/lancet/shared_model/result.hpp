@@ -40,4 +40,22 @@ class [[nodiscard]] Result {
   std::variant<T, Error> v_;
 };
 
+/// Success, or the Error that stopped a step (configure, activate, a file write ...).
+template <>
+class [[nodiscard]] Result<void> {
+ public:
+  Result() = default;                                   ///< success
+  Result(Error error) : error_(std::move(error)), failed_(true) {}  // NOLINT: implicit by design
+  static Result success() { return {}; }
+  static Result failure(ErrorCode code, std::string message) { return Error{code, std::move(message)}; }
+  [[nodiscard]] bool ok() const noexcept { return !failed_; }
+  explicit operator bool() const noexcept { return ok(); }
+  const Error& error() const { assert(!ok() && "Result::error on a success"); return error_; }
+  Error& error() { assert(!ok() && "Result::error on a success"); return error_; }
+
+ private:
+  Error error_{ErrorCode::kInvalid, {}};
+  bool failed_ = false;
+};
+
 }  // namespace lancet

@@ -22,7 +22,9 @@ namespace lancet {
 /// Bump when the meaning of a field changes without changing the layout.
 /// 2: Command::check (was reserved0) must match wire::command_check.
 /// 6: RtStatus::wake_histogram; ToolMode::kSwab.
-inline constexpr std::uint64_t kProtocolVersion = 6;
+/// 7: ToolSample carries the servo step's inputs (woke_ns, read/write status, inputs, buttons,
+///    commands) and state_hash, for recording and exact replay.
+inline constexpr std::uint64_t kProtocolVersion = 7;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -38,6 +40,7 @@ struct SharedState {
   Heartbeat rt_heartbeat;                             ///< written by lancet-rt every tick
   Heartbeat viz_heartbeat;                            ///< written by lancet-viz every frame
   Seqlock<OperatorRequest> operator_request;          ///< lancetctl → rt (one operator at a time)
+  Seqlock<ServoModelBlob> servo_model;                ///< rt → anyone, once at start (recordings)
 };
 static_assert(std::is_standard_layout_v<SharedState>);
 
@@ -66,7 +69,10 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(ToolSample, n_joints), offsetof(ToolSample, mode), offsetof(ToolSample, stage),
            offsetof(ToolSample, q), offsetof(ToolSample, qd), offsetof(ToolSample, tau), offsetof(ToolSample, tool),
            offsetof(ToolSample, proxy), offsetof(ToolSample, force), offsetof(ToolSample, patch_version),
-           offsetof(ToolSample, events), offsetof(ToolSample, payload), sizeof(EventPayload));
+           offsetof(ToolSample, events), offsetof(ToolSample, payload), sizeof(EventPayload), offsetof(ToolSample, woke_ns),
+           offsetof(ToolSample, read_status), offsetof(ToolSample, write_status), offsetof(ToolSample, inputs),
+           offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, commands),
+           offsetof(ToolSample, state_hash), kSampleCommands);
   h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, material_id),
            offsetof(Command, material), sizeof(MaterialParams), offsetof(MaterialParams, yield_force),
            offsetof(MaterialParams, density));
@@ -84,7 +90,8 @@ constexpr std::uint64_t shared_layout_hash() {
   h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
            offsetof(SharedState, rt_status), offsetof(SharedState, rt_heartbeat),
-           offsetof(SharedState, viz_heartbeat), offsetof(SharedState, operator_request));
+           offsetof(SharedState, viz_heartbeat), offsetof(SharedState, operator_request),
+           offsetof(SharedState, servo_model), sizeof(ServoModelBlob), kServoModelCapacity);
   return h;
 }
 inline constexpr std::uint64_t kSharedLayoutHash = shared_layout_hash();

@@ -1,0 +1,62 @@
+// The retractor (ALGORITHMS.md §2, thesis 4.2.4): snap, grab, pull, slip.
+#include <algorithm>
+
+#include "haptics/tool_steps.hpp"
+
+namespace lancet::haptics::detail {
+
+Vec3 retractor_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept {
+  RetractorData& r = d.retractor;
+  if (!r.grabbed && in.patch != nullptr) {
+    // Nearest surface point; grab it when close enough.
+    double best = m.snap_distance * m.snap_distance;
+    bool found = false;
+    const std::uint32_t n = std::min(in.patch->n_triangles, kPatchCapacity);
+    for (std::uint32_t i = 0; i < n; ++i) {
+      const PatchTriangle& t = in.patch->triangles[i];
+      const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+      if (!is_finite(a) || !is_finite(b) || !is_finite(c)) continue;
+      const Vec3 q = closest_point_on_triangle(in.device, a, b, c);
+      const double dist2 = dot(in.device - q, in.device - q);
+      if (dist2 <= best) {
+        best = dist2;
+        found = true;
+        r.control = q;
+        r.material = t.material;
+      }
+    }
+    if (found) {
+      r.grabbed = true;
+      r.last_pull_event = in.device;
+      out.events |= event::kGrab;
+      out.payload = EventPayload{r.control, 0};
+    }
+  }
+  if (!r.grabbed) {
+    d.proxy = in.device;
+    d.stage = Stage::kFree;
+    return {};
+  }
+  const MaterialParams& mat = material(m, r.material);
+  const Vec3 disp = in.device - r.control;
+  const double len = norm(disp);
+  if (len > m.elastic_limit * m.release_factor) {
+    r.grabbed = false;  // the grip slips
+    d.stage = Stage::kFree;
+    d.proxy = in.device;
+    out.events |= event::kRelease;
+    out.payload = EventPayload{r.control, m.elastic_limit};
+    return {};
+  }
+  d.stage = Stage::kPulling;
+  d.proxy = r.control;  // the magnetic snap: the hand is drawn to the control point
+  out.contact = true;
+  if (norm(in.device - r.last_pull_event) > 0.0005) {
+    out.events |= event::kPull;
+    out.payload = EventPayload{r.control, std::min(len, m.elastic_limit)};
+    r.last_pull_event = in.device;
+  }
+  return mat.stiffness * (r.control - in.device);
+}
+
+}  // namespace lancet::haptics::detail

@@ -1,0 +1,128 @@
+// lancet-report: the skill metrics of recorded sessions as a self-contained HTML page and JSON.
+//   lancet-report FILE.h5 [FILE2.h5 ...] -o report.html [--json out.json|-]
+// Each FILE is a recording written by lancet-viz (record/hdf5_io.hpp); its metrics are scored
+// against the [score] section of the scenario it was recorded with (the text stored in the file).
+// Several files give one page with a comparison table. A one-line verdict per file goes to stdout
+// (stderr when the JSON goes to stdout).
+// Exit status: 0 done, 2 bad arguments, a file that cannot be read, or an output that cannot be written.
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <exception>
+#include <fstream>
+#include <new>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "record/hdf5_io.hpp"
+#include "record/metrics.hpp"
+#include "record/report.hpp"
+#include "scenarios/scenario.hpp"
+
+namespace {
+
+using namespace lancet;
+using namespace lancet::record;
+
+int fail(const std::string& message) {
+  std::fprintf(stderr, "lancet-report: %s\n", message.c_str());
+  return 2;
+}
+
+// Writes `text` to `path`; an error names the file.
+Result<void> write_text(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (out) out.write(text.data(), static_cast<std::streamsize>(text.size()));
+  if (out) out.close();
+  if (!out) return Error{ErrorCode::kSystem, path + ": cannot write the report"};
+  return {};
+}
+
+// The first line of a multi-line message.
+std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
+
+struct Args {
+  std::vector<std::string> files;
+  std::string html;
+  std::string json;
+};
+
+int run(int argc, char** argv) {
+  CLI::App app{"lancet-report: skill metrics of recorded sessions as an HTML page and JSON"};
+  Args a;
+  app.add_option("files", a.files, "recordings (.h5) written by lancet-viz")->required();
+  app.add_option("-o,--output", a.html, "the HTML report to write");
+  app.add_option("--json", a.json, "also write the metrics as JSON to this file ('-': stdout)");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : 2;
+  }
+  if (a.html.empty() && a.json.empty()) return fail("nothing to write: give -o report.html and/or --json out.json|-");
+
+  // Everything is read before anything is written: a bad file leaves no half report behind.
+  std::vector<Recording> recordings;
+  recordings.reserve(a.files.size());
+  std::vector<std::string> notes(a.files.size());
+  std::vector<std::optional<scenario::Scenario>> scenarios(a.files.size());
+  for (std::size_t i = 0; i < a.files.size(); ++i) {
+    const std::string& path = a.files[i];
+    auto r = read_recording(path);
+    if (!r.ok()) {
+      const std::string& m = r.error().message;
+      return fail(m.find(path) == std::string::npos ? path + ": " + m : m);
+    }
+    recordings.push_back(std::move(r.value()));
+    const Recording& rec = recordings.back();
+    if (rec.scenario_toml.empty()) continue;
+    // The scenario as recorded; one this build cannot read is reported without bands.
+    auto s = scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);
+    if (s.ok()) {
+      scenarios[i] = std::move(s.value());
+    } else {
+      notes[i] = "the recorded scenario does not load in this build, so no task metrics and no bands: " + first_line(s.error().message);
+      std::fprintf(stderr, "lancet-report: warning: %s: %s\n", path.c_str(), notes[i].c_str());
+    }
+  }
+
+  std::vector<ReportInput> inputs;
+  for (std::size_t i = 0; i < a.files.size(); ++i) {
+    Metrics m = compute_metrics(recordings[i], scenarios[i] ? &*scenarios[i] : nullptr);
+    if (!notes[i].empty()) m.notes.push_back(notes[i]);
+    inputs.push_back(ReportInput{a.files[i], &recordings[i], std::move(m)});
+  }
+
+  if (!a.html.empty()) {
+    if (auto w = write_text(a.html, report_html(inputs)); !w.ok()) return fail(w.error().message);
+  }
+  const bool json_to_stdout = a.json == "-";
+  if (json_to_stdout) {
+    const std::string json = report_json(inputs);
+    std::fwrite(json.data(), 1, json.size(), stdout);
+  } else if (!a.json.empty()) {
+    if (auto w = write_text(a.json, report_json(inputs)); !w.ok()) return fail(w.error().message);
+  }
+  for (const ReportInput& in : inputs) {
+    const Metrics& m = in.metrics;
+    const char* verdict = m.verdict == Verdict::kProficient ? "proficient" : m.verdict == Verdict::kNotYet ? "not yet proficient" : "not assessed (no bands)";
+    std::fprintf(json_to_stdout ? stderr : stdout, "%s: %s, %zu of %zu banded metrics pass\n", in.file.c_str(), verdict, m.passed, m.banded);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  // Reading returns errors; this is the last guard for anything else, so that bad input ends
+  // with a message and exit status 2, never an abort.
+  try {
+    return run(argc, argv);
+  } catch (const std::bad_alloc&) {
+    return fail("out of memory");
+  } catch (const std::exception& e) {
+    return fail(std::string("unexpected error: ") + e.what());
+  }
+}

@@ -1,0 +1,86 @@
+#pragma once
+// Recording: one recorded training session in memory, as lancet-viz records it and as
+// lancet-report, the metrics and the replay read it back (record/hdf5_io.hpp reads and writes the
+// HDF5 file; docs/RECORDING.md describes the file for h5py and MATLAB users).
+//
+// What a session is: from the tick at which lancet-rt applied the recording's reset (a fresh
+// servo state, a fresh scene) to the end of the recording. It holds
+//   - every servo tick (ToolSample: the servo's inputs — device reading, commands, liveness,
+//     the patch version used — and its outputs — tool and proxy pose, force, stage, events —
+//     and every kServoHashEvery ticks the hash of the servo's state), at 1 kHz;
+//   - every visualizer frame (FrameRecord): which samples the scene had applied, the time the
+//     blood was advanced, the patch it published, the task's figures after it, and every
+//     kSceneHashEvery frames the hash of the scene;
+//   - the scenario file's text and the arm's configuration text, the build's version and the
+//     shared layout hash it was recorded with.
+// Units: SI (m, N, s), times in ns of CLOCK_MONOTONIC (t_ns), blood in mL, volumes in mm³.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "lancet/shared_model/messages.hpp"
+
+namespace lancet::record {
+
+/// The file format's version (the /meta attribute format_version).
+inline constexpr std::uint32_t kFormatVersion = 1;
+
+/// One visualizer frame of the session.
+struct FrameRecord {
+  std::uint64_t frame = 0;         ///< 0, 1, 2, ... from the start of the recording
+  std::int64_t t_ns = 0;           ///< the viz clock (CLOCK_MONOTONIC) at the frame
+  std::uint64_t last_seq = 0;      ///< newest ToolSample::seq the scene had applied after this frame (0: none yet)
+  double blood_dt = 0;             ///< s of blood simulated this frame
+  // The TissuePatch published this frame (patch_version 0: none).
+  std::uint64_t patch_version = 0; ///< the seqlock version it was published as (ToolSample::patch_version refers to it)
+  std::uint64_t patch_seq = 0;     ///< TissuePatch::seq
+  std::int64_t patch_t_ns = 0;     ///< TissuePatch::t_ns
+  std::uint64_t patch_samples_applied = 0;  ///< TissuePatch::samples_applied
+  Vec3 patch_centre{};             ///< m, where it was cut out around
+  // The task and the tissue after this frame.
+  double task_progress = 0;        ///< 0..1 (incision: line covered; drill: window bone removed)
+  double max_deviation = 0;        ///< m, incision: farthest cut point from the line (x-y)
+  double outside = 0;              ///< incision: fraction of the cut length off the line
+  std::uint32_t damaged = 0;       ///< bit i: the scenario's avoid[i] has been reached
+  double drilled_mm3 = 0;          ///< bone removed by the drill so far (mm³)
+  double drilled_outside_mm3 = 0;  ///< of it, outside the drill task's window (mm³)
+  double blood_lost_ml = 0;        ///< all blood sources so far (mL)
+  double blood_on_tissue_ml = 0;   ///< on the tissue now (mL)
+  double blood_swabbed_ml = 0;     ///< removed by the swab so far (mL)
+  std::uint64_t scene_hash = 0;    ///< the scene's hash after this frame (0: not taken this frame)
+};
+
+/// A whole session.
+struct Recording {
+  // Provenance.
+  std::uint32_t format_version = kFormatVersion;
+  std::string lancet_version;      ///< the build that recorded it (git describe)
+  std::uint64_t layout_hash = 0;   ///< kSharedLayoutHash of that build: replay refuses another
+  std::uint64_t protocol = 0;      ///< kProtocolVersion of that build
+  std::string created;             ///< ISO 8601 UTC time the recording started
+  std::string scenario_name;       ///< "" without a scenario
+  std::string scenario_toml;       ///< the scenario file's whole text ("" without one)
+  std::string scenario_file;       ///< the path it was loaded from (informative)
+  std::string arm_config;          ///< the arm's hw_config text ("" for the built-in simulated stylus)
+  std::string tissue;              ///< without a scenario: lancet-viz's --tissue ("block" or "phantom")
+  std::string volume_path;         ///< lancet-viz's --volume ("" when none)
+  double patch_radius = 0.02;      ///< m, lancet-viz's --patch-radius-mm
+  /// The servo's model as lancet-rt published it (ServoModelBlob: the replay steps with exactly it).
+  ServoModelBlob servo_model{};
+  /// The TissuePatch the servo was using when the recording began (it came from before the first
+  /// recorded frame), and its version.
+  TissuePatch first_patch{};
+  std::uint64_t first_patch_version = 0;
+  std::int64_t period_ns = 1'000'000;  ///< the servo period
+  std::uint32_t servo_hash_every = 0;  ///< ToolSample::state_hash is set every this many ticks
+  std::uint32_t scene_hash_every = 0;  ///< FrameRecord::scene_hash is set every this many frames
+  // Data.
+  std::vector<ToolSample> samples;  ///< every tick, seq consecutive (gaps: see samples_lost)
+  std::vector<FrameRecord> frames;  ///< every frame, in order
+  // What the recorder saw go wrong (0 for a complete recording).
+  std::uint64_t samples_lost = 0;   ///< ticks missing from `samples` (the sample ring overflowed)
+  std::uint64_t gaps = 0;           ///< places where seq jumped
+};
+
+}  // namespace lancet::record
