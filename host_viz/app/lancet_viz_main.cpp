@@ -20,6 +20,8 @@
 #include <cstring>
 #include <ctime>
 #include <deque>
+#include <fstream>
+#include <sstream>
 #include <limits>
 #include <map>
 #include <memory>
@@ -31,6 +33,8 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
+#include "record/hdf5_io.hpp"
+#include "record/replay.hpp"
 #include "hybrid/bleeding.hpp"
 #include "hybrid/scenario_scene.hpp"
 #include "hybrid/tissue_scene.hpp"
@@ -245,7 +249,23 @@ int main(int argc, char** argv) {
   cli.add_option("--trace", trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
                  "patch version it used), one line a servo tick");
+  std::string record_path, replay_path;
+  double replay_speed = 1;
+  cli.add_option("--record", record_path,
+                 "record the session to this HDF5 file: lancet-rt's servo and the scene start afresh (a reset) and every "
+                 "servo tick and frame from then on is written (the Record button, F9, does the same into "
+                 "lancet-YYYYmmdd-HHMMSS.h5)");
+  auto* replay_opt = cli.add_option("--replay", replay_path,
+                                    "replay a recorded session (HDF5) through the same servo step and scene, checking it bit for "
+                                    "bit; needs no lancet-rt. Headless: as fast as it goes, then a summary (exit 1 if it differs)")
+                         ->excludes(scenario_opt);
+  cli.add_option("--replay-speed", replay_speed, "replay at this multiple of real time (space pauses in the window)")
+      ->check(CLI::Range(0.01, 1000.0))->capture_default_str()->needs(replay_opt);
   CLI11_PARSE(cli, argc, argv);
+  if (!record_path.empty() && !replay_path.empty()) {
+    std::fprintf(stderr, "lancet-viz: --record and --replay: one at a time\n");
+    return 2;
+  }
   if (o.headless && o.duration == 0) o.duration = 5;
   const bool tool_given = !tool.empty();
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> trace(nullptr, &std::fclose);
@@ -261,47 +281,66 @@ int main(int argc, char** argv) {
   }
 
   // The tissue: a scenario's, or the built-in one.
-  std::optional<lancet::scenario::Scenario> scenario;
-  lancet::hybrid::SceneDescription desc;
-  if (!scenario_path.empty()) {
-    auto loaded = lancet::scenario::load_scenario(scenario_path);
-    if (!loaded.ok()) {
-      std::fprintf(stderr, "lancet-viz: %s\n", loaded.error().message.c_str());
+  // The visualizer's simulation: the scene, its blood and the task, built the same way live and
+  // in a replay (record::SceneSim).
+  lancet::record::SceneSetup setup;
+  setup.tissue = tissue;
+  setup.volume_path = volume_path;
+  setup.patch_radius = o.patch_radius_mm * 1e-3;
+  std::optional<lancet::record::Recording> recording;  // --replay: the file
+  std::unique_ptr<lancet::record::Replay> replay;
+  std::unique_ptr<lancet::record::SceneSim> sim_owned;
+  if (!replay_path.empty()) {
+    auto r = lancet::record::read_recording(replay_path);
+    if (!r.ok()) {
+      std::fprintf(stderr, "lancet-viz: --replay: %s\n", r.error().message.c_str());
       return 2;
     }
-    scenario = std::move(loaded).value();
-    auto d = lancet::hybrid::scene_description(*scenario, volume_path);
-    if (!d.ok()) {
-      std::fprintf(stderr, "lancet-viz: %s\n", d.error().message.c_str());
+    recording = std::move(r).value();
+    auto rp = lancet::record::Replay::create(*recording);
+    if (!rp.ok()) {
+      std::fprintf(stderr, "lancet-viz: --replay %s: %s\n", replay_path.c_str(), rp.error().message.c_str());
       return 2;
     }
-    desc = std::move(d).value();
+    replay = std::move(rp).value();
+    setup = replay->sim().setup();
+    std::printf("lancet-viz: replaying %s: %zu ticks, %zu frames, %.1f s, recorded %s by lancet %s\n", replay_path.c_str(),
+                recording->samples.size(), recording->frames.size(), replay->duration_s(), recording->created.c_str(),
+                recording->lancet_version.c_str());
+  } else {
+    if (!scenario_path.empty()) {
+      std::ifstream in(scenario_path, std::ios::binary);
+      std::ostringstream text;
+      text << in.rdbuf();
+      if (!in) {
+        std::fprintf(stderr, "lancet-viz: %s: cannot open: %s\n", scenario_path.c_str(), std::strerror(errno));
+        return 2;
+      }
+      setup.scenario_toml = text.str();
+      setup.scenario_file = scenario_path;
+    }
+    auto made = lancet::record::SceneSim::create(setup);
+    if (!made.ok()) {
+      std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
+      return made.error().code == lancet::ErrorCode::kInvalid ? 2 : 3;
+    }
+    sim_owned = std::move(made).value();
+  }
+  // The simulation in use: the replay's, or our own (the Record button makes a fresh one).
+  const auto sim = [&]() -> lancet::record::SceneSim& { return replay ? replay->sim() : *sim_owned; };
+  const lancet::scenario::Scenario* scenario = sim().scenario();
+  if (scenario != nullptr) {
     o.scenario_name = scenario->name;
     if (!tool_given) tool = lancet::tool_name(scenario->start_tool);
-  } else {
-    desc.source = tissue == "block" ? lancet::hybrid::SceneSource::kBlock : lancet::hybrid::SceneSource::kPhantom;
   }
   if (tool == "none") tool.clear();
-  desc.patch.radius = o.patch_radius_mm * 1e-3;
-  auto made = lancet::hybrid::TissueScene::create(std::move(desc));
-  if (!made.ok()) {
-    std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
-    return 3;
-  }
-  lancet::hybrid::TissueScene& scene = *made.value();
-  // Blood on the skin and in the grooves (not on exposed bone: that surface is another mesh).
-  std::unique_ptr<lancet::hybrid::Bleeding> bleeding;
-  if (scene.description().surface == lancet::hybrid::SceneSurface::kSkin) bleeding = std::make_unique<lancet::hybrid::Bleeding>(scene);
   double blood_ms = 0;  // spent on the blood, all frames
-  std::optional<lancet::hybrid::TaskMonitor> task;
   std::vector<lancet::Vec3> guide;
-  if (scenario) {
-    task.emplace(*scenario, scene);
-    if (scenario->task == lancet::scenario::TaskKind::kIncision) guide = scene.drape(scenario->incision.line);
+  if (scenario != nullptr) {
+    if (scenario->task == lancet::scenario::TaskKind::kIncision) guide = sim().scene().drape(scenario->incision.line);
     std::printf("lancet-viz: scenario %s (%s): %s\n", scenario->name.c_str(), scenario->file.c_str(), scenario->description.c_str());
   }
-  // The tools on offer and their keys.
-  std::vector<lancet::ToolMode> offered = scenario ? scenario->tools
+  std::vector<lancet::ToolMode> offered = scenario != nullptr ? scenario->tools
                                                    : std::vector<lancet::ToolMode>{lancet::ToolMode::kProbe, lancet::ToolMode::kScalpel,
                                                                                    lancet::ToolMode::kRetractor, lancet::ToolMode::kDrill,
                                                                                    lancet::ToolMode::kSwab};
@@ -327,7 +366,31 @@ int main(int argc, char** argv) {
   sp.shm_name = o.shm;
   lancet::viz::VizSession session(sp);
   // Every drained sample: to the trace, then to the scene (and the task's measure); the patch
-  // around the tool comes from the scene.
+  // around the tool comes from the sim().scene().
+  // Recording: armed (--record, or the Record button) → the servo's reset is sent → recording
+  // from the tick that applied it, with a fresh scene; Stop (or the end) finishes the file.
+  enum class Rec { kOff, kArmed, kWaitingReset, kOn };
+  Rec rec = record_path.empty() ? Rec::kOff : Rec::kArmed;
+  std::string rec_path = record_path;
+  std::unique_ptr<lancet::record::Recorder> recorder;
+  std::uint64_t rec_frames = 0, rec_last_seq = 0;
+  std::string rec_message;
+  const auto stop_recording = [&] {
+    if (!recorder) return;
+    const auto done = recorder->finish();
+    std::printf("lancet-viz: recorded %llu servo ticks (%llu lost in %llu gaps) and %llu frames to %s%s%s\n",
+                static_cast<unsigned long long>(recorder->samples()), static_cast<unsigned long long>(recorder->samples_lost()),
+                static_cast<unsigned long long>(recorder->gaps()), static_cast<unsigned long long>(recorder->frames()),
+                recorder->path().c_str(), done.ok() ? "" : ": ", done.ok() ? "" : done.error().message.c_str());
+    std::fflush(stdout);
+    rec_message = "recorded " + recorder->path();
+    recorder.reset();
+    rec = Rec::kOff;
+  };
+
+  // Every drained sample: to the trace, then kept for the frame's batch (the scene takes one batch
+  // a frame, just before the patch around the tool is cut from it, as a replay does).
+  std::vector<lancet::ToolSample> frame_batch;
   const auto on_samples = [&, f = trace.get()](std::span<const lancet::ToolSample> batch) {
     if (f != nullptr) {
       for (const lancet::ToolSample& t : batch) {
@@ -337,11 +400,62 @@ int main(int argc, char** argv) {
                      t.force.x, t.force.y, t.force.z, static_cast<unsigned long long>(t.patch_version));
       }
     }
-    (void)scene.apply(batch);
-    if (task) (void)task->update(scene, batch);
-    if (bleeding) bleeding->observe(batch);
+    frame_batch.insert(frame_batch.end(), batch.begin(), batch.end());
   };
-  const auto fill_patch = [&](lancet::Vec3 at, lancet::TissuePatch& patch) { (void)scene.export_patch(at, patch); };
+  const auto fill_patch = [&](lancet::Vec3 at, lancet::TissuePatch& patch) {
+    std::span<const lancet::ToolSample> use(frame_batch);
+    if (rec == Rec::kWaitingReset) {
+      // Until the servo has applied the reset, what it sends belongs to no session.
+      std::size_t i = 0;
+      const auto is_reset = [](const lancet::ToolSample& t) {
+        for (std::uint32_t c = 0; c < t.n_commands && c < lancet::kSampleCommands; ++c)
+          if ((t.commands[c] >> 4) == static_cast<unsigned>(lancet::CommandKind::kReset)) return true;
+        return false;
+      };
+      while (i < frame_batch.size() && !is_reset(frame_batch[i])) ++i;
+      use = use.subspan(i);
+      if (!use.empty()) {
+        lancet::record::Recording meta;
+        meta.lancet_version = LANCET_VERSION;
+        meta.layout_hash = lancet::kSharedLayoutHash;
+        meta.protocol = lancet::kProtocolVersion;
+        char when[32];
+        const std::time_t wall = std::time(nullptr);
+        std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&wall));
+        meta.created = when;
+        meta.scenario_name = scenario != nullptr ? scenario->name : "";
+        meta.scenario_toml = setup.scenario_toml;
+        meta.scenario_file = setup.scenario_file;
+        meta.tissue = setup.tissue;
+        meta.volume_path = setup.volume_path;
+        meta.patch_radius = setup.patch_radius;
+        meta.servo_hash_every = static_cast<std::uint32_t>(lancet::servo::kServoHashEvery);
+        meta.scene_hash_every = lancet::record::kSceneHashEvery;
+        (void)session.read_servo_model(meta.servo_model);
+        meta.period_ns = session.rt_status() ? session.rt_status()->period_ns : 1'000'000;
+        meta.first_patch = session.patch();  // the one the servo may still use: published before this frame
+        meta.first_patch_version = session.patch_version();
+        auto made = lancet::record::Recorder::create(rec_path, meta);
+        if (made.ok()) {
+          recorder = std::move(made).value();
+          rec = Rec::kOn;
+          rec_frames = 0;
+          rec_message.clear();
+          std::printf("lancet-viz: recording to %s from servo tick %llu\n", rec_path.c_str(),
+                      static_cast<unsigned long long>(use.front().seq));
+        } else {
+          std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
+          rec_message = made.error().message;
+          rec = Rec::kOff;
+        }
+      }
+    }
+    sim().apply(use);
+    if (rec == Rec::kOn) recorder->add_samples(use);
+    if (!use.empty()) rec_last_seq = use.back().seq;
+    frame_batch.clear();
+    (void)sim().export_patch(at, patch);
+  };
 
   int exit_code = 0;
   std::uint64_t frames = 0;
@@ -349,9 +463,9 @@ int main(int argc, char** argv) {
   try {
     lancet::render::SceneRenderer renderer(o.width, o.height);
     lancet::surface::TriangleMesh mesh;
-    scene.draw_mesh(mesh);
+    sim().scene().draw_mesh(mesh);
     renderer.set_mesh(mesh);
-    std::uint64_t shown_revision = scene.revision();
+    std::uint64_t shown_revision = sim().scene().revision();
     bool shown_walls_off = false;
     lancet::render::Overlay overlay(win.handle(), !o.headless);
     Interaction ui;
@@ -385,6 +499,9 @@ int main(int argc, char** argv) {
     std::vector<float> blood_depth, blood_age;
     lancet::surface::TriangleMesh with_pools;  // the drawn mesh and the grooves' pools
     auto last_frame = std::chrono::steady_clock::now();
+    double replay_clock = 0;  // s of the recording shown
+    bool replay_paused = false, f9_down = false, space_down = false;
+    bool want_record = false;  // F9 or the panel's button
     while (!g_stop.load(std::memory_order_relaxed) && !win.should_close()) {
       const auto frame_start = std::chrono::steady_clock::now();
       if (o.duration > 0 && std::chrono::duration<double>(frame_start - start).count() >= o.duration) {
@@ -394,45 +511,97 @@ int main(int argc, char** argv) {
         screenshot_frame = true;
       }
       const std::int64_t now = lancet::monotonic_ns();
-      session.frame(now, on_samples, fill_patch);
-      if (!tool.empty() && session.link() == lancet::viz::Link::kConnected && tool_sent_for != session.connections()) {
+      lancet::record::FrameRecord frame_record;
+      const std::uint64_t published_before = session.patches_published();
+      if (replay) {
+        // The recorded frames up to the replay's clock (all of them at once, headless).
+        const double wall_dt = std::chrono::duration<double>(frame_start - last_frame).count();
+        if (!replay_paused) replay_clock += std::min(wall_dt, 0.1) * replay_speed;
+        const auto& rf = replay->recording().frames;
+        while (!replay->done() &&
+               (o.headless || static_cast<double>(rf[replay->frame()].t_ns - rf.front().t_ns) * 1e-9 <= replay_clock)) {
+          auto stepped = replay->step_frame();
+          if (!stepped.ok()) {
+            std::fprintf(stderr, "lancet-viz: --replay: %s\n", stepped.error().message.c_str());
+            exit_code = 1;
+            g_stop.store(true);
+            break;
+          }
+        }
+        if (o.headless && replay->done() && !screenshot_frame && screenshot_view.empty()) g_stop.store(true);  // one frame drawn after the end
+      } else {
+        session.frame(now, on_samples, fill_patch);
+      }
+      // The session's start: the tool (and, when recording is armed, the servo's reset before it).
+      const bool connected = !replay && session.link() == lancet::viz::Link::kConnected;
+      if (connected && rec == Rec::kArmed) {
+        lancet::Command c{};
+        c.kind = lancet::CommandKind::kReset;
+        if (session.send(c, now)) {
+          rec = Rec::kWaitingReset;
+          tool_sent_for = 0;  // the reset picked the probe: send the tool again
+          frame_batch.clear();
+        }
+      }
+      if (!tool.empty() && connected && tool_sent_for != session.connections()) {
         lancet::Command c{};
         c.kind = lancet::CommandKind::kSetToolMode;
         (void)lancet::tool_from_name(tool, c.mode);  // CLI11 or the scenario admitted only the tools' names
         if (session.send(c, now)) tool_sent_for = session.connections();
       }
+      if (rec == Rec::kOn) {
+        frame_record.frame = rec_frames;
+        frame_record.t_ns = now;
+        frame_record.last_seq = rec_last_seq;
+        if (session.patches_published() != published_before) {
+          const lancet::TissuePatch& p = session.patch();
+          frame_record.patch_version = session.patch_version();
+          frame_record.patch_seq = p.seq;
+          frame_record.patch_t_ns = p.t_ns;
+          frame_record.patch_samples_applied = p.samples_applied;
+          frame_record.patch_centre = session.latest().tool.position;
+        }
+      }
       // Redraw only what changed shape; with the volume beneath, the grooves' walls are the
       // volume's to show.
       bool mesh_changed = false;
-      if (scene.revision() != shown_revision || (ui.view == 1) != shown_walls_off) {
-        shown_revision = scene.revision();
+      if (sim().scene().revision() != shown_revision || (ui.view == 1) != shown_walls_off) {
+        shown_revision = sim().scene().revision();
         shown_walls_off = ui.view == 1;
-        scene.draw_mesh(mesh, !shown_walls_off);
+        sim().scene().draw_mesh(mesh, !shown_walls_off);
         mesh_changed = true;
       }
       // The blood: the frame's time simulated (at most 0.1 s after a stall), then onto the mesh,
       // with the pools in the grooves (they change every frame: the mesh with them is sent every
       // frame, only the blocks that differ).
-      if (bleeding) {
+      if (sim().bleeding()) {
         const auto t0 = std::chrono::steady_clock::now();
-        bleeding->advance(scene, std::chrono::duration<double>(t0 - last_frame).count());
-        bleeding->vertex_blood(mesh, blood_depth, blood_age);
-        if (bleeding->groove_cells() > 0) {
+        const double blood_dt = std::chrono::duration<double>(t0 - last_frame).count();
+        if (!replay) sim().bleeding()->advance(sim().scene(), blood_dt);  // (a replay advances it as recorded)
+        if (rec == Rec::kOn) frame_record.blood_dt = blood_dt;
+        sim().bleeding()->vertex_blood(mesh, blood_depth, blood_age);
+        if (sim().bleeding()->groove_cells() > 0) {
           with_pools = mesh;
-          bleeding->append_pools(scene, with_pools, blood_depth, blood_age);
+          sim().bleeding()->append_pools(sim().scene(), with_pools, blood_depth, blood_age);
           renderer.set_mesh(with_pools);
           mesh_changed = false;
         }
         blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       }
       if (mesh_changed) renderer.set_mesh(mesh);
-      if (bleeding) {
+      if (sim().bleeding()) {
         const auto t0 = std::chrono::steady_clock::now();
         renderer.set_blood(blood_depth, blood_age);
         blood_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       }
+      if (rec == Rec::kOn) {
+        sim().figures(frame_record);
+        if (rec_frames % lancet::record::kSceneHashEvery == 0) frame_record.scene_hash = sim().hash();
+        recorder->add_frame(frame_record);
+        ++rec_frames;
+      }
       last_frame = frame_start;
-      if (session.link_message() != last_message) {
+      if (!replay && session.link_message() != last_message) {
         last_message = session.link_message();
         std::printf("lancet-viz: %s\n", last_message.c_str());
         std::fflush(stdout);
@@ -475,6 +644,12 @@ int main(int argc, char** argv) {
         const bool f12 = glfwGetKey(h, GLFW_KEY_F12) == GLFW_PRESS;
         if (f12 && !f12_down) want_snapshot = true;
         f12_down = f12;
+        const bool f9 = glfwGetKey(h, GLFW_KEY_F9) == GLFW_PRESS;
+        if (f9 && !f9_down && !replay) want_record = true;
+        f9_down = f9;
+        const bool space = glfwGetKey(h, GLFW_KEY_SPACE) == GLFW_PRESS;
+        if (space && !space_down && replay) replay_paused = !replay_paused;
+        space_down = space;
         double mx = 0, my = 0;
         glfwGetCursorPos(h, &mx, &my);
         const bool left = glfwGetMouseButton(h, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS && !overlay.wants_mouse();
@@ -496,34 +671,36 @@ int main(int argc, char** argv) {
         lancet::Vec3 p;
         if (ui.mouse_drives_stylus && renderer.pick_plane(mx, my, ww, wh, p)) {
           // Pushed depth_mm below the surface under the cursor (or below z = 0 off the tissue).
-          const auto top = scene.surface_below(p.x, p.y);
+          const auto top = sim().scene().surface_below(p.x, p.y);
           p.z = (top ? top->z : 0.0) - ui.depth_mm * 1e-3;
           session.set_stylus_target(true, p, now);
         }
       }
 
       lancet::render::SceneInput in;
-      in.has_tool = session.has_sample();
+      // The tool and the patch: lancet-rt's, or the replay's.
+      const lancet::ToolSample* latest = replay ? replay->latest() : session.has_sample() ? &session.latest() : nullptr;
+      in.has_tool = latest != nullptr;
       if (in.has_tool) {
-        in.tool = session.latest().tool.position;
-        in.proxy = session.latest().proxy.position;
-        in.force = session.latest().force;
+        in.tool = latest->tool.position;
+        in.proxy = latest->proxy.position;
+        in.force = latest->force;
       }
-      in.patch = session.patches_published() > 0 ? &session.patch() : nullptr;
+      in.patch = replay ? replay->patch() : session.patches_published() > 0 ? &session.patch() : nullptr;
       in.camera_yaw = ui.yaw, in.camera_pitch = ui.pitch, in.camera_distance = ui.distance;
       if (scenario) in.camera_target = scenario->camera.target;
       in.guide = guide.empty() ? nullptr : &guide;
       // The volume: made and uploaded when first shown, its drilled voxels sent as they change.
-      const lancet::volume::VoxelBox changed = scene.take_volume_changes();
+      const lancet::volume::VoxelBox changed = sim().scene().take_volume_changes();
       if (ui.view != 0) {
         if (!raycaster) {
           raycaster = std::make_unique<lancet::render::VolumeRaycaster>();
-          raycaster->set_volume(scene.render_volume());
+          raycaster->set_volume(sim().scene().render_volume());
           shown_preset = -1;
           const lancet::volume::TfSpec range = lancet::volume::tf_preset_spec(lancet::volume::kTfPresets[0]);
-          histogram = lancet::volume::histogram(scene.render_volume(), range.lo, range.hi, 128);
+          histogram = lancet::volume::histogram(sim().scene().render_volume(), range.lo, range.hi, 128);
         } else if (!changed.empty()) {
-          raycaster->update_region(scene.render_volume(), changed);
+          raycaster->update_region(sim().scene().render_volume(), changed);
         }
         if (shown_preset != ui.preset || shown_level != ui.level || shown_width != ui.width) {
           // A preset or a window/level drag starts the editor afresh from the preset's points.
@@ -534,7 +711,7 @@ int main(int argc, char** argv) {
         if (tf_edited) raycaster->set_transfer_function(tf_editor.table());
         tf_edited = false;
         in.volume = raycaster.get();
-        in.volume_to_world = scene.volume_to_world();
+        in.volume_to_world = sim().scene().volume_to_world();
         in.volume_params.step = 1.0f;  // a voxel a sample: interactive on llvmpipe
         if (ui.clip) {  // keep world z <= clip_mm, as a plane in the volume's frame
           const auto m = in.volume_to_world;
@@ -543,11 +720,18 @@ int main(int argc, char** argv) {
         }
         in.draw_surface = ui.view == 1;
       } else if (raycaster && !changed.empty()) {
-        raycaster->update_region(scene.render_volume(), changed);
+        raycaster->update_region(sim().scene().render_volume(), changed);
       }
       renderer.render(in);
-      auto lines = status_lines(session, ui, o.headless, scene.events(), scenario ? &*scenario : nullptr,
-                                task ? &task->status() : nullptr, keys);
+      auto lines = status_lines(session, ui, o.headless, sim().scene().events(), scenario,
+                                sim().task() ? &sim().task()->status() : nullptr, keys);
+      if (replay) {  // no lancet-rt: the replay's line instead of the link's
+        std::erase_if(lines, [&](const lancet::render::OverlayLine& l) { return l.text == session.link_message(); });
+        char buf[160];
+        std::snprintf(buf, sizeof buf, "REPLAY %s  %.1f / %.1f s at %gx%s", replay_path.c_str(), replay->time_s(), replay->duration_s(),
+                      replay_speed, replay_paused ? " (paused: space)" : "");
+        lines.insert(lines.begin(), {buf});
+      }
       if (ui.view != 0) {
         char buf[160];
         std::snprintf(buf, sizeof buf, "volume: %s, level %+.0f HU, width x%.2f%s", preset_names[static_cast<std::size_t>(ui.preset)].c_str(),
@@ -556,7 +740,7 @@ int main(int argc, char** argv) {
         lines.push_back({buf});
       }
       // The controls panel: task, tools, the force and the servo over the last seconds, the volume.
-      force_history.push_back(session.has_sample() ? static_cast<float>(lancet::norm(session.latest().force)) : 0.0f);
+      force_history.push_back(latest != nullptr ? static_cast<float>(lancet::norm(latest->force)) : 0.0f);
       const auto& rs = session.rt_status();
       wake_history.push_back(rs ? static_cast<float>(rs->wake_p99_ns) * 1e-3f : 0.0f);
       for (auto* h : {&force_history, &wake_history})
@@ -582,34 +766,58 @@ int main(int argc, char** argv) {
         wake_snapshots.clear();
       }
       lancet::render::PanelState panel;
-      if (task) {
-        panel.task_progress = static_cast<float>(task->status().progress);
+      if (sim().task()) {
+        panel.task_progress = static_cast<float>(sim().task()->status().progress);
         panel.task_label = scenario->task == lancet::scenario::TaskKind::kIncision ? "incision along the line" : "drill the window";
       }
       for (auto m : offered) {
         panel.tools.emplace_back(lancet::tool_name(m));
         panel.tool_keys.push_back(static_cast<int>(m));
       }
-      panel.tool = session.has_sample() ? static_cast<int>(session.latest().mode) : -1;
+      panel.tool = latest != nullptr ? static_cast<int>(latest->mode) : -1;
       panel.force_history = force_history;
       panel.wake_p99_history = wake_history;
       panel.wake_bins = wake_recent;
       panel.wake_window_s = wake_window_s;
       panel.watchdog_tripped = rs && rs->watchdog_tripped != 0;
       panel.connected = session.link() == lancet::viz::Link::kConnected;
+      panel.can_record = !replay;
+      panel.recording = rec != Rec::kOff;
+      if (rec == Rec::kOn) {
+        char buf[200];
+        std::snprintf(buf, sizeof buf, "REC %s: %llu ticks, %llu lost", rec_path.c_str(),
+                      static_cast<unsigned long long>(recorder->samples()), static_cast<unsigned long long>(recorder->samples_lost()));
+        panel.record_line = buf;
+      } else if (rec != Rec::kOff) {
+        panel.record_line = "recording: waiting for lancet-rt's reset";
+      } else {
+        panel.record_line = rec_message;
+      }
+      if (replay) {
+        const lancet::record::ReplayCheck& ck = replay->check();
+        char buf[200];
+        std::snprintf(buf, sizeof buf, "replay: %llu ticks, %llu frames, %s", static_cast<unsigned long long>(ck.ticks),
+                      static_cast<unsigned long long>(ck.frames),
+                      ck.exact() ? "bit-exact so far" : "DIFFERS from the recording");
+        panel.record_line = buf;
+        panel.replay_duration_s = static_cast<float>(replay->duration_s());
+        panel.replay_position = panel.replay_duration_s > 0 ? static_cast<float>(replay->time_s() / replay->duration_s()) : 1.0f;
+        panel.replay_paused = replay_paused;
+        panel.replay_speed = static_cast<float>(replay_speed);
+      }
       panel.view = ui.view;
       panel.presets = preset_names;
       panel.preset = ui.preset;
       panel.level = ui.level, panel.width = ui.width;
       panel.clip = ui.clip, panel.clip_mm = ui.clip_mm;
       if (raycaster) panel.tf_editor = &tf_editor, panel.histogram = &histogram;
-      if (bleeding) {
-        const lancet::hybrid::BloodFigures bf = bleeding->figures();
+      if (sim().bleeding()) {
+        const lancet::hybrid::BloodFigures bf = sim().bleeding()->figures();
         char buf[160];
         std::snprintf(buf, sizeof buf, "blood lost %.2f mL (on the tissue %.2f, swabbed %.2f)", bf.lost_ml, bf.on_tissue_ml,
                       bf.swabbed_ml);
         panel.blood.push_back({buf, false});
-        for (const auto& src : bleeding->sources()) {
+        for (const auto& src : sim().bleeding()->sources()) {
           if (src.kind != lancet::hybrid::BloodSource::Kind::kVessel) continue;
           std::snprintf(buf, sizeof buf, "%s: %s", src.name.c_str(),
                         src.stopped ? "stopped" : src.pressed_s > 0 ? "pressed..." : "BLEEDING: press it 3 s with the probe");
@@ -637,6 +845,30 @@ int main(int argc, char** argv) {
       if (act.clip_changed) ui.clip = act.clip, ui.clip_mm = act.clip_mm;
       if (act.tf_edited) tf_edited = true;
       if (act.screenshot) want_snapshot = true;
+      if (act.replay_pause) replay_paused = !replay_paused;
+      if (act.replay_speed > 0) replay_speed = act.replay_speed;
+      if (act.record) want_record = true;
+      if (want_record) {  // Record: a fresh scene and the servo's reset; Stop: finish the file
+        want_record = false;
+        if (rec != Rec::kOff) {
+          stop_recording();
+          if (rec != Rec::kOff) rec = Rec::kOff;
+        } else {
+          char name[64];
+          const std::time_t wall = std::time(nullptr);
+          std::strftime(name, sizeof name, "lancet-%Y%m%d-%H%M%S.h5", std::localtime(&wall));
+          auto fresh = lancet::record::SceneSim::create(setup);
+          if (fresh.ok()) {
+            sim_owned = std::move(fresh).value();
+            shown_revision = ~std::uint64_t{0};
+            raycaster.reset();
+            rec_path = name;
+            rec = Rec::kArmed;
+          } else {
+            rec_message = fresh.error().message;
+          }
+        }
+      }
       if (want_snapshot) {  // lancet-YYYYmmdd-HHMMSS.png in the working directory
         want_snapshot = false;
         char name[64];
@@ -667,13 +899,29 @@ int main(int argc, char** argv) {
     exit_code = 4;
   }
   g_ui = nullptr;
+  stop_recording();
+  if (replay) {
+    const lancet::record::ReplayCheck& ck = replay->check();
+    std::printf("lancet-viz: replay of %s: %llu of %zu ticks and %llu of %zu frames; servo state hashes %llu checked, %llu differ; "
+                "samples differing %llu; scene hashes %llu checked, %llu differ: %s\n",
+                replay_path.c_str(), static_cast<unsigned long long>(ck.ticks), recording->samples.size(),
+                static_cast<unsigned long long>(ck.frames), recording->frames.size(), static_cast<unsigned long long>(ck.servo_hashes),
+                static_cast<unsigned long long>(ck.servo_hash_mismatches), static_cast<unsigned long long>(ck.sample_mismatches),
+                static_cast<unsigned long long>(ck.scene_hashes), static_cast<unsigned long long>(ck.scene_hash_mismatches),
+                ck.exact() ? "bit-exact" : "DIFFERS");
+    if (!ck.exact()) {
+      std::printf("lancet-viz: the first difference: servo tick %llu, frame %llu\n", static_cast<unsigned long long>(ck.first_bad_seq),
+                  static_cast<unsigned long long>(ck.first_bad_frame > 0 ? ck.first_bad_frame - 1 : 0));
+      exit_code = exit_code ? exit_code : 1;
+    }
+  }
   std::printf("lancet-viz: %llu frames, %llu samples received (%llu lost), %llu patches published\n",
               static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
               static_cast<unsigned long long>(session.stats().lost),
               static_cast<unsigned long long>(session.patches_published()));
-  if (task) std::printf("lancet-viz: %s\n", task->status().line.c_str());
+  if (sim().task()) std::printf("lancet-viz: %s\n", sim().task()->status().line.c_str());
   if (!o.stats.empty() &&
-      !write_stats(o, session, frames, variance, scene, task ? &task->status() : nullptr, bleeding.get(),
+      !write_stats(o, session, frames, variance, sim().scene(), sim().task() ? &sim().task()->status() : nullptr, sim().bleeding(),
                    frames > 0 ? blood_ms / static_cast<double>(frames) : 0.0)) {
     std::fprintf(stderr, "lancet-viz: cannot write stats to %s\n", o.stats.c_str());
     exit_code = exit_code ? exit_code : 1;

@@ -121,9 +121,15 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
     p.t_ns = now_ns;
     p.samples_applied = samples_applied_;
     s.patch.write(p);
+    patch_version_ = s.patch.version();
     ++patches_published_;
   }
   s.viz_heartbeat.beat(now_ns, static_cast<std::int32_t>(getpid()));
+}
+
+bool VizSession::read_servo_model(ServoModelBlob& out) {
+  if (!channel_) return false;
+  return channel_->state().servo_model.try_read(out, 100) == ReadStatus::kOk;
 }
 
 void VizSession::set_stylus_target(bool active, Vec3 position, std::int64_t now_ns) {

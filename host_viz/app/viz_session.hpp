@@ -61,6 +61,10 @@ class VizSession {
   [[nodiscard]] const ToolSample& latest() const noexcept { return latest_; }
   [[nodiscard]] const TissuePatch& patch() const noexcept { return *patch_; }
   [[nodiscard]] std::uint64_t patches_published() const noexcept { return patches_published_; }
+  /// The seqlock version the last patch was published as (what ToolSample::patch_version names).
+  [[nodiscard]] std::uint64_t patch_version() const noexcept { return patch_version_; }
+  /// lancet-rt's servo model (published once at its start); false when not attached or unreadable.
+  [[nodiscard]] bool read_servo_model(ServoModelBlob& out);
   [[nodiscard]] const std::optional<RtStatus>& rt_status() const noexcept { return rt_status_; }
   [[nodiscard]] std::uint32_t connections() const noexcept { return connections_; }
   [[nodiscard]] std::uint32_t rt_losses() const noexcept { return rt_losses_; }
@@ -81,6 +85,7 @@ class VizSession {
   std::vector<ToolSample> batch_;
   std::unique_ptr<TissuePatch> patch_;
   std::uint64_t patches_published_ = 0;
+  std::uint64_t patch_version_ = 0;
   std::optional<RtStatus> rt_status_;
   std::uint64_t command_seq_ = 0;
   std::int64_t last_command_t_ns_ = 0;

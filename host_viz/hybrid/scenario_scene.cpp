@@ -125,6 +125,7 @@ const TaskStatus& TaskMonitor::update(const TissueScene& scene, std::span<const 
       if (s.avoid[i].kind == scenario::ShapeKind::kLabel && !damaged_[i])
         damaged_[i] = label_count(scene, s.avoid[i].label) < label_voxels_[i];
   st.damaged.clear();
+  st.damaged_flags = damaged_;
   for (std::size_t i = 0; i < s.avoid.size(); ++i)
     if (damaged_[i]) st.damaged.push_back(s.avoid[i].name);
 
@@ -139,6 +140,10 @@ const TaskStatus& TaskMonitor::update(const TissueScene& scene, std::span<const 
     if (drilled || drill_bone_ == 0) {
       const std::size_t now = drill_bone_ > 0 ? window_bone_now(scene) : 0;
       st.progress = drill_bone_ > 0 ? 1.0 - static_cast<double>(now) / static_cast<double>(drill_bone_) : 0.0;
+      // The window is sampled on a grid of the finest spacing: each sample stands for h³.
+      const Vec3 sp = scene.volume().spacing;
+      const double h = std::min({sp.x, sp.y, sp.z});
+      st.window_removed = static_cast<double>(drill_bone_ - std::min(now, drill_bone_)) * h * h * h;
     }
     std::snprintf(buf, sizeof buf, "task: drill the window (%.0f mm across, %.0f mm deep): %.0f%% of its bone removed",
                   2e3 * s.drill.radius, 1e3 * s.drill.depth, 100 * st.progress);

@@ -28,7 +28,9 @@ struct TaskStatus {
   double progress = 0;        ///< 0..1: the incision line covered, or the drill window's bone removed
   double max_deviation = 0;   ///< m, incision: the cuts' farthest point from the line
   double outside = 0;         ///< incision: fraction of the cut length off the line
+  double window_removed = 0;  ///< m³, drill: the bone removed from the drill window so far
   std::vector<std::string> damaged;  ///< names of the structures reached (by a cut's depth or the drill)
+  std::vector<bool> damaged_flags;   ///< per scenario avoid entry: reached
   std::string line;           ///< one line for the screen
 };
 

@@ -211,6 +211,26 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
     ImGui::EndDisabled();
     ImGui::SameLine();
     if (ImGui::Button("Screenshot (F12)")) act.screenshot = true;
+    if (p.can_record) {
+      if (ImGui::Button(p.recording ? "Stop recording (F9)" : "Record (F9)")) act.record = true;
+    }
+    if (!p.record_line.empty()) {
+      if (p.recording) ImGui::TextColored(kAlert, "%s", p.record_line.c_str());
+      else ImGui::TextUnformatted(p.record_line.c_str());
+    }
+    if (p.replay_position >= 0) {
+      // The replay's timeline: where it is, play/pause and speed.
+      ImGui::ProgressBar(p.replay_position, ImVec2(260, 0));
+      ImGui::SameLine();
+      ImGui::Text("%.1f / %.1f s", static_cast<double>(p.replay_position * p.replay_duration_s), static_cast<double>(p.replay_duration_s));
+      if (ImGui::Button(p.replay_paused ? "Play (space)" : "Pause (space)")) act.replay_pause = true;
+      for (const float sp : {0.25f, 1.0f, 4.0f, 20.0f}) {
+        ImGui::SameLine();
+        char label[16];
+        std::snprintf(label, sizeof label, "%gx", static_cast<double>(sp));
+        if (ImGui::RadioButton(label, p.replay_speed == sp)) act.replay_speed = sp;
+      }
+    }
     int view = p.view;
     ImGui::TextUnformatted("View (V)");
     ImGui::RadioButton("mesh", &view, 0);

@@ -47,10 +47,22 @@ struct PanelState {
   std::vector<OverlayLine> blood;
   volume::TfEditor* tf_editor = nullptr;
   const volume::Histogram* histogram = nullptr;
+  /// Recording: whether a session is being recorded, and one line about it (file, ticks, lost).
+  bool recording = false;
+  bool can_record = false;              ///< a Record button is offered (not while replaying)
+  std::string record_line;
+  /// Replay: the timeline (0..1 of replay_duration_s; < 0: not replaying) and whether it is paused.
+  float replay_position = -1;
+  float replay_duration_s = 0;
+  bool replay_paused = false;
+  float replay_speed = 1;
 };
 struct PanelActions {
   int tool = -1;            ///< ToolMode picked, -1 none
   bool rearm = false, reset = false, screenshot = false;
+  bool record = false;                     ///< the Record / Stop button
+  bool replay_pause = false;               ///< pause or resume the replay
+  float replay_speed = 0;                  ///< a new replay speed (0: unchanged)
   int view = -1, preset = -1;
   bool window_changed = false;
   float level = 0, width = 1;

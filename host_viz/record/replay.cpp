@@ -1,0 +1,235 @@
+#include "record/replay.hpp"
+
+#include <bit>
+#include <cstring>
+
+#include "lancet/shared_model/shared_state.hpp"
+
+namespace lancet::record {
+
+namespace {
+
+struct Hasher {
+  std::uint64_t h = 0x243f6a8885a308d3ull;
+  void word(std::uint64_t w) noexcept {
+    h ^= w + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+    h ^= h >> 31;
+    h *= 0xbf58476d1ce4e5b9ull;
+  }
+  void f(double x) noexcept { word(std::bit_cast<std::uint64_t>(x)); }
+  void f(float x) noexcept { word(std::bit_cast<std::uint32_t>(x)); }
+};
+
+bool same_output(const ToolSample& a, const ToolSample& b) {
+  return a.seq == b.seq && a.force == b.force && a.proxy == b.proxy && a.tool == b.tool && a.stage == b.stage &&
+         a.events == b.events && a.mode == b.mode && a.payload.position == b.payload.position &&
+         std::bit_cast<std::uint64_t>(a.payload.magnitude) == std::bit_cast<std::uint64_t>(b.payload.magnitude) &&
+         std::memcmp(a.tau, b.tau, sizeof a.tau) == 0;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// SceneSim
+
+Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
+  std::unique_ptr<SceneSim> sim(new SceneSim());
+  sim->setup_ = setup;
+  hybrid::SceneDescription desc;
+  if (!setup.scenario_toml.empty()) {
+    auto parsed = scenario::parse_scenario(setup.scenario_toml, setup.scenario_file);
+    if (!parsed.ok()) return parsed.error();
+    sim->scenario_ = std::move(parsed).value();
+    auto d = hybrid::scene_description(*sim->scenario_, setup.volume_path);
+    if (!d.ok()) return d.error();
+    desc = std::move(d).value();
+  } else if (setup.tissue == "block" || setup.tissue == "phantom") {
+    desc.source = setup.tissue == "block" ? hybrid::SceneSource::kBlock : hybrid::SceneSource::kPhantom;
+  } else {
+    return Error{ErrorCode::kInvalid, "tissue: expected block or phantom, found \"" + setup.tissue + "\""};
+  }
+  desc.patch.radius = setup.patch_radius;
+  auto made = hybrid::TissueScene::create(std::move(desc));
+  if (!made.ok()) return made.error();
+  sim->scene_ = std::move(made).value();
+  if (sim->scene_->description().surface == hybrid::SceneSurface::kSkin)
+    sim->bleeding_ = std::make_unique<hybrid::Bleeding>(*sim->scene_);
+  if (sim->scenario_) sim->task_.emplace(*sim->scenario_, *sim->scene_);
+  return sim;
+}
+
+void SceneSim::apply(std::span<const ToolSample> samples) {
+  if (samples.empty()) return;
+  (void)scene_->apply(samples);
+  if (task_) (void)task_->update(*scene_, samples);
+  if (bleeding_) bleeding_->observe(samples);
+}
+
+std::size_t SceneSim::export_patch(Vec3 at, TissuePatch& patch) { return scene_->export_patch(at, patch); }
+
+void SceneSim::advance_blood(double dt) {
+  if (bleeding_) bleeding_->advance(*scene_, dt);
+}
+
+void SceneSim::figures(FrameRecord& f) const {
+  if (task_) {
+    const hybrid::TaskStatus& t = task_->status();
+    f.task_progress = t.progress;
+    f.max_deviation = t.max_deviation;
+    f.outside = t.outside;
+    f.damaged = 0;
+    for (std::size_t i = 0; i < t.damaged_flags.size() && i < 32; ++i)
+      if (t.damaged_flags[i]) f.damaged |= 1u << i;
+    const Vec3 sp = scene_->volume().spacing;
+    f.drilled_mm3 = static_cast<double>(scene_->events().voxels_drilled) * sp.x * sp.y * sp.z * 1e9;
+    f.drilled_outside_mm3 = std::max(0.0, f.drilled_mm3 - t.window_removed * 1e9);
+  }
+  if (bleeding_) {
+    const hybrid::BloodFigures b = bleeding_->figures();
+    f.blood_lost_ml = b.lost_ml;
+    f.blood_on_tissue_ml = b.on_tissue_ml;
+    f.blood_swabbed_ml = b.swabbed_ml;
+  }
+}
+
+std::uint64_t SceneSim::hash() const {
+  Hasher h;
+  surface::TriangleMesh mesh;
+  scene_->draw_mesh(mesh);
+  h.word(mesh.vertices.size()), h.word(mesh.triangles.size());
+  for (const Vec3f& v : mesh.vertices) h.f(v.x), h.f(v.y), h.f(v.z);
+  for (const auto& t : mesh.triangles) h.word(static_cast<std::uint64_t>(t[0]) << 32 | t[1]), h.word(t[2]);
+  if (bleeding_) {
+    std::vector<float> depth, age;
+    bleeding_->vertex_blood(mesh, depth, age);
+    for (const float d : depth) h.f(d);
+    const hybrid::BloodFigures b = bleeding_->figures();
+    h.f(b.lost_ml), h.f(b.on_tissue_ml), h.f(b.swabbed_ml);
+  }
+  const hybrid::SceneEvents& e = scene_->events();
+  h.word(e.samples), h.word(e.ruptures), h.word(e.cut_steps), h.word(e.grabs), h.word(e.voxels_drilled);
+  if (task_) h.f(task_->status().progress), h.f(task_->status().max_deviation);
+  return h.h != 0 ? h.h : 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Replay
+
+Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
+  const auto hex = [](std::uint64_t v) {
+    char b[24];
+    std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
+    return std::string(b);
+  };
+  if (rec.layout_hash != kSharedLayoutHash)
+    return Error{ErrorCode::kMismatch, "the recording was made with shared layout " + hex(rec.layout_hash) + " (protocol " +
+                                           std::to_string(rec.protocol) + ", lancet " + rec.lancet_version +
+                                           "); this build's is " + hex(kSharedLayoutHash) + " (protocol " +
+                                           std::to_string(kProtocolVersion) + "): replay it with the build that recorded it"};
+  if (rec.samples_lost > 0 || rec.gaps > 0)
+    return Error{ErrorCode::kInvalid, "the recording lost " + std::to_string(rec.samples_lost) + " servo ticks in " +
+                                          std::to_string(rec.gaps) + " gaps: it cannot be replayed exactly"};
+  if (rec.samples.empty() || rec.frames.empty()) return Error{ErrorCode::kInvalid, "the recording has no ticks or no frames"};
+  auto model = servo::model_from_blob(rec.servo_model);
+  if (!model.ok()) return Error{model.error().code, "the recording's " + model.error().message};
+  std::unique_ptr<Replay> r(new Replay());
+  r->rec_ = &rec;
+  r->model_ = model.value();
+  SceneSetup setup;
+  setup.tissue = rec.tissue;
+  setup.scenario_toml = rec.scenario_toml;
+  setup.scenario_file = rec.scenario_file;
+  setup.volume_path = rec.volume_path;
+  setup.patch_radius = rec.patch_radius;
+  auto sim = SceneSim::create(setup);
+  if (!sim.ok()) return Error{sim.error().code, "the recording's scene: " + sim.error().message};
+  r->sim_ = std::move(sim).value();
+  // The session began with the servo's reset: a fresh state at the tick before the first.
+  r->data_.tick = rec.samples.front().seq - 1;
+  if (rec.first_patch_version != 0) r->patches_.emplace_back(rec.first_patch_version, std::make_unique<TissuePatch>(rec.first_patch));
+  r->replayed_.reserve(rec.samples.size());
+  return r;
+}
+
+const TissuePatch* Replay::find_patch(std::uint64_t version) const {
+  for (const auto& [v, p] : patches_)
+    if (v == version) return p.get();
+  return nullptr;
+}
+
+const TissuePatch* Replay::patch() const noexcept { return patches_.empty() ? nullptr : patches_.back().second.get(); }
+
+double Replay::time_s() const noexcept {
+  return has_latest_ ? static_cast<double>(latest_.t_ns - rec_->samples.front().t_ns) * 1e-9 : 0.0;
+}
+
+double Replay::duration_s() const noexcept {
+  return static_cast<double>(rec_->samples.back().t_ns - rec_->samples.front().t_ns) * 1e-9;
+}
+
+Result<bool> Replay::step_frame() {
+  if (done()) return false;
+  const FrameRecord& f = rec_->frames[next_frame_];
+  // The servo ticks the frame had applied, through the same step with the recorded inputs.
+  batch_.clear();
+  while (next_sample_ < rec_->samples.size() && rec_->samples[next_sample_].seq <= f.last_seq) {
+    const ToolSample& s = rec_->samples[next_sample_++];
+    servo::ServoInput in = servo::input_from_sample(s);
+    if (s.patch_version != 0) {
+      in.patch = find_patch(s.patch_version);
+      if (in.patch == nullptr)
+        return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " used patch version " + std::to_string(s.patch_version) +
+                                              ", which no recorded frame published"};
+    }
+    servo::servo_step(model_, data_, in, out_);
+    ToolSample& o = out_.sample;
+    o.write_status = s.write_status;
+    if (s.write_status != 0) o.events |= event::kFault;
+    ++check_.ticks;
+    const bool hash_ok = o.state_hash == s.state_hash;
+    if (s.state_hash != 0) ++check_.servo_hashes;
+    if (!hash_ok) ++check_.servo_hash_mismatches;
+    if (!same_output(o, s)) ++check_.sample_mismatches;
+    if ((!hash_ok || !same_output(o, s)) && check_.first_bad_seq == 0) check_.first_bad_seq = s.seq;
+    batch_.push_back(o);
+    replayed_.push_back(o);
+  }
+  // The visualizer's frame: the batch, then the patch around the newest tool, then the blood.
+  sim_->apply(batch_);
+  if (!batch_.empty()) {
+    latest_ = batch_.back();
+    has_latest_ = true;
+  }
+  if (f.patch_version != 0) {
+    auto p = std::make_unique<TissuePatch>();
+    p->n_triangles = 0;
+    p->brick.valid = 0;
+    (void)sim_->export_patch(has_latest_ ? latest_.tool.position : Vec3{}, *p);
+    p->seq = f.patch_seq;
+    p->t_ns = f.patch_t_ns;
+    p->samples_applied = f.patch_samples_applied;
+    patches_.emplace_back(f.patch_version, std::move(p));
+    while (patches_.size() > 8) patches_.pop_front();
+  }
+  sim_->advance_blood(f.blood_dt);
+  if (f.scene_hash != 0) {
+    ++check_.scene_hashes;
+    if (sim_->hash() != f.scene_hash) {
+      ++check_.scene_hash_mismatches;
+      if (check_.first_bad_frame == 0) check_.first_bad_frame = f.frame + 1;
+    }
+  }
+  ++check_.frames;
+  ++next_frame_;
+  return true;
+}
+
+Result<ReplayCheck> Replay::run() {
+  for (;;) {
+    auto r = step_frame();
+    if (!r.ok()) return r.error();
+    if (!r.value()) return check_;
+  }
+}
+
+}  // namespace lancet::record
