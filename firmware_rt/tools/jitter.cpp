@@ -2,6 +2,9 @@
 
 #include <unistd.h>
 
+#include <filesystem>
+#include <thread>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -12,6 +15,7 @@
 #include "app/rt_servo.hpp"
 #include "rt/rt_loop.hpp"
 #include "tools/cyclictest_runner.hpp"
+#include "record/hdf5_io.hpp"
 
 namespace lancet::tools {
 namespace {
@@ -115,7 +119,11 @@ JitterResult run_jitter(const JitterOptions& o) {
   model.servo.period_ns = o.rt.loop().period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
 
-  const int rounds = std::max(1, o.rounds);
+  const int rounds = o.compare_recording ? std::max(2, o.rounds + o.rounds % 2) : std::max(1, o.rounds);
+  const std::string record_path =
+      o.record_path.empty() ? (std::filesystem::temp_directory_path() / ("lancet-jitter-" + std::to_string(getpid()) + ".h5")).string()
+                            : o.record_path;
+  if (o.compare_recording) r.recording_off.emplace(), r.recording_on.emplace();
   // cyclictest runs whole seconds (-D): when comparing, both sides run rounds of that length.
   const double round_s = o.compare_cyclictest ? std::max(1.0, std::ceil(o.duration_s / rounds)) : o.duration_s / rounds;
   rt::Distribution cyc;
@@ -128,6 +136,37 @@ JitterResult run_jitter(const JitterOptions& o) {
     rt::RtLoop loop(lp);
     std::atomic<bool> stop{false};
     ToolSample drained{};
+    // The recording comparison: a consumer thread drains the ring as the viz would (every 16 ms),
+    // and in odd rounds records what it drains.
+    const bool recording = o.compare_recording && round % 2 == 1;
+    std::unique_ptr<record::Recorder> recorder;
+    if (recording) {
+      record::Recording meta;
+      meta.lancet_version = "lancetctl jitter";
+      meta.layout_hash = kSharedLayoutHash;
+      meta.protocol = kProtocolVersion;
+      meta.period_ns = o.rt.loop().period_ns;
+      auto made = record::Recorder::create(record_path, meta);
+      if (made.ok()) {
+        recorder = std::move(made).value();
+      } else if (r.record_error.empty()) {
+        r.record_error = made.error().message;
+      }
+    }
+    std::atomic<bool> consumer_stop{false};
+    std::thread consumer;
+    if (o.compare_recording) {
+      consumer = std::thread([&] {
+        std::vector<ToolSample> batch(4096);
+        while (!consumer_stop.load(std::memory_order_relaxed)) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(16));
+          std::size_t n = 0;
+          while ((n = shared->samples.try_pop_n(batch.data(), batch.size())) > 0) {
+            if (recorder) recorder->add_samples(std::span<const ToolSample>(batch.data(), n));
+          }
+        }
+      });
+    }
     rt::RtSetupReport later_rounds;  // the first round's report is the one shown
     rt::RtThread t = rt::start_rt_thread(setup_opts, round == 0 ? r.setup : later_rounds, [&] {
       servo.set_fifo(rt::current_thread_is_fifo());
@@ -141,13 +180,27 @@ JitterResult run_jitter(const JitterOptions& o) {
               shared->patch.write(*patch);
             }
             servo.tick(c);
-            while (shared->samples.try_pop(drained)) {
+            if (!o.compare_recording) {
+              while (shared->samples.try_pop(drained)) {
+              }
             }
           },
           stop);
     });
     t.join();
+    consumer_stop.store(true);
+    if (consumer.joinable()) consumer.join();
+    if (recorder) {
+      r.recorded_samples += recorder->samples();
+      r.recorded_lost += recorder->samples_lost();
+      if (const auto done = recorder->finish(); !done.ok() && r.record_error.empty()) r.record_error = done.error().message;
+      std::error_code ec;
+      r.record_bytes += std::filesystem::file_size(record_path, ec);
+      recorder.reset();
+      if (o.record_path.empty()) std::filesystem::remove(record_path, ec);
+    }
     const rt::LoopStats& s = loop.stats();
+    if (o.compare_recording) (recording ? *r.recording_on : *r.recording_off).merge(s.wake_latency);
     r.wake.merge(s.wake_latency);
     r.compute.merge(s.compute);
     r.period_error.merge(s.period_error);
@@ -228,6 +281,21 @@ std::string format_jitter_text(const JitterOptions& o, const JitterResult& r) {
   for (double p : rt::kReportPercentiles) row(percentile_name(p), ours.percentile_us(p), c ? c->percentile_us(p) : 0);
   row("max", ours.max_us, c ? c->max_us : 0);
   if (!r.cyclictest_error.empty()) s << "cyclictest: " << r.cyclictest_error << "\n";
+  if (r.recording_off && r.recording_on) {
+    const rt::Distribution off = rt::to_distribution(*r.recording_off, "off"), on = rt::to_distribution(*r.recording_on, "on");
+    s << "\nwake-up latency (us)  recording off   recording on   on/off\n";
+    const auto rrow = [&](const std::string& name, double a, double b) {
+      std::snprintf(line, sizeof line, "  %-10s %15.1f %14.1f %8.2f\n", name.c_str(), a, b, a > 0 ? b / a : 0.0);
+      s << line;
+    };
+    rrow("avg", off.avg_us, on.avg_us);
+    for (double p : rt::kReportPercentiles) rrow(percentile_name(p), off.percentile_us(p), on.percentile_us(p));
+    rrow("max", off.max_us, on.max_us);
+    std::snprintf(line, sizeof line, "  recorded %llu samples (%llu lost) into %.1f MB of HDF5%s%s\n",
+                  static_cast<unsigned long long>(r.recorded_samples), static_cast<unsigned long long>(r.recorded_lost),
+                  static_cast<double>(r.record_bytes) / 1e6, r.record_error.empty() ? "" : "; ", r.record_error.c_str());
+    s << line;
+  }
   std::snprintf(line, sizeof line,
                 "\nlancet loop: %llu ticks, %llu missed deadlines (%llu skipped), longest stall %.1f us,\n"
                 "  compute p50 %.1f us p99 %.1f us max %.1f us, period error p99 %.1f us,\n"
@@ -285,6 +353,14 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
   } else {
     s << "null";
     if (!r.cyclictest_error.empty()) s << ",\n  \"cyclictest_error\": \"" << json_escape(r.cyclictest_error) << "\"";
+  }
+  if (r.recording_off && r.recording_on) {
+    s << ",\n  \"recording\": {\"off\": ";
+    json_distribution(s, rt::to_distribution(*r.recording_off, "off"));
+    s << ", \"on\": ";
+    json_distribution(s, rt::to_distribution(*r.recording_on, "on"));
+    s << ", \"samples\": " << r.recorded_samples << ", \"lost\": " << r.recorded_lost << ", \"bytes\": " << r.record_bytes
+      << ", \"error\": \"" << json_escape(r.record_error) << "\"}";
   }
   s << ",\n  \"bounds\": [";
   for (std::size_t i = 0; i < r.bounds.size(); ++i) {

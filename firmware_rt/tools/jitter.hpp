@@ -28,6 +28,11 @@ struct JitterOptions {
   std::string plot_path;
   std::string cyclictest = "cyclictest";
   bool servo_workload = true;           ///< false: an empty tick (the loop's own cost, for diagnosis)
+  /// Alternate rounds without and with a session recording (the ring drained every 16 ms by a
+  /// consumer thread, as lancet-viz does, which in the "on" rounds also writes every sample to an
+  /// HDF5 file through record::Recorder): the two wake-up distributions side by side.
+  bool compare_recording = false;
+  std::string record_path;              ///< where the "on" rounds write (default: a file in /tmp, removed after)
 };
 
 struct JitterResult {
@@ -39,6 +44,10 @@ struct JitterResult {
   long minor_faults = 0, major_faults = 0;
   std::vector<double> window_max_us;    ///< worst wake-up per 100 ms, rounds concatenated
   std::optional<rt::Distribution> cyclictest;
+  /// compare_recording: the rounds without and with the recording.
+  std::optional<rt::LatencyHistogram> recording_off, recording_on;
+  std::uint64_t recorded_samples = 0, recorded_lost = 0, record_bytes = 0;
+  std::string record_error;
   std::string cyclictest_error;
   struct Bound {
     std::string what;

@@ -65,6 +65,10 @@ int main(int argc, char** argv) {
   lancet::app::add_rt_options(*jitter, jo.rt);
   jitter->add_flag("--compare-cyclictest", jo.compare_cyclictest,
                    "also run cyclictest (rt-tests) with the same interval, priority and CPU, alternating with our loop");
+  jitter->add_flag("--compare-recording", jo.compare_recording,
+                   "alternate rounds without and with a session recording (HDF5, as lancet-viz --record writes it) and "
+                   "report both wake-up distributions");
+  jitter->add_option("--record-file", jo.record_path, "with --compare-recording: keep the recording here");
   jitter->add_option("--rounds", jo.rounds, "alternations of our loop and cyclictest")->check(CLI::Range(1, 100))->capture_default_str();
   jitter->add_option("--cyclictest", jo.cyclictest, "cyclictest executable")->capture_default_str();
   jitter->add_option("--max-p99-us", jo.max_p99_us, "fail when the wake-up latency p99 exceeds this (us)")->check(CLI::PositiveNumber);
