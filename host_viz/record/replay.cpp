@@ -1,6 +1,7 @@
 #include "record/replay.hpp"
 
 #include <bit>
+#include <chrono>
 #include <cstring>
 
 #include "lancet/shared_model/shared_state.hpp"
@@ -170,6 +171,9 @@ double Replay::duration_s() const noexcept {
 Result<bool> Replay::step_frame() {
   if (done()) return false;
   const FrameRecord& f = rec_->frames[next_frame_];
+  using Clock = std::chrono::steady_clock;
+  const auto since = [](Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); };
+  auto t0 = Clock::now();
   // The servo ticks the frame had applied, through the same step with the recorded inputs.
   batch_.clear();
   while (next_sample_ < rec_->samples.size() && rec_->samples[next_sample_].seq <= f.last_seq) {
@@ -194,8 +198,12 @@ Result<bool> Replay::step_frame() {
     batch_.push_back(o);
     replayed_.push_back(o);
   }
+  timing_.servo += since(t0);
   // The visualizer's frame: the batch, then the patch around the newest tool, then the blood.
+  t0 = Clock::now();
   sim_->apply(batch_);
+  timing_.scene += since(t0);
+  t0 = Clock::now();
   if (!batch_.empty()) {
     latest_ = batch_.back();
     has_latest_ = true;
@@ -211,7 +219,11 @@ Result<bool> Replay::step_frame() {
     patches_.emplace_back(f.patch_version, std::move(p));
     while (patches_.size() > 8) patches_.pop_front();
   }
+  timing_.patch += since(t0);
+  t0 = Clock::now();
   sim_->advance_blood(f.blood_dt);
+  timing_.blood += since(t0);
+  t0 = Clock::now();
   if (f.scene_hash != 0) {
     ++check_.scene_hashes;
     if (sim_->hash() != f.scene_hash) {
@@ -219,6 +231,7 @@ Result<bool> Replay::step_frame() {
       if (check_.first_bad_frame == 0) check_.first_bad_frame = f.frame + 1;
     }
   }
+  timing_.hash += since(t0);
   ++check_.frames;
   ++next_frame_;
   return true;

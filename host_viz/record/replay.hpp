@@ -86,6 +86,11 @@ struct ReplayCheck {
   }
 };
 
+/// Where a replay's time went (s), for the benchmark.
+struct ReplayTiming {
+  double servo = 0, scene = 0, patch = 0, blood = 0, hash = 0;
+};
+
 class Replay {
  public:
   /// Refuses a recording of another shared layout or servo model layout (naming both), one
@@ -100,6 +105,7 @@ class Replay {
   [[nodiscard]] Result<ReplayCheck> run();
 
   [[nodiscard]] const ReplayCheck& check() const noexcept { return check_; }
+  [[nodiscard]] const ReplayTiming& timing() const noexcept { return timing_; }
   [[nodiscard]] std::size_t frame() const noexcept { return next_frame_; }   ///< frames replayed
   [[nodiscard]] std::size_t frames() const noexcept { return rec_->frames.size(); }
   [[nodiscard]] bool done() const noexcept { return next_frame_ >= rec_->frames.size(); }
@@ -127,6 +133,7 @@ class Replay {
   ToolSample latest_{};
   bool has_latest_ = false;
   ReplayCheck check_{};
+  ReplayTiming timing_{};
   const TissuePatch* find_patch(std::uint64_t version) const;
 };
 

@@ -200,6 +200,9 @@ int main(int argc, char** argv) {
     std::printf("    \"replay_setup_s\": %.3f, \"replay_s\": %.3f, \"replay_x_real_time\": %.1f, \"replay_x_real_time_with_setup\": %.1f, "
                 "\"bit_exact\": %s,\n",
                 setup_s, replay_s, duration / replay_s, duration / (replay_s + setup_s), check.value().exact() ? "true" : "false");
+    const record::ReplayTiming& tm = rp.value()->timing();
+    std::printf("    \"replay_split_s\": {\"servo\": %.3f, \"scene\": %.3f, \"patch\": %.3f, \"blood\": %.3f, \"hash\": %.3f},\n",
+                tm.servo, tm.scene, tm.patch, tm.blood, tm.hash);
     std::printf("    \"report_s\": %.4f, \"report_html_bytes\": %zu}", report_s, html.size());
   }
   std::printf(",\n  \"sink\": %llu\n}\n", static_cast<unsigned long long>(sink & 1));

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "process.hpp"
+#include "record/hdf5_io.hpp"
 
 namespace lancet {
 namespace {
@@ -85,6 +86,39 @@ TEST_F(LancetctlJitter, ComparesWithCyclictestInTheSameRun) {
   EXPECT_GE(json_number(j.substr(cyc), "count").value_or(0), 800) << j;
   EXPECT_GT(json_number(j.substr(cyc), "p99_us").value_or(0), 0) << j;
   EXPECT_NE(j.find("\"ratio\": {"), std::string::npos) << j;
+}
+
+// Recording on and off in one run: the recorder drains and writes every sample (nothing lost, the
+// file reads back with every tick), and the servo's wake-up latency with it stays within noise of
+// without (a loose bound: this machine is noisy; the figures are in docs/PERFORMANCE.md).
+TEST_F(LancetctlJitter, ComparesRecordingOnAndOffInTheSameRun) {
+  ASSERT_EQ(run({"jitter", "--duration", "2", "--rounds", "2", "--compare-recording", "--record-file", path("r.h5"), "--json",
+                 path("r.json")}),
+            0)
+      << read_file(path("out.txt"));
+  const std::string out = read_file(path("out.txt"));
+  EXPECT_NE(out.find("recording off   recording on"), std::string::npos) << out;
+  const std::string j = read_file(path("r.json"));
+  const auto at = j.find("\"recording\": {");
+  ASSERT_NE(at, std::string::npos) << j;
+  const std::string rec = j.substr(at);
+  const auto off = rec.find("\"off\": {"), on = rec.find("\"on\": {");
+  ASSERT_NE(off, std::string::npos);
+  ASSERT_NE(on, std::string::npos);
+  const double p50_off = json_number(rec.substr(off), "p50_us").value_or(0), p50_on = json_number(rec.substr(on), "p50_us").value_or(0);
+  std::printf("[ info     ] wake-up p50 %.1f us recording off, %.1f us on (ratio %.2f); p99 %.1f / %.1f us\n", p50_off, p50_on,
+              p50_on / p50_off, json_number(rec.substr(off), "p99_us").value_or(0), json_number(rec.substr(on), "p99_us").value_or(0));
+  EXPECT_GT(p50_off, 0);
+  EXPECT_LT(p50_on, 3 * p50_off + 50) << "recording must not disturb the servo beyond noise";
+  EXPECT_EQ(json_number(rec, "lost").value_or(-1), 0) << j;
+  const double samples = json_number(rec, "samples").value_or(0);
+  EXPECT_GE(samples, 900) << j;  // one round of about 1 s at 1 kHz
+  auto file = record::read_recording(path("r.h5"));
+  ASSERT_TRUE(file.ok()) << file.error().message;
+  EXPECT_EQ(static_cast<double>(file.value().samples.size()), samples);
+  EXPECT_EQ(file.value().gaps, 0u);
+  for (std::size_t i = 1; i < file.value().samples.size(); ++i)
+    ASSERT_EQ(file.value().samples[i].seq, file.value().samples[i - 1].seq + 1) << "every tick, in order";
 }
 
 TEST_F(LancetctlJitter, AMissingCyclictestIsAClearErrorNotACrash) {
