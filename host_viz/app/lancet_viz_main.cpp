@@ -374,6 +374,7 @@ int main(int argc, char** argv) {
   std::string rec_path = record_path;
   std::unique_ptr<lancet::record::Recorder> recorder;
   std::uint64_t rec_frames = 0, rec_last_seq = 0;
+  std::vector<lancet::record::SceneEvent> scene_events;
   std::string rec_message;
   const auto stop_recording = [&] {
     if (!recorder) return;
@@ -528,7 +529,14 @@ int main(int argc, char** argv) {
             break;
           }
         }
-        if (o.headless && replay->done() && !screenshot_frame && screenshot_view.empty()) g_stop.store(true);  // one frame drawn after the end
+        if (o.headless && replay->done()) {  // then one frame drawn (in --screenshot-view, if given) and stop
+          if (screenshot_view.empty() || screenshot_frame) {
+            g_stop.store(true);
+          } else {
+            ui.view = views.at(screenshot_view);
+            screenshot_frame = true;
+          }
+        }
       } else {
         session.frame(now, on_samples, fill_patch);
       }
@@ -598,6 +606,9 @@ int main(int argc, char** argv) {
         sim().figures(frame_record);
         if (rec_frames % lancet::record::kSceneHashEvery == 0) frame_record.scene_hash = sim().hash();
         recorder->add_frame(frame_record);
+        scene_events.clear();
+        sim().take_events(rec_frames, now, scene_events);
+        for (const auto& e : scene_events) recorder->add_event(e);
         ++rec_frames;
       }
       last_frame = frame_start;
@@ -726,10 +737,13 @@ int main(int argc, char** argv) {
       auto lines = status_lines(session, ui, o.headless, sim().scene().events(), scenario,
                                 sim().task() ? &sim().task()->status() : nullptr, keys);
       if (replay) {  // no lancet-rt: the replay's line instead of the link's
-        std::erase_if(lines, [&](const lancet::render::OverlayLine& l) { return l.text == session.link_message(); });
+        std::erase_if(lines, [&](const lancet::render::OverlayLine& l) {
+          return l.text == session.link_message() || l.text.rfind("samples ", 0) == 0;  // no link: its figures say nothing
+        });
         char buf[160];
-        std::snprintf(buf, sizeof buf, "REPLAY %s  %.1f / %.1f s at %gx%s", replay_path.c_str(), replay->time_s(), replay->duration_s(),
-                      replay_speed, replay_paused ? " (paused: space)" : "");
+        std::snprintf(buf, sizeof buf, "REPLAY %s  %.1f / %.1f s at %gx%s; patch %u triangles", replay_path.c_str(), replay->time_s(),
+                      replay->duration_s(), replay_speed, replay_paused ? " (paused: space)" : "",
+                      replay->patch() != nullptr ? replay->patch()->n_triangles : 0u);
         lines.insert(lines.begin(), {buf});
       }
       if (ui.view != 0) {
@@ -915,10 +929,12 @@ int main(int argc, char** argv) {
       exit_code = exit_code ? exit_code : 1;
     }
   }
-  std::printf("lancet-viz: %llu frames, %llu samples received (%llu lost), %llu patches published\n",
-              static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
-              static_cast<unsigned long long>(session.stats().lost),
-              static_cast<unsigned long long>(session.patches_published()));
+  if (!replay) {
+    std::printf("lancet-viz: %llu frames, %llu samples received (%llu lost), %llu patches published\n",
+                static_cast<unsigned long long>(frames), static_cast<unsigned long long>(session.samples_total()),
+                static_cast<unsigned long long>(session.stats().lost),
+                static_cast<unsigned long long>(session.patches_published()));
+  }
   if (sim().task()) std::printf("lancet-viz: %s\n", sim().task()->status().line.c_str());
   if (!o.stats.empty() &&
       !write_stats(o, session, frames, variance, sim().scene(), sim().task() ? &sim().task()->status() : nullptr, sim().bleeding(),

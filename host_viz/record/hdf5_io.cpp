@@ -139,6 +139,27 @@ Handle frame_type() {
   return t;
 }
 
+Handle event_type() {
+  Handle t{H5Tcreate(H5T_COMPOUND, sizeof(SceneEvent)), H5Tclose};
+  const Handle v3 = array_of(H5T_NATIVE_DOUBLE, 3);
+  Handle name{H5Tcopy(H5T_C_S1), H5Tclose};
+  H5Tset_size(name, sizeof(SceneEvent::name));
+  H5Tset_strpad(name, H5T_STR_NULLTERM);
+  H5Tinsert(t, "frame", offsetof(SceneEvent, frame), H5T_NATIVE_UINT64);
+  H5Tinsert(t, "t_ns", offsetof(SceneEvent, t_ns), H5T_NATIVE_INT64);
+  H5Tinsert(t, "kind", offsetof(SceneEvent, kind), H5T_NATIVE_UINT32);
+  H5Tinsert(t, "index", offsetof(SceneEvent, index), H5T_NATIVE_UINT32);
+  H5Tinsert(t, "position", offsetof(SceneEvent, position), v3);
+  H5Tinsert(t, "value", offsetof(SceneEvent, value), H5T_NATIVE_DOUBLE);
+  H5Tinsert(t, "name", offsetof(SceneEvent, name), name);
+  return t;
+}
+
+constexpr const char* kEventUnits =
+    "frame: the FrameRecord's; t_ns: ns, CLOCK_MONOTONIC; kind: 1 blood source began (value mL/s), 2 a vessel "
+    "stopped bleeding, 3 a protected structure reached (index: the scenario's avoid entry), 4 bone drilled this frame "
+    "(value mm^3); position: m";
+
 constexpr const char* kFrameUnits =
     "frame: index; t_ns, patch_t_ns: ns, CLOCK_MONOTONIC; last_seq: the newest servo tick applied; blood_dt: s; "
     "patch_centre, max_deviation: m; task_progress, outside: fraction 0..1; damaged: bit i = avoid[i] reached; "
@@ -302,8 +323,8 @@ bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out,
 // Recorder
 
 struct Recorder::File {
-  Handle file, samples, frames, sample_type, frame_type;
-  hsize_t sample_rows = 0, frame_rows = 0;
+  Handle file, samples, frames, events, sample_type, frame_type, event_type;
+  hsize_t sample_rows = 0, frame_rows = 0, event_rows = 0;
 };
 
 Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, const Recording& meta) {
@@ -313,6 +334,7 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
   if (!f->file.ok()) return fail(path, "cannot create the recording", ErrorCode::kSystem);
   f->sample_type = sample_type();
   f->frame_type = frame_type();
+  f->event_type = event_type();
   const hid_t root = f->file;
   bool ok = write_attr(root, "format_version", H5T_NATIVE_UINT32, kFormatVersion) &&
             write_string_attr(root, "lancet_version", meta.lancet_version) &&
@@ -338,8 +360,9 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
     if (servo.ok() && viz.ok()) {
       f->samples = create_table(servo, "samples", f->sample_type, 1024, kSampleUnits);
       f->frames = create_table(viz, "frames", f->frame_type, 256, kFrameUnits);
+      f->events = create_table(viz, "events", f->event_type, 64, kEventUnits);
     }
-    ok = f->samples.ok() && f->frames.ok();
+    ok = f->samples.ok() && f->frames.ok() && f->events.ok();
   }
   if (!ok) return fail(path, "cannot write the recording's header", ErrorCode::kSystem);
   (void)H5Fflush(f->file, H5F_SCOPE_GLOBAL);
@@ -374,6 +397,14 @@ void Recorder::add_frame(const FrameRecord& frame) {
   ++n_frames_;
 }
 
+void Recorder::add_event(const SceneEvent& event) {
+  const std::lock_guard lock(mutex_);
+  if (finished_) return;
+  events_.push_back(event);
+  events_.back().name[sizeof(SceneEvent::name) - 1] = '\0';
+  ++n_events_;
+}
+
 std::uint64_t Recorder::samples() const noexcept {
   const std::lock_guard lock(mutex_);
   return n_samples_;
@@ -391,13 +422,16 @@ std::uint64_t Recorder::gaps() const noexcept {
   return gaps_;
 }
 
-Result<void> Recorder::flush_pending(std::vector<ToolSample>& samples, std::vector<FrameRecord>& frames) {
+Result<void> Recorder::flush_pending(std::vector<ToolSample>& samples, std::vector<FrameRecord>& frames,
+                                     std::vector<SceneEvent>& events) {
   File& f = *file_;
   if (!append_rows(f.samples, f.sample_type, f.sample_rows, samples.data(), samples.size()) ||
-      !append_rows(f.frames, f.frame_type, f.frame_rows, frames.data(), frames.size()))
+      !append_rows(f.frames, f.frame_type, f.frame_rows, frames.data(), frames.size()) ||
+      !append_rows(f.events, f.event_type, f.event_rows, events.data(), events.size()))
     return fail(path_, "cannot append to the recording (disk full?)", ErrorCode::kSystem);
   samples.clear();
   frames.clear();
+  events.clear();
   (void)H5Fflush(f.file, H5F_SCOPE_GLOBAL);
   return Result<void>::success();
 }
@@ -405,18 +439,20 @@ Result<void> Recorder::flush_pending(std::vector<ToolSample>& samples, std::vect
 void Recorder::run() {
   std::vector<ToolSample> samples;
   std::vector<FrameRecord> frames;
+  std::vector<SceneEvent> events;
   std::unique_lock lock(mutex_);
   for (;;) {
     // A chunk's worth, or a quarter second, whichever comes first.
     wake_.wait_for(lock, std::chrono::milliseconds(250), [&] { return stop_ || samples_.size() >= 1024; });
     samples.swap(samples_);
     frames.swap(frames_);
+    events.swap(events_);
     const bool stop = stop_;
     lock.unlock();
-    const Result<void> r = flush_pending(samples, frames);
+    const Result<void> r = flush_pending(samples, frames, events);
     lock.lock();
     if (!r.ok() && error_.empty()) error_ = r.error().message;
-    if (stop && samples_.empty() && frames_.empty()) return;
+    if (stop && samples_.empty() && frames_.empty() && events_.empty()) return;
   }
 }
 
@@ -433,10 +469,11 @@ Result<void> Recorder::finish() {
   const hid_t root = f.file;
   const bool ok = write_attr(root, "samples", H5T_NATIVE_UINT64, n_samples_) &&
                   write_attr(root, "frames", H5T_NATIVE_UINT64, n_frames_) &&
+                  write_attr(root, "events", H5T_NATIVE_UINT64, n_events_) &&
                   write_attr(root, "samples_lost", H5T_NATIVE_UINT64, lost_) && write_attr(root, "gaps", H5T_NATIVE_UINT64, gaps_) &&
                   write_attr(root, "complete", H5T_NATIVE_UINT32, std::uint32_t{1});
   if (!ok && error_.empty()) error_ = fail(path_, "cannot write the recording's final counts").message;
-  f.samples.reset(), f.frames.reset(), f.sample_type.reset(), f.frame_type.reset();
+  f.samples.reset(), f.frames.reset(), f.events.reset(), f.sample_type.reset(), f.frame_type.reset(), f.event_type.reset();
   f.file.reset();
   return error_.empty() ? Result<void>::success() : Error{ErrorCode::kSystem, error_};
 }
@@ -446,6 +483,7 @@ Result<void> write_recording(const std::string& path, const Recording& r) {
   if (!rec.ok()) return rec.error();
   rec.value()->add_samples(r.samples);
   for (const FrameRecord& f : r.frames) rec.value()->add_frame(f);
+  for (const SceneEvent& e : r.events) rec.value()->add_event(e);
   return rec.value()->finish();
 }
 
@@ -470,7 +508,7 @@ Result<Recording> read_recording(const std::string& path) {
   if (!read_attr(file, "complete", H5T_NATIVE_UINT32, complete) || complete != 1)
     return Error{ErrorCode::kInvalid, path + ": the recording was not finished (attribute complete is missing): the "
                                              "recorder stopped before closing it"};
-  std::uint64_t n_samples = 0, n_frames = 0;
+  std::uint64_t n_samples = 0, n_frames = 0, n_events = 0;
   const char* missing = nullptr;
   const auto need = [&](bool ok, const char* name) {
     if (!ok && missing == nullptr) missing = name;
@@ -486,6 +524,7 @@ Result<Recording> read_recording(const std::string& path) {
   need(read_attr(file, "scene_hash_every", H5T_NATIVE_UINT32, r.scene_hash_every), "scene_hash_every");
   need(read_attr(file, "samples", H5T_NATIVE_UINT64, n_samples), "samples");
   need(read_attr(file, "frames", H5T_NATIVE_UINT64, n_frames), "frames");
+  need(read_attr(file, "events", H5T_NATIVE_UINT64, n_events), "events");
   need(read_attr(file, "samples_lost", H5T_NATIVE_UINT64, r.samples_lost), "samples_lost");
   need(read_attr(file, "gaps", H5T_NATIVE_UINT64, r.gaps), "gaps");
   need(read_string_attr(file, "tissue", r.tissue), "tissue");
@@ -500,13 +539,15 @@ Result<Recording> read_recording(const std::string& path) {
   if (!read_bytes(file, "/meta/first_patch", &r.first_patch, sizeof r.first_patch))
     return fail(path, "/meta/first_patch: missing, or not " + std::to_string(sizeof r.first_patch) + " bytes (recorded by another layout)");
   std::string why;
-  const Handle st = sample_type(), ft = frame_type();
-  if (!read_table(file, "/servo/samples", st, r.samples, why) || !read_table(file, "/viz/frames", ft, r.frames, why))
+  const Handle st = sample_type(), ft = frame_type(), et = event_type();
+  if (!read_table(file, "/servo/samples", st, r.samples, why) || !read_table(file, "/viz/frames", ft, r.frames, why) ||
+      !read_table(file, "/viz/events", et, r.events, why))
     return fail(path, why);
-  if (r.samples.size() != n_samples || r.frames.size() != n_frames)
+  if (r.samples.size() != n_samples || r.frames.size() != n_frames || r.events.size() != n_events)
     return Error{ErrorCode::kInvalid, path + ": /servo/samples has " + std::to_string(r.samples.size()) + " rows and /viz/frames " +
-                                          std::to_string(r.frames.size()) + ", the root attributes say " + std::to_string(n_samples) +
-                                          " and " + std::to_string(n_frames)};
+                                          std::to_string(r.frames.size()) + " and /viz/events " + std::to_string(r.events.size()) +
+                                          ", the root attributes say " + std::to_string(n_samples) + ", " + std::to_string(n_frames) +
+                                          " and " + std::to_string(n_events)};
   return r;
 }
 

@@ -10,6 +10,8 @@
 //   /servo/samples    one compound row per servo tick (the ToolSample's fields by name; array
 //                     fields such as q[8] and tool_position[3] as HDF5 arrays); attribute "units"
 //   /viz/frames       one compound row per visualizer frame (FrameRecord); attribute "units"
+//   /viz/events       one compound row per tissue event (SceneEvent: blood sources, a vessel
+//                     stopped, a structure reached, bone drilled); attribute "units"
 //
 // The rows are chunked (1024 samples, 256 frames) and deflated; the Recorder appends them from its
 // own thread, so whoever records (lancet-viz's frame loop) only copies rows into a queue.
@@ -43,6 +45,8 @@ class Recorder {
   void add_samples(std::span<const ToolSample> samples);
   /// Queues one frame.
   void add_frame(const FrameRecord& frame);
+  /// Queues a tissue event.
+  void add_event(const SceneEvent& event);
   /// Writes what is queued, the final counts and complete = 1, and closes the file. Idempotent;
   /// the destructor calls it.
   Result<void> finish();
@@ -57,7 +61,7 @@ class Recorder {
   struct File;
   Recorder(std::string path, std::unique_ptr<File> file);
   void run();
-  Result<void> flush_pending(std::vector<ToolSample>& samples, std::vector<FrameRecord>& frames);
+  Result<void> flush_pending(std::vector<ToolSample>& samples, std::vector<FrameRecord>& frames, std::vector<SceneEvent>& events);
 
   std::string path_;
   std::unique_ptr<File> file_;
@@ -65,6 +69,8 @@ class Recorder {
   std::condition_variable wake_;
   std::vector<ToolSample> samples_;  // queued, not yet written
   std::vector<FrameRecord> frames_;
+  std::vector<SceneEvent> events_;
+  std::uint64_t n_events_ = 0;
   std::uint64_t n_samples_ = 0, n_frames_ = 0, lost_ = 0, gaps_ = 0, last_seq_ = 0;
   bool stop_ = false, finished_ = false;
   std::string error_;  // the writer thread's first error

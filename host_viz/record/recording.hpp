@@ -51,6 +51,24 @@ struct FrameRecord {
   std::uint64_t scene_hash = 0;    ///< the scene's hash after this frame (0: not taken this frame)
 };
 
+/// What happened to the tissue in a frame, beyond the servo's own events (which its samples carry:
+/// rupture, cut progress, grab, pull, release, drill removal).
+struct SceneEvent {
+  enum Kind : std::uint32_t {
+    kBloodSource = 1,     ///< a blood source began (index: its number; value: mL/s; name: what it is)
+    kBleedingStopped = 2, ///< a vessel stopped bleeding, pressed long enough (index: the source)
+    kStructureReached = 3,///< a protected structure was reached (index: the scenario's avoid entry)
+    kBoneDrilled = 4,     ///< bone removed by the drill this frame (value: mm³; position: the last removal)
+  };
+  std::uint64_t frame = 0;    ///< FrameRecord::frame it happened in
+  std::int64_t t_ns = 0;      ///< that frame's time
+  std::uint32_t kind = 0;     ///< Kind
+  std::uint32_t index = 0;
+  Vec3 position{};            ///< m
+  double value = 0;
+  char name[48] = {};         ///< NUL-terminated, truncated
+};
+
 /// A whole session.
 struct Recording {
   // Provenance.
@@ -78,6 +96,7 @@ struct Recording {
   // Data.
   std::vector<ToolSample> samples;  ///< every tick, seq consecutive (gaps: see samples_lost)
   std::vector<FrameRecord> frames;  ///< every frame, in order
+  std::vector<SceneEvent> events;   ///< the tissue's events, in order
   // What the recorder saw go wrong (0 for a complete recording).
   std::uint64_t samples_lost = 0;   ///< ticks missing from `samples` (the sample ring overflowed)
   std::uint64_t gaps = 0;           ///< places where seq jumped

@@ -2,6 +2,7 @@
 
 #include <bit>
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 
 #include "lancet/shared_model/shared_state.hpp"
@@ -61,6 +62,8 @@ Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
 
 void SceneSim::apply(std::span<const ToolSample> samples) {
   if (samples.empty()) return;
+  for (const ToolSample& t : samples)
+    if ((t.events & event::kDrillRemove) != 0) last_removal_ = t.payload.position;
   (void)scene_->apply(samples);
   if (task_) (void)task_->update(*scene_, samples);
   if (bleeding_) bleeding_->observe(samples);
@@ -90,6 +93,40 @@ void SceneSim::figures(FrameRecord& f) const {
     f.blood_lost_ml = b.lost_ml;
     f.blood_on_tissue_ml = b.on_tissue_ml;
     f.blood_swabbed_ml = b.swabbed_ml;
+  }
+}
+
+void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<SceneEvent>& out) {
+  const auto make = [&](std::uint32_t kind, std::uint32_t index, Vec3 at, double value, const std::string& name) {
+    SceneEvent e;
+    e.frame = frame, e.t_ns = t_ns, e.kind = kind, e.index = index, e.position = at, e.value = value;
+    std::snprintf(e.name, sizeof e.name, "%s", name.c_str());
+    out.push_back(e);
+  };
+  if (bleeding_) {
+    const auto& sources = bleeding_->sources();
+    for (std::size_t i = sources_seen_; i < sources.size(); ++i)
+      make(SceneEvent::kBloodSource, static_cast<std::uint32_t>(i), sources[i].position, sources[i].rate_ml_s, sources[i].name);
+    sources_seen_ = std::max(sources_seen_, sources.size());
+    stopped_seen_.resize(sources.size(), false);
+    for (std::size_t i = 0; i < sources.size(); ++i) {
+      if (sources[i].stopped && !stopped_seen_[i]) make(SceneEvent::kBleedingStopped, static_cast<std::uint32_t>(i), sources[i].position, 0, sources[i].name);
+      stopped_seen_[i] = sources[i].stopped;
+    }
+  }
+  if (task_ && scenario_) {
+    const std::vector<bool>& d = task_->status().damaged_flags;
+    damaged_seen_.resize(d.size(), false);
+    for (std::size_t i = 0; i < d.size(); ++i) {
+      if (d[i] && !damaged_seen_[i]) make(SceneEvent::kStructureReached, static_cast<std::uint32_t>(i), {}, 0, scenario_->avoid[i].name);
+      damaged_seen_[i] = d[i];
+    }
+  }
+  const std::uint64_t voxels = scene_->events().voxels_drilled;
+  if (voxels > voxels_seen_) {
+    const Vec3 sp = scene_->volume().spacing;
+    make(SceneEvent::kBoneDrilled, 0, last_removal_, static_cast<double>(voxels - voxels_seen_) * sp.x * sp.y * sp.z * 1e9, "bone");
+    voxels_seen_ = voxels;
   }
 }
 

@@ -55,6 +55,9 @@ class SceneSim {
   void advance_blood(double dt);
   /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
   void figures(FrameRecord& f) const;
+  /// The tissue's events since the last call, appended to `out` (blood sources that began, vessels
+  /// that stopped, structures reached, bone drilled), stamped with `frame` and `t_ns`.
+  void take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<SceneEvent>& out);
   /// A hash of the drawn surface, the blood on it and the task's figures (never 0).
   [[nodiscard]] std::uint64_t hash() const;
 
@@ -71,6 +74,11 @@ class SceneSim {
   std::unique_ptr<hybrid::TissueScene> scene_;
   std::unique_ptr<hybrid::Bleeding> bleeding_;
   std::optional<hybrid::TaskMonitor> task_;
+  // What take_events has reported.
+  std::size_t sources_seen_ = 0;
+  std::vector<bool> stopped_seen_, damaged_seen_;
+  std::uint64_t voxels_seen_ = 0;
+  Vec3 last_removal_{};
 };
 
 /// What the replay found so far.

@@ -59,6 +59,13 @@ Recording sample_recording() {
     f.scene_hash = k % 30 == 0 ? 77 + k : 0;
     r.frames.push_back(f);
   }
+  SceneEvent e;
+  e.frame = 40, e.t_ns = 123, e.kind = SceneEvent::kBloodSource, e.index = 2, e.position = {0.01, 0.02, 0.03}, e.value = 0.5;
+  std::snprintf(e.name, sizeof e.name, "superficial vein");
+  r.events.push_back(e);
+  e.kind = SceneEvent::kStructureReached, e.index = 0;
+  std::snprintf(e.name, sizeof e.name, "radial artery");
+  r.events.push_back(e);
   return r;
 }
 
@@ -101,6 +108,11 @@ TEST(Hdf5Io, ARecordingReadsBackBitIdentical) {
     ASSERT_EQ(b.frames[k].blood_lost_ml, r.frames[k].blood_lost_ml);
     ASSERT_EQ(b.frames[k].scene_hash, r.frames[k].scene_hash);
   }
+  ASSERT_EQ(b.events.size(), 2u);
+  EXPECT_EQ(b.events[0].kind, SceneEvent::kBloodSource);
+  EXPECT_EQ(b.events[0].position, (Vec3{0.01, 0.02, 0.03}));
+  EXPECT_STREQ(b.events[0].name, "superficial vein");
+  EXPECT_STREQ(b.events[1].name, "radial artery");
   EXPECT_EQ(b.samples_lost, 0u);
   std::filesystem::remove(path);
 }
