@@ -10,15 +10,16 @@ namespace lancet::servo {
 
 namespace {
 
-// A session starts afresh (kReset): everything but the tick count.
+// A session starts afresh (kReset): everything but the tick count and the tool in hand.
 void reset(ServoData& d) noexcept {
-  const std::uint64_t tick = d.tick, resets = d.resets + 1;
+  const std::uint64_t tick = d.tick;
+  const ToolMode mode = d.mode;
   d = ServoData{};
   d.tick = tick;
-  d.resets = resets;
+  d.mode = mode;
 }
 
-void apply_commands(ServoData& d, const ServoInput& in, bool& rearm) noexcept {
+void apply_commands(ServoData& d, const ServoInput& in, bool& rearm, std::uint8_t& reset_mode) noexcept {
   for (const std::uint8_t c : in.commands) {
     ++d.commands_applied;
     const auto kind = static_cast<CommandKind>(c >> 4);
@@ -27,7 +28,10 @@ void apply_commands(ServoData& d, const ServoInput& in, bool& rearm) noexcept {
       case CommandKind::kSetToolMode:
         if (static_cast<std::size_t>(mode) < kToolCount) d.mode = mode;
         break;
-      case CommandKind::kReset: reset(d); break;
+      case CommandKind::kReset:
+        reset_mode = static_cast<std::uint8_t>(d.mode);
+        reset(d);
+        break;
       case CommandKind::kRearm: rearm = true; break;
       case CommandKind::kSetMaterial:  // materials are the model's: a tick does not change them
       case CommandKind::kNone: break;
@@ -35,8 +39,10 @@ void apply_commands(ServoData& d, const ServoInput& in, bool& rearm) noexcept {
   }
 }
 
-void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& out, std::uint32_t events, ToolSample& s) noexcept {
+void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& out, std::uint32_t events, std::uint8_t reset_mode,
+                 ToolSample& s) noexcept {
   s = ToolSample{};
+  s.reset_mode = reset_mode;
   s.seq = d.tick;
   s.t_ns = in.deadline_ns;
   s.woke_ns = in.woke_ns;
@@ -59,7 +65,7 @@ void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& ou
   s.inputs = (in.viz_alive ? input::kVizAlive : 0u) | (in.watchdog_tripped ? input::kWatchdogTripped : 0u) |
              (in.operator_rearm ? input::kOperatorRearm : 0u) | (in.device_held ? input::kDeviceHeld : 0u) |
              (in.commands_cut ? input::kCommandsCut : 0u);
-  s.n_commands = static_cast<std::uint32_t>(std::min<std::size_t>(in.commands.size(), kSampleCommands));
+  s.n_commands = static_cast<std::uint16_t>(std::min<std::size_t>(in.commands.size(), kSampleCommands));
   for (std::uint32_t i = 0; i < s.n_commands; ++i) s.commands[i] = in.commands[i];
 }
 
@@ -101,7 +107,7 @@ std::uint64_t state_hash(const ServoData& d) noexcept {
   h.word(static_cast<std::uint64_t>(d.jacobian.n));
   for (const Vec3& c : d.jacobian.column) h.v(c);
   h.v(d.force), h.b(d.contact), h.f(d.max_force_seen);
-  h.word(d.contact_ticks), h.word(d.commands_applied), h.word(d.resets), h.word(d.faded_ticks);
+  h.word(d.contact_ticks), h.word(d.commands_applied), h.word(d.faded_ticks);
   h.word(d.watchdog_faulted_ticks), h.word(d.device_error_ticks);
   return h.h != 0 ? h.h : 1;
 }
@@ -109,7 +115,8 @@ std::uint64_t state_hash(const ServoData& d) noexcept {
 void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOutput& out) noexcept {
   ++d.tick;
   out.rearm = in.operator_rearm;
-  apply_commands(d, in, out.rearm);
+  std::uint8_t reset_mode = kNoReset;
+  apply_commands(d, in, out.rearm, reset_mode);
   // A re-arm this tick acts before the force is judged (the watchdog is re-armed with it).
   const bool tripped = in.watchdog_tripped && !out.rearm;
 
@@ -169,7 +176,7 @@ void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOu
   }
 
   // Publish: the tick's sample.
-  fill_sample(d, in, out, events, out.sample);
+  fill_sample(d, in, out, events, reset_mode, out.sample);
   if (d.tick % kServoHashEvery == 0) out.sample.state_hash = state_hash(d);
 }
 
@@ -220,7 +227,7 @@ ServoInput input_from_sample(const ToolSample& s) noexcept {
   ServoInput in;
   in.deadline_ns = s.t_ns;
   in.woke_ns = s.woke_ns;
-  in.commands = std::span<const std::uint8_t>(s.commands, std::min<std::size_t>(s.n_commands, kSampleCommands));
+  in.commands = std::span<const std::uint8_t>(s.commands, std::min<std::size_t>(s.n_commands, std::size_t{kSampleCommands}));
   in.commands_cut = (s.inputs & input::kCommandsCut) != 0;
   in.operator_rearm = (s.inputs & input::kOperatorRearm) != 0;
   in.reading.n = static_cast<int>(std::min<std::uint32_t>(s.n_joints, kMaxJoints));

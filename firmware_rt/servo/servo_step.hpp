@@ -14,6 +14,10 @@
 //   publish   the tick's ToolSample (inputs and outputs), with the state hash every
 //             kServoHashEvery ticks
 //
+// A kReset command starts a session: the data becomes a new servo's, but for the tick count and
+// the tool in hand (ToolSample::reset_mode says which), so a replay of a session recorded from
+// its reset starts from ServoData{} with that tool.
+//
 // Everything the step depends on comes in through ServoInput, and nothing else (no clock, no
 // shared memory, no device): lancet-rt's RtServo does the I/O around it, and a recording of the
 // ToolSamples replays it exactly (record/replay.hpp) — the same inputs give bit-identical data.
@@ -87,7 +91,6 @@ struct ServoData {
   double max_force_seen = 0;       ///< N
   std::uint64_t contact_ticks = 0;
   std::uint64_t commands_applied = 0;
-  std::uint64_t resets = 0;        ///< kReset commands applied
   std::uint64_t faded_ticks = 0;   ///< ticks the fade held the force below full
   std::uint64_t watchdog_faulted_ticks = 0;  ///< ticks rendered at zero force by the watchdog
   std::uint64_t device_error_ticks = 0;      ///< ticks at zero force because the device could not be read

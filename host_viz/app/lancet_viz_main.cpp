@@ -408,11 +408,7 @@ int main(int argc, char** argv) {
     if (rec == Rec::kWaitingReset) {
       // Until the servo has applied the reset, what it sends belongs to no session.
       std::size_t i = 0;
-      const auto is_reset = [](const lancet::ToolSample& t) {
-        for (std::uint32_t c = 0; c < t.n_commands && c < lancet::kSampleCommands; ++c)
-          if ((t.commands[c] >> 4) == static_cast<unsigned>(lancet::CommandKind::kReset)) return true;
-        return false;
-      };
+      const auto is_reset = [](const lancet::ToolSample& t) { return t.reset_mode != lancet::kNoReset; };
       while (i < frame_batch.size() && !is_reset(frame_batch[i])) ++i;
       use = use.subspan(i);
       if (!use.empty()) {
@@ -546,8 +542,7 @@ int main(int argc, char** argv) {
         lancet::Command c{};
         c.kind = lancet::CommandKind::kReset;
         if (session.send(c, now)) {
-          rec = Rec::kWaitingReset;
-          tool_sent_for = 0;  // the reset picked the probe: send the tool again
+          rec = Rec::kWaitingReset;  // (the reset keeps the tool in hand)
           frame_batch.clear();
         }
       }

@@ -98,7 +98,8 @@ Handle sample_type() {
   H5Tinsert(t, "payload_position", offsetof(ToolSample, payload) + offsetof(EventPayload, position), v3);
   H5Tinsert(t, "payload_magnitude", offsetof(ToolSample, payload) + offsetof(EventPayload, magnitude), H5T_NATIVE_DOUBLE);
   H5Tinsert(t, "buttons", offsetof(ToolSample, buttons), H5T_NATIVE_UINT32);
-  H5Tinsert(t, "n_commands", offsetof(ToolSample, n_commands), H5T_NATIVE_UINT32);
+  H5Tinsert(t, "n_commands", offsetof(ToolSample, n_commands), H5T_NATIVE_UINT16);
+  H5Tinsert(t, "reset_mode", offsetof(ToolSample, reset_mode), H5T_NATIVE_UINT8);
   H5Tinsert(t, "commands", offsetof(ToolSample, commands), c16);
   H5Tinsert(t, "state_hash", offsetof(ToolSample, state_hash), H5T_NATIVE_UINT64);
   return t;
@@ -109,7 +110,7 @@ constexpr const char* kSampleUnits =
     "tau: N*m or N; tool_position, proxy_position, payload_position: m (tissue frame, z up); *_orientation: unit "
     "quaternion w, x, y, z; force: N (on the hand); payload_magnitude: m (radius, displacement) or N (rupture force); "
     "mode: 0 probe 1 scalpel 2 retractor 3 drill 4 swab; stage: 0 free 1 deform 2 rupture 3 cutting 4 pulling 5 "
-    "drilling; events, inputs: bit sets (shared_model/messages.hpp event::, input::); commands: kind << 4 | mode; "
+    "drilling; events, inputs: bit sets (shared_model/messages.hpp event::, input::); commands: kind << 4 | mode; reset_mode: the tool kept through the tick's reset (255: none); "
     "state_hash: the servo state's hash every servo_hash_every ticks, else 0";
 
 Handle frame_type() {

@@ -182,8 +182,14 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
   auto sim = SceneSim::create(setup);
   if (!sim.ok()) return Error{sim.error().code, "the recording's scene: " + sim.error().message};
   r->sim_ = std::move(sim).value();
-  // The session began with the servo's reset: a fresh state at the tick before the first.
-  r->data_.tick = rec.samples.front().seq - 1;
+  // The session began with the servo's reset: a fresh state, with the tool it kept, at the tick
+  // before the first.
+  const ToolSample& first = rec.samples.front();
+  if (first.reset_mode == kNoReset || first.reset_mode >= kToolCount)
+    return Error{ErrorCode::kInvalid, "the recording's first tick (" + std::to_string(first.seq) +
+                                          ") is not the servo's reset: it cannot be replayed from a known state"};
+  r->data_.tick = first.seq - 1;
+  r->data_.mode = static_cast<ToolMode>(first.reset_mode);
   if (rec.first_patch_version != 0) r->patches_.emplace_back(rec.first_patch_version, std::make_unique<TissuePatch>(rec.first_patch));
   r->replayed_.reserve(rec.samples.size());
   return r;

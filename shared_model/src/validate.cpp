@@ -141,6 +141,7 @@ const char* check(const ToolSample& s) noexcept {
   if ((s.events & ~kKnownEvents) != 0) return "sample.events: unknown bits";
   if ((s.inputs & ~input::kKnown) != 0) return "sample.inputs: unknown bits";
   if (s.n_commands > kSampleCommands) return "sample.n_commands: above kSampleCommands";
+  if (s.reset_mode != kNoReset && s.reset_mode >= kToolCount) return "sample.reset_mode: unknown tool";
   for (std::uint32_t j = 0; j < s.n_joints; ++j) {
     if (!finite(s.q[j]) || !finite(s.qd[j]) || !finite(s.tau[j])) return "sample.q/qd/tau: not finite";
   }

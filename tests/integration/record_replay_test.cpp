@@ -134,7 +134,7 @@ TEST_F(RecordReplay, TheCtIncisionReplaysBitExactly) {
 
 // A truncated or overwritten file, and a recording of another layout, are refused with the reason.
 TEST_F(RecordReplay, BrokenAndForeignRecordingsAreRefused) {
-  const std::string file = record("skin_incision", "demo_incision.csv", 3);
+  const std::string file = record("skin_incision", "demo_incision.csv", 6);  // long enough to bleed
   const std::string cut = path("cut.h5");
   std::filesystem::copy_file(file, cut);
   std::filesystem::resize_file(cut, std::filesystem::file_size(cut) / 3);
@@ -172,7 +172,8 @@ TEST_F(RecordReplay, BrokenAndForeignRecordingsAreRefused) {
   }
   {
     record::Recording slower = rec.value();
-    for (auto& f : slower.frames) f.blood_dt *= 1.01;
+    ASSERT_GT(slower.frames.back().blood_lost_ml, 0) << "the cut bled";
+    for (auto& f : slower.frames) f.blood_dt *= 1.5;
     auto again = record::Replay::create(slower);
     ASSERT_TRUE(again.ok()) << again.error().message;
     auto ck = again.value()->run();

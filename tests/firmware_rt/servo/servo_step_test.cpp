@@ -120,8 +120,12 @@ TEST(ServoStep, AResetStartsAFreshSession) {
   servo_step(m, used, in, o1);
   servo_step(m, fresh, in, o2);
   EXPECT_EQ(state_hash(used), state_hash(fresh));
-  EXPECT_EQ(used.mode, ToolMode::kProbe) << "the drill picked before the reset is gone with it";
+  EXPECT_EQ(used.mode, ToolMode::kDrill) << "the tool in hand stays through the reset";
+  EXPECT_EQ(o1.sample.reset_mode, static_cast<std::uint8_t>(ToolMode::kDrill));
+  EXPECT_LE(used.contact_ticks, 1u) << "counted afresh from the reset";
   EXPECT_EQ(o1.fade_scale, o2.fade_scale) << "a session's force ramps in afresh";
+  servo_step(m, used, scripted_input(1802, patch.get(), cmds), o1);
+  EXPECT_EQ(o1.sample.reset_mode, kNoReset);
 }
 
 TEST(ServoStep, NeverAllocates) {

@@ -86,6 +86,9 @@ inline constexpr std::uint32_t kCommandsCut = 1u << 4;      ///< more commands a
 inline constexpr std::uint32_t kKnown = (1u << 5) - 1;
 }  // namespace input
 
+/// ToolSample::reset_mode on a tick without a reset.
+inline constexpr std::uint8_t kNoReset = 0xff;
+
 /// Commands one ToolSample records (a tick applies at most this many).
 inline constexpr std::uint32_t kSampleCommands = 16;
 
@@ -113,7 +116,9 @@ struct ToolSample {
   std::uint32_t inputs;           ///< input:: bits
   EventPayload payload;           ///< see event::
   std::uint32_t buttons;          ///< the device's buttons read (bit i: button i)
-  std::uint32_t n_commands;       ///< valid entries in commands
+  std::uint16_t n_commands;       ///< valid entries in commands
+  std::uint8_t reset_mode;        ///< the tool (ToolMode) kept through this tick's reset; kNoReset: none
+  std::uint8_t reserved2;
   std::uint8_t commands[kSampleCommands];  ///< commands applied this tick, in order: kind << 4 | mode
   std::uint64_t state_hash;       ///< hash of the servo's state after this tick; 0 on ticks it is not taken
 };
@@ -123,7 +128,7 @@ enum class CommandKind : std::uint8_t {
   kNone = 0,
   kSetToolMode = 1,  ///< use Command::mode from now on
   kSetMaterial = 2,  ///< replace material Command::material_id with Command::material
-  kReset = 3,        ///< return to the free stage, clear faults that allow it
+  kReset = 3,        ///< start afresh: the servo's state as a new servo's (stage, proxy, fade, counters); the tool stays
   kRearm = 4,        ///< re-arm a tripped watchdog (force stays zero until this arrives)
 };
 

@@ -71,7 +71,7 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(ToolSample, proxy), offsetof(ToolSample, force), offsetof(ToolSample, patch_version),
            offsetof(ToolSample, events), offsetof(ToolSample, payload), sizeof(EventPayload), offsetof(ToolSample, woke_ns),
            offsetof(ToolSample, read_status), offsetof(ToolSample, write_status), offsetof(ToolSample, inputs),
-           offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, commands),
+           offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, reset_mode), offsetof(ToolSample, commands),
            offsetof(ToolSample, state_hash), kSampleCommands);
   h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, material_id),
            offsetof(Command, material), sizeof(MaterialParams), offsetof(MaterialParams, yield_force),
