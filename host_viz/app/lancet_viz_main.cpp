@@ -190,7 +190,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
-    lines.push_back({keys + "   V: volume view   R: reset   W: re-arm watchdog   Esc: quit"});
+    lines.push_back({keys + "   V: volume view   R: reset   W: re-arm watchdog   F9: record   Esc: quit"});
   }
   return lines;
 }
