@@ -1,7 +1,8 @@
 #include "servo/servo_step.hpp"
 
+#include "lancet/shared_model/text.hpp"
+
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -69,23 +70,11 @@ void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& ou
   for (std::uint32_t i = 0; i < s.n_commands; ++i) s.commands[i] = in.commands[i];
 }
 
-// The hash: each 64-bit word mixed in (a multiply-xorshift, as in splitmix64).
-struct Hasher {
-  std::uint64_t h = 0x9e3779b97f4a7c15ull;
-  void word(std::uint64_t w) noexcept {
-    h ^= w + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
-    h ^= h >> 31;
-    h *= 0xbf58476d1ce4e5b9ull;
-  }
-  void f(double x) noexcept { word(std::bit_cast<std::uint64_t>(x)); }
-  void v(Vec3 p) noexcept { f(p.x), f(p.y), f(p.z); }
-  void b(bool x) noexcept { word(x ? 1 : 0); }
-};
 
 }  // namespace
 
 std::uint64_t state_hash(const ServoData& d) noexcept {
-  Hasher h;
+  WordHasher h;
   h.word(d.tick), h.word(static_cast<std::uint64_t>(d.mode));
   const haptics::HapticData& hd = d.haptic;
   h.word(static_cast<std::uint64_t>(hd.stage)), h.v(hd.proxy), h.b(hd.initialised), h.b(hd.contact);
@@ -109,7 +98,7 @@ std::uint64_t state_hash(const ServoData& d) noexcept {
   h.v(d.force), h.b(d.contact), h.f(d.max_force_seen);
   h.word(d.contact_ticks), h.word(d.commands_applied), h.word(d.faded_ticks);
   h.word(d.watchdog_faulted_ticks), h.word(d.device_error_ticks);
-  return h.h != 0 ? h.h : 1;
+  return h.value();
 }
 
 void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOutput& out) noexcept {

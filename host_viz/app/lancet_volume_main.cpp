@@ -23,6 +23,7 @@
 
 #include <unistd.h>
 
+#include "lancet/shared_model/text.hpp"
 #include "volume/dicom.hpp"
 #include "volume/marching_cubes.hpp"
 #include "volume/mesh_tools.hpp"
@@ -30,6 +31,8 @@
 #include "volume/nonfinite.hpp"
 #include "volume/nrrd.hpp"
 #include "volume/phantom.hpp"
+
+using lancet::json_string;
 
 namespace {
 
@@ -60,39 +63,6 @@ int fail(const std::string& message) {
 
 // ---- JSON: strings escaped, numbers finite ----------------------------------------------------
 
-// A JSON string literal; bytes that are not UTF-8 (a path may hold any) become U+FFFD.
-std::string json_string(std::string_view s) {
-  std::string out = "\"";
-  for (std::size_t i = 0; i < s.size();) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += static_cast<char>(c);
-      ++i;
-    } else if (c < 0x20 || c == 0x7F) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(c));
-      out += buf;
-      ++i;
-    } else if (c < 0x80) {
-      out += static_cast<char>(c);
-      ++i;
-    } else {
-      // A well-formed UTF-8 sequence is copied; anything else is replaced.
-      const std::size_t n = c >= 0xF0 && c <= 0xF4 ? 4 : c >= 0xE0 ? 3 : c >= 0xC2 && c < 0xE0 ? 2 : 0;
-      bool ok = n != 0 && i + n <= s.size();
-      for (std::size_t k = 1; ok && k < n; ++k) ok = (static_cast<unsigned char>(s[i + k]) & 0xC0) == 0x80;
-      if (ok) {
-        out.append(s.substr(i, n));
-        i += n;
-      } else {
-        out += "\\ufffd";
-        ++i;
-      }
-    }
-  }
-  return out + "\"";
-}
 
 // Builds a flat JSON object; a number that is not finite makes finish() an error instead of
 // writing nan or inf (which are not JSON).

@@ -6,21 +6,12 @@
 #include <cstring>
 
 #include "lancet/shared_model/shared_state.hpp"
+#include "lancet/shared_model/text.hpp"
 
 namespace lancet::record {
 
 namespace {
 
-struct Hasher {
-  std::uint64_t h = 0x243f6a8885a308d3ull;
-  void word(std::uint64_t w) noexcept {
-    h ^= w + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
-    h ^= h >> 31;
-    h *= 0xbf58476d1ce4e5b9ull;
-  }
-  void f(double x) noexcept { word(std::bit_cast<std::uint64_t>(x)); }
-  void f(float x) noexcept { word(std::bit_cast<std::uint32_t>(x)); }
-};
 
 bool same_output(const ToolSample& a, const ToolSample& b) {
   return a.seq == b.seq && a.force == b.force && a.proxy == b.proxy && a.tool == b.tool && a.stage == b.stage &&
@@ -131,7 +122,7 @@ void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<S
 }
 
 std::uint64_t SceneSim::hash() const {
-  Hasher h;
+  WordHasher h(0x243f6a8885a308d3ull);
   surface::TriangleMesh mesh;
   scene_->draw_mesh(mesh);
   h.word(mesh.vertices.size()), h.word(mesh.triangles.size());
@@ -147,7 +138,7 @@ std::uint64_t SceneSim::hash() const {
   const hybrid::SceneEvents& e = scene_->events();
   h.word(e.samples), h.word(e.ruptures), h.word(e.cut_steps), h.word(e.grabs), h.word(e.voxels_drilled);
   if (task_) h.f(task_->status().progress), h.f(task_->status().max_deviation);
-  return h.h != 0 ? h.h : 1;
+  return h.value();
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -3,6 +3,8 @@
 
 #include "record/report.hpp"
 
+#include "lancet/shared_model/text.hpp"
+
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -499,38 +501,6 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
 
 // ---- JSON --------------------------------------------------------------------------------------
 
-// A JSON string; bytes that are not UTF-8 become U+FFFD.
-std::string json_string(std::string_view s) {
-  std::string out = "\"";
-  for (std::size_t i = 0; i < s.size();) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += static_cast<char>(c);
-      ++i;
-    } else if (c < 0x20 || c == 0x7F) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(c));
-      out += buf;
-      ++i;
-    } else if (c < 0x80) {
-      out += static_cast<char>(c);
-      ++i;
-    } else {
-      const std::size_t n = c >= 0xF0 && c <= 0xF4 ? 4 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xC2 && c <= 0xDF ? 2 : 0;
-      bool ok = n != 0 && i + n <= s.size();
-      for (std::size_t k = 1; ok && k < n; ++k) ok = (static_cast<unsigned char>(s[i + k]) & 0xC0) == 0x80;
-      if (ok) {
-        out.append(s.substr(i, n));
-        i += n;
-      } else {
-        out += "\\ufffd";
-        ++i;
-      }
-    }
-  }
-  return out + "\"";
-}
 
 std::string json_number(double v) { return std::isfinite(v) ? fmt("%.12g", v) : "null"; }
 
