@@ -1,7 +1,8 @@
 // lancet-report: the skill metrics of recorded sessions as a self-contained HTML page and JSON.
 //   lancet-report FILE.h5 [FILE2.h5 ...] -o report.html [--json out.json|-]
 // Each FILE is a recording written by lancet-viz (record/hdf5_io.hpp); its metrics are scored
-// against the [score] section of the scenario it was recorded with (the text stored in the file).
+// against the [score] section of the scenario it was recorded with (the text stored in the file),
+// or of the scenario file given with --scenario (bands recalibrated since).
 // Several files give one page with a comparison table. A one-line verdict per file goes to stdout
 // (stderr when the JSON goes to stdout).
 // Exit status: 0 done, 2 bad arguments, a file that cannot be read, or an output that cannot be written.
@@ -47,6 +48,7 @@ struct Args {
   std::vector<std::string> files;
   std::string html;
   std::string json;
+  std::string scenario;  ///< --scenario: score against this file's [score] instead of the recorded one
 };
 
 int run(int argc, char** argv) {
@@ -55,6 +57,9 @@ int run(int argc, char** argv) {
   app.add_option("files", a.files, "recordings (.h5) written by lancet-viz")->required();
   app.add_option("-o,--output", a.html, "the HTML report to write");
   app.add_option("--json", a.json, "also write the metrics as JSON to this file ('-': stdout)");
+  app.add_option("--scenario", a.scenario,
+                 "score against this scenario file (its task and its [score] bands, e.g. recalibrated ones) instead of the "
+                 "scenario each recording holds; its name must match the recording's");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -62,6 +67,13 @@ int run(int argc, char** argv) {
     return code == 0 ? 0 : 2;
   }
   if (a.html.empty() && a.json.empty()) return fail("nothing to write: give -o report.html and/or --json out.json|-");
+
+  std::optional<scenario::Scenario> override_scenario;
+  if (!a.scenario.empty()) {
+    auto s = scenario::load_scenario(a.scenario);
+    if (!s.ok()) return fail(s.error().message);
+    override_scenario = std::move(s.value());
+  }
 
   // Everything is read before anything is written: a bad file leaves no half report behind.
   std::vector<Recording> recordings;
@@ -77,6 +89,13 @@ int run(int argc, char** argv) {
     }
     recordings.push_back(std::move(r.value()));
     const Recording& rec = recordings.back();
+    if (override_scenario) {
+      if (override_scenario->name != rec.scenario_name)
+        return fail(path + ": recorded on scenario \"" + rec.scenario_name + "\", not on --scenario's \"" + override_scenario->name + "\"");
+      scenarios[i] = override_scenario;
+      notes[i] = "scored against " + a.scenario + " (--scenario), not the scenario recorded with it";
+      continue;
+    }
     if (rec.scenario_toml.empty()) continue;
     // The scenario as recorded; one this build cannot read is reported without bands.
     auto s = scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);

@@ -110,6 +110,18 @@ TEST_F(RecordReplay, TheDemoIncisionReplaysBitExactly) {
   const auto rs = report.wait_exit(60s);
   ASSERT_TRUE(rs.has_value() && WIFEXITED(*rs) && WEXITSTATUS(*rs) == 0) << read_file(path("report.log"));
   EXPECT_NE(read_file(path("report.html")).find("<svg"), std::string::npos);
+  // Scored again against a scenario file (bands recalibrated since), but only the same scenario.
+  Child again({kReport, file, "--scenario", kSrc + "/host_viz/scenarios/skin_incision.toml", "--json", path("again.json")},
+              path("again.log"));
+  const auto as = again.wait_exit(60s);
+  ASSERT_TRUE(as.has_value() && WIFEXITED(*as) && WEXITSTATUS(*as) == 0) << read_file(path("again.log"));
+  EXPECT_NE(read_file(path("again.json")).find("(--scenario)"), std::string::npos) << read_file(path("again.json"));
+  Child other({kReport, file, "--scenario", kSrc + "/host_viz/scenarios/bone_drilling.toml", "--json", path("other.json")},
+              path("other.log"));
+  const auto os = other.wait_exit(60s);
+  ASSERT_TRUE(os.has_value() && WIFEXITED(*os));
+  EXPECT_EQ(WEXITSTATUS(*os), 2);
+  EXPECT_NE(read_file(path("other.log")).find("bone-drilling"), std::string::npos) << read_file(path("other.log"));
   EXPECT_TRUE(json_number(read_file(path("report.json")), "blood_loss_ml").has_value() ||
               read_file(path("report.json")).find("\"blood_loss_ml\"") != std::string::npos);
 }
