@@ -1,5 +1,7 @@
 #include "surface/surface_model.hpp"
 
+#include "volume/halfedge_build.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -51,7 +53,17 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   m->material_.assign(triangles.size(), 0);
   if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
   m->handle_.resize(triangles.size());
-  for (std::size_t f = 0; f < triangles.size(); ++f) {
+  // The connectivity at once (volume/halfedge_build.hpp); what is not a manifold goes face by face
+  // below, where add_face names the first triangle that does not fit.
+  std::vector<VH> handles(positions.size());
+  for (std::size_t i = 0; i < positions.size(); ++i) handles[i] = VH(static_cast<int>(i));
+  const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles);
+  for (std::size_t f = 0; built && f < triangles.size(); ++f) {
+    const FH fh(static_cast<int>(f));
+    mesh.property(m->stable_, fh) = static_cast<std::uint32_t>(f);
+    m->handle_[f] = fh;
+  }
+  for (std::size_t f = 0; !built && f < triangles.size(); ++f) {
     const auto& t = triangles[f];
     if (t[0] >= positions.size() || t[1] >= positions.size() || t[2] >= positions.size())
       return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " names a vertex past the " + std::to_string(positions.size()) +

@@ -1,5 +1,7 @@
 #include "volume/marching_cubes.hpp"
 
+#include "volume/halfedge_build.hpp"
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -600,6 +602,14 @@ std::size_t fill_openmesh(const IsoSurface& surface, IsoMesh& mesh) {
     if (!surface.normals.empty()) mesh.set_normal(vh[v], IsoMesh::Normal(surface.normals[v].x, surface.normals[v].y, surface.normals[v].z));
     mesh.set_material(vh[v], surface.material[v]);
     mesh.set_edge_key(vh[v], surface.edge_key[v]);
+  }
+  // The connectivity at once (volume/halfedge_build.hpp); a surface that is not a manifold (it
+  // cannot be, from our extractor, but an IsoSurface may come from elsewhere) goes face by face,
+  // with add_face refusing what does not fit.
+  if (build_triangle_mesh(mesh, std::span<const IsoMesh::VertexHandle>(vh),
+                          std::span<const std::array<std::uint32_t, 3>>(surface.triangles))) {
+    for (std::size_t t = 0; t < surface.triangles.size(); ++t) mesh.set_cube(IsoMesh::FaceHandle(static_cast<int>(t)), surface.triangle_cube[t]);
+    return 0;
   }
   std::size_t bad = 0;
   for (std::size_t t = 0; t < surface.triangles.size(); ++t) {

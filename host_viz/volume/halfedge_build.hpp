@@ -1,0 +1,152 @@
+#pragma once
+// build_triangle_mesh: OpenMesh half-edge connectivity for an indexed triangle mesh, built
+// directly instead of one add_face() at a time.
+//
+// add_face() has to find, for every corner, where the new face fits among those already around
+// the vertex (a search of the vertex's one-ring, and a re-linking of its boundary loops), which
+// is most of the cost of turning marching cubes' output into a mesh. But the whole topology is
+// known up front: every edge's two triangles can be paired at once. Here:
+//   1. the 3·T directed edges are bucketed by their lower vertex (a counting sort, O(T)) and each
+//      is paired with its reverse in its bucket; an edge used twice in the same direction, or by
+//      more than two triangles, or a triangle that repeats a vertex, is not a manifold and the
+//      build gives up (the caller then falls back to add_face, which refuses such faces one by
+//      one); so does a vertex whose triangles are not one fan (walked across the paired edges);
+//      all of this before the mesh is touched;
+//   2. one OpenMesh edge per undirected edge, one face per triangle in input order, the three
+//      half-edges of each face linked next → next;
+//   3. the boundary half-edges (edges with one triangle) are linked around each hole: the one that
+//      ends at vertex v is followed by the one that leaves v (one per vertex: one fan);
+//   4. each vertex's outgoing half-edge is its boundary one when it has one (OpenMesh's rule).
+// The result equals what add_face gives face for face (same faces, in the same order, with the
+// same vertex cycles, the same one-rings in the same cyclic order); only the numbering of edges
+// differs. Allocates O(T) scratch; not real-time.
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace lancet::volume {
+
+/// Appends the triangles to `mesh` (an OpenMesh mesh with those vertices already added, and no
+/// faces yet): `vertices[i]` is the handle of index i. Returns false, leaving the mesh without
+/// faces, when the triangles are not an oriented 2-manifold (with boundary); then use add_face.
+template <class Mesh>
+bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle> vertices,
+                         std::span<const std::array<std::uint32_t, 3>> triangles) {
+  using HH = typename Mesh::HalfedgeHandle;
+  using FH = typename Mesh::FaceHandle;
+  using VH = typename Mesh::VertexHandle;
+  const std::size_t nv = vertices.size(), nt = triangles.size();
+  if (mesh.n_faces() != 0) return false;
+  // 1. Bucket the directed edges (corner k of triangle t: from t[k] to t[k+1]) by lower vertex.
+  std::vector<std::uint32_t> start(nv + 1, 0);
+  for (const auto& t : triangles) {
+    for (int k = 0; k < 3; ++k) {
+      const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
+      if (a >= nv || b >= nv || a == b) return false;
+      ++start[std::min(a, b) + 1];
+    }
+  }
+  for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<std::uint32_t> bucket(3 * nt), fill(start.begin(), start.end() - 1);
+  for (std::size_t t = 0; t < nt; ++t)
+    for (std::uint32_t k = 0; k < 3; ++k) {
+      const auto& tri = triangles[t];
+      const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
+      bucket[fill[std::min(a, b)]++] = static_cast<std::uint32_t>(3 * t + k);
+    }
+  const auto from = [&](std::uint32_t c) { return triangles[c / 3][c % 3]; };
+  const auto to = [&](std::uint32_t c) { return triangles[c / 3][(c % 3 + 1) % 3]; };
+  // Pair each directed edge with its reverse: partner[c] (or none).
+  constexpr std::uint32_t kNone = 0xffffffffu;
+  std::vector<std::uint32_t> partner(3 * nt, kNone);
+  for (std::size_t v = 0; v < nv; ++v) {
+    for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
+      const std::uint32_t c = bucket[i];
+      const std::uint32_t hi = std::max(from(c), to(c));
+      for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
+        const std::uint32_t d = bucket[j];
+        if (std::max(from(d), to(d)) != hi) continue;
+        if (from(d) == from(c)) return false;                        // the same direction twice: not oriented
+        if (partner[c] != kNone || partner[d] != kNone) return false;  // a third triangle on the edge
+        partner[c] = d;
+        partner[d] = c;
+      }
+    }
+  }
+  // A manifold vertex's triangles form one fan: walking from one of its corners across shared
+  // edges (both ways until a boundary) visits all of them. Two fans meeting at a vertex do not.
+  {
+    const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
+    const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
+    std::vector<std::uint32_t> count(nv, 0), first(nv, kNone);
+    for (std::uint32_t c = 0; c < 3 * nt; ++c) {
+      ++count[from(c)];
+      if (first[from(c)] == kNone) first[from(c)] = c;
+    }
+    for (std::size_t v = 0; v < nv; ++v) {
+      if (first[v] == kNone) continue;
+      std::uint32_t seen = 1;
+      // Forward: from the corner leaving v, across the edge arriving at v in its triangle.
+      std::uint32_t c = first[v];
+      bool closed = false;
+      while (true) {
+        const std::uint32_t n = partner[prev(c)];
+        if (n == kNone) break;
+        if (n == first[v]) {
+          closed = true;
+          break;
+        }
+        if (++seen > count[v]) return false;
+        c = n;
+      }
+      if (!closed) {  // backward from the start, across its own edge
+        c = first[v];
+        while (partner[c] != kNone) {
+          c = next(partner[c]);
+          if (++seen > count[v]) return false;
+        }
+      }
+      if (seen != count[v]) return false;
+    }
+  }
+
+  // 2. Edges, faces and their half-edge cycles.
+  std::vector<HH> half(3 * nt);  // corner → its half-edge (from → to)
+  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
+    if (half[c].is_valid()) continue;
+    half[c] = mesh.new_edge(vertices[from(c)], vertices[to(c)]);
+    if (partner[c] != kNone) half[partner[c]] = mesh.opposite_halfedge_handle(half[c]);
+  }
+  for (std::size_t t = 0; t < nt; ++t) {
+    const FH f = mesh.new_face();
+    const HH h0 = half[3 * t], h1 = half[3 * t + 1], h2 = half[3 * t + 2];
+    mesh.set_halfedge_handle(f, h0);
+    for (const HH h : {h0, h1, h2}) mesh.set_face_handle(h, f);
+    mesh.set_next_halfedge_handle(h0, h1);
+    mesh.set_next_halfedge_handle(h1, h2);
+    mesh.set_next_halfedge_handle(h2, h0);
+    // Every vertex gets some outgoing half-edge; 4. replaces it by the boundary one where there is one.
+    for (std::uint32_t k = 0; k < 3; ++k) mesh.set_halfedge_handle(vertices[triangles[t][k]], half[3 * t + k]);
+  }
+  // 3. Boundary loops: the boundary half-edge of corner c runs to → from; the one leaving each
+  // vertex is unique on a manifold.
+  std::vector<HH> boundary_out(nv);
+  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
+    if (partner[c] != kNone) continue;
+    const HH b = mesh.opposite_halfedge_handle(half[c]);
+    boundary_out[to(c)] = b;  // b leaves to(c); one per vertex (the fan check above)
+  }
+  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
+    if (partner[c] != kNone) continue;
+    const HH b = mesh.opposite_halfedge_handle(half[c]);  // runs to(c) → from(c)
+    mesh.set_next_halfedge_handle(b, boundary_out[from(c)]);
+  }
+  // 4. Boundary vertices start their one-ring at the boundary.
+  for (std::size_t v = 0; v < nv; ++v)
+    if (boundary_out[v].is_valid()) mesh.set_halfedge_handle(VH(vertices[v]), boundary_out[v]);
+  return true;
+}
+
+}  // namespace lancet::volume
