@@ -11,14 +11,19 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <thread>
 
@@ -45,6 +50,14 @@ extern "C" void on_signal(int sig) {
 
 /// SIGINT, SIGTERM and SIGHUP end lancet-rt: without SA_RESTART, so a blocking call in the main
 /// thread returns at once.
+// A whole file's text ("" when it cannot be read).
+std::string read_text_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  return in ? text.str() : std::string();
+}
+
 void install_signal_handlers() {
   struct sigaction sa {};
   sa.sa_handler = on_signal;
@@ -335,6 +348,17 @@ int main(int argc, char** argv) {
                  arm->joint_count(), lancet::device::to_string(arm->state()));
   }
   lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get());  // after mlockall: locked too
+  if (!config_path.empty()) {
+    // The arm's files as they were read, for whoever records the session.
+    std::string text = read_text_file(config_path);
+    const std::string cal = lancet::arm::calibration_path(config_path);
+    if (std::filesystem::exists(cal)) text += "\n# --- calibration: " + cal + " ---\n" + read_text_file(cal);
+    auto blob = std::make_unique<lancet::ArmConfigText>();
+    blob->truncated = text.size() > lancet::kArmConfigCapacity ? 1u : 0u;
+    blob->size = static_cast<std::uint32_t>(std::min<std::size_t>(text.size(), lancet::kArmConfigCapacity));
+    std::memcpy(blob->text, text.data(), blob->size);
+    shared.arm_config.write(*blob);
+  }
   lancet::rt::RtLoop loop(loop_params);
   std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {

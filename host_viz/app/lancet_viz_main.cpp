@@ -429,6 +429,7 @@ int main(int argc, char** argv) {
         meta.servo_hash_every = static_cast<std::uint32_t>(lancet::servo::kServoHashEvery);
         meta.scene_hash_every = lancet::record::kSceneHashEvery;
         (void)session.read_servo_model(meta.servo_model);
+        meta.arm_config = session.read_arm_config();
         meta.period_ns = session.rt_status() ? session.rt_status()->period_ns : 1'000'000;
         meta.first_patch = session.patch();  // the one the servo may still use: published before this frame
         meta.first_patch_version = session.patch_version();

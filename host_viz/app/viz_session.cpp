@@ -132,6 +132,20 @@ bool VizSession::read_servo_model(ServoModelBlob& out) {
   return channel_->state().servo_model.try_read(out, 100) == ReadStatus::kOk;
 }
 
+std::string VizSession::read_arm_config() {
+  if (!channel_) return {};
+  auto blob = std::make_unique<ArmConfigText>();
+  if (channel_->state().arm_config.try_read(*blob, 100) != ReadStatus::kOk) return {};
+  // What the peer wrote is input: its size is bounded, its bytes made printable.
+  std::string text(blob->text, std::min<std::size_t>(blob->size, kArmConfigCapacity));
+  for (char& c : text) {
+    const auto u = static_cast<unsigned char>(c);
+    if (!(u == '\n' || u == '\t' || (u >= 0x20 && u < 0x7f))) c = '?';
+  }
+  if (blob->truncated != 0) text += "\n# (truncated: the file is longer than " + std::to_string(kArmConfigCapacity) + " bytes)\n";
+  return text;
+}
+
 void VizSession::set_stylus_target(bool active, Vec3 position, std::int64_t now_ns) {
   if (!channel_) return;
   StylusTarget t{};

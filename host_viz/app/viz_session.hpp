@@ -65,6 +65,9 @@ class VizSession {
   [[nodiscard]] std::uint64_t patch_version() const noexcept { return patch_version_; }
   /// lancet-rt's servo model (published once at its start); false when not attached or unreadable.
   [[nodiscard]] bool read_servo_model(ServoModelBlob& out);
+  /// The text of lancet-rt's arm configuration ("" for the built-in stylus, or when not attached):
+  /// at most kArmConfigCapacity bytes, bytes other than printable ASCII, tab and newline replaced by '?'.
+  [[nodiscard]] std::string read_arm_config();
   [[nodiscard]] const std::optional<RtStatus>& rt_status() const noexcept { return rt_status_; }
   [[nodiscard]] std::uint32_t connections() const noexcept { return connections_; }
   [[nodiscard]] std::uint32_t rt_losses() const noexcept { return rt_losses_; }

@@ -42,7 +42,7 @@ class RecordReplay : public test::ProcessTest {
 
   /// Records `seconds` of the scenario with lancet-rt replaying `trajectory`; returns the file.
   std::string record(const std::string& scenario, const std::string& trajectory, int seconds,
-                     const std::vector<std::string>& extra = {}) {
+                     const std::vector<std::string>& extra = {}, const std::vector<std::string>& rt_extra = {}) {
     const std::string file = path("session.h5");
     std::vector<std::string> argv{kViz, "--headless", "--shm", shm_, "--width", "320", "--height", "200", "--scenario",
                                   kSrc + "/host_viz/scenarios/" + scenario + ".toml", "--tool", "none", "--duration",
@@ -51,7 +51,9 @@ class RecordReplay : public test::ProcessTest {
     Child viz(argv, path("viz.log"), {"LSAN_OPTIONS=detect_leaks=0"});
     for (int i = 0; i < 900 && read_file(path("viz.log")).find("is lancet-rt running") == std::string::npos; ++i)
       std::this_thread::sleep_for(100ms);
-    Child rt({kRt, "--shm", shm_, "-q", "--trajectory", kSrc + "/docs/examples/" + trajectory}, path("rt.log"));
+    std::vector<std::string> rt_argv{kRt, "--shm", shm_, "-q", "--trajectory", kSrc + "/docs/examples/" + trajectory};
+    rt_argv.insert(rt_argv.end(), rt_extra.begin(), rt_extra.end());
+    Child rt(rt_argv, path("rt.log"));
     const auto vs = viz.wait_exit(120s);
     EXPECT_TRUE(vs.has_value() && WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
     rt.signal(SIGTERM);
@@ -142,6 +144,21 @@ TEST_F(RecordReplay, TheCtIncisionReplaysBitExactly) {
   EXPECT_EQ(rc, 0) << log;
   EXPECT_NE(log.find(": bit-exact"), std::string::npos) << log;
   replay_in_process(file, 4000);
+}
+
+// An arm's session (the simulated PHANToM-style arm: its kinematics, its Device, its torque
+// limits): replays bit-exactly from the model lancet-rt published, and carries the arm's file.
+TEST_F(RecordReplay, AnArmsSessionReplaysBitExactlyAndCarriesItsConfiguration) {
+  const std::string config = kSrc + "/hw_configs/sim_3dof.toml";
+  const std::string file = record("skin_incision", "demo_incision.csv", 5, {}, {"--config", config});
+  replay_in_process(file, 3000);
+  auto rec = record::read_recording(file);
+  ASSERT_TRUE(rec.ok()) << rec.error().message;
+  EXPECT_EQ(rec.value().arm_config.substr(0, 200), read_file(config).substr(0, 200));
+  EXPECT_EQ(rec.value().samples[1000].n_joints, 3u);
+  auto model = servo::model_from_blob(rec.value().servo_model);
+  ASSERT_TRUE(model.ok()) << model.error().message;
+  EXPECT_EQ(model.value().kinematics.model(), arm::KinematicModel::kPhantom);
 }
 
 // A truncated or overwritten file, and a recording of another layout, are refused with the reason.

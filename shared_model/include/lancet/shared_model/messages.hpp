@@ -282,6 +282,17 @@ struct OperatorRequest {
 };
 inline constexpr std::uint32_t kOperatorRearm = 1;
 
+/// Bytes of an arm's configuration file an ArmConfigText carries.
+inline constexpr std::uint32_t kArmConfigCapacity = 16384;
+
+/// lancet-rt → anyone, once at start: the text of the arm's configuration file (and of its
+/// calibration file, appended), for recordings. size 0: the built-in simulated stylus.
+struct ArmConfigText {
+  std::uint32_t size;       ///< valid bytes of text (<= kArmConfigCapacity)
+  std::uint32_t truncated;  ///< 1 when the file was longer than the capacity
+  char text[kArmConfigCapacity];
+};
+
 /// Bytes a ServoModelBlob can carry.
 inline constexpr std::uint32_t kServoModelCapacity = 4096;
 
@@ -312,6 +323,7 @@ LANCET_ASSERT_WIRE_TYPE(BusCounters);
 LANCET_ASSERT_WIRE_TYPE(SegmentHealth);
 LANCET_ASSERT_WIRE_TYPE(OperatorRequest);
 LANCET_ASSERT_WIRE_TYPE(ServoModelBlob);
+LANCET_ASSERT_WIRE_TYPE(ArmConfigText);
 #undef LANCET_ASSERT_WIRE_TYPE
 
 }  // namespace lancet

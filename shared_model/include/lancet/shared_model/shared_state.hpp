@@ -41,6 +41,7 @@ struct SharedState {
   Heartbeat viz_heartbeat;                            ///< written by lancet-viz every frame
   Seqlock<OperatorRequest> operator_request;          ///< lancetctl → rt (one operator at a time)
   Seqlock<ServoModelBlob> servo_model;                ///< rt → anyone, once at start (recordings)
+  Seqlock<ArmConfigText> arm_config;                  ///< rt → anyone, once at start (recordings)
 };
 static_assert(std::is_standard_layout_v<SharedState>);
 
@@ -91,7 +92,8 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
            offsetof(SharedState, rt_status), offsetof(SharedState, rt_heartbeat),
            offsetof(SharedState, viz_heartbeat), offsetof(SharedState, operator_request),
-           offsetof(SharedState, servo_model), sizeof(ServoModelBlob), kServoModelCapacity);
+           offsetof(SharedState, servo_model), sizeof(ServoModelBlob), kServoModelCapacity, offsetof(SharedState, arm_config),
+           sizeof(ArmConfigText), kArmConfigCapacity);
   return h;
 }
 inline constexpr std::uint64_t kSharedLayoutHash = shared_layout_hash();
