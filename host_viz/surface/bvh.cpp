@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <thread>
 #include <utility>
 
 namespace lancet::surface {
@@ -13,6 +14,8 @@ constexpr int kBins = 16;
 // Below this depth build() stops using SAH and splits at the median, which halves the count each
 // level: SAH alone can make a chain as deep as the mesh on adversarial input.
 constexpr std::size_t kMedianDepth = TriangleBvh::kMaxDepth - 40;
+// A mesh this large builds its root's two subtrees on two threads.
+constexpr std::size_t kParallelFaces = 1u << 16;
 // A triangle whose |ab × ac|² is below this fraction of (longest edge)⁴ is treated as its edges.
 constexpr double kDegenerate = 1e-14;
 
@@ -285,7 +288,7 @@ std::optional<SegmentHit> segment_triangle(Vec3f a, Vec3f b, Vec3f p0, Vec3f p1,
 
 // ---------------------------------------------------------------------------------------------
 
-void TriangleBvh::build(const MeshView& m) {
+void TriangleBvh::build(const MeshView& m, bool threads) {
   nodes_.clear();
   parent_.clear();
   depth_ = 0;
@@ -312,116 +315,163 @@ void TriangleBvh::build(const MeshView& m) {
     std::uint32_t node, begin, end;
     std::size_t depth;
   };
-  std::vector<Task> tasks;
   nodes_.reserve(n);
   parent_.reserve(n);
   nodes_.push_back({});
   parent_.push_back(0);
-  tasks.push_back({0, 0, static_cast<std::uint32_t>(n), 1});
 
   struct Bin {
     Box box;
     std::uint32_t count = 0;
   };
-  while (!tasks.empty()) {
-    const Task task = tasks.back();
-    tasks.pop_back();
-    depth_ = std::max(depth_, task.depth);
-    const auto first = refs.begin() + task.begin, last = refs.begin() + task.end;
-    Box box, cbox;
-    for (auto it = first; it != last; ++it) {
-      box.grow(it->box);
-      cbox.grow(it->centroid);
-    }
-    nodes_[task.node].lo = box.lo;
-    nodes_[task.node].hi = box.hi;
-    const std::uint32_t count = task.end - task.begin;
-    if (count <= kMaxLeafFaces) {
-      nodes_[task.node].first = task.begin;
-      nodes_[task.node].count = count;
-      for (std::uint32_t i = task.begin; i < task.end; ++i) {
-        order_[i] = refs[i].face;
-        leaf_of_[refs[i].face] = task.node;
+  // Splits the tasks' nodes until every range is a leaf, depth first (the left child first), each
+  // node's children appended to `nodes` side by side.
+  // (max_tasks > 0: stops once the stack holds that many, for the caller to share them out.)
+  const auto grow = [&](std::vector<Task>& tasks, std::vector<Node>& nodes, std::vector<std::uint32_t>& parents, std::size_t& depth,
+                        std::size_t max_tasks) {
+    while (!tasks.empty() && (max_tasks == 0 || tasks.size() < max_tasks)) {
+      const Task task = tasks.back();
+      tasks.pop_back();
+      depth = std::max(depth, task.depth);
+      const auto first = refs.begin() + task.begin, last = refs.begin() + task.end;
+      Box box, cbox;
+      for (auto it = first; it != last; ++it) {
+        box.grow(it->box);
+        cbox.grow(it->centroid);
       }
-      continue;
-    }
+      nodes[task.node].lo = box.lo;
+      nodes[task.node].hi = box.hi;
+      const std::uint32_t count = task.end - task.begin;
+      if (count <= kMaxLeafFaces) {
+        nodes[task.node].first = task.begin;
+        nodes[task.node].count = count;
+        for (std::uint32_t i = task.begin; i < task.end; ++i) {
+          order_[i] = refs[i].face;
+          leaf_of_[refs[i].face] = task.node;
+        }
+        continue;
+      }
 
-    // Choose the split: the binned SAH over all three axes, or the median deep in the tree or
-    // when every centroid coincides.
-    std::uint32_t mid = task.begin + count / 2;
-    int best_axis = -1;
-    if (task.depth < kMedianDepth) {
-      double lo[3], scale[3];
-      bool live[3];
-      for (int a = 0; a < 3; ++a) {
-        lo[a] = at(cbox.lo, a);
-        const double extent = double{at(cbox.hi, a)} - lo[a];
-        live[a] = extent > 0;
-        scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
-      }
-      const auto bin_of = [&](const Ref& r, int a) {
-        return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
-      };
-      Bin bins[3][kBins];
-      for (auto it = first; it != last; ++it)
+      // Choose the split: the binned SAH over all three axes, or the median deep in the tree or
+      // when every centroid coincides.
+      std::uint32_t mid = task.begin + count / 2;
+      int best_axis = -1;
+      if (task.depth < kMedianDepth) {
+        double lo[3], scale[3];
+        bool live[3];
         for (int a = 0; a < 3; ++a) {
-          Bin& b = bins[a][bin_of(*it, a)];
-          b.box.grow(it->box);
-          ++b.count;
+          lo[a] = at(cbox.lo, a);
+          const double extent = double{at(cbox.hi, a)} - lo[a];
+          live[a] = extent > 0;
+          scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
         }
-      double best_cost = std::numeric_limits<double>::infinity();
-      int best_bin = 0;
-      for (int a = 0; a < 3; ++a) {
-        if (!live[a]) continue;
-        // Sweep: right-hand areas and counts, then left to right.
-        double right_area[kBins];
-        std::uint32_t right_count[kBins];
-        Box acc;
-        std::uint32_t cnt = 0;
-        for (int i = kBins - 1; i > 0; --i) {
-          acc.grow(bins[a][i].box);
-          cnt += bins[a][i].count;
-          right_area[i] = acc.half_area();
-          right_count[i] = cnt;
+        const auto bin_of = [&](const Ref& r, int a) {
+          return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
+        };
+        Bin bins[3][kBins];
+        for (auto it = first; it != last; ++it)
+          for (int a = 0; a < 3; ++a) {
+            Bin& b = bins[a][bin_of(*it, a)];
+            b.box.grow(it->box);
+            ++b.count;
+          }
+        double best_cost = std::numeric_limits<double>::infinity();
+        int best_bin = 0;
+        for (int a = 0; a < 3; ++a) {
+          if (!live[a]) continue;
+          // Sweep: right-hand areas and counts, then left to right.
+          double right_area[kBins];
+          std::uint32_t right_count[kBins];
+          Box acc;
+          std::uint32_t cnt = 0;
+          for (int i = kBins - 1; i > 0; --i) {
+            acc.grow(bins[a][i].box);
+            cnt += bins[a][i].count;
+            right_area[i] = acc.half_area();
+            right_count[i] = cnt;
+          }
+          acc = Box{};
+          cnt = 0;
+          for (int i = 0; i < kBins - 1; ++i) {
+            acc.grow(bins[a][i].box);
+            cnt += bins[a][i].count;
+            if (cnt == 0 || right_count[i + 1] == 0) continue;
+            const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
+            if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
+          }
         }
-        acc = Box{};
-        cnt = 0;
-        for (int i = 0; i < kBins - 1; ++i) {
-          acc.grow(bins[a][i].box);
-          cnt += bins[a][i].count;
-          if (cnt == 0 || right_count[i + 1] == 0) continue;
-          const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
-          if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
+        if (best_axis >= 0) {
+          const auto split = std::partition(first, last, [&](const Ref& r) { return bin_of(r, best_axis) <= best_bin; });
+          mid = static_cast<std::uint32_t>(split - refs.begin());
+          if (mid == task.begin || mid == task.end) best_axis = -1, mid = task.begin + count / 2;  // cannot happen
         }
       }
-      if (best_axis >= 0) {
-        const auto split = std::partition(first, last, [&](const Ref& r) { return bin_of(r, best_axis) <= best_bin; });
-        mid = static_cast<std::uint32_t>(split - refs.begin());
-        if (mid == task.begin || mid == task.end) best_axis = -1, mid = task.begin + count / 2;  // cannot happen
+      if (best_axis < 0) {
+        // Median along the widest centroid axis (any order when all centroids coincide).
+        const double ex = double{cbox.hi.x} - cbox.lo.x, ey = double{cbox.hi.y} - cbox.lo.y,
+                     ez = double{cbox.hi.z} - cbox.lo.z;
+        const int axis = ex >= ey ? (ex >= ez ? 0 : 2) : (ey >= ez ? 1 : 2);
+        std::nth_element(first, refs.begin() + mid, last,
+                         [&](const Ref& a, const Ref& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
       }
-    }
-    if (best_axis < 0) {
-      // Median along the widest centroid axis (any order when all centroids coincide).
-      const double ex = double{cbox.hi.x} - cbox.lo.x, ey = double{cbox.hi.y} - cbox.lo.y,
-                   ez = double{cbox.hi.z} - cbox.lo.z;
-      const int axis = ex >= ey ? (ex >= ez ? 0 : 2) : (ey >= ez ? 1 : 2);
-      std::nth_element(first, refs.begin() + mid, last,
-                       [&](const Ref& a, const Ref& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
-    }
 
-    const auto child = static_cast<std::uint32_t>(nodes_.size());
-    nodes_[task.node].first = child;
-    nodes_[task.node].count = 0;
-    nodes_.push_back({});
-    nodes_.push_back({});
-    parent_.push_back(task.node);
-    parent_.push_back(task.node);
-    tasks.push_back({child + 1, mid, task.end, task.depth + 1});
-    tasks.push_back({child, task.begin, mid, task.depth + 1});
+      const auto child = static_cast<std::uint32_t>(nodes.size());
+      nodes[task.node].first = child;
+      nodes[task.node].count = 0;
+      nodes.push_back({});
+      nodes.push_back({});
+      parents.push_back(task.node);
+      parents.push_back(task.node);
+      tasks.push_back({child + 1, mid, task.end, task.depth + 1});
+      tasks.push_back({child, task.begin, mid, task.depth + 1});
+    }
+  };
+
+  // The root's split here; then, for a large mesh, the right subtree on a second thread into its
+  // own arrays while this one builds the left, spliced in after it with the indices a one-thread
+  // build gives (the left subtree's nodes all come before the right's, but for its root): the
+  // same tree, node for node, whatever the threads do.
+  std::vector<Task> tasks{{0, 0, static_cast<std::uint32_t>(n), 1}};
+  const bool two = threads && n >= kParallelFaces && std::thread::hardware_concurrency() > 1;
+  grow(tasks, nodes_, parent_, depth_, two ? 2 : 0);
+  if (!tasks.empty()) {
+    // tasks = {right child, left child} of the root (the left on top).
+    const Task right = tasks.front();
+    std::vector<Task> right_tasks{{0, right.begin, right.end, right.depth}};
+    std::vector<Node> right_nodes(1);
+    std::vector<std::uint32_t> right_parents(1, 0);
+    std::size_t right_depth = 0;
+    std::thread worker([&] { grow(right_tasks, right_nodes, right_parents, right_depth, 0); });
+    tasks.erase(tasks.begin());
+    grow(tasks, nodes_, parent_, depth_, 0);
+    worker.join();
+    // Local index 0 is the right child (global right.node); local i >= 1 goes after the left's.
+    const auto base = static_cast<std::uint32_t>(nodes_.size());
+    const auto global = [&](std::uint32_t i) { return i == 0 ? right.node : base + i - 1; };
+    nodes_.resize(base + right_nodes.size() - 1);
+    parent_.resize(nodes_.size());
+    for (std::uint32_t i = 0; i < right_nodes.size(); ++i) {
+      Node node = right_nodes[i];
+      if (node.count == 0) node.first = global(node.first);  // internal: its children
+      nodes_[global(i)] = node;
+      if (i > 0) parent_[global(i)] = global(right_parents[i]);
+    }
+    for (std::uint32_t i = right.begin; i < right.end; ++i) leaf_of_[order_[i]] = global(leaf_of_[order_[i]]);
+    depth_ = std::max(depth_, right_depth);
   }
   assert(depth_ <= kMaxDepth && "TriangleBvh::build: tree deeper than the traversal stacks");
   nodes_.shrink_to_fit();
   parent_.shrink_to_fit();
+}
+
+bool TriangleBvh::same_tree(const TriangleBvh& o) const {
+  if (nodes_.size() != o.nodes_.size() || order_ != o.order_ || leaf_of_ != o.leaf_of_ || parent_ != o.parent_ || depth_ != o.depth_)
+    return false;
+  for (std::size_t i = 0; i < nodes_.size(); ++i) {
+    const Node &a = nodes_[i], &b = o.nodes_[i];
+    if (!(a.lo == b.lo) || !(a.hi == b.hi) || a.first != b.first || a.count != b.count) return false;
+  }
+  return true;
 }
 
 void TriangleBvh::refit_leaf(const MeshView& m, Node& node) const {

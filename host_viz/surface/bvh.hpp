@@ -64,7 +64,9 @@ class TriangleBvh {
  public:
   /// Builds the tree over all faces of m (binned SAH, ≤ 4 faces a leaf; tree depth is bounded by
   /// falling back to median splits deep down). An empty mesh gives an empty tree. Allocates.
-  void build(const MeshView& m);
+  /// A mesh of 65 536 faces or more builds its root's two subtrees on two threads (`threads`
+  /// false: one); the tree is the same either way, node for node.
+  void build(const MeshView& m, bool threads = true);
 
   /// Recomputes every box bottom-up from the current positions and face indices. O(#F), no
   /// allocation. Precondition: m has the face count of the last build().
@@ -102,6 +104,8 @@ class TriangleBvh {
   [[nodiscard]] std::size_t face_count() const { return order_.size(); }
   /// Longest root-to-leaf path in nodes (1 for a single leaf, 0 when empty).
   [[nodiscard]] std::size_t depth() const { return depth_; }
+  /// Whether two trees are the same node for node (boxes, children, leaves, face order).
+  [[nodiscard]] bool same_tree(const TriangleBvh& other) const;
 
   /// Deepest tree that build() makes; the queries' fixed traversal stacks are this deep.
   static constexpr std::size_t kMaxDepth = 96;

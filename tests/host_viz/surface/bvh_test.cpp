@@ -439,6 +439,25 @@ TEST(TriangleBvh, QueriesMatchBruteForceOnAGrid) {
   expect_queries_match(bvh, m, 21);
 }
 
+// A large mesh builds its two halves on two threads: the same tree as one thread builds, node for
+// node, and correct (its checks and queries).
+TEST(TriangleBvh, TwoThreadsBuildTheSameTreeAsOne) {
+  const Mesh m = wavy_grid(200);  // 80 000 faces: above the two-thread threshold
+  ASSERT_GE(m.faces.size(), 65536u);
+  TriangleBvh one, two;
+  one.build(m.view(), false);
+  two.build(m.view(), true);
+  EXPECT_TRUE(one.same_tree(two));
+  ASSERT_TRUE(two.check(m.view()));
+  expect_queries_match(two, m, 24);
+  // same_tree can fail: another mesh gives another tree.
+  Mesh moved = m;
+  moved.set(7, add(moved.v(7), {0, 0, 0.01f}));
+  TriangleBvh three;
+  three.build(moved.view(), true);
+  EXPECT_FALSE(one.same_tree(three));
+}
+
 TEST(TriangleBvh, QueriesMatchBruteForceOnATriangleSoup) {
   const Mesh m = soup(3000, 5);
   TriangleBvh bvh;
