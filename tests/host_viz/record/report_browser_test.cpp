@@ -119,13 +119,7 @@ Recording twenty_seconds() {
     s.stage = u < 0.15 || u > 0.85 ? Stage::kFree : Stage::kCutting;
     s.force = Vec3{0.4 * std::sin(13 * t), 0, 3.2 * std::sin(std::numbers::pi * u)};
   });
-  double last_x = -1;
-  for (ToolSample& s : rec.samples) {
-    if (s.stage != Stage::kCutting || s.tool.position.x - last_x < 0.0005) continue;
-    s.events |= event::kCutProgress;
-    s.payload = EventPayload{s.tool.position, 0};
-    last_x = s.tool.position.x;
-  }
+  test::mark_cut_progress(rec);
   rec.frames.resize(2);
   rec.frames.back().blood_lost_ml = 0.9;
   rec.scenario_toml = test::incision_toml("[score.bands]\ntask_time_s = { mean = 12, sd = 3 }\nincision_coverage_pct = { mean = 95, sd = 2 }\n");

@@ -166,13 +166,7 @@ Recording attempt(double seconds) {
     s.stage = u < 0.1 || u > 0.9 ? Stage::kFree : i % 1000 < 50 ? Stage::kRupture : Stage::kCutting;
     s.force = Vec3{0, 0, 4 * std::sin(std::numbers::pi * u) + 0.3 * std::sin(50 * t)};
   });
-  double last_x = -1;
-  for (ToolSample& s : rec.samples) {
-    if (s.stage != Stage::kCutting || s.tool.position.x - last_x < 0.0005) continue;
-    s.events |= event::kCutProgress;
-    s.payload = EventPayload{s.tool.position, 0};
-    last_x = s.tool.position.x;
-  }
+  test::mark_cut_progress(rec);
   rec.frames.resize(3);
   rec.frames.back().damaged = 0b10;
   rec.frames.back().blood_lost_ml = 0.7;

@@ -37,6 +37,18 @@ inline Recording make_recording(std::size_t n, const std::function<void(std::siz
   return r;
 }
 
+/// Marks a kCutProgress event every 0.5 mm of x travel while cutting, as the scalpel's step does
+/// (payload: the tool's position).
+inline void mark_cut_progress(Recording& rec) {
+  double last_x = -1;
+  for (ToolSample& s : rec.samples) {
+    if (s.stage != Stage::kCutting || s.tool.position.x - last_x < 0.0005) continue;
+    s.events |= event::kCutProgress;
+    s.payload = EventPayload{s.tool.position, 0};
+    last_x = s.tool.position.x;
+  }
+}
+
 /// A valid incision scenario: the line from (-15, -12) to (15, -12) mm, tolerance 3 mm, two
 /// structures to avoid; `extra` is appended (a [score] section).
 inline std::string incision_toml(const std::string& extra = {}) {
