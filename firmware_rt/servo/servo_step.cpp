@@ -1,11 +1,11 @@
 #include "servo/servo_step.hpp"
 
-#include "lancet/shared_model/text.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <string>
+
+#include "lancet/shared_model/text.hpp"
 
 namespace lancet::servo {
 

@@ -861,8 +861,8 @@ int main(int argc, char** argv) {
       if (want_record) {  // Record: a fresh scene and the servo's reset; Stop: finish the file
         want_record = false;
         if (rec != Rec::kOff) {
-          stop_recording();
-          if (rec != Rec::kOff) rec = Rec::kOff;
+          stop_recording();  // (armed and waiting for the reset: nothing was written yet)
+          rec = Rec::kOff;
         } else {
           char name[64];
           const std::time_t wall = std::time(nullptr);

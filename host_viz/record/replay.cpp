@@ -159,6 +159,10 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
     return Error{ErrorCode::kInvalid, "the recording lost " + std::to_string(rec.samples_lost) + " servo ticks in " +
                                           std::to_string(rec.gaps) + " gaps: it cannot be replayed exactly"};
   if (rec.samples.empty() || rec.frames.empty()) return Error{ErrorCode::kInvalid, "the recording has no ticks or no frames"};
+  for (const ToolSample& s : rec.samples)
+    if ((s.inputs & input::kCommandsCut) != 0)
+      return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " applied more commands than a sample records (" +
+                                            std::to_string(kSampleCommands) + "): it cannot be replayed exactly"};
   auto model = servo::model_from_blob(rec.servo_model);
   if (!model.ok()) return Error{model.error().code, "the recording's " + model.error().message};
   std::unique_ptr<Replay> r(new Replay());

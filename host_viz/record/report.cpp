@@ -3,8 +3,6 @@
 
 #include "record/report.hpp"
 
-#include "lancet/shared_model/text.hpp"
-
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -12,6 +10,8 @@
 #include <limits>
 #include <set>
 #include <string_view>
+
+#include "lancet/shared_model/text.hpp"
 
 namespace lancet::record {
 
