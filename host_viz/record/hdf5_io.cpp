@@ -170,16 +170,24 @@ constexpr const char* kFrameUnits =
 // ---------------------------------------------------------------------------------------------
 // Attributes and strings.
 
-bool write_string_attr(hid_t obj, const char* name, const std::string& value) {
-  const Handle type{H5Tcopy(H5T_C_S1), H5Tclose};
+// A fixed-length UTF-8 string type that holds `value` (at least one byte: HDF5 has no empty
+// strings), and the bytes to write with it.
+Handle string_type(const std::string& value, std::string& bytes) {
+  Handle type{H5Tcopy(H5T_C_S1), H5Tclose};
   H5Tset_size(type, std::max<std::size_t>(1, value.size()));
   H5Tset_strpad(type, H5T_STR_NULLPAD);
   H5Tset_cset(type, H5T_CSET_UTF8);
+  bytes = value.empty() ? std::string(1, '\0') : value;
+  return type;
+}
+
+bool write_string_attr(hid_t obj, const char* name, const std::string& value) {
+  std::string bytes;
+  const Handle type = string_type(value, bytes);
   const Handle space{H5Screate(H5S_SCALAR), H5Sclose};
   if (H5Aexists(obj, name) > 0) H5Adelete(obj, name);
   const Handle a{H5Acreate2(obj, name, type, space, H5P_DEFAULT, H5P_DEFAULT), H5Aclose};
-  const std::string padded = value.empty() ? std::string(1, '\0') : value;
-  return a.ok() && H5Awrite(a, type, padded.data()) >= 0;
+  return a.ok() && H5Awrite(a, type, bytes.data()) >= 0;
 }
 
 template <class T>
@@ -191,14 +199,11 @@ bool write_attr(hid_t obj, const char* name, hid_t type, T value) {
 }
 
 bool write_string_dataset(hid_t loc, const char* name, const std::string& value) {
-  const Handle type{H5Tcopy(H5T_C_S1), H5Tclose};
-  H5Tset_size(type, std::max<std::size_t>(1, value.size()));
-  H5Tset_strpad(type, H5T_STR_NULLPAD);
-  H5Tset_cset(type, H5T_CSET_UTF8);
+  std::string bytes;
+  const Handle type = string_type(value, bytes);
   const Handle space{H5Screate(H5S_SCALAR), H5Sclose};
   const Handle d{H5Dcreate2(loc, name, type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Dclose};
-  const std::string padded = value.empty() ? std::string(1, '\0') : value;
-  return d.ok() && H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, padded.data()) >= 0;
+  return d.ok() && H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, bytes.data()) >= 0;
 }
 
 // A fixed- or variable-length string from an attribute or a dataset (`read` reads it with a type).

@@ -25,6 +25,14 @@ bool same_output(const ToolSample& a, const ToolSample& b) {
 // ---------------------------------------------------------------------------------------------
 // SceneSim
 
+namespace {
+// mm³ of one voxel of the scene's volume.
+double voxel_mm3(const hybrid::TissueScene& scene) {
+  const Vec3 sp = scene.volume().spacing;
+  return sp.x * sp.y * sp.z * 1e9;
+}
+}  // namespace
+
 Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
   std::unique_ptr<SceneSim> sim(new SceneSim());
   sim->setup_ = setup;
@@ -75,8 +83,7 @@ void SceneSim::figures(FrameRecord& f) const {
     f.damaged = 0;
     for (std::size_t i = 0; i < t.damaged_flags.size() && i < 32; ++i)
       if (t.damaged_flags[i]) f.damaged |= 1u << i;
-    const Vec3 sp = scene_->volume().spacing;
-    f.drilled_mm3 = static_cast<double>(scene_->events().voxels_drilled) * sp.x * sp.y * sp.z * 1e9;
+    f.drilled_mm3 = static_cast<double>(scene_->events().voxels_drilled) * voxel_mm3(*scene_);
     f.drilled_outside_mm3 = std::max(0.0, f.drilled_mm3 - t.window_removed * 1e9);
   }
   if (bleeding_) {
@@ -115,8 +122,7 @@ void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<S
   }
   const std::uint64_t voxels = scene_->events().voxels_drilled;
   if (voxels > voxels_seen_) {
-    const Vec3 sp = scene_->volume().spacing;
-    make(SceneEvent::kBoneDrilled, 0, last_removal_, static_cast<double>(voxels - voxels_seen_) * sp.x * sp.y * sp.z * 1e9, "bone");
+    make(SceneEvent::kBoneDrilled, 0, last_removal_, static_cast<double>(voxels - voxels_seen_) * voxel_mm3(*scene_), "bone");
     voxels_seen_ = voxels;
   }
 }
@@ -228,11 +234,11 @@ Result<bool> Replay::step_frame() {
     o.write_status = s.write_status;
     if (s.write_status != 0) o.events |= event::kFault;
     ++check_.ticks;
-    const bool hash_ok = o.state_hash == s.state_hash;
+    const bool hash_ok = o.state_hash == s.state_hash, output_ok = same_output(o, s);
     if (s.state_hash != 0) ++check_.servo_hashes;
     if (!hash_ok) ++check_.servo_hash_mismatches;
-    if (!same_output(o, s)) ++check_.sample_mismatches;
-    if ((!hash_ok || !same_output(o, s)) && check_.first_bad_seq == 0) check_.first_bad_seq = s.seq;
+    if (!output_ok) ++check_.sample_mismatches;
+    if ((!hash_ok || !output_ok) && check_.first_bad_seq == 0) check_.first_bad_seq = s.seq;
     batch_.push_back(o);
     replayed_.push_back(o);
   }

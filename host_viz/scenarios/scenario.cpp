@@ -869,11 +869,17 @@ Result<Scenario> parse_scenario(std::string_view text, const std::string& source
   return std::move(*sc);
 }
 
-Result<Scenario> load_scenario(const std::string& path) {
+Result<std::string> read_scenario_text(const std::string& path) {
   std::string text;
   ErrorCode code{};
   if (auto why = read_file(path, text, code)) return Error{code, path + ": " + *why};
-  return parse_scenario(text, path);
+  return text;
+}
+
+Result<Scenario> load_scenario(const std::string& path) {
+  auto text = read_scenario_text(path);
+  if (!text.ok()) return text.error();
+  return parse_scenario(text.value(), path);
 }
 
 const ScoreBand* find_band(const Score& score, std::string_view metric) noexcept {

@@ -159,8 +159,10 @@ struct Scenario {
 /// TOML syntax error: ...", the only line, as the parse stops there). A relative tissue.path is
 /// resolved against the folder of `source_name`. Sets Scenario::file to `source_name`.
 [[nodiscard]] Result<Scenario> parse_scenario(std::string_view text, const std::string& source_name);
-/// Reads the file (errors: "<path>: cannot open: <strerror>", kNotFound or kSystem) and parses
-/// it; sets Scenario::file.
+/// A scenario file's text, unparsed (a recording keeps it). Errors: "<path>: cannot open:
+/// <strerror>" (kNotFound or kSystem), or a file too large to be a scenario (kInvalid).
+[[nodiscard]] Result<std::string> read_scenario_text(const std::string& path);
+/// Reads the file (as read_scenario_text) and parses it; sets Scenario::file.
 [[nodiscard]] Result<Scenario> load_scenario(const std::string& path);
 
 /// How far along an incision task the trainee is, from the cuts made so far (each a polyline on the surface, m).
