@@ -20,8 +20,6 @@
 #include <cstring>
 #include <ctime>
 #include <deque>
-#include <fstream>
-#include <sstream>
 #include <limits>
 #include <map>
 #include <memory>
@@ -309,14 +307,12 @@ int main(int argc, char** argv) {
                 recording->lancet_version.c_str());
   } else {
     if (!scenario_path.empty()) {
-      std::ifstream in(scenario_path, std::ios::binary);
-      std::ostringstream text;
-      text << in.rdbuf();
-      if (!in) {
-        std::fprintf(stderr, "lancet-viz: %s: cannot open: %s\n", scenario_path.c_str(), std::strerror(errno));
+      auto text = lancet::scenario::read_scenario_text(scenario_path);
+      if (!text.ok()) {
+        std::fprintf(stderr, "lancet-viz: %s\n", text.error().message.c_str());
         return 2;
       }
-      setup.scenario_toml = text.str();
+      setup.scenario_toml = std::move(text).value();
       setup.scenario_file = scenario_path;
     }
     auto made = lancet::record::SceneSim::create(setup);
@@ -405,6 +401,9 @@ int main(int argc, char** argv) {
   };
   const auto fill_patch = [&](lancet::Vec3 at, lancet::TissuePatch& patch) {
     std::span<const lancet::ToolSample> use(frame_batch);
+    // Armed, the fresh scene waits for the session: what the servo sends before its reset (in the
+    // frame that connects, before the reset goes out) is not applied to it.
+    if (rec == Rec::kArmed) use = {};
     if (rec == Rec::kWaitingReset) {
       // Until the servo has applied the reset, what it sends belongs to no session.
       std::size_t i = 0;
