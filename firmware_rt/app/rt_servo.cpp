@@ -225,7 +225,10 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
 
   // Newest patch, into the back buffer; swap only on a consistent read of a valid patch.
   TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];
-  if (shared_.patch.try_read_if_newer(back, d.patch_seen, model_.patch_read_attempts) == ReadStatus::kOk) {
+  // Only the triangles in use are copied (a full 16k patch is 720 KB; a typical one a tenth).
+  const auto in_use = [](const TissuePatch& p) { return tissue_patch_bytes(p); };
+  if (shared_.patch.try_read_prefix_if_newer(back, d.patch_seen, offsetof(TissuePatch, triangles), in_use,
+                                             model_.patch_read_attempts) == ReadStatus::kOk) {
     if (const char* why = wire::check(back, now_ns)) {
       reject(d.health.patches_rejected, why);
     } else {

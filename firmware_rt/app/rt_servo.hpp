@@ -50,7 +50,7 @@ struct RtModel {
   std::size_t max_commands_per_tick = 16;
   /// An operator request (lancetctl rearm) older than this when seen is ignored.
   std::int64_t operator_request_max_age_ns = 2'000'000'000;
-  /// Seqlock read attempts for the patch per tick (each a 50 KB copy); a busy writer is retried
+  /// Seqlock read attempts for the patch per tick (each a copy of the triangles in use, up to 720 KB); a busy writer is retried
   /// next tick.
   int patch_read_attempts = 2;
   /// While the arm's link is lost, the supervisor tries to reconnect this often.

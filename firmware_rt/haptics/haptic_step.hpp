@@ -47,6 +47,9 @@ struct HapticModel {
   double drill_burr_radius = 0.0015;       ///< m
   double drill_min_force = 1.0;            ///< N: pressing harder than this removes material
   double drill_rate = 2.0;                 ///< removals per second per newton above the minimum, at 1000 HU
+  /// m: a newer patch that moves the triangle under the proxy carries the proxy with it up to
+  /// this far; further, the face id is taken to name another piece of surface and the proxy stays
+  double ride_max_move = 0.005;
   /// Default materials: id 0 and 1 skin-like, 2 vessel (softer, weaker).
   static HapticModel defaults();
 };
@@ -55,6 +58,9 @@ struct HapticModel {
 struct ProbeData {
   bool sliding = false;        ///< dynamic friction last tick
   ProxyScratch scratch{};
+  ProxyAnchor anchor{};        ///< where the proxy rested last tick, on which triangle
+  std::uint64_t carried = 0;   ///< patch updates that carried the proxy with its triangle
+  std::uint64_t carry_lost = 0;///< ... that could not (the triangle gone, or moved too far)
 };
 
 /// The scalpel's cut, from the rupture on.
@@ -94,6 +100,8 @@ struct DrillData {
 };
 
 struct HapticData {
+  PatchBvh bvh{};              ///< search tree of the patch in use (built when its version changes)
+  std::uint64_t patch_version = 0;  ///< the patch version of the last tick (0: none)
   Stage stage = Stage::kFree;
   Vec3 proxy{};
   bool initialised = false;
@@ -111,7 +119,12 @@ struct HapticInput {
   Quat orientation;            ///< tool orientation (the blade is orientation · blade_axis)
   ToolMode mode = ToolMode::kProbe;
   const TissuePatch* patch = nullptr;  ///< null: no tissue known
+  /// Its version (the seqlock's; each new one is a new patch): with one, the step searches the
+  /// patch through HapticData::bvh and carries the proxy across patch updates; 0 (unit tests):
+  /// it scans the whole patch and does not carry
+  std::uint64_t patch_version = 0;
   std::uint64_t tick = 0;              ///< seq of the ToolSample this tick pushes
+  const PatchBvh* bvh = nullptr;       ///< set by haptic_step for the tool steps (callers leave it)
 };
 
 struct HapticOutput {
@@ -124,8 +137,9 @@ struct HapticOutput {
 };
 
 /// One tick: the tool's own step (haptics/probe.cpp, scalpel.cpp, retractor.cpp, drill.cpp), then
-/// the contact events and the safety layer. Real-time safe: O(patch triangles), no allocation,
-/// no exceptions.
+/// the contact events and the safety layer. Real-time safe: no allocation, no exceptions; with a
+/// patch version, O(triangles near the tool) but on the tick a new patch arrives (the tree's
+/// build, O(patch triangles)); without, O(patch triangles).
 void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept;
 
 }  // namespace lancet::haptics

@@ -7,6 +7,7 @@ namespace lancet::haptics {
 namespace {
 
 constexpr double kEps = 1e-9;  // m: feasibility tolerance
+constexpr int kMaxHalvings = 4;  // a proxy step is shortened at most this many times (update_proxy)
 
 // Solves the equality projection x = goal + Σ λ_i n_i with n_i·x = d_i for the active planes.
 // Returns false when the planes are (nearly) dependent.
@@ -74,52 +75,85 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept {
   return a + (vb * denom) * ab + (vc * denom) * ac;
 }
 
-std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, double reach, ProxyScratch& s) noexcept {
-  s.n_planes = 0;
+namespace {
+
+// Adds triangle i's separating plane when it lies within reach of p; false when the scratch is full.
+bool add_plane(const TissuePatch& patch, std::uint32_t i, Vec3 p, double radius, double reach2, ProxyScratch& s) {
+  const PatchTriangle& t = patch.triangles[i];
+  const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
+  const Vec3 face = cross(b - a, c - a);
+  if (!is_finite(a) || !is_finite(b) || !is_finite(c) || dot(face, face) < 1e-24) return true;  // bad or degenerate
+  const Vec3 q = closest_point_on_triangle(p, a, b, c);
+  const Vec3 d = p - q;
+  const double dist2 = dot(d, d);
+  if (dist2 > reach2) return true;
+  // Tissue surfaces are one-sided (outward normals): a proxy behind a triangle (a device that
+  // started under the sheet, a patch that appeared around a pressed tool) is not held there,
+  // which would pull the hand back in with a force spike when it leaves.
+  if (dot(d, face) < 0) return true;
+  if (s.n_planes == kMaxPlanes) {
+    s.overflow = true;
+    return false;
+  }
+  // The separating direction; when p lies on the triangle, its face normal.
+  const Vec3 nrm = dist2 > 1e-20 ? (1.0 / std::sqrt(dist2)) * d : normalized(face);
+  s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i};
+  return true;
+}
+
+// Calls visit(i) for the triangles that may lie within reach of p: through the tree, or all.
+template <class Visit>
+void for_each_candidate(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double reach, Visit&& visit) {
+  if (bvh != nullptr) {
+    for_each_near(*bvh, p, reach, visit);
+    return;
+  }
   const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
+  for (std::uint32_t i = 0; i < n; ++i)
+    if (!visit(i)) return;
+}
+
+}  // namespace
+
+std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double radius, double reach,
+                           ProxyScratch& s) noexcept {
+  s.n_planes = 0;
+  s.overflow = false;
   const double reach2 = reach * reach;
-  for (std::uint32_t i = 0; i < n; ++i) {
+  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_plane(patch, i, p, radius, reach2, s); });
+  return s.n_planes;
+}
+
+std::uint32_t nearest_triangle(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double max_distance, Vec3& q) noexcept {
+  const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
+  double best2 = max_distance * max_distance;
+  std::uint32_t best = n;
+  for_each_candidate(patch, bvh, p, max_distance, [&](std::uint32_t i) {
     const PatchTriangle& t = patch.triangles[i];
     const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
-    const Vec3 face = cross(b - a, c - a);
-    if (!is_finite(a) || !is_finite(b) || !is_finite(c) || dot(face, face) < 1e-24) continue;  // bad or degenerate
-    const Vec3 q = closest_point_on_triangle(p, a, b, c);
-    const Vec3 d = p - q;
-    const double dist2 = dot(d, d);
-    if (dist2 > reach2) continue;
-    // Tissue surfaces are one-sided (outward normals): a proxy behind a triangle (a device that
-    // started under the sheet, a patch that appeared around a pressed tool) is not held there,
-    // which would pull the hand back in with a force spike when it leaves.
-    if (dot(d, face) < 0) continue;
-    // The separating direction; when p lies on the triangle, its face normal.
-    const Vec3 nrm = dist2 > 1e-20 ? (1.0 / std::sqrt(dist2)) * d : normalized(face);
-    s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i};
-  }
-  return s.n_planes;
+    if (!is_finite(a) || !is_finite(b) || !is_finite(c)) return true;
+    const Vec3 x = closest_point_on_triangle(p, a, b, c);
+    const double d2 = dot(p - x, p - x);
+    // Ties go to the lower index, whatever order the walk takes.
+    if (d2 < best2 || (d2 == best2 && i < best)) {
+      best2 = d2;
+      best = i;
+      q = x;
+    }
+    return true;
+  });
+  return best;
 }
 
 namespace {
 constexpr double kUnderSurface = 0.8;  // cos of the widest angle off the normal counted as "under"
 }  // namespace
 
-Vec3 surface_entry(const TissuePatch& patch, Vec3 p, double radius, double depth) noexcept {
-  const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
-  double best2 = depth * depth;
-  std::uint32_t best = n;
+Vec3 surface_entry(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double radius, double depth) noexcept {
   Vec3 best_q{};
-  for (std::uint32_t i = 0; i < n; ++i) {
-    const PatchTriangle& t = patch.triangles[i];
-    const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
-    if (!is_finite(a) || !is_finite(b) || !is_finite(c)) continue;
-    const Vec3 q = closest_point_on_triangle(p, a, b, c);
-    const double d2 = dot(p - q, p - q);
-    if (d2 < best2) {
-      best2 = d2;
-      best = i;
-      best_q = q;
-    }
-  }
-  if (best == n) return p;  // nothing within depth
+  const std::uint32_t best = nearest_triangle(patch, bvh, p, depth, best_q);
+  if (best >= std::min(patch.n_triangles, kPatchCapacity)) return p;  // nothing within depth
+  const double best2 = dot(p - best_q, p - best_q);
   const PatchTriangle& t = patch.triangles[best];
   if ((t.flags & kTriangleOnCutEdge) != 0) return p;
   const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
@@ -135,8 +169,9 @@ Vec3 surface_entry(const TissuePatch& patch, Vec3 p, double radius, double depth
 }
 
 Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active,
-                       std::uint32_t& m) noexcept {
+                       std::uint32_t& m, bool* found) noexcept {
   m = 0;
+  if (found != nullptr) *found = true;
   Vec3 x = goal;
   double lambda[3];
   for (int iter = 0; iter < 12; ++iter) {
@@ -157,6 +192,7 @@ Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, st
     for (std::uint32_t tries = 0; tries < 3; ++tries) {
       if (!project(planes, active.data(), m, goal, x, lambda)) {
         m = 0;
+        if (found != nullptr) *found = false;
         return p;
       }
       std::uint32_t drop = m;
@@ -174,16 +210,31 @@ Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, st
   }
   if (feasible(planes, n, x)) return x;
   m = 0;
+  if (found != nullptr) *found = false;
   return p;  // no feasible point found: stay (p satisfies every plane built from it)
 }
 
-ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, ProxyScratch& s) noexcept {
+ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, Vec3 device, double radius,
+                         ProxyScratch& s) noexcept {
   ProxyResult r;
-  const double reach = norm(device - p) + 2.0 * radius;
-  collect_planes(patch, p, radius, reach, s);
+  Vec3 goal = device;
   std::array<std::uint32_t, 3> active{};
   std::uint32_t m = 0;
-  r.position = solve_constraints(s.planes.data(), s.n_planes, p, device, active, m);
+  for (int halvings = 0;; ++halvings) {
+    collect_planes(patch, bvh, p, radius, norm(goal - p) + 2.0 * radius, s);
+    bool found = !s.overflow;
+    if (found) r.position = solve_constraints(s.planes.data(), s.n_planes, p, goal, active, m, &found);
+    if (found) break;
+    // Too many triangles within the step's reach, or no point found that rests on at most three
+    // of their planes (a long step over a curved sheet): go part of the way this tick.
+    ++s.shortened;
+    if (halvings == kMaxHalvings) {  // not even a sixteenth of the step: stay
+      s.n_planes = 0;
+      r.position = p;
+      return r;
+    }
+    goal = p + 0.5 * (goal - p);
+  }
   r.n_active = m;
   if (m == 0) return r;
   Vec3 nsum{};
@@ -191,6 +242,49 @@ ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double r
   r.normal = normalized(nsum);
   r.triangle = s.planes[active[0]].triangle;
   return r;
+}
+
+ProxyAnchor anchor_proxy(const TissuePatch& patch, std::uint32_t i, Vec3 proxy) noexcept {
+  ProxyAnchor r;
+  if (i >= std::min(patch.n_triangles, kPatchCapacity)) return r;
+  const PatchTriangle& t = patch.triangles[i];
+  const Vec3 a = to_vec3(t.v[0]), e1 = to_vec3(t.v[1]) - a, e2 = to_vec3(t.v[2]) - a;
+  const Vec3 face = cross(e1, e2);
+  const double g11 = dot(e1, e1), g12 = dot(e1, e2), g22 = dot(e2, e2);
+  const double det = g11 * g22 - g12 * g12;
+  if (!is_finite(a) || !is_finite(face) || dot(face, face) < 1e-24 || !(det > 0)) return r;
+  const Vec3 n = normalized(face);
+  const Vec3 w = proxy - a;
+  r.h = dot(w, n);
+  const Vec3 in_plane = w - r.h * n;
+  const double b1 = dot(in_plane, e1), b2 = dot(in_plane, e2);
+  r.s = (b1 * g22 - b2 * g12) / det;
+  r.t = (g11 * b2 - g12 * b1) / det;
+  r.id = t.id;
+  r.valid = std::isfinite(r.s) && std::isfinite(r.t) && std::isfinite(r.h);
+  return r;
+}
+
+bool carry_proxy(const TissuePatch& patch, const PatchBvh* bvh, const ProxyAnchor& an, Vec3 proxy, double search,
+                 double max_move, Vec3& out) noexcept {
+  if (!an.valid) return false;
+  const std::uint32_t n = std::min(patch.n_triangles, kPatchCapacity);
+  std::uint32_t found = n;
+  const auto match = [&](std::uint32_t i) {
+    if (patch.triangles[i].id != an.id) return true;
+    found = i;
+    return false;
+  };
+  for_each_candidate(patch, bvh, proxy, search, match);
+  if (found == n) return false;
+  const PatchTriangle& t = patch.triangles[found];
+  const Vec3 a = to_vec3(t.v[0]), e1 = to_vec3(t.v[1]) - a, e2 = to_vec3(t.v[2]) - a;
+  const Vec3 face = cross(e1, e2);
+  if (!is_finite(a) || !is_finite(face) || dot(face, face) < 1e-24) return false;
+  const Vec3 x = a + an.s * e1 + an.t * e2 + an.h * normalized(face);
+  if (!is_finite(x) || !(norm(x - proxy) <= max_move)) return false;
+  out = x;
+  return true;
 }
 
 void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_d, bool sliding,
@@ -205,13 +299,16 @@ void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_
   const Vec3 tang = off - dot(off, r.normal) * r.normal;
   const double t = norm(tang);
   if (t < 1e-12) return;
+  // Offsets count from the device's own place on the contact plane, which is x unless this
+  // tick's step was held short of it (a long step, a carried proxy).
+  const Vec3 base = device + depth * r.normal;
   Vec3 candidate;
   bool stuck = false;
   if (t <= (sliding ? mu_d : mu_s) * depth) {
-    candidate = x + tang;  // stick: keep the old tangential place
+    candidate = base + tang;  // stick: keep the old tangential place
     stuck = true;
   } else {
-    candidate = x + (std::min(t, mu_d * depth) / t) * tang;  // slide to the edge of the cone
+    candidate = base + (std::min(t, mu_d * depth) / t) * tang;  // slide to the edge of the cone
   }
   // Friction never moves the proxy into the tissue: keep it only where every plane holds.
   if (feasible(s.planes.data(), s.n_planes, candidate)) {

@@ -17,6 +17,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "haptics/patch_bvh.hpp"
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/messages.hpp"
 
@@ -29,9 +30,15 @@ struct Plane {
   std::uint32_t triangle;
 };
 
+/// Most planes one proxy update takes. More triangles within reach (a step much longer than
+/// the triangles are wide) and the step is shortened until they fit (update_proxy).
+inline constexpr std::size_t kMaxPlanes = 1024;
+
 struct ProxyScratch {
-  std::array<Plane, kPatchCapacity> planes;
+  std::array<Plane, kMaxPlanes> planes;
   std::size_t n_planes = 0;
+  bool overflow = false;      ///< the last collect_planes found more than kMaxPlanes
+  std::uint64_t shortened = 0;  ///< updates whose step was shortened because of it (count)
 };
 
 struct ProxyResult {
@@ -45,8 +52,16 @@ struct ProxyResult {
 /// Closest point on triangle (a, b, c) to p (Ericson, Real-Time Collision Detection, 5.1.5).
 Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept;
 
-/// Builds the separating planes of every patch triangle within `reach` of the sphere at p.
-std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, double reach, ProxyScratch& s) noexcept;
+/// Builds the separating planes of every patch triangle within `reach` of the sphere at p,
+/// through `bvh` (built for this patch) or, when null, by a scan of the whole patch. Stops with
+/// s.overflow set when more than kMaxPlanes qualify.
+std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double radius, double reach,
+                           ProxyScratch& s) noexcept;
+
+/// The triangle of the patch nearest p within max_distance (its index; n_triangles when none),
+/// with the nearest point in q. Through bvh when given, else a scan. Triangles with a non-finite
+/// corner are skipped.
+std::uint32_t nearest_triangle(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double max_distance, Vec3& q) noexcept;
 
 /// Where a free proxy whose centre p lies inside the tissue should start instead: just in front of
 /// the nearest triangle (its centre `radius` above the face), when p is within `depth` of it,
@@ -55,17 +70,43 @@ std::size_t collect_planes(const TissuePatch& patch, Vec3 p, double radius, doub
 /// incision). Otherwise p.
 /// This is how a stylus that is already below the surface when the tissue first appears around it
 /// (the patch came after the hand, lancet-rt started with the stylus pressed in) is pushed out
-/// instead of being ignored. Bounded: one pass over the patch.
-Vec3 surface_entry(const TissuePatch& patch, Vec3 p, double radius, double depth) noexcept;
+/// instead of being ignored. Bounded: one pass over the patch at most.
+Vec3 surface_entry(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double radius, double depth) noexcept;
 
 /// The point nearest goal that satisfies every plane, resting on at most three; p when none is
-/// found (p must satisfy them all). active_out receives the planes it rests on.
+/// found (p must satisfy them all; *found, when given, says which). active_out receives the planes
+/// it rests on.
 Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active_out,
-                       std::uint32_t& n_active) noexcept;
+                       std::uint32_t& n_active, bool* found = nullptr) noexcept;
 
 /// One proxy update without friction: from the previous centre p toward the device. Leaves the
-/// planes it used in scratch for apply_friction.
-ProxyResult update_proxy(const TissuePatch& patch, Vec3 p, Vec3 device, double radius, ProxyScratch& scratch) noexcept;
+/// planes it used in scratch for apply_friction. When more than kMaxPlanes triangles lie within
+/// the step's reach, or the solve finds no point (a long step over a curved sheet), the step is
+/// halved (the proxy goes part of the way this tick and on later), up to four times; then the
+/// proxy stays at p (always feasible). Bounded: at most five queries and solves.
+ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, Vec3 device, double radius,
+                         ProxyScratch& scratch) noexcept;
+
+/// Where the proxy rests, in the frame of the triangle under it (the riding proxy, after CHAI3D's
+/// adjustDynamicProxy): proxy = a + s·(b − a) + t·(c − a) + h·n̂ for its corners a, b, c and unit
+/// normal n̂. When a newer patch moves that triangle (same PatchTriangle::id), the proxy moves with
+/// it — a dent springing back, a retracted flap, a sliding sheet — instead of staying in world
+/// space, where tissue moving toward the tool would leave it behind the surface (pop-through).
+struct ProxyAnchor {
+  bool valid = false;
+  std::uint32_t id = 0;        ///< the triangle's surface id
+  double s = 0, t = 0, h = 0;  ///< the proxy in its frame
+};
+
+/// The anchor of a proxy at `proxy` on triangle `i` of the patch (invalid for a degenerate one).
+ProxyAnchor anchor_proxy(const TissuePatch& patch, std::uint32_t i, Vec3 proxy) noexcept;
+
+/// Where an anchored proxy that was at `proxy` is on `patch`: its triangle (found by id among
+/// those within `search` of proxy, through bvh when given) carried to its new place. false (and `out`
+/// untouched) when the triangle is gone or degenerate, or the carry would move it further than
+/// `max_move` (then the id no longer names the same piece of surface).
+bool carry_proxy(const TissuePatch& patch, const PatchBvh* bvh, const ProxyAnchor& a, Vec3 proxy, double search,
+                 double max_move, Vec3& out) noexcept;
 
 /// Coulomb friction on a proxy in contact (r from update_proxy with the same p, device and
 /// scratch), with static and dynamic coefficients mu_s, mu_d (tangential/normal spring

@@ -9,21 +9,12 @@ Vec3 retractor_step(const HapticModel& m, HapticData& d, const HapticInput& in, 
   RetractorData& r = d.retractor;
   if (!r.grabbed && in.patch != nullptr) {
     // Nearest surface point; grab it when close enough.
-    double best = m.snap_distance * m.snap_distance;
-    bool found = false;
-    const std::uint32_t n = std::min(in.patch->n_triangles, kPatchCapacity);
-    for (std::uint32_t i = 0; i < n; ++i) {
-      const PatchTriangle& t = in.patch->triangles[i];
-      const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
-      if (!is_finite(a) || !is_finite(b) || !is_finite(c)) continue;
-      const Vec3 q = closest_point_on_triangle(in.device, a, b, c);
-      const double dist2 = dot(in.device - q, in.device - q);
-      if (dist2 <= best) {
-        best = dist2;
-        found = true;
-        r.control = q;
-        r.material = t.material;
-      }
+    Vec3 q{};
+    const std::uint32_t i = nearest_triangle(*in.patch, in.bvh, in.device, m.snap_distance, q);
+    const bool found = i < std::min(in.patch->n_triangles, kPatchCapacity);
+    if (found) {
+      r.control = q;
+      r.material = in.patch->triangles[i].material;
     }
     if (found) {
       r.grabbed = true;

@@ -30,8 +30,10 @@ void fill_workload_patch(TissuePatch& p) {
     for (int i = 0; i < nx; ++i) {
       const float x0 = -w / 2 + w * static_cast<float>(i) / nx, x1 = -w / 2 + w * static_cast<float>(i + 1) / nx;
       const float y0 = -h / 2 + h * static_cast<float>(j) / ny, y1 = -h / 2 + h * static_cast<float>(j + 1) / ny;
-      p.triangles[n++] = {{{x0, y0, 0}, {x1, y0, 0}, {x1, y1, 0}}, 1, 0};
-      p.triangles[n++] = {{{x0, y0, 0}, {x1, y1, 0}, {x0, y1, 0}}, 1, 0};
+      p.triangles[n] = {{{x0, y0, 0}, {x1, y0, 0}, {x1, y1, 0}}, 1, 0, n};
+      ++n;
+      p.triangles[n] = {{{x0, y0, 0}, {x1, y1, 0}, {x0, y1, 0}}, 1, 0, n};
+      ++n;
     }
   }
   p.n_triangles = n;

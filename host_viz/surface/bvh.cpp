@@ -526,7 +526,7 @@ void TriangleBvh::refit_faces(const MeshView& m, std::span<const std::uint32_t> 
 // Queries. Each keeps a fixed stack on the C++ stack: a pop pushes at most two children, so it
 // never holds more than depth + 1 entries.
 
-void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out) const {
+void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order) const {
   out.clear();
   if (nodes_.empty() || !(r >= 0)) return;
   const Vec3 q = to_vec3(p);
@@ -549,7 +549,7 @@ void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<
       stack[top++] = node.first;
     }
   }
-  std::sort(out.begin(), out.end());
+  if (!tree_order) std::sort(out.begin(), out.end());
 }
 
 std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, float max_distance) const {

@@ -77,9 +77,10 @@ class TriangleBvh {
   /// vertex positions or indices changed since the last refit; duplicates are harmless.
   void refit_faces(const MeshView& m, std::span<const std::uint32_t> faces);
 
-  /// Every face whose exact distance to p is <= r (metres), in ascending face order. out is
-  /// cleared first; no allocation when it has capacity for the result.
-  void faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out) const;
+  /// Every face whose exact distance to p is <= r (metres), in ascending face order, or, with
+  /// `tree_order`, in the order of the tree's leaves (neighbours together; still the same for the
+  /// same tree). out is cleared first; no allocation when it has capacity for the result.
+  void faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order = false) const;
 
   /// The closest point of the mesh to p, if one lies within max_distance (metres). No allocation.
   [[nodiscard]] std::optional<PointHit> closest_point(

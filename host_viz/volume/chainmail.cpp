@@ -17,15 +17,22 @@ constexpr std::uint32_t kBrickElements = 512;
 constexpr std::uint32_t kLocalBits = 9;              // ref = brick << 11 | axis << 9 | local
 constexpr std::uint32_t kRefBrickShift = 11;
 constexpr std::uint32_t kMaxBricks = 1u << (32 - kRefBrickShift);
-// Mark: step << 8 | moved << 6 | 2 bits of state per axis (0 untouched, 1 queued, 2 final).
-constexpr int kTagShift = 8;
+// Mark, one 64-bit word per element: everything a step reads about an element but its
+// displacement. step << 32 | material << 24 | links << 16 | key axis << 8 | moved << 6 | 2 bits
+// of state per axis (0 untouched, 1 queued, 2 final). Step, key axis, moved and states belong to
+// the step in the high bits (a mark from an earlier step reads as untouched); links (bit d: the
+// link in direction d is live) and material belong to the lattice.
+constexpr int kTagShift = 32;
+constexpr int kKeyAxisShift = 8, kLinksShift = 16, kMatShift = 24;
 constexpr std::uint64_t kMovedBit = 1u << 6;
 constexpr std::uint64_t kQueued = 1, kFinal = 2;
-constexpr std::uint8_t kNoKey = 3, kSponsorKey = 4;  // Element::key_axis besides 0..2
+constexpr std::uint64_t kSponsorKey = 4;  // key axis of a sponsor, besides 0..2
+constexpr std::uint64_t kLatticeBits = 0xFFFFull << kLinksShift;  // links and material
+constexpr std::uint64_t kStepBits = ~std::uint64_t{0} << kTagShift;
+constexpr std::uint64_t kMaxStep = 0xFFFFFFFFull;                 // then every mark's step is cleared
 constexpr std::uint64_t kEmptyKey = ~std::uint64_t{0};
 constexpr int kMaxDim = 1 << 24;
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr std::uint64_t kPosInfBits = std::bit_cast<std::uint64_t>(kInf), kNegInfBits = std::bit_cast<std::uint64_t>(-kInf);
 
 // Directions d = 2·axis + (1 for the negative side); the opposite of d is d ^ 1.
 constexpr int kAxisOf[6] = {0, 0, 1, 1, 2, 2};
@@ -56,23 +63,23 @@ std::size_t hash_slot(std::uint64_t key, std::size_t mask) noexcept {
   return static_cast<std::size_t>(key ^ (key >> 29)) & mask;
 }
 
-// One element, 48 bytes: everything a step reads about it in one cache line (usually).
-struct Element {
-  Vec3 u;                    // m, displacement from rest
-  std::uint64_t mark;        // step << 8 | moved << 6 | 2 bits of state per axis
-  double key;                // m, the violation it is queued with on axis key_axis
-  std::uint8_t links;        // bit d: link in direction d is live
-  std::uint8_t mat;          // material index (0 outside the lattice)
-  std::uint8_t key_axis;     // axis of key, kNoKey or kSponsorKey
-};
-static_assert(sizeof(Element) == 48);
+unsigned links_of(std::uint64_t mark) noexcept { return static_cast<unsigned>(mark >> kLinksShift) & 63u; }
+std::size_t mat_of(std::uint64_t mark) noexcept { return static_cast<std::size_t>((mark >> kMatShift) & 0xFFu); }
 }  // namespace
 
-struct ChainMail::Brick {
-  std::array<Element, kBrickElements> e;
+// A brick's elements as arrays (structure of arrays): a step settling one axis reads only that
+// axis's displacements and the marks, 16 of the 40 bytes per element, so the cache holds 2.5
+// times the region it would with whole elements; an x-row of 8 elements shares a cache line.
+struct alignas(64) ChainMail::Brick {
+  std::array<std::array<double, kBrickElements>, 3> u;  // m, displacement from rest per axis
+  std::array<std::uint64_t, kBrickElements> mark;        // see kTagShift
+  std::array<double, kBrickElements> key;                // m, the violation it is queued with on its key axis
   std::array<std::int32_t, 6> nbr;    // brick index in direction d, -1 none yet
   std::array<Brick*, 6> nbrp;         // the same bricks (stable: each brick is its own allocation)
   std::array<std::int32_t, 3> coord;  // brick coordinates
+  std::int32_t uniform;               // the material of every element it links and of its neighbours, -1 when mixed
+
+  [[nodiscard]] Vec3 displacement(std::uint32_t l) const noexcept { return {u[0][l], u[1][l], u[2][l]}; }
 };
 
 namespace {
@@ -81,40 +88,35 @@ namespace {
 std::uint64_t axis_state(std::uint64_t mark, std::uint64_t step, int a) noexcept {
   return (mark >> kTagShift) == step ? (mark >> (2 * a)) & 3u : 0;
 }
-// The mark with axis a's state set to s (a mark from an earlier step starts afresh).
-std::uint64_t with_state(std::uint64_t mark, std::uint64_t step, int a, std::uint64_t s) noexcept {
-  if ((mark >> kTagShift) != step) mark = step << kTagShift;
-  return (mark & ~(std::uint64_t{3} << (2 * a))) | (s << (2 * a));
-}
 // Heap key of a violation: larger violations give smaller keys. Violations are counted in
 // quanta (a quarter of the tolerance), so that equal violations reached along different paths
 // (equal but for rounding) tie, and ties are taken in the order that keeps the step local.
 std::uint64_t heap_key(double violation, double inv_quantum) noexcept {
-  const double q = std::min(violation * inv_quantum, 0x1p62);
-  return ~static_cast<std::uint64_t>(q);
+  const double q = std::min(violation * inv_quantum, 0x1p62);  // > 0: a violation is > eps
+  return ~static_cast<std::uint64_t>(static_cast<std::int64_t>(q));
 }
-// Whether coordinate A of element x must be (re-)queued with `violation` in step `step`; if so,
-// marks it queued and records the violation. An element keeps one key: while another axis of it
-// holds it, re-queueing is not filtered (a stale duplicate costs one skipped pop). Sponsors
-// (key_axis == kSponsorKey in their step) are never queued.
+// Whether coordinate A of an element (its mark and key) must be (re-)queued with `violation` in
+// the step whose mark bits are `tag`; if so, marks it queued and records the violation. An element
+// keeps one key: while another axis of it holds it, re-queueing is not filtered (a stale
+// duplicate costs one skipped pop). Sponsors are never queued.
 template <int A>
-[[gnu::always_inline]] inline bool queue_state(Element& x, std::uint64_t step, double violation) noexcept {
-  const std::uint64_t mark = x.mark;
-  if ((mark >> kTagShift) != step) {  // untouched in this step
-    x.mark = (step << kTagShift) | (kQueued << (2 * A));
-    x.key = violation;
-    x.key_axis = A;
+[[gnu::always_inline]] inline bool queue_state(std::uint64_t& mark_ref, double& key, std::uint64_t tag, double violation) noexcept {
+  std::uint64_t mark = mark_ref;
+  if ((mark & kStepBits) != tag) {  // untouched in this step
+    mark_ref = tag | (mark & kLatticeBits) | (std::uint64_t{A} << kKeyAxisShift) | (kQueued << (2 * A));
+    key = violation;
     return true;
   }
-  if (x.key_axis == kSponsorKey) return false;
+  const auto key_axis = static_cast<unsigned>(mark >> kKeyAxisShift) & 7u;
+  if (key_axis == kSponsorKey) return false;
   const std::uint64_t state = (mark >> (2 * A)) & 3u;
   if (state == kFinal) return false;
-  if (state == kQueued && x.key_axis == A && violation <= x.key) return false;  // already queued at least this high
-  if (x.key_axis >= 3 || x.key_axis == A || ((mark >> (2 * x.key_axis)) & 3u) != kQueued) {
-    x.key = violation;
-    x.key_axis = A;
+  if (state == kQueued && key_axis == A && violation <= key) return false;  // already queued at least this high
+  if (key_axis == A || ((mark >> (2 * key_axis)) & 3u) != kQueued) {
+    key = violation;
+    mark = (mark & ~(std::uint64_t{7} << kKeyAxisShift)) | (std::uint64_t{A} << kKeyAxisShift);
   }
-  x.mark = (mark & ~(std::uint64_t{3} << (2 * A))) | (kQueued << (2 * A));
+  mark_ref = (mark & ~(std::uint64_t{3} << (2 * A))) | (kQueued << (2 * A));
   return true;
 }
 
@@ -205,7 +207,7 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
   // Link boxes for every pair of materials: the mean of both materials' limits, in displacement
   // form (the neighbour's displacement minus the element's).
   n_materials_ = materials_.size();
-  boxes_.assign(n_materials_ * n_materials_ * 6, Box{});
+  for (auto& boxes : axis_boxes_) boxes.assign(n_materials_ * n_materials_ * 6, AxisBox{});
   for (std::size_t m1 = 0; m1 < n_materials_; ++m1)
     for (std::size_t m2 = 0; m2 < n_materials_; ++m2) {
       if (!materials_[m1].present || !materials_[m2].present) continue;
@@ -217,11 +219,9 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
         const double dlo = 0.5 * (A.min_length + B.min_length) - s;  // <= 0
         const double dhi = 0.5 * (A.max_length + B.max_length) - s;  // >= 0
         const double shear = 0.5 * (A.max_shear + B.max_shear);
-        Box& bx = boxes_[(m1 * n_materials_ + m2) * 6 + static_cast<std::size_t>(d)];
-        bx.lo = {-shear, -shear, -shear};
-        bx.hi = {shear, shear, shear};
-        comp(bx.lo, a) = kStep[d] > 0 ? dlo : -dhi;
-        comp(bx.hi, a) = kStep[d] > 0 ? dhi : -dlo;
+        const std::size_t box = (m1 * n_materials_ + m2) * 6 + static_cast<std::size_t>(d);
+        for (int b = 0; b < 3; ++b) axis_boxes_[static_cast<std::size_t>(b)][box] = {-shear, shear};
+        axis_boxes_[static_cast<std::size_t>(a)][box] = {kStep[d] > 0 ? dlo : -dhi, kStep[d] > 0 ? dhi : -dlo};
       }
     }
   const double smin = std::min({lattice_.spacing.x, lattice_.spacing.y, lattice_.spacing.z});
@@ -258,32 +258,43 @@ std::int32_t ChainMail::find_brick(std::int64_t bx, std::int64_t by, std::int64_
 }
 
 namespace {
-// Fills links and materials of a brick from the lattice: bit d set when the element and its
-// neighbour in direction d are both present (presence read once into a 10³ halo).
+// Sets the lattice bits of a brick's marks from the lattice: material, and link bit d set when the
+// element and its neighbour in direction d are both present (presence read once into a 10³ halo).
+// The step bits are kept. Returns the material of every present element of the brick and of the
+// halo around it when they all have the same one (then every link of the brick joins two elements
+// of that material), else -1.
 template <class PresentAt, class MaterialAt>
-void fill_brick_links(std::array<Element, kBrickElements>& elements,
+std::int32_t fill_brick_links(std::array<std::uint64_t, kBrickElements>& marks,
                       const std::array<std::int32_t, 3>& coord, const std::array<int, 3>& dims, PresentAt present_at,
                       MaterialAt material_at) {
   std::array<bool, 1000> pres{};
   const std::int64_t i0 = std::int64_t{coord[0]} * kBrickEdge, j0 = std::int64_t{coord[1]} * kBrickEdge,
                      k0 = std::int64_t{coord[2]} * kBrickEdge;
+  std::int32_t uniform = -2;  // -2: no present element yet
   for (int hz = 0; hz < 10; ++hz)
     for (int hy = 0; hy < 10; ++hy)
-      for (int hx = 0; hx < 10; ++hx)
-        pres[static_cast<std::size_t>(hx + 10 * (hy + 10 * hz))] = present_at(i0 + hx - 1, j0 + hy - 1, k0 + hz - 1);
+      for (int hx = 0; hx < 10; ++hx) {
+        const std::int64_t i = i0 + hx - 1, j = j0 + hy - 1, k = k0 + hz - 1;
+        const bool p = present_at(i, j, k);
+        pres[static_cast<std::size_t>(hx + 10 * (hy + 10 * hz))] = p;
+        if (!p) continue;
+        const std::int32_t m = material_at(i, j, k);
+        uniform = uniform == -2 || uniform == m ? m : -1;
+      }
   constexpr int kHaloStep[6] = {1, -1, 10, -10, 100, -100};
   for (std::uint32_t l = 0; l < kBrickElements; ++l) {
     const int lx = static_cast<int>(l & 7u), ly = static_cast<int>((l >> 3) & 7u), lz = static_cast<int>(l >> 6);
     const std::int64_t i = i0 + lx, j = j0 + ly, k = k0 + lz;
     const bool inside = i < dims[0] && j < dims[1] && k < dims[2];
-    elements[l].mat = inside ? material_at(i, j, k) : std::uint8_t{0};
+    const std::uint64_t mat = inside ? material_at(i, j, k) : std::uint8_t{0};
     const int h = (lx + 1) + 10 * ((ly + 1) + 10 * (lz + 1));
-    unsigned bits = 0;
+    std::uint64_t bits = 0;
     if (pres[static_cast<std::size_t>(h)])
       for (int d = 0; d < 6; ++d)
         if (pres[static_cast<std::size_t>(h + kHaloStep[d])]) bits |= 1u << d;
-    elements[l].links = static_cast<std::uint8_t>(bits);
+    marks[l] = (marks[l] & ~kLatticeBits) | (mat << kMatShift) | (bits << kLinksShift);
   }
+  return std::max(uniform, std::int32_t{-1});
 }
 }  // namespace
 
@@ -295,9 +306,11 @@ std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std:
   B.coord = {static_cast<std::int32_t>(bx), static_cast<std::int32_t>(by), static_cast<std::int32_t>(bz)};
   B.nbr.fill(-1);
   B.nbrp.fill(nullptr);
-  for (Element& x : B.e) x = Element{{}, 0, 0, 0, 0, kNoKey};
-  fill_brick_links(
-      B.e, B.coord, lattice_.dims,
+  for (auto& axis : B.u) axis.fill(0.0);
+  B.mark.fill(0);
+  B.key.fill(0.0);
+  B.uniform = fill_brick_links(
+      B.mark, B.coord, lattice_.dims,
       [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
       [this](std::int64_t i, std::int64_t j, std::int64_t k) { return material_at(i, j, k); });
   const auto index = static_cast<std::int32_t>(bricks_.size());
@@ -356,7 +369,7 @@ bool ChainMail::linked(const Index& e, int axis) const noexcept {
   const std::int32_t b = find_brick(e[0] >> kBrickShift, e[1] >> kBrickShift, e[2] >> kBrickShift);
   if (b < 0) return true;  // cut links always live in materialised bricks
   const auto local = static_cast<std::uint32_t>((e[0] & 7) | ((e[1] & 7) << 3) | ((e[2] & 7) << 6));
-  return ((static_cast<unsigned>(bricks_[static_cast<std::size_t>(b)]->e[local].links) >> (2 * axis)) & 1u) != 0;
+  return ((links_of(bricks_[static_cast<std::size_t>(b)]->mark[local]) >> (2 * axis)) & 1u) != 0;
 }
 
 Vec3 ChainMail::rest_position(const Index& e) const noexcept {
@@ -369,7 +382,7 @@ Vec3 ChainMail::displacement(const Index& e) const noexcept {
   const std::int32_t b = find_brick(e[0] >> kBrickShift, e[1] >> kBrickShift, e[2] >> kBrickShift);
   if (b < 0) return {};
   const auto local = static_cast<std::uint32_t>((e[0] & 7) | ((e[1] & 7) << 3) | ((e[2] & 7) << 6));
-  return bricks_[static_cast<std::size_t>(b)]->e[local].u;
+  return bricks_[static_cast<std::size_t>(b)]->displacement(local);
 }
 
 void ChainMail::check_element(const Index& e, const char* what) const {
@@ -381,35 +394,64 @@ void ChainMail::check_element(const Index& e, const char* what) const {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Queue: a radix heap (Ahuja et al. 1990) on heap_key(violation): exact largest-first, O(1)
-// push, amortised O(log of the key range) pop, valid because no push is larger than the last pop.
+// Queue: a radix heap (Ahuja et al. 1990) on heap_key(violation), with radix 16: exact
+// largest-first, O(1) push, pop amortised O(entries moved), each entry moved at most once per
+// hexadecimal digit of the key range (usually once or twice); valid because no push is larger
+// than the last pop. Bucket 1 + 16 p + v holds the keys whose highest hexadecimal digit that
+// differs from the last popped key is digit p, with value v there; so a bucket of a higher index
+// holds only larger keys. Keys equal to the last popped one (ties) are in bucket ties_, taken
+// first in, first out: bucket 0, or the bucket that held the least key when all its keys were
+// equal (then nothing is moved: a wavefront of equal violations is taken where it was queued).
 
-[[gnu::always_inline]] inline void ChainMail::push(std::uint64_t key, std::uint32_t ref) {
-  if (key < heap_last_) key = heap_last_;  // only after an invalid earlier state: taken next
-  const std::size_t b = key == heap_last_ ? 0 : static_cast<std::size_t>(64 - std::countl_zero(key ^ heap_last_));
+namespace {
+[[gnu::always_inline]] inline std::size_t heap_bucket(std::uint64_t key, std::uint64_t last, std::size_t ties) noexcept {
+  const std::uint64_t x = key ^ last;
+  const int p = (std::bit_width(x | 1u) - 1) >> 2;  // highest differing digit (when x != 0)
+  return x == 0 ? ties : static_cast<std::size_t>(1 + 16 * p + static_cast<int>((key >> (4 * p)) & 15u));
+}
+}  // namespace
+
+[[gnu::always_inline]] inline void ChainMail::push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties) {
+  key = std::max(key, last);  // larger only after an invalid earlier state: taken next
+  const std::size_t b = heap_bucket(key, last, ties);
   heap_[b].push_back({key, ref});
-  ++heap_size_;
+  heap_nonempty_[b >> 6] |= std::uint64_t{1} << (b & 63u);
 }
 
-bool ChainMail::pop(std::uint32_t& ref) {
-  if (heap_size_ == 0) return false;
-  std::vector<HeapEntry>& ties = heap_[0];  // FIFO from heap_head_: the order of a wavefront
-  if (heap_head_ == ties.size()) {
-    ties.clear();
-    heap_head_ = 0;
-    std::size_t i = 1;
-    while (heap_[i].empty()) ++i;
-    std::uint64_t least = heap_[i].front().key;
-    for (const HeapEntry& h : heap_[i]) least = std::min(least, h.key);
-    heap_last_ = least;
-    for (const HeapEntry& h : heap_[i]) {
-      const std::size_t b = h.key == heap_last_ ? 0 : static_cast<std::size_t>(64 - std::countl_zero(h.key ^ heap_last_));
-      heap_[b].push_back(h);
+// The ties are used up: the least key of the next non-empty bucket becomes the last popped one,
+// and that bucket becomes the ties (all its keys are equal) or is spread over the lower ones.
+// False when the heap is empty.
+bool ChainMail::refill() {
+  heap_[heap_ties_].clear();
+  heap_nonempty_[heap_ties_ >> 6] &= ~(std::uint64_t{1} << (heap_ties_ & 63u));
+  heap_head_ = 0;
+  std::size_t i = 0;
+  for (std::size_t w = 0;; ++w) {
+    if (w == heap_nonempty_.size()) return false;
+    if (heap_nonempty_[w] != 0) {
+      i = 64 * w + static_cast<std::size_t>(std::countr_zero(heap_nonempty_[w]));
+      break;
     }
-    heap_[i].clear();
   }
-  ref = ties[heap_head_++].ref;
-  --heap_size_;
+  std::vector<HeapEntry>& src = heap_[i];
+  std::uint64_t least = src.front().key, most = least;
+  for (const HeapEntry& h : src) {
+    least = std::min(least, h.key);
+    most = std::max(most, h.key);
+  }
+  heap_last_ = least;
+  if (least == most) {  // all ties: taken where they are
+    heap_ties_ = i;
+    return true;
+  }
+  heap_ties_ = 0;
+  heap_nonempty_[i >> 6] &= ~(std::uint64_t{1} << (i & 63u));
+  for (const HeapEntry& h : src) {
+    const std::size_t b = heap_bucket(h.key, least, 0);
+    heap_[b].push_back(h);
+    heap_nonempty_[b >> 6] |= std::uint64_t{1} << (b & 63u);
+  }
+  src.clear();
   return true;
 }
 
@@ -471,97 +513,152 @@ void ChainMail::check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t 
     nb = materialise_brick(c[0], c[1], c[2]);
     r.materialised += kBrickElements;
   }
-  if (!queue_state<A>(bricks_[static_cast<std::size_t>(nb)]->e[nl], step_, violation)) return;
-  push(heap_key(violation, inv_quantum_), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl);
+  Brick& N = *bricks_[static_cast<std::size_t>(nb)];
+  if (!queue_state<A>(N.mark[nl], N.key[nl], step_ << kTagShift, violation)) return;
+  push(heap_key(violation, inv_quantum_), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl,
+       heap_last_, heap_ties_);
 }
+
+// What the queue loop of a step keeps in registers. As members they would be reloaded after
+// every store to a mark (std::uint64_t) or a displacement (double), which may alias them.
+struct ChainMail::Hot {
+  std::uint64_t tag;   // step_ << kTagShift
+  std::uint64_t last;  // heap_last_
+  std::size_t ties;    // heap_ties_
+  double eps;          // eps_
+  double inv_quantum;  // inv_quantum_
+  std::uint64_t processed = 0, moved = 0, conflicts = 0;
+};
 
 // Settles coordinate A of one element: to the nearest point of the intersection of the intervals
 // that its neighbours already final on A allow (the middle where they do not intersect: a
 // conflict); then checks its other neighbours on A. The hot loop of a step.
-template <int A>
-void ChainMail::settle(std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
-  Brick& B = *bricks_[b];
-  Element& E = B.e[l];
-  const unsigned links = E.links;
-  const Box* row = boxes_.data() + static_cast<std::size_t>(E.mat) * n_materials_ * 6;
+template <int A, bool Uniform>
+[[gnu::always_inline]] inline void ChainMail::settle(Hot& h, Brick& B, std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
+  const std::uint64_t self = B.mark[l];
+  const unsigned links = links_of(self);
+  const std::size_t mat = mat_of(self);
+  const AxisBox* row = axis_boxes_[A].data() + mat * n_materials_ * 6;
   const unsigned cross = kNeighbours.cross[l];
   const std::array<std::uint16_t, 6>& nls = kNeighbours.local[l];
   // Pass 1: the bounds of the final neighbours, and what the others need in pass 2. Selects
-  // instead of branches: whether a neighbour is final does not predict well.
-  std::array<Element*, 6> np{};
-  std::array<double, 6> blo{}, bhi{}, un{};
+  // instead of branches (whether a neighbour is final does not predict well): a neighbour that is
+  // not final gives the bounds ±inf (x − (±inf)), a final one x − 0 = x (even for x = −0).
+  static constexpr double kLoPad[2] = {kInf, 0.0}, kHiPad[2] = {-kInf, 0.0};
+  std::array<Brick*, 6> np;  // read only for the bits of `open`, all written
+  std::array<double, 6> blo, bhi, un;
   unsigned open = 0;  // bit d: a linked neighbour that is not final on A
   double lo = -kInf, hi = kInf;
   // Final on A in this step: the step bits and A's state bits match.
-  const std::uint64_t final_mask = ~std::uint64_t{0xFF} | (std::uint64_t{3} << (2 * A));
-  const std::uint64_t final_value = (step_ << kTagShift) | (kFinal << (2 * A));
+  constexpr std::uint64_t final_mask = kStepBits | (std::uint64_t{3} << (2 * A));
+  const std::uint64_t final_value = h.tag | (kFinal << (2 * A));
 #pragma GCC unroll 6
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
     const auto di = static_cast<std::size_t>(d);
     Brick* NB = ((cross >> d) & 1u) != 0 ? B.nbrp[di] : &B;
     if (NB == nullptr) [[unlikely]] {  // its brick is not materialised: at rest, not final
-      const Box& bx = row[static_cast<std::size_t>(neighbour_material(B, l, d)) * 6 + di];
+      const AxisBox& bx = row[static_cast<std::size_t>(neighbour_material(B, l, d)) * 6 + di];
       np[di] = nullptr;
-      blo[di] = at<A>(bx.lo);
-      bhi[di] = at<A>(bx.hi);
+      blo[di] = bx.lo;
+      bhi[di] = bx.hi;
       un[di] = 0;
       open |= 1u << d;
       continue;
     }
-    Element& N = NB->e[nls[di]];
-    const Box& bx = row[static_cast<std::size_t>(N.mat) * 6 + di];
-    const bool fin = (N.mark & final_mask) == final_value;
-    const double u = at<A>(N.u), lo_d = at<A>(bx.lo), hi_d = at<A>(bx.hi);
-    // The bounds of a final neighbour; ±inf (no bound) for the others, selected by bit masks.
-    const std::uint64_t keep = std::uint64_t{0} - static_cast<std::uint64_t>(fin);
-    lo = std::max(lo, std::bit_cast<double>((std::bit_cast<std::uint64_t>(u - hi_d) & keep) | (kNegInfBits & ~keep)));
-    hi = std::min(hi, std::bit_cast<double>((std::bit_cast<std::uint64_t>(u - lo_d) & keep) | (kPosInfBits & ~keep)));
-    np[di] = &N;
+    const std::uint32_t nl = nls[di];
+    const std::uint64_t m = NB->mark[nl];
+    const AxisBox& bx = row[(Uniform ? mat : mat_of(m)) * 6 + di];
+    const auto fin = static_cast<std::size_t>((m & final_mask) == final_value);
+    const double u = NB->u[A][nl], lo_d = bx.lo, hi_d = bx.hi;
+    lo = std::max(lo, (u - hi_d) - kLoPad[fin]);
+    hi = std::min(hi, (u - lo_d) - kHiPad[fin]);
+    np[di] = NB;
     blo[di] = lo_d;
     bhi[di] = hi_d;
     un[di] = u;
-    open |= static_cast<unsigned>(!fin) << d;
+    open |= static_cast<unsigned>(fin ^ 1u) << d;
   }
   // Place the coordinate.
-  const double before = at<A>(E.u);
+  double& uself = B.u[A][l];
+  const double before = uself;
   double v;
   if (lo > hi) [[unlikely]] {
-    if (lo - hi > eps_) ++r.conflicts;
+    if (lo - hi > h.eps) ++h.conflicts;
     v = 0.5 * (lo + hi);
   } else {
     v = std::min(std::max(before, lo), hi);
   }
-  std::uint64_t mark = with_state(E.mark, step_, A, kFinal);
+  std::uint64_t mark = (self & ~(std::uint64_t{3} << (2 * A))) | (kFinal << (2 * A));  // queued: self is of this step
   if (v != before) {
-    at<A>(E.u) = v;
-    r.moved += (mark & kMovedBit) == 0 ? 1u : 0u;
+    uself = v;
+    h.moved += (mark & kMovedBit) == 0 ? 1u : 0u;
     mark |= kMovedBit;
   }
-  E.mark = mark;
-  ++r.processed;
+  B.mark[l] = mark;
+  ++h.processed;
   // Pass 2: queue the neighbours that are outside the interval this coordinate now allows them.
   for (unsigned m = open; m != 0; m &= m - 1) {
     const int d = std::countr_zero(m);
     const auto di = static_cast<std::size_t>(d);
     const double violation = std::max(v + blo[di] - un[di], un[di] - (v + bhi[di]));
-    if (!(violation > eps_)) continue;
+    if (!(violation > h.eps)) continue;
+    const std::uint32_t nl = nls[di];
     if (np[di] == nullptr) [[unlikely]] {
-      check_neighbour<A>(-1, nls[di], static_cast<std::int32_t>(b), d, v + blo[di], v + bhi[di], un[di], r);
+      check_neighbour<A>(-1, nl, static_cast<std::int32_t>(b), d, v + blo[di], v + bhi[di], un[di], r);
       continue;
     }
-    if (!queue_state<A>(*np[di], step_, violation)) continue;
+    if (!queue_state<A>(np[di]->mark[nl], np[di]->key[nl], h.tag, violation)) continue;
     const std::uint32_t nb = ((cross >> d) & 1u) != 0 ? static_cast<std::uint32_t>(B.nbr[di]) : b;
-    push(heap_key(violation, inv_quantum_), (nb << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nls[di]);
+    push(heap_key(violation, h.inv_quantum), (nb << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl, h.last, h.ties);
   }
+}
+
+// Candidates (element, axis), largest violation first, until the queue is empty; stale entries
+// (re-queued higher, already final) are skipped.
+void ChainMail::drain(ChainMailStepResult& r) {
+  Hot h{step_ << kTagShift, heap_last_, heap_ties_, eps_, inv_quantum_};
+  std::size_t head = heap_head_;
+  for (;;) {
+    if (head == heap_[h.ties].size()) {
+      if (!refill()) break;
+      head = 0;
+      h.last = heap_last_;
+      h.ties = heap_ties_;
+    }
+    const std::vector<HeapEntry>& ties = heap_[h.ties];
+    const std::uint32_t ref = ties[head++].ref;
+    const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
+    const int a = static_cast<int>((ref >> kLocalBits) & 3u);
+    Brick& B = *bricks_[b];
+    if (((B.mark[l] >> (2 * a)) & 3u) == kFinal) continue;  // queued, so the mark is of this step
+    if (B.uniform >= 0) {
+      switch (a) {
+        case 0: settle<0, true>(h, B, b, l, r); break;
+        case 1: settle<1, true>(h, B, b, l, r); break;
+        default: settle<2, true>(h, B, b, l, r); break;
+      }
+    } else {
+      switch (a) {
+        case 0: settle<0, false>(h, B, b, l, r); break;
+        case 1: settle<1, false>(h, B, b, l, r); break;
+        default: settle<2, false>(h, B, b, l, r); break;
+      }
+    }
+  }
+  heap_head_ = head;
+  r.processed += h.processed;
+  r.moved += h.moved;
+  r.conflicts += h.conflicts;
 }
 
 // Places a sponsor (all three coordinates, final), counts a conflict when a neighbour already
 // final disagrees, and checks its other neighbours on every axis.
 void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMailStepResult& r) {
   Brick& B = *bricks_[b];
-  const unsigned links = B.e[l].links;
-  const std::size_t row = static_cast<std::size_t>(B.e[l].mat) * n_materials_;
+  const std::uint64_t self = B.mark[l];
+  const unsigned links = links_of(self);
+  const std::size_t row = mat_of(self) * n_materials_;
   bool conflict = false;
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
@@ -570,20 +667,24 @@ void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMai
     neighbour_of(B.nbr, b, l, d, nb, nl);
     if (nb < 0) continue;  // at rest, not final
     const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-    const Box& bx = boxes_[(row + N.e[nl].mat) * 6 + static_cast<std::size_t>(d)];
-    const Vec3 rel = N.e[nl].u - u;  // must lie in the box on every axis where N is final
-    if (axis_state(N.e[nl].mark, step_, 0) == kFinal && (rel.x < bx.lo.x - eps_ || rel.x > bx.hi.x + eps_)) conflict = true;
-    if (axis_state(N.e[nl].mark, step_, 1) == kFinal && (rel.y < bx.lo.y - eps_ || rel.y > bx.hi.y + eps_)) conflict = true;
-    if (axis_state(N.e[nl].mark, step_, 2) == kFinal && (rel.z < bx.lo.z - eps_ || rel.z > bx.hi.z + eps_)) conflict = true;
+    const std::size_t box = (row + mat_of(N.mark[nl])) * 6 + static_cast<std::size_t>(d);
+    for (int a = 0; a < 3; ++a) {  // N - u must lie in the box on every axis where N is final
+      const auto ai = static_cast<std::size_t>(a);
+      const double rel = N.u[ai][nl] - comp(u, a);
+      const AxisBox& bx = axis_boxes_[ai][box];
+      if (axis_state(N.mark[nl], step_, a) == kFinal && (rel < bx.lo - eps_ || rel > bx.hi + eps_)) conflict = true;
+    }
   }
   if (conflict) ++r.conflicts;
-  std::uint64_t mark = step_ << kTagShift | kFinal | kFinal << 2 | kFinal << 4;
-  if (!(u == B.e[l].u)) {
+  std::uint64_t mark = (step_ << kTagShift) | (self & kLatticeBits) | (kSponsorKey << kKeyAxisShift) | kFinal | kFinal << 2 | kFinal << 4;
+  if (!(u == B.displacement(l))) {
     mark |= kMovedBit;
     ++r.moved;
-    B.e[l].u = u;
+    B.u[0][l] = u.x;
+    B.u[1][l] = u.y;
+    B.u[2][l] = u.z;
   }
-  B.e[l].mark = mark;
+  B.mark[l] = mark;
   ++r.processed;
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
@@ -591,20 +692,21 @@ void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMai
     std::uint32_t nl = 0;
     neighbour_of(B.nbr, b, l, d, nb, nl);
     Vec3 un{};
-    std::uint8_t mn;
+    std::size_t mn;
     if (nb >= 0) {
-      un = bricks_[static_cast<std::size_t>(nb)]->e[nl].u;
-      mn = bricks_[static_cast<std::size_t>(nb)]->e[nl].mat;
+      un = bricks_[static_cast<std::size_t>(nb)]->displacement(nl);
+      mn = mat_of(bricks_[static_cast<std::size_t>(nb)]->mark[nl]);
     } else {
       mn = neighbour_material(B, l, d);
     }
-    const Box bx = boxes_[(row + mn) * 6 + static_cast<std::size_t>(d)];
+    const std::size_t box = (row + mn) * 6 + static_cast<std::size_t>(d);
+    const AxisBox bx = axis_boxes_[0][box], by = axis_boxes_[1][box], bz = axis_boxes_[2][box];
     // check_neighbour may materialise nb's brick; re-resolve for each axis.
-    check_neighbour<0>(nb, nl, static_cast<std::int32_t>(b), d, u.x + bx.lo.x, u.x + bx.hi.x, un.x, r);
+    check_neighbour<0>(nb, nl, static_cast<std::int32_t>(b), d, u.x + bx.lo, u.x + bx.hi, un.x, r);
     neighbour_of(B.nbr, b, l, d, nb, nl);
-    check_neighbour<1>(nb, nl, static_cast<std::int32_t>(b), d, u.y + bx.lo.y, u.y + bx.hi.y, un.y, r);
+    check_neighbour<1>(nb, nl, static_cast<std::int32_t>(b), d, u.y + by.lo, u.y + by.hi, un.y, r);
     neighbour_of(B.nbr, b, l, d, nb, nl);
-    check_neighbour<2>(nb, nl, static_cast<std::int32_t>(b), d, u.z + bx.lo.z, u.z + bx.hi.z, un.z, r);
+    check_neighbour<2>(nb, nl, static_cast<std::int32_t>(b), d, u.z + bz.lo, u.z + bz.hi, un.z, r);
   }
 }
 
@@ -633,20 +735,24 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
   }
 
   ChainMailStepResult r;
-  ++step_;
+  if (++step_ > kMaxStep) {  // once in 4e9 steps: every mark back to "an earlier step"
+    for (auto& brick : bricks_)
+      for (std::uint64_t& m : brick->mark) m &= kLatticeBits;
+    step_ = 1;
+  }
   for (auto& bucket : heap_) bucket.clear();  // empty unless an earlier step ended by an exception
-  heap_size_ = 0;
+  heap_nonempty_.fill(0);
   heap_last_ = 0;
   heap_head_ = 0;
+  heap_ties_ = 0;
 
   // Sponsors: materialised and marked first, so that none is queued as a candidate.
   step_refs_.clear();
   const std::size_t bricks_before = bricks_.size();
   for (const ChainMailSponsor& s : sponsors) {
     const std::uint32_t ref = materialise_element(s.element);
-    Brick& B = *bricks_[ref >> kRefBrickShift];
-    B.e[ref & (kBrickElements - 1)].mark = step_ << kTagShift | kQueued | kQueued << 2 | kQueued << 4;
-    B.e[ref & (kBrickElements - 1)].key_axis = kSponsorKey;
+    std::uint64_t& mark = bricks_[ref >> kRefBrickShift]->mark[ref & (kBrickElements - 1)];
+    mark = (step_ << kTagShift) | (mark & kLatticeBits) | (kSponsorKey << kKeyAxisShift) | kQueued | kQueued << 2 | kQueued << 4;
     step_refs_.push_back(ref);
   }
   r.materialised += (bricks_.size() - bricks_before) * kBrickElements;
@@ -654,19 +760,7 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
     place_sponsor(step_refs_[s] >> kRefBrickShift, step_refs_[s] & (kBrickElements - 1),
                   sponsors[s].position - rest_position(sponsors[s].element), r);
 
-  // Candidates (element, axis), largest violation first; stale entries (re-queued higher,
-  // already final) are skipped.
-  std::uint32_t ref = 0;
-  while (pop(ref)) {
-    const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
-    const int a = static_cast<int>((ref >> kLocalBits) & 3u);
-    if (axis_state(bricks_[b]->e[l].mark, step_, a) == kFinal) continue;
-    switch (a) {
-      case 0: settle<0>(b, l, r); break;
-      case 1: settle<1>(b, l, r); break;
-      default: settle<2>(b, l, r); break;
-    }
-  }
+  drain(r);
   return r;
 }
 
@@ -747,8 +841,8 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
             const Index e{i, j, k}, n{in, jn, k};
             if (!linked(e, axis)) continue;
             const std::uint32_t re = materialise_element(e), rn = materialise_element(n);
-            bricks_[re >> kRefBrickShift]->e[re & (kBrickElements - 1)].links &= static_cast<std::uint8_t>(~(1u << (2 * axis)));
-            bricks_[rn >> kRefBrickShift]->e[rn & (kBrickElements - 1)].links &= static_cast<std::uint8_t>(~(1u << (2 * axis + 1)));
+            bricks_[re >> kRefBrickShift]->mark[re & (kBrickElements - 1)] &= ~(std::uint64_t{1} << (kLinksShift + 2 * axis));
+            bricks_[rn >> kRefBrickShift]->mark[rn & (kBrickElements - 1)] &= ~(std::uint64_t{1} << (kLinksShift + 2 * axis + 1));
             ++out.links_removed;
             const double arc = g.arc0 + u * g.len;
             hits.push_back({linear_of(i, j, k), static_cast<std::uint32_t>(si), ca >= 0 ? 1 : -1, arc});
@@ -852,9 +946,9 @@ ChainMailStepResult ChainMail::open_groove(const ChainMailCut& cut, double width
 void ChainMail::reset() noexcept {
   for (auto& brick : bricks_) {
     Brick& B = *brick;
-    for (Element& x : B.e) x.u = {};
-    fill_brick_links(
-        B.e, B.coord, lattice_.dims,
+    for (auto& axis : B.u) axis.fill(0.0);
+    B.uniform = fill_brick_links(
+        B.mark, B.coord, lattice_.dims,
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return material_at(i, j, k); });
   }
@@ -866,7 +960,7 @@ void ChainMail::for_each_materialised(const std::function<void(const Index&, con
     for (std::uint32_t l = 0; l < kBrickElements; ++l) {
       const Index e{B.coord[0] * kBrickEdge + static_cast<int>(l & 7u), B.coord[1] * kBrickEdge + static_cast<int>((l >> 3) & 7u),
                     B.coord[2] * kBrickEdge + static_cast<int>(l >> 6)};
-      if (present(e)) fn(e, B.e[l].u);
+      if (present(e)) fn(e, B.displacement(l));
     }
   }
 }
@@ -880,7 +974,7 @@ std::size_t ChainMail::heap_capacity_bytes() const noexcept {
 std::uint64_t ChainMail::materialised_elements() const noexcept { return std::uint64_t{bricks_.size()} * kBrickElements; }
 
 std::size_t ChainMail::bytes_used() const noexcept {
-  return sizeof(*this) + materials_.capacity() * sizeof(ChainMailMaterial) + boxes_.capacity() * sizeof(Box) +
+  return sizeof(*this) + materials_.capacity() * sizeof(ChainMailMaterial) + 3 * axis_boxes_[0].capacity() * sizeof(AxisBox) +
          bricks_.capacity() * sizeof(std::unique_ptr<Brick>) + bricks_.size() * sizeof(Brick) +
          hash_keys_.capacity() * sizeof(std::uint64_t) + hash_vals_.capacity() * sizeof(std::int32_t) +
          step_refs_.capacity() * sizeof(std::uint32_t) + step_linear_.capacity() * sizeof(std::uint64_t) +

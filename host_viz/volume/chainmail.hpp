@@ -30,10 +30,11 @@
 //
 // Once per step. Each coordinate of each element is settled at most once per step: an element
 // pushed along one axis (a groove, a push) is processed once, one moved diagonally at most three
-// times, once per coordinate. Instead of Dräger's ignore-direction flags (thesis fig. 3.22) or a
-// timestamp that wraps, each element carries a 64-bit mark: the step counter (56 bits, 7e16
-// steps: it cannot wrap) above a "moved" bit and 2 bits of state per axis (untouched, queued,
-// final). A queued candidate whose violation grows (a second moved neighbour pushes it harder) is
+// times, once per coordinate. Instead of Dräger's ignore-direction flags (thesis fig. 3.22), each
+// element carries a 64-bit mark: the step counter (32 bits; after 4e9 steps every mark's counter
+// is cleared once and counting starts again) above its material, its 6 link bits, the axis of its
+// queued violation, a "moved" bit and 2 bits of state per axis (untouched, queued, final), so
+// that checking a neighbour reads one word besides its coordinate. A queued candidate whose violation grows (a second moved neighbour pushes it harder) is
 // re-queued at the higher priority and the stale entry is skipped when it comes up, as in
 // Dijkstra's algorithm; it is still settled once. The thesis also restricts the left side of a
 // cut to propagate only left/down and the right side only right/down. Here the removed links
@@ -42,12 +43,15 @@
 // leave the links between the two sides unchecked (invalid). So it is not used: both sides' drags
 // meet there, and an impossible opening is reported as conflicts.
 //
-// Priority queue. A radix heap (Ahuja, Mehlhorn, Orlin, Tarjan 1990) on the violation counted in
-// quanta of a quarter of the tolerance (1e-9 of the smallest spacing): exact largest-first up to
-// that quantum, O(1) push, amortised O(log range) pop. It needs monotone keys (nothing pushed
-// larger than the last pop), which holds when the step starts from a valid state: a neighbour's
-// violation cannot exceed that of the element that moved it. Equal violations (a wavefront) are
-// taken first in, first out.
+// Priority queue. A radix heap (Ahuja, Mehlhorn, Orlin, Tarjan 1990) of radix 16 on the violation
+// counted in quanta of a quarter of the tolerance (1e-9 of the smallest spacing): exact
+// largest-first up to that quantum, O(1) push, each entry moved at most once per hexadecimal
+// digit of the key range (a bitmask finds the next non-empty bucket). It needs monotone keys
+// (nothing pushed larger than the last pop), which holds when the step starts from a valid state:
+// a neighbour's violation cannot exceed that of the element that moved it. Equal violations (a
+// wavefront) are taken first in, first out, where they were queued when a whole bucket ties. The
+// order, and so every result, is the same as with the radix-2 heap used before (a test compares
+// against a plain reference with a std::priority_queue, bit for bit).
 //
 // Cut and groove. cut() removes every x and y link that crosses the cut surface: the polyline (x,
 // y; z ignored) swept from the lattice's top layer (largest z) down by `depth`. The elements at
@@ -66,15 +70,22 @@
 // Memory. Elements live in 8×8×8 bricks created on demand (an open-addressing hash from brick
 // coordinates; each brick keeps its 6 neighbour bricks, so a step never hashes). Only bricks that
 // hold a moved, queued or cut element exist; memory follows the deformed region, never the volume:
-// the same cut in a 64³ and a 4096³ lattice uses the same bytes. Per element 48 B (displacement,
-// mark, queued violation, links, material), so 24.6 kB per brick; plus the heap (16 B per queued
-// entry, the capacity of the largest step so far) and the hash.
+// the same cut in a 64³ and a 4096³ lattice uses the same bytes. A brick stores its elements as
+// arrays (displacement per axis, mark, queued violation: 40 B per element, 20.6 kB per brick), so
+// settling one axis touches 16 B per element and an x-row of 8 shares a cache line. A brick whose
+// elements and halo all have one material is flagged, and its steps skip the per-neighbour
+// material lookup. Plus the heap (16 B per queued entry, the capacity of the largest step so far)
+// and the hash.
 //
-// Speed (lancet-bench-chainmail, -O2, on the 2-core development VM): about 1e7 settled
-// coordinates per second on a warm step (an 8 mm groove: 1.1e7/s; a 667 k-element push: 1.0e7/s),
-// 14 times the thesis's 7.3e5/s but 5 times short of the 5e7/s target; about 45 ns each when the
-// region fits the cache, 100 ns when it does not. The same run's yardstick, a bare FIFO flood over
-// a dense array with no priority, reaches only 4.3e7/s to 4.9e7/s on that machine.
+// Speed (lancet-bench-chainmail, RelWithDebInfo -O2, on the 2-core development VM, 2026-11-26):
+// on a warm step an 8 mm groove settles 1.1e7 to 1.2e7 coordinates per second, a 667 k-element
+// push 1.4e7/s: 1.5 and 1.7 times the version before, 15–19 times the thesis's 7.3e5/s, but 3.5
+// to 4.5 times short of the 5e7/s target and at 0.28x (groove) and 0.34x (push) of the same run's
+// yardstick, a bare FIFO flood over a dense array with no priority (4.1e7/s to 4.5e7/s there).
+// A settled coordinate costs about 600 instructions (callgrind, a small push: 6 neighbours read,
+// their intervals intersected, the others checked and queued, the heap's share), about 55 ns when
+// the region fits the cache and 70 ns when it does not: the step is bound by its work, not by
+// memory (prefetching the queue's next entries gained nothing).
 //
 // Threads and allocation: one thread (the viz thread); not real-time safe. A step allocates when
 // the deformed region grows (new bricks) or its queue outgrows the heap's buckets of earlier steps;
@@ -225,8 +236,8 @@ class ChainMail {
 
  private:
   struct Brick;
-  struct Box {
-    Vec3 lo, hi;  // neighbour's displacement minus the element's, per axis
+  struct AxisBox {
+    double lo, hi;  // m, neighbour's displacement minus the element's, on one axis
   };
   struct HeapEntry {
     std::uint64_t key;  // ~(violation in quanta): larger violations first
@@ -240,21 +251,23 @@ class ChainMail {
   std::int32_t materialise_brick(std::int64_t bx, std::int64_t by, std::int64_t bz);
   std::uint32_t materialise_element(const Index& e);
   void check_element(const Index& e, const char* what) const;
-  void push(std::uint64_t key, std::uint32_t ref);
-  bool pop(std::uint32_t& ref);
+  struct Hot;
+  void push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties);
+  [[nodiscard]] bool refill();
+  void drain(ChainMailStepResult& r);
   [[nodiscard]] std::size_t heap_capacity_bytes() const noexcept;
   template <int A>
   void check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
                        ChainMailStepResult& r);
-  template <int A>
-  void settle(std::uint32_t brick, std::uint32_t local, ChainMailStepResult& r);
+  template <int A, bool Uniform>
+  void settle(Hot& h, Brick& brick, std::uint32_t b, std::uint32_t local, ChainMailStepResult& r);
   void place_sponsor(std::uint32_t brick, std::uint32_t local, Vec3 u, ChainMailStepResult& r);
 
   ChainMailLattice lattice_;
   std::vector<ChainMailMaterial> materials_;
   std::span<const std::uint8_t> ids_;
   std::size_t n_materials_ = 0;
-  std::vector<Box> boxes_;  // (m1 · n + m2) · 6 + direction
+  std::array<std::vector<AxisBox>, 3> axis_boxes_;  // per axis: (m1 · n + m2) · 6 + direction
   double eps_ = 0;          // m, tolerance for violations and conflicts
   double inv_quantum_ = 0;  // 1/m, heap keys count violations in eps_/4
 
@@ -267,10 +280,11 @@ class ChainMail {
   std::vector<std::uint32_t> step_refs_;           // scratch: the sponsors' elements
   std::vector<std::uint64_t> step_linear_;         // scratch: duplicate check
   std::vector<ChainMailSponsor> groove_sponsors_;  // scratch of open_groove()
-  std::array<std::vector<HeapEntry>, 65> heap_;    // radix heap buckets
-  std::uint64_t heap_last_ = 0;
-  std::size_t heap_size_ = 0;
-  std::size_t heap_head_ = 0;                      // next entry of heap_[0] (first in, first out)
+  std::array<std::vector<HeapEntry>, 257> heap_;   // radix heap buckets (radix 16)
+  std::array<std::uint64_t, 5> heap_nonempty_{};   // bit b: heap_[b] may hold entries (the ties' bit is clear)
+  std::uint64_t heap_last_ = 0;                    // the last popped key
+  std::size_t heap_ties_ = 0;                      // the bucket of the keys equal to heap_last_
+  std::size_t heap_head_ = 0;                      // next entry of heap_[heap_ties_] (first in, first out)
 };
 
 }  // namespace lancet::volume

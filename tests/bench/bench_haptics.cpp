@@ -1,6 +1,11 @@
 // lancet-bench-haptics: the cost of one haptic tick (proxy + friction + stage machine + safety)
-// against TissuePatches of 64, 256 and 1024 triangles, with the tool sliding in contact (probe)
-// and cutting (scalpel). Prints one JSON object: p50, p90, p99, max in ns per tick.
+// against TissuePatches of 64 to 16 384 triangles over 4 cm × 4 cm, with the tool sliding in
+// contact (probe), cutting (scalpel), and sliding on tissue that moves under it (a new patch every
+// 33 ticks, the sheet bobbing 1 mm and drifting sideways: those ticks also build the patch's search
+// tree). Each as lancet-rt runs it (through the patch's search tree) and, for comparison, scanning
+// every triangle (the step without a patch version; fewer ticks). Then what a patch's arrival
+// costs lancet-rt once: the seqlock copy of the triangles in use, the validation, the tree.
+// Prints one JSON object: p50, p90, p99, max in ns.
 //   lancet-bench-haptics [--ticks N]
 
 #include <algorithm>
@@ -13,14 +18,19 @@
 #include <vector>
 
 #include "haptics/haptic_step.hpp"
+#include "haptics/patch_bvh.hpp"
+#include "lancet/shared_model/seqlock.hpp"
 #include "lancet/shared_model/units.hpp"
+#include "lancet/shared_model/validate.hpp"
 
 namespace {
 
 using namespace lancet;
 
-// A flat sheet of n triangles (nx × ny cells × 2) over 4 cm × 4 cm.
-std::unique_ptr<TissuePatch> sheet(int n) {
+// A flat sheet of n triangles (nx × ny cells × 2), raised by dz and shifted by dx: over 4 cm ×
+// 4 cm (cell 0: denser as n grows), or of cells `cell` metres wide (larger as n grows: what a
+// larger patch of the same surface is).
+std::unique_ptr<TissuePatch> sheet(int n, float dz = 0, float dx = 0, float cell = 0) {
   auto p = std::make_unique<TissuePatch>();
   const int cells = n / 2;
   int nx = static_cast<int>(std::sqrt(cells));
@@ -29,13 +39,15 @@ std::unique_ptr<TissuePatch> sheet(int n) {
   const auto z = [](float, float) { return 0.0f; };  // flat: the scalpel stays in its cut
   for (int j = 0; j < ny; ++j)
     for (int i = 0; i < nx; ++i) {
-      const float x0 = -0.02f + 0.04f * static_cast<float>(i) / static_cast<float>(nx);
-      const float x1 = -0.02f + 0.04f * static_cast<float>(i + 1) / static_cast<float>(nx);
-      const float y0 = -0.02f + 0.04f * static_cast<float>(j) / static_cast<float>(ny);
-      const float y1 = -0.02f + 0.04f * static_cast<float>(j + 1) / static_cast<float>(ny);
-      const Vec3f a{x0, y0, z(x0, y0)}, b{x1, y0, z(x1, y0)}, c{x1, y1, z(x1, y1)}, d{x0, y1, z(x0, y1)};
-      p->triangles[p->n_triangles++] = {{a, b, c}, 1, 0};
-      p->triangles[p->n_triangles++] = {{a, c, d}, 1, 0};
+      const float w = cell > 0 ? cell * static_cast<float>(nx) : 0.04f, h = cell > 0 ? cell * static_cast<float>(ny) : 0.04f;
+      const float x0 = -w / 2 + w * static_cast<float>(i) / static_cast<float>(nx);
+      const float x1 = -w / 2 + w * static_cast<float>(i + 1) / static_cast<float>(nx);
+      const float y0 = -h / 2 + h * static_cast<float>(j) / static_cast<float>(ny);
+      const float y1 = -h / 2 + h * static_cast<float>(j + 1) / static_cast<float>(ny);
+      const Vec3f a{x0 + dx, y0, z(x0, y0) + dz}, b{x1 + dx, y0, z(x1, y0) + dz}, c{x1 + dx, y1, z(x1, y1) + dz},
+          d{x0 + dx, y1, z(x0, y1) + dz};
+      { p->triangles[p->n_triangles] = {{a, b, c}, 1, 0, p->n_triangles}; ++p->n_triangles; }
+      { p->triangles[p->n_triangles] = {{a, c, d}, 1, 0, p->n_triangles}; ++p->n_triangles; }
     }
   return p;
 }
@@ -44,33 +56,85 @@ struct Stats {
   double p50, p90, p99, max;
 };
 
-Stats measure(int triangles, ToolMode mode, int ticks) {
-  const auto patch = sheet(triangles);
+Stats quantiles(std::vector<double>& ns) {
+  std::sort(ns.begin(), ns.end());
+  const auto q = [&](double p) { return ns[std::min(ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(ns.size())))]; };
+  return {q(0.5), q(0.9), q(0.99), ns.back()};
+}
+
+enum class Run { kTree, kScan, kMoving };
+
+// cell 0: the 4 cm sheet and a 12 mm circle; else cells of `cell` metres and a 6 mm circle.
+Stats measure(int triangles, ToolMode mode, Run run, int ticks, float cell) {
+  const double path = cell > 0 ? 0.006 : 0.012;
+  // Moving: 8 patches of the sheet bobbing ±0.5 mm and drifting ±0.5 mm, one after the other.
+  std::vector<std::unique_ptr<TissuePatch>> patches;
+  for (int k = 0; k < (run == Run::kMoving ? 8 : 1); ++k) {
+    const float phase = 6.2831853f * static_cast<float>(k) / 8.0f;
+    patches.push_back(run == Run::kMoving ? sheet(triangles, 0.0005f * std::sin(phase), 0.0005f * std::cos(phase), cell)
+                                          : sheet(triangles, 0, 0, cell));
+  }
   const haptics::HapticModel model = haptics::HapticModel::defaults();
   auto data = std::make_unique<haptics::HapticData>();
   haptics::HapticInput in;
-  in.patch = patch.get();
+  in.patch = patches[0].get();
+  in.patch_version = run == Run::kScan ? 0 : 1;
   in.mode = mode;
   haptics::HapticOutput out;
   std::vector<double> ns(static_cast<std::size_t>(ticks));
   for (int i = -1000; i < ticks; ++i) {  // 1000 warm-up ticks
+    if (run == Run::kMoving && i >= 0 && i % 33 == 0) {
+      in.patch_version = 2 + static_cast<std::uint64_t>(i / 33);
+      in.patch = patches[static_cast<std::size_t>(in.patch_version % patches.size())].get();
+    }
     const double t = i * 0.001;
     // Probe: 2 mm into the sheet, sliding. Scalpel: 5 mm in, past the yield force: cutting.
     // During warm-up the tool comes down from 5 mm above (a proxy that starts under the one-sided
     // sheet would rightly stay free).
     const double depth = mode == ToolMode::kScalpel ? -0.005 : -0.002;
     const double z = i < -500 ? 0.005 + (depth - 0.005) * (i + 1000) / 500.0 : depth;
-    in.device = Vec3{0.012 * std::sin(t * 1.3), 0.012 * std::cos(t * 0.7), z};
-    in.velocity = Vec3{0.012 * 1.3 * std::cos(t * 1.3), -0.012 * 0.7 * std::sin(t * 0.7), 0};
+    in.device = Vec3{path * std::sin(t * 1.3), path * std::cos(t * 0.7), z};
+    in.velocity = Vec3{path * 1.3 * std::cos(t * 1.3), -path * 0.7 * std::sin(t * 0.7), 0};
     const std::int64_t t0 = monotonic_ns();
     haptics::haptic_step(model, *data, in, out);
     const std::int64_t t1 = monotonic_ns();
     if (i >= 0) ns[static_cast<std::size_t>(i)] = static_cast<double>(t1 - t0);
   }
   if (mode == ToolMode::kScalpel && data->stage != Stage::kCutting) std::fprintf(stderr, "warning: the scalpel is not cutting\n");
-  std::sort(ns.begin(), ns.end());
-  const auto q = [&](double p) { return ns[std::min(ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(ns.size())))]; };
-  return {q(0.5), q(0.9), q(0.99), ns.back()};
+  if (mode == ToolMode::kProbe && !out.contact) std::fprintf(stderr, "warning: the probe lost contact\n");
+  if (run == Run::kMoving && data->probe.carried == 0) std::fprintf(stderr, "warning: the moving tissue never carried the proxy\n");
+  return quantiles(ns);
+}
+
+// A patch's arrival, once per patch in lancet-rt: the seqlock copy of the triangles in use
+// (RtServo's read), wire::check, and the search tree.
+struct Arrival {
+  Stats copy, check, tree;
+};
+
+Arrival measure_arrival(int triangles, int reps) {
+  const auto patch = sheet(triangles);
+  patch->t_ns = monotonic_ns();
+  auto lock = std::make_unique<Seqlock<TissuePatch>>();
+  auto back = std::make_unique<TissuePatch>();
+  auto bvh = std::make_unique<haptics::PatchBvh>();
+  std::vector<double> copy, check, tree;
+  const auto in_use = [](const TissuePatch& p) { return tissue_patch_bytes(p); };
+  for (int r = 0; r < reps; ++r) {
+    patch->seq = static_cast<std::uint64_t>(r);
+    lock->write_prefix(*patch, tissue_patch_bytes(*patch));
+    std::uint64_t seen = 0;
+    const std::int64_t t0 = monotonic_ns();
+    const ReadStatus st = lock->try_read_prefix_if_newer(*back, seen, offsetof(TissuePatch, triangles), in_use, 2);
+    const std::int64_t t1 = monotonic_ns();
+    const char* why = wire::check(*back, monotonic_ns());
+    const std::int64_t t2 = monotonic_ns();
+    haptics::build_patch_bvh(*bvh, *back, seen);
+    const std::int64_t t3 = monotonic_ns();
+    if (st != ReadStatus::kOk || why != nullptr) std::fprintf(stderr, "warning: the patch was not read or not valid\n");
+    copy.push_back(static_cast<double>(t1 - t0)), check.push_back(static_cast<double>(t2 - t1)), tree.push_back(static_cast<double>(t3 - t2));
+  }
+  return {quantiles(copy), quantiles(check), quantiles(tree)};
 }
 
 }  // namespace
@@ -88,14 +152,41 @@ int main(int argc, char** argv) {
   std::printf("{\n  \"ticks\": %d,\n  \"results\": [\n", ticks);
   // Which stage the scalpel run ends in is part of the result: it must be cutting.
   bool first = true;
-  for (ToolMode mode : {ToolMode::kProbe, ToolMode::kScalpel}) {
-    for (int n : {64, 256, 1024}) {
-      const Stats s = measure(n, mode, ticks);
-      std::printf("%s    {\"triangles\": %d, \"mode\": \"%s\", \"p50_ns\": %.0f, \"p90_ns\": %.0f, \"p99_ns\": %.0f, \"max_ns\": %.0f}",
-                  first ? "" : ",\n", n, mode == ToolMode::kProbe ? "probe (sliding in contact)" : "scalpel (cutting)", s.p50,
-                  s.p90, s.p99, s.max);
-      first = false;
+  struct Case {
+    ToolMode mode;
+    Run run;
+    const char* name;
+  };
+  const Case cases[] = {{ToolMode::kProbe, Run::kTree, "probe (sliding in contact)"},
+                        {ToolMode::kScalpel, Run::kTree, "scalpel (cutting)"},
+                        {ToolMode::kProbe, Run::kMoving, "probe, tissue moving under the tool (new patch every 33 ticks)"},
+                        {ToolMode::kProbe, Run::kScan, "probe, scanning every triangle (no search tree)"}};
+  // Two ways to grow a patch: the same 4 cm sheet in ever smaller cells (the old rows; the
+  // triangles within the proxy's reach grow with n), and a sheet of 1 mm cells that grows in
+  // area (what a larger patch of the same surface is: 16 384 triangles are 64 mm × 128 mm).
+  for (const float cell : {0.0f, 0.001f}) {
+    for (const Case& c : cases) {
+      for (int n : {64, 256, 1024, 4096, 16384}) {
+        if (cell > 0 && n < 1024) continue;  // smaller than the tool's circle
+        // The scan is the old cost, linear in the patch: fewer ticks at the large sizes.
+        const int run_ticks = c.run == Run::kScan && n > 1024 ? std::max(1000, ticks / 20) : ticks;
+        const Stats s = measure(n, c.mode, c.run, run_ticks, cell);
+        std::printf("%s    {\"triangles\": %d, \"sheet\": \"%s\", \"mode\": \"%s\", \"ticks\": %d, \"p50_ns\": %.0f, \"p90_ns\": %.0f, "
+                    "\"p99_ns\": %.0f, \"max_ns\": %.0f}",
+                    first ? "" : ",\n", n, cell > 0 ? "1 mm cells" : "40 mm square", c.name, run_ticks, s.p50, s.p90, s.p99, s.max);
+        first = false;
+      }
     }
+  }
+  std::printf("\n  ],\n  \"arrival\": [\n");
+  first = true;
+  for (int n : {1024, 4096, 16384}) {
+    const Arrival a = measure_arrival(n, 2000);
+    std::printf("%s    {\"triangles\": %d, \"bytes\": %zu, \"copy_p50_ns\": %.0f, \"copy_p99_ns\": %.0f, \"check_p50_ns\": %.0f, "
+                "\"check_p99_ns\": %.0f, \"tree_p50_ns\": %.0f, \"tree_p99_ns\": %.0f}",
+                first ? "" : ",\n", n, offsetof(TissuePatch, triangles) + static_cast<std::size_t>(n) * sizeof(PatchTriangle), a.copy.p50,
+                a.copy.p99, a.check.p50, a.check.p99, a.tree.p50, a.tree.p99);
+    first = false;
   }
   std::printf("\n  ]\n}\n");
   return 0;

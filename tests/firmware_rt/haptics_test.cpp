@@ -26,8 +26,8 @@ std::unique_ptr<TissuePatch> plane(float h = 0, float half = 0.05f, int n = 4, s
   for (int j = 0; j < n; ++j)
     for (int i = 0; i < n; ++i) {
       const float x0 = -half + s * static_cast<float>(i), y0 = -half + s * static_cast<float>(j);
-      p->triangles[p->n_triangles++] = {{{x0, y0, h}, {x0 + s, y0, h}, {x0 + s, y0 + s, h}}, mat, 0};
-      p->triangles[p->n_triangles++] = {{{x0, y0, h}, {x0 + s, y0 + s, h}, {x0, y0 + s, h}}, mat, 0};
+      { p->triangles[p->n_triangles] = {{{x0, y0, h}, {x0 + s, y0, h}, {x0 + s, y0 + s, h}}, mat, 0, p->n_triangles}; ++p->n_triangles; }
+      { p->triangles[p->n_triangles] = {{{x0, y0, h}, {x0 + s, y0 + s, h}, {x0, y0 + s, h}}, mat, 0, p->n_triangles}; ++p->n_triangles; }
     }
   return p;
 }
@@ -41,8 +41,8 @@ std::unique_ptr<TissuePatch> box(Vec3 lo, Vec3 hi) {
                       {f(hi.x), f(hi.y), f(hi.z)}, {f(lo.x), f(hi.y), f(hi.z)}};
   const int quads[6][4] = {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {2, 3, 7, 6}, {1, 2, 6, 5}, {3, 0, 4, 7}};
   for (const auto& q : quads) {
-    p->triangles[p->n_triangles++] = {{c[q[0]], c[q[1]], c[q[2]]}, 1, 0};
-    p->triangles[p->n_triangles++] = {{c[q[0]], c[q[2]], c[q[3]]}, 1, 0};
+    { p->triangles[p->n_triangles] = {{c[q[0]], c[q[1]], c[q[2]]}, 1, 0, p->n_triangles}; ++p->n_triangles; }
+    { p->triangles[p->n_triangles] = {{c[q[0]], c[q[2]], c[q[3]]}, 1, 0, p->n_triangles}; ++p->n_triangles; }
   }
   return p;
 }
@@ -57,8 +57,8 @@ std::unique_ptr<TissuePatch> sphere(double rad, int stacks = 16, int slices = 30
   for (int i = 0; i < stacks; ++i)
     for (int j = 0; j < slices; ++j) {
       const Vec3f a = pt(i, j), b = pt(i + 1, j), c = pt(i + 1, j + 1), d = pt(i, j + 1);
-      if (i != 0) p->triangles[p->n_triangles++] = {{a, b, d}, 1, 0};
-      if (i != stacks - 1) p->triangles[p->n_triangles++] = {{b, c, d}, 1, 0};
+      if (i != 0) { p->triangles[p->n_triangles] = {{a, b, d}, 1, 0, p->n_triangles}; ++p->n_triangles; }
+      if (i != stacks - 1) { p->triangles[p->n_triangles] = {{b, c, d}, 1, 0, p->n_triangles}; ++p->n_triangles; }
     }
   return p;
 }
@@ -210,10 +210,10 @@ TEST(Proxy, EdgesCornersAndCreasesHoldTheProxy) {
   // A concave V crease: two planes meeting at x = 0 along y.
   auto v = std::make_unique<TissuePatch>();
   v->n_triangles = 4;
-  v->triangles[0] = {{{-0.02f, -0.02f, 0.02f}, {0, -0.02f, 0}, {0, 0.02f, 0}}, 1, 0};
-  v->triangles[1] = {{{-0.02f, -0.02f, 0.02f}, {0, 0.02f, 0}, {-0.02f, 0.02f, 0.02f}}, 1, 0};
-  v->triangles[2] = {{{0, -0.02f, 0}, {0.02f, -0.02f, 0.02f}, {0.02f, 0.02f, 0.02f}}, 1, 0};
-  v->triangles[3] = {{{0, -0.02f, 0}, {0.02f, 0.02f, 0.02f}, {0, 0.02f, 0}}, 1, 0};
+  v->triangles[0] = {{{-0.02f, -0.02f, 0.02f}, {0, -0.02f, 0}, {0, 0.02f, 0}}, 1, 0, 0};
+  v->triangles[1] = {{{-0.02f, -0.02f, 0.02f}, {0, 0.02f, 0}, {-0.02f, 0.02f, 0.02f}}, 1, 0, 1};
+  v->triangles[2] = {{{0, -0.02f, 0}, {0.02f, -0.02f, 0.02f}, {0.02f, 0.02f, 0.02f}}, 1, 0, 2};
+  v->triangles[3] = {{{0, -0.02f, 0}, {0.02f, 0.02f, 0.02f}, {0, 0.02f, 0}}, 1, 0, 3};
   Rig rig(test_model(500));
   rig.step(v.get(), {0, 0, 0.01});
   for (int i = 0; i <= 50; ++i) rig.step(v.get(), {0.0002 * i, 0, 0.01 - 0.0004 * i});  // into the crease

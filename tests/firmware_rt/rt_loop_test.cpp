@@ -147,8 +147,8 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   app::RtServo servo(model, *shared, monotonic_ns());
   auto patch = std::make_unique<TissuePatch>();
   patch->n_triangles = 2;
-  patch->triangles[0] = {{{-0.1f, -0.1f, 0}, {0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}}, 1, 0};
-  patch->triangles[1] = {{{-0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}, {-0.1f, 0.1f, 0}}, 1, 0};
+  patch->triangles[0] = {{{-0.1f, -0.1f, 0}, {0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}}, 1, 0, 0};
+  patch->triangles[1] = {{{-0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}, {-0.1f, 0.1f, 0}}, 1, 0, 1};
   patch->t_ns = monotonic_ns();  // a patch must be stamped (and not from the future) to be taken
   shared->patch.write(*patch);
   RtLoop loop(p);

@@ -48,8 +48,8 @@ struct ArmRig {
     // A flat tissue at the workspace centre's height (z = 0 in the tissue frame).
     const float s = 0.1f;
     patch->n_triangles = 2;
-    patch->triangles[0] = {{{-s, -s, 0}, {s, -s, 0}, {s, s, 0}}, 1, 0};
-    patch->triangles[1] = {{{-s, -s, 0}, {s, s, 0}, {-s, s, 0}}, 1, 0};
+    patch->triangles[0] = {{{-s, -s, 0}, {s, -s, 0}, {s, s, 0}}, 1, 0, 0};
+    patch->triangles[1] = {{{-s, -s, 0}, {s, s, 0}, {-s, s, 0}}, 1, 0, 1};
   }
   void tick() {
     t += model.servo.period_ns;

@@ -39,8 +39,8 @@ struct Rig {
     TissuePatch* p = scratch.get();
     const float s = 0.1f;
     p->n_triangles = 2;
-    p->triangles[0] = {{{-s, -s, h}, {s, -s, h}, {s, s, h}}, 1, 0};
-    p->triangles[1] = {{{-s, -s, h}, {s, s, h}, {-s, s, h}}, 1, 0};
+    p->triangles[0] = {{{-s, -s, h}, {s, -s, h}, {s, s, h}}, 1, 0, 0};
+    p->triangles[1] = {{{-s, -s, h}, {s, s, h}, {-s, s, h}}, 1, 0, 1};
     p->t_ns = t;
     shared->patch.write(*p);
     published = true;
@@ -207,7 +207,7 @@ TEST(RtServo, ForceIsClampedAndNeverNaN) {
   bad->n_triangles = 1;
   bad->t_ns = rig.t;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  bad->triangles[0] = {{{nan, 0, 0}, {0.1f, 0, 0}, {0, 0.1f, nan}}, 1, 0};
+  bad->triangles[0] = {{{nan, 0, 0}, {0.1f, 0, 0}, {0, 0.1f, nan}}, 1, 0, 0};
   rig.shared->patch.write(*bad);
   const std::uint64_t in_use = rig.servo->data().patch_version;
   for (int i = 0; i < 10; ++i) {

@@ -32,7 +32,9 @@ TEST(PlaceholderMesh, GridCountsNormalsAndMaterials) {
   }
 }
 
-TEST(PatchExport, NearestFirstAndAllWithinRadius) {
+// The triangles keep the mesh's order (neighbours together, for lancet-rt's search tree) and carry
+// their mesh index as their id.
+TEST(PatchExport, AllWithinRadiusInMeshOrderWithTheirIds) {
   const auto mesh = surface::make_tissue_block({});
   auto patch = std::make_unique<TissuePatch>();
   PatchExportScratch scratch;
@@ -41,12 +43,14 @@ TEST(PatchExport, NearestFirstAndAllWithinRadius) {
   const std::size_t found = export_patch(mesh, centre, params, scratch, *patch);
   ASSERT_GT(patch->n_triangles, 10u);
   EXPECT_EQ(found, patch->n_triangles);  // well under capacity
-  double prev = 0;
   for (std::uint32_t i = 0; i < patch->n_triangles; ++i) {
-    const double d = centroid_distance(patch->triangles[i], centre);
-    EXPECT_GE(d, prev - 1e-12) << "triangle " << i << " out of order";
-    EXPECT_LE(d, params.radius + 0.003);  // centroid within radius + the triangle's own size
-    prev = d;
+    const PatchTriangle& pt = patch->triangles[i];
+    EXPECT_LE(centroid_distance(pt, centre), params.radius + 0.003);  // centroid within radius + the triangle's own size
+    if (i > 0) {
+      EXPECT_GT(pt.id, patch->triangles[i - 1].id) << "triangle " << i << " out of the mesh's order";
+    }
+    ASSERT_LT(pt.id, mesh.triangles.size());
+    EXPECT_EQ(pt.v[2], mesh.vertices[mesh.triangles[pt.id][2]]) << "the id names the triangle";
   }
   // Every triangle of the mesh whose centroid is well inside the radius was exported.
   std::size_t inside = 0;
@@ -58,14 +62,33 @@ TEST(PatchExport, NearestFirstAndAllWithinRadius) {
 }
 
 TEST(PatchExport, LargeRadiusIsCutToCapacityKeepingTheNearest) {
-  const auto mesh = surface::make_tissue_block({});
+  surface::TissueBlockParams bp;
+  bp.cells = 120;  // 28 800 triangles on top: more than a patch holds
+  const auto mesh = surface::make_tissue_block(bp);
+  ASSERT_GT(mesh.triangles.size(), kPatchCapacity);
   auto patch = std::make_unique<TissuePatch>();
   PatchExportScratch scratch;
-  const std::size_t found = export_patch(mesh, {}, PatchExportParams{0.2}, scratch, *patch);
+  const std::size_t found = export_patch(mesh, {}, PatchExportParams{0.5}, scratch, *patch);
   EXPECT_EQ(found, mesh.triangles.size());
-  EXPECT_EQ(patch->n_triangles, kPatchCapacity);
-  const double farthest_kept = centroid_distance(patch->triangles[kPatchCapacity - 1], {});
-  EXPECT_LT(farthest_kept, 0.03);  // 1024 triangles of 2 mm cells cover a disc of ~2.6 cm radius
+  ASSERT_EQ(patch->n_triangles, kPatchCapacity);
+  // The kept ones are the nearest: none farther than any left out; in mesh order.
+  std::vector<bool> kept(mesh.triangles.size());
+  double farthest_kept = 0;
+  for (std::uint32_t i = 0; i < kPatchCapacity; ++i) {
+    kept[patch->triangles[i].id] = true;
+    farthest_kept = std::max(farthest_kept, centroid_distance(patch->triangles[i], {}));
+    if (i > 0) {
+      EXPECT_GT(patch->triangles[i].id, patch->triangles[i - 1].id);
+    }
+  }
+  const auto centroid = [&](std::size_t f) {
+    const auto& t = mesh.triangles[f];
+    return (1.0 / 3.0) * (to_vec3(mesh.vertices[t[0]]) + to_vec3(mesh.vertices[t[1]]) + to_vec3(mesh.vertices[t[2]]));
+  };
+  for (std::size_t f = 0; f < mesh.triangles.size(); ++f)
+    if (!kept[f]) {
+      ASSERT_GE(norm(centroid(f)), farthest_kept - 1e-12) << "face " << f << " was left out for a farther one";
+    }
 }
 
 TEST(PatchExport, NothingNearGivesAnEmptyPatch) {
@@ -84,7 +107,7 @@ std::unique_ptr<surface::SurfaceModel> model(int cells) {
   return std::move(surface::SurfaceModel::create(m.vertices, m.triangles, m.material).value());
 }
 
-TEST(SurfacePatchExport, EqualsABruteForceNearestFirstSelection) {
+TEST(SurfacePatchExport, EqualsABruteForceSelection) {
   auto s = model(60);
   auto patch = std::make_unique<TissuePatch>();
   PatchExportScratch scratch;
@@ -99,14 +122,22 @@ TEST(SurfacePatchExport, EqualsABruteForceNearestFirstSelection) {
       const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
       if (d2 <= 0.006 * 0.006) all.emplace_back(d2, f);
     }
-    std::sort(all.begin(), all.end());
     ASSERT_EQ(found, all.size());
-    ASSERT_EQ(patch->n_triangles, std::min<std::size_t>(all.size(), kPatchCapacity));
+    ASSERT_EQ(patch->n_triangles, all.size()) << "well under capacity: all of them";
+    // The same faces (by id), each the face its id names.
+    std::vector<std::uint32_t> ids;
     for (std::size_t i = 0; i < patch->n_triangles; ++i) {
-      const auto& t = s->faces()[all[i].second];
+      const std::uint32_t f = patch->triangles[i].id;
+      ids.push_back(f);
+      ASSERT_LT(f, s->n_faces());
+      const auto& t = s->faces()[f];
       EXPECT_EQ(patch->triangles[i].v[0], corner(t[0])) << i;
-      EXPECT_EQ(patch->triangles[i].material, s->face_material(all[i].second));
+      EXPECT_EQ(patch->triangles[i].material, s->face_material(f));
     }
+    std::sort(ids.begin(), ids.end());
+    std::vector<std::uint32_t> expected;
+    for (const auto& a : all) expected.push_back(a.second);
+    EXPECT_EQ(ids, expected);
   }
 }
 

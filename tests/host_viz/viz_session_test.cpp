@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <memory>
 #include <string>
 
@@ -144,7 +145,9 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   auto patch = std::make_unique<TissuePatch>();
   ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
   EXPECT_GT(patch->n_triangles, 0u);
-  EXPECT_LT(norm(to_vec3(patch->triangles[0].v[0]) - Vec3{0.0, 0.0, -0.001}), 0.02) << "the patch is cut around the newest tool position";
+  double nearest = 1e9;
+  for (std::uint32_t i = 0; i < patch->n_triangles; ++i) nearest = std::min(nearest, norm(to_vec3(patch->triangles[i].v[0]) - Vec3{0.0, 0.0, -0.001}));
+  EXPECT_LT(nearest, 0.02) << "the patch is cut around the newest tool position";
   EXPECT_EQ(patch->samples_applied, 600u) << "the newest sample whose events it reflects";
   EXPECT_EQ(patch->brick.valid, 0u) << "no volume, no brick";
 

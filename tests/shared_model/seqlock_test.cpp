@@ -159,7 +159,7 @@ TYPED_TEST(SeqlockOddSize, RoundTripsWithoutTouchingBytesPastTheEnd) {
 }
 
 TEST(Seqlock, TissuePatchRoundTrips) {
-  static_assert(sizeof(TissuePatch) > 40000, "TissuePatch is the large seqlock payload");
+  static_assert(sizeof(TissuePatch) > 700000, "TissuePatch is the large seqlock payload");
   auto lock = std::make_unique<Seqlock<TissuePatch>>();
   auto in = std::make_unique<TissuePatch>(pattern<TissuePatch>(5));
   auto out = std::make_unique<TissuePatch>();
@@ -168,6 +168,36 @@ TEST(Seqlock, TissuePatchRoundTrips) {
   ASSERT_EQ(lock->try_read(*out), ReadStatus::kOk);
   EXPECT_TRUE(same_bytes(*out, *in));
   EXPECT_EQ(lock->version(), 1u);
+}
+
+// A patch crosses the segment by the triangles in use only: the reader copies the header, reads
+// n_triangles from it, and copies that many; nothing past them is read or written.
+TEST(Seqlock, PatchPrefixCopiesOnlyTheTrianglesInUse) {
+  auto lock = std::make_unique<Seqlock<TissuePatch>>();
+  auto in = std::make_unique<TissuePatch>(pattern<TissuePatch>(7));
+  in->n_triangles = 37;
+  auto out = std::make_unique<TissuePatch>();
+  std::memset(static_cast<void*>(out.get()), 0x5a, sizeof(TissuePatch));
+  const auto extent = [](const TissuePatch& p) { return tissue_patch_bytes(p); };
+  std::uint64_t seen = 0;
+  EXPECT_EQ(lock->try_read_prefix_if_newer(*out, seen, offsetof(TissuePatch, triangles), extent), ReadStatus::kEmpty);
+  lock->write_prefix(*in, tissue_patch_bytes(*in));
+  ASSERT_EQ(lock->try_read_prefix_if_newer(*out, seen, offsetof(TissuePatch, triangles), extent), ReadStatus::kOk);
+  EXPECT_EQ(seen, 1u);
+  const std::size_t used = tissue_patch_bytes(*in);
+  EXPECT_EQ(used, offsetof(TissuePatch, triangles) + 37 * sizeof(PatchTriangle));
+  EXPECT_EQ(std::memcmp(out.get(), in.get(), used), 0) << "the header, the brick and the 37 triangles arrive";
+  const auto* tail = reinterpret_cast<const unsigned char*>(out.get());
+  // Past the last word the writer wrote (the extent rounds up to whole words), the reader's bytes stay.
+  for (std::size_t i = (used + 7) / 8 * 8; i < sizeof(TissuePatch); ++i) ASSERT_EQ(tail[i], 0x5a) << "byte " << i << " was copied";
+  EXPECT_EQ(lock->try_read_prefix_if_newer(*out, seen, offsetof(TissuePatch, triangles), extent), ReadStatus::kUnchanged);
+
+  // A header claiming more than the capacity is capped: the copy stops at the end of the value.
+  in->n_triangles = 0xffffffffu;
+  lock->write(*in);
+  ASSERT_EQ(lock->try_read_prefix_if_newer(*out, seen, offsetof(TissuePatch, triangles), extent), ReadStatus::kOk);
+  EXPECT_TRUE(same_bytes(*out, *in));
+  EXPECT_EQ(tissue_patch_bytes(*in), sizeof(TissuePatch));
 }
 
 TEST(Seqlock, AnOddCounterLeftByACorruptPeerIsHealedByTheNextWrite) {

@@ -33,8 +33,8 @@ std::unique_ptr<TissuePatch> good_patch() {
   auto p = std::make_unique<TissuePatch>();
   p->t_ns = kNow - 1'000'000;
   p->n_triangles = 2;
-  p->triangles[0] = {{{0, 0, 0}, {0.01f, 0, 0}, {0, 0.01f, 0}}, 1, kTriangleOnCutEdge};
-  p->triangles[1] = {{{0, 0, 0}, {0.01f, 0.01f, 0}, {0, 0.01f, 0}}, 2, 0};
+  p->triangles[0] = {{{0, 0, 0}, {0.01f, 0, 0}, {0, 0.01f, 0}}, 1, kTriangleOnCutEdge, 0};
+  p->triangles[1] = {{{0, 0, 0}, {0.01f, 0.01f, 0}, {0, 0.01f, 0}}, 2, 0, 1};
   p->brick.valid = 1;
   p->brick.dim = kBrickDim;
   p->brick.spacing = {0.0005, 0.0005, 0.001};

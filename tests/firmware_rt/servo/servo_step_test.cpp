@@ -25,8 +25,8 @@ std::unique_ptr<TissuePatch> plane_patch(std::int64_t t_ns) {
   for (int j = 0; j < n; ++j)
     for (int i = 0; i < n; ++i) {
       const float x0 = -half + s * static_cast<float>(i), y0 = -half + s * static_cast<float>(j);
-      p->triangles[p->n_triangles++] = {{{x0, y0, 0}, {x0 + s, y0, 0}, {x0 + s, y0 + s, 0}}, 1, 0};
-      p->triangles[p->n_triangles++] = {{{x0, y0, 0}, {x0 + s, y0 + s, 0}, {x0, y0 + s, 0}}, 1, 0};
+      { p->triangles[p->n_triangles] = {{{x0, y0, 0}, {x0 + s, y0, 0}, {x0 + s, y0 + s, 0}}, 1, 0, p->n_triangles}; ++p->n_triangles; }
+      { p->triangles[p->n_triangles] = {{{x0, y0, 0}, {x0 + s, y0 + s, 0}, {x0, y0 + s, 0}}, 1, 0, p->n_triangles}; ++p->n_triangles; }
     }
   p->seq = 1;
   p->t_ns = t_ns;

@@ -16,8 +16,9 @@ namespace lancet {
 
 /// Most joints any arm may have (DH chains up to 8 joints).
 inline constexpr int kMaxJoints = 8;
-/// Triangles a TissuePatch can carry.
-inline constexpr std::uint32_t kPatchCapacity = 1024;
+/// Triangles a TissuePatch can carry (a radius of about 50 mm of a 1 mm-cell surface). Only the
+/// n_triangles in use cross the segment (tissue_patch_bytes).
+inline constexpr std::uint32_t kPatchCapacity = 16384;
 /// Edge length, in voxels, of the cubic voxel brick carried by a TissuePatch.
 inline constexpr std::uint32_t kBrickDim = 16;
 
@@ -161,6 +162,9 @@ struct PatchTriangle {
   Vec3f v[3];                ///< vertex positions (m)
   std::uint16_t material;    ///< material id
   std::uint16_t flags;       ///< kTriangleOnCutEdge, ...
+  /// The surface's own id of this face, the same in every patch while the face exists: lancet-rt
+  /// carries the proxy with the face it rests on when a newer patch moves it.
+  std::uint32_t id;
 };
 inline constexpr std::uint16_t kTriangleOnCutEdge = 1u << 0;
 
@@ -173,7 +177,10 @@ struct VoxelBrick {
   std::int16_t hu[kBrickDim * kBrickDim * kBrickDim];  ///< Hounsfield units, x fastest
 };
 
-/// lancet-viz → lancet-rt (seqlock): the tissue near the tool, nearest triangles first.
+/// lancet-viz → lancet-rt (seqlock): the tissue near the tool. Triangles come in an order that
+/// keeps neighbours together (the viz's BVH order): lancet-rt groups runs of them into the leaves
+/// of its search tree (haptics/patch_bvh.hpp), so a scattered order costs time, never
+/// correctness. The triangles come last, so a reader copies only the ones in use.
 struct TissuePatch {
   std::uint64_t seq;         ///< viz frame counter when built
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when built (ns)
@@ -182,9 +189,16 @@ struct TissuePatch {
   std::uint64_t samples_applied;
   std::uint32_t n_triangles; ///< valid entries in triangles
   std::uint32_t reserved0;
-  PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)
   VoxelBrick brick;
+  PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)
 };
+
+/// Bytes of `p` in use: everything up to and including its n_triangles triangles (capped at the
+/// capacity, whatever n_triangles says). What the patch's seqlock copies.
+constexpr std::size_t tissue_patch_bytes(const TissuePatch& p) noexcept {
+  const std::size_t n = p.n_triangles < kPatchCapacity ? p.n_triangles : kPatchCapacity;
+  return offsetof(TissuePatch, triangles) + n * sizeof(PatchTriangle);
+}
 
 /// lancet-viz → lancet-rt (seqlock): where the simulated arm's stylus should go (mouse, script).
 struct StylusTarget {

@@ -16,6 +16,7 @@
 // value. Works inside POSIX shared memory (no pointers; zero bytes are a valid "never written"
 // state).
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstddef>
@@ -50,22 +51,32 @@ class Seqlock {
   Seqlock& operator=(const Seqlock&) = delete;
 
   /// Single writer. Publishes v; never waits. Real-time safe, O(sizeof(T)).
-  void write(const T& v) noexcept {
+  void write(const T& v) noexcept { write_prefix(v, sizeof(T)); }
+
+  /// Single writer. Publishes the first `bytes` bytes of v (rounded up to whole words, at most
+  /// sizeof(T)); the rest of the stored value keeps older bytes, so readers must take it with
+  /// try_read_prefix_if_newer and the same extent. For values whose tail is an array used only in
+  /// part (TissuePatch). Real-time safe, O(bytes).
+  void write_prefix(const T& v, std::size_t bytes) noexcept {
+    const std::size_t words = bytes >= sizeof(T) ? kWords : (bytes + 7) / 8;
     // Even between writes; an odd value here means someone else wrote the counter (a corrupted
     // segment): start from the even value below it, so readers are not locked out for good.
     const std::uint64_t s = seq_.load(std::memory_order_relaxed) & ~std::uint64_t{1};
     seq_.store(s + 1, std::memory_order_relaxed);
     // Release on every word: whoever reads a word of this write also sees the odd s + 1 above.
     const auto* src = reinterpret_cast<const unsigned char*>(&v);
-    for (std::size_t i = 0; i < kFullWords; ++i) {
+    const std::size_t full = words < kFullWords ? words : kFullWords;
+    for (std::size_t i = 0; i < full; ++i) {
       std::uint64_t w;
       std::memcpy(&w, src + i * 8, 8);
       words_[i].store(w, std::memory_order_release);
     }
     if constexpr (kTailBytes != 0) {
-      std::uint64_t w = 0;
-      std::memcpy(&w, src + kFullWords * 8, kTailBytes);
-      words_[kFullWords].store(w, std::memory_order_release);
+      if (words == kWords) {
+        std::uint64_t w = 0;
+        std::memcpy(&w, src + kFullWords * 8, kTailBytes);
+        words_[kFullWords].store(w, std::memory_order_release);
+      }
     }
     seq_.store(s + 2, std::memory_order_release);
   }
@@ -85,6 +96,43 @@ class Seqlock {
     return read_impl(out, max_attempts, /*only_newer=*/true, seen);
   }
 
+  /// Any reader, of a value published with write_prefix. Like try_read_if_newer, but copies the
+  /// first `header_bytes` first, then only up to extent(out) bytes of it (extent sees the header
+  /// just copied, possibly torn: it must bound its answer itself; it is capped at sizeof(T)
+  /// here). The bytes of out past the extent are left as they were. Real-time safe, bounded by
+  /// max_attempts * O(extent).
+  template <class Extent>
+  [[nodiscard]] ReadStatus try_read_prefix_if_newer(T& out, std::uint64_t& seen, std::size_t header_bytes, Extent&& extent,
+                                                    int max_attempts = kDefaultRetries) const noexcept {
+    auto* dst = reinterpret_cast<unsigned char*>(&out);
+    const std::size_t head = std::min((header_bytes + 7) / 8, kFullWords);
+    for (int attempt = 0; attempt < max_attempts; ++attempt) {
+      const std::uint64_t s0 = seq_.load(std::memory_order_acquire);
+      if (s0 == 0) return ReadStatus::kEmpty;
+      if (s0 / 2 == seen && (s0 & 1) == 0) return ReadStatus::kUnchanged;
+      if (s0 & 1) {
+        cpu_relax();
+        continue;
+      }
+      copy_words(dst, 0, head);
+      const std::size_t bytes = std::min<std::size_t>(extent(static_cast<const T&>(out)), sizeof(T));
+      const std::size_t words = bytes >= sizeof(T) ? kWords : std::max((bytes + 7) / 8, head);
+      copy_words(dst, head, std::min(words, kFullWords));
+      if constexpr (kTailBytes != 0) {
+        if (words == kWords) {
+          const std::uint64_t w = words_[kFullWords].load(std::memory_order_acquire);
+          std::memcpy(dst + kFullWords * 8, &w, kTailBytes);
+        }
+      }
+      if (seq_.load(std::memory_order_relaxed) == s0) {
+        seen = s0 / 2;
+        return ReadStatus::kOk;
+      }
+      cpu_relax();
+    }
+    return ReadStatus::kBusy;
+  }
+
   /// Number of completed writes (a version number; 0 means never written).
   [[nodiscard]] std::uint64_t version() const noexcept {
     return seq_.load(std::memory_order_acquire) / 2;
@@ -99,6 +147,13 @@ class Seqlock {
 #if defined(__x86_64__) || defined(__i386__)
     _mm_pause();
 #endif
+  }
+
+  void copy_words(unsigned char* dst, std::size_t from, std::size_t to) const noexcept {
+    for (std::size_t i = from; i < to; ++i) {
+      const std::uint64_t w = words_[i].load(std::memory_order_acquire);
+      std::memcpy(dst + i * 8, &w, 8);
+    }
   }
 
   ReadStatus read_impl(T& out, int max_attempts, bool only_newer, std::uint64_t& seen) const noexcept {

@@ -24,7 +24,9 @@ namespace lancet {
 /// 6: RtStatus::wake_histogram; ToolMode::kSwab.
 /// 7: ToolSample carries the servo step's inputs (woke_ns, read/write status, inputs, buttons,
 ///    commands) and state_hash, for recording and exact replay.
-inline constexpr std::uint64_t kProtocolVersion = 7;
+/// 8: TissuePatch holds 16384 triangles, each with its surface face id; the brick before the
+///    triangles, and only the triangles in use are copied.
+inline constexpr std::uint64_t kProtocolVersion = 8;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -79,7 +81,7 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(MaterialParams, density));
   h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, n_triangles),
            offsetof(TissuePatch, triangles), offsetof(TissuePatch, brick), sizeof(PatchTriangle),
-           offsetof(PatchTriangle, material), offsetof(PatchTriangle, flags), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
+           offsetof(PatchTriangle, material), offsetof(PatchTriangle, flags), offsetof(PatchTriangle, id), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
   h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
   h = fold(h, sizeof(RtStatus), offsetof(RtStatus, missed), offsetof(RtStatus, wake_p99_ns),
            offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
