@@ -78,7 +78,7 @@ struct VizOptions {
   std::string screenshot;
   std::string stats;
   int width = 1280, height = 720;
-  double patch_radius_mm = 40;
+  double patch_radius_mm = 30;
   double fps = 60;
   std::string scenario_name;  ///< for the stats
 };

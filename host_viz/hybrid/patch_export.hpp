@@ -19,7 +19,7 @@
 namespace lancet::hybrid {
 
 struct PatchExportParams {
-  double radius = 0.04;   ///< m, triangles whose bounding sphere reaches within this of the tool
+  double radius = 0.03;   ///< m, triangles whose bounding sphere reaches within this of the tool
 };
 
 /// Scratch reused across frames so export allocates only while it grows.

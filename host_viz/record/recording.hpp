@@ -83,7 +83,7 @@ struct Recording {
   std::string arm_config;          ///< the arm's hw_config text ("" for the built-in simulated stylus)
   std::string tissue;              ///< without a scenario: lancet-viz's --tissue ("block" or "phantom")
   std::string volume_path;         ///< lancet-viz's --volume ("" when none)
-  double patch_radius = 0.04;      ///< m, lancet-viz's --patch-radius-mm
+  double patch_radius = 0.03;      ///< m, lancet-viz's --patch-radius-mm
   /// The servo's model as lancet-rt published it (ServoModelBlob: the replay steps with exactly it).
   ServoModelBlob servo_model{};
   /// The TissuePatch the servo was using when the recording began (it came from before the first

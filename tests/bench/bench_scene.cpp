@@ -104,9 +104,15 @@ int main(int argc, char** argv) {
     viz::VizSession session(vp);
     const auto apply = [&](std::span<const ToolSample> batch) { (void)scene.apply(batch); };
     bool brick = false;
+    std::vector<double> export_us;
+    std::uint64_t patch_sum = 0, patch_max = 0;
     const auto fill = [&](Vec3 tool, TissuePatch& patch) {
+      const std::int64_t t0 = monotonic_ns();
       (void)scene.export_patch(tool, patch);
+      export_us.push_back(static_cast<double>(monotonic_ns() - t0) * 1e-3);
       brick = brick || patch.brick.valid != 0;
+      patch_sum += patch.n_triangles;
+      patch_max = std::max<std::uint64_t>(patch_max, patch.n_triangles);
     };
     std::int64_t now = monotonic_ns();
     s.rt_heartbeat.beat(now, getpid());
@@ -175,16 +181,20 @@ int main(int argc, char** argv) {
     all.insert(all.end(), cut_us.begin(), cut_us.end());
     all.insert(all.end(), pull_us.begin(), pull_us.end());
     const auto al = percentiles(all);
+    const auto ex = percentiles(export_us);
     const auto grooves = scene.grooves();
     std::printf("    {\"tissue\": \"%s\", \"triangles\": %zu, \"brick\": %s, \"cuts\": %zu, \"groove_width_mm\": %.2f,"
                 " \"groove_depth_mm\": %.2f, \"groove_conflicts\": %llu,\n"
                 "     \"update_us\": {\"all\": {\"p50\": %.0f, \"p99\": %.0f, \"max\": %.0f}, \"press\": {\"p50\": %.0f, \"p99\": %.0f},"
                 " \"cut\": {\"p50\": %.0f, \"p99\": %.0f}, \"pull\": {\"p50\": %.0f, \"p99\": %.0f}},\n"
-                "     \"mesh_copy_for_drawing_us\": {\"p50\": %.0f, \"p99\": %.0f, \"count\": %zu}}%s\n",
+                "     \"mesh_copy_for_drawing_us\": {\"p50\": %.0f, \"p99\": %.0f, \"count\": %zu},\n"
+                "     \"patch\": {\"radius_mm\": %.0f, \"triangles_mean\": %.0f, \"triangles_max\": %llu, \"export_us_p50\": %.0f, \"export_us_p99\": %.0f}}%s\n",
                 tissue.name.c_str(), scene.surface().n_faces(), brick ? "true" : "false", scene.surface().cuts().size(),
                 grooves.empty() ? 0.0 : grooves[0].top_gap * 1e3, grooves.empty() ? 0.0 : grooves[0].depth * 1e3,
                 grooves.empty() ? 0ull : static_cast<unsigned long long>(grooves[0].conflicts), al.p50,
-                al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(), n == 0 ? "," : "");
+                al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(),
+                hybrid::PatchExportParams{}.radius * 1e3, export_us.empty() ? 0.0 : static_cast<double>(patch_sum) / static_cast<double>(export_us.size()),
+                static_cast<unsigned long long>(patch_max), ex.p50, ex.p99, n == 0 ? "," : "");
   }
   std::printf("  ]\n}\n");
   return 0;

@@ -86,14 +86,14 @@ class Seqlock {
   /// Real-time safe, bounded by max_attempts * O(sizeof(T)).
   [[nodiscard]] ReadStatus try_read(T& out, int max_attempts = kDefaultRetries) const noexcept {
     std::uint64_t ignored = 0;
-    return read_impl(out, max_attempts, /*only_newer=*/false, ignored);
+    return read_impl(out, max_attempts, /*only_newer=*/false, ignored, sizeof(T), whole);
   }
 
   /// Any reader. Like try_read, but returns kUnchanged without copying when nothing was written
   /// since version `seen`; on kOk, `seen` is updated to the version that was read.
   [[nodiscard]] ReadStatus try_read_if_newer(T& out, std::uint64_t& seen,
                                              int max_attempts = kDefaultRetries) const noexcept {
-    return read_impl(out, max_attempts, /*only_newer=*/true, seen);
+    return read_impl(out, max_attempts, /*only_newer=*/true, seen, sizeof(T), whole);
   }
 
   /// Any reader, of a value published with write_prefix. Like try_read_if_newer, but copies the
@@ -104,33 +104,7 @@ class Seqlock {
   template <class Extent>
   [[nodiscard]] ReadStatus try_read_prefix_if_newer(T& out, std::uint64_t& seen, std::size_t header_bytes, Extent&& extent,
                                                     int max_attempts = kDefaultRetries) const noexcept {
-    auto* dst = reinterpret_cast<unsigned char*>(&out);
-    const std::size_t head = std::min((header_bytes + 7) / 8, kFullWords);
-    for (int attempt = 0; attempt < max_attempts; ++attempt) {
-      const std::uint64_t s0 = seq_.load(std::memory_order_acquire);
-      if (s0 == 0) return ReadStatus::kEmpty;
-      if (s0 / 2 == seen && (s0 & 1) == 0) return ReadStatus::kUnchanged;
-      if (s0 & 1) {
-        cpu_relax();
-        continue;
-      }
-      copy_words(dst, 0, head);
-      const std::size_t bytes = std::min<std::size_t>(extent(static_cast<const T&>(out)), sizeof(T));
-      const std::size_t words = bytes >= sizeof(T) ? kWords : std::max((bytes + 7) / 8, head);
-      copy_words(dst, head, std::min(words, kFullWords));
-      if constexpr (kTailBytes != 0) {
-        if (words == kWords) {
-          const std::uint64_t w = words_[kFullWords].load(std::memory_order_acquire);
-          std::memcpy(dst + kFullWords * 8, &w, kTailBytes);
-        }
-      }
-      if (seq_.load(std::memory_order_relaxed) == s0) {
-        seen = s0 / 2;
-        return ReadStatus::kOk;
-      }
-      cpu_relax();
-    }
-    return ReadStatus::kBusy;
+    return read_impl(out, max_attempts, /*only_newer=*/true, seen, header_bytes, extent);
   }
 
   /// Number of completed writes (a version number; 0 means never written).
@@ -156,8 +130,13 @@ class Seqlock {
     }
   }
 
-  ReadStatus read_impl(T& out, int max_attempts, bool only_newer, std::uint64_t& seen) const noexcept {
+  // Copies the first header_bytes, then up to extent(out) bytes (all of T when header_bytes is
+  // sizeof(T)), and re-checks the sequence.
+  template <class Extent>
+  ReadStatus read_impl(T& out, int max_attempts, bool only_newer, std::uint64_t& seen, std::size_t header_bytes,
+                       Extent&& extent) const noexcept {
     auto* dst = reinterpret_cast<unsigned char*>(&out);
+    const std::size_t head = std::min((header_bytes + 7) / 8, kFullWords);
     for (int attempt = 0; attempt < max_attempts; ++attempt) {
       const std::uint64_t s0 = seq_.load(std::memory_order_acquire);
       if (s0 == 0) return ReadStatus::kEmpty;
@@ -166,13 +145,15 @@ class Seqlock {
         cpu_relax();
         continue;
       }
-      for (std::size_t i = 0; i < kFullWords; ++i) {
-        const std::uint64_t w = words_[i].load(std::memory_order_acquire);
-        std::memcpy(dst + i * 8, &w, 8);
-      }
+      copy_words(dst, 0, head);
+      const std::size_t bytes = std::min<std::size_t>(extent(static_cast<const T&>(out)), sizeof(T));
+      const std::size_t words = bytes >= sizeof(T) ? kWords : std::max((bytes + 7) / 8, head);
+      copy_words(dst, head, std::min(words, kFullWords));
       if constexpr (kTailBytes != 0) {
-        const std::uint64_t w = words_[kFullWords].load(std::memory_order_acquire);
-        std::memcpy(dst + kFullWords * 8, &w, kTailBytes);
+        if (words == kWords) {
+          const std::uint64_t w = words_[kFullWords].load(std::memory_order_acquire);
+          std::memcpy(dst + kFullWords * 8, &w, kTailBytes);
+        }
       }
       // The acquire loads above keep this re-check after the copy.
       if (seq_.load(std::memory_order_relaxed) == s0) {
@@ -183,6 +164,8 @@ class Seqlock {
     }
     return ReadStatus::kBusy;
   }
+
+  static constexpr std::size_t whole(const T&) noexcept { return sizeof(T); }
 
   alignas(64) std::atomic<std::uint64_t> seq_{0};
   alignas(64) std::array<std::atomic<std::uint64_t>, kWords> words_{};
