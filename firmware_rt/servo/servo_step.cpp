@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <new>
 #include <string>
+#include <type_traits>
 
 #include "lancet/shared_model/text.hpp"
 
@@ -11,11 +13,14 @@ namespace lancet::servo {
 
 namespace {
 
-// A session starts afresh (kReset): everything but the tick count and the tool in hand.
+// A session starts afresh (kReset): everything but the tick count and the tool in hand. Built in
+// place: ServoData is ~150 KB (the patch's search tree, the proxy's planes, the drill's brick),
+// too much for a temporary on the servo thread's prefaulted stack.
+static_assert(std::is_trivially_destructible_v<ServoData>);
 void reset(ServoData& d) noexcept {
   const std::uint64_t tick = d.tick;
   const ToolMode mode = d.mode;
-  d = ServoData{};
+  new (&d) ServoData{};
   d.tick = tick;
   d.mode = mode;
 }

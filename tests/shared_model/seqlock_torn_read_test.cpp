@@ -159,15 +159,21 @@ void report(const char* what, const ReadStats& st, std::uint64_t writes) {
 // the debug preset is -O0 with ASan), a write outlasts a reader's bounded retries many times over
 // and kBusy dominates even when paced (measured: 60-99%); there only the consistency checks
 // apply, with fewer reads. (TSan's own job here is to find data races.)
+//
+// Under TSan a write of the 720 KB TissuePatch takes about 20 ms (90 000 atomic stores through its
+// runtime): a writer manages 35-50 writes a second, and a flat-out one is writing all the time,
+// so its readers may never see a whole value. There a flat-out run only hunts races.
 void expect_consistent(const ReadStats& st, std::uint64_t writes, std::uint64_t min_ok, double max_busy_fraction) {
+  std::uint64_t min_writes = 50;
   if (LANCET_TEST_TIMING_DISTORTED) {
-    min_ok = std::max<std::uint64_t>(5, min_ok / 200);
+    min_ok = max_busy_fraction >= 1.0 ? 0 : std::max<std::uint64_t>(5, min_ok / 200);
     max_busy_fraction = 1.0;
+    min_writes = 10;
   }
   EXPECT_EQ(st.torn, 0u) << "a read reported kOk but mixed two writes";
   EXPECT_EQ(st.version_wrong, 0u) << "try_read_if_newer reported a version other than the value's";
   EXPECT_EQ(st.went_back, 0u) << "a reader saw an older value after a newer one";
-  EXPECT_GT(writes, 50u) << "the writer hardly ran: the test checked nothing";
+  EXPECT_GT(writes, min_writes) << "the writer hardly ran: the test checked nothing";
   EXPECT_GE(st.ok, min_ok) << "too few consistent reads to have checked anything";
   const double busy = busy_share(st);
   EXPECT_LE(busy, max_busy_fraction) << "readers gave up (kBusy) in " << 100.0 * busy << "% of the reads";
