@@ -101,7 +101,6 @@ struct DrillData {
 
 struct HapticData {
   PatchBvh bvh{};              ///< search tree of the patch in use (built when its version changes)
-  std::uint64_t patch_version = 0;  ///< the patch version of the last tick (0: none)
   Stage stage = Stage::kFree;
   Vec3 proxy{};
   bool initialised = false;
@@ -124,7 +123,6 @@ struct HapticInput {
   /// it scans the whole patch and does not carry
   std::uint64_t patch_version = 0;
   std::uint64_t tick = 0;              ///< seq of the ToolSample this tick pushes
-  const PatchBvh* bvh = nullptr;       ///< set by haptic_step for the tool steps (callers leave it)
 };
 
 struct HapticOutput {

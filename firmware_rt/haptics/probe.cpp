@@ -10,8 +10,9 @@ Vec3 probe_step(const HapticModel& m, HapticData& d, const HapticInput& in, Vec3
   // A free proxy found inside the tissue (the stylus was below the surface before the tissue
   // around it arrived) starts on the surface, so the hand is pushed out, not ignored. The jump
   // is not a motion: velocities count from where it starts.
-  const Vec3 start = d.contact ? prev_proxy : surface_entry(*in.patch, in.bvh, prev_proxy, m.proxy_radius, m.capture_depth);
-  ProxyResult rf = update_proxy(*in.patch, in.bvh, start, in.device, m.proxy_radius, p.scratch);
+  const PatchBvh* tree = patch_tree(d, in);
+  const Vec3 start = d.contact ? prev_proxy : surface_entry(*in.patch, tree, prev_proxy, m.proxy_radius, m.capture_depth);
+  ProxyResult rf = update_proxy(*in.patch, tree, start, in.device, m.proxy_radius, p.scratch);
   const Vec3 frictionless = rf.position;
   std::uint32_t tri_material = 1;
   if (rf.n_active > 0) tri_material = in.patch->triangles[rf.triangle].material;

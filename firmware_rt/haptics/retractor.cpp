@@ -10,7 +10,7 @@ Vec3 retractor_step(const HapticModel& m, HapticData& d, const HapticInput& in, 
   if (!r.grabbed && in.patch != nullptr) {
     // Nearest surface point; grab it when close enough.
     Vec3 q{};
-    const std::uint32_t i = nearest_triangle(*in.patch, in.bvh, in.device, m.snap_distance, q);
+    const std::uint32_t i = nearest_triangle(*in.patch, patch_tree(d, in), in.device, m.snap_distance, q);
     const bool found = i < std::min(in.patch->n_triangles, kPatchCapacity);
     if (found) {
       r.control = q;

@@ -22,6 +22,7 @@
 #include "lancet/shared_model/seqlock.hpp"
 #include "lancet/shared_model/units.hpp"
 #include "lancet/shared_model/validate.hpp"
+#include "patch_sheet.hpp"  // tests/support
 
 namespace {
 
@@ -36,19 +37,10 @@ std::unique_ptr<TissuePatch> sheet(int n, float dz = 0, float dx = 0, float cell
   int nx = static_cast<int>(std::sqrt(cells));
   while (cells % nx != 0) --nx;
   const int ny = cells / nx;
-  const auto z = [](float, float) { return 0.0f; };  // flat: the scalpel stays in its cut
-  for (int j = 0; j < ny; ++j)
-    for (int i = 0; i < nx; ++i) {
-      const float w = cell > 0 ? cell * static_cast<float>(nx) : 0.04f, h = cell > 0 ? cell * static_cast<float>(ny) : 0.04f;
-      const float x0 = -w / 2 + w * static_cast<float>(i) / static_cast<float>(nx);
-      const float x1 = -w / 2 + w * static_cast<float>(i + 1) / static_cast<float>(nx);
-      const float y0 = -h / 2 + h * static_cast<float>(j) / static_cast<float>(ny);
-      const float y1 = -h / 2 + h * static_cast<float>(j + 1) / static_cast<float>(ny);
-      const Vec3f a{x0 + dx, y0, z(x0, y0) + dz}, b{x1 + dx, y0, z(x1, y0) + dz}, c{x1 + dx, y1, z(x1, y1) + dz},
-          d{x0 + dx, y1, z(x0, y1) + dz};
-      { p->triangles[p->n_triangles] = {{a, b, c}, 1, 0, p->n_triangles}; ++p->n_triangles; }
-      { p->triangles[p->n_triangles] = {{a, c, d}, 1, 0, p->n_triangles}; ++p->n_triangles; }
-    }
+  // Flat: the scalpel stays in its cut.
+  const float w = cell > 0 ? cell * static_cast<float>(nx) : 0.04f, h = cell > 0 ? cell * static_cast<float>(ny) : 0.04f;
+  test::add_sheet(*p, nx, ny, -w / 2, -h / 2, w / static_cast<float>(nx), h / static_cast<float>(ny),
+                  [dx, dz](float x, float y) { return Vec3f{x + dx, y, dz}; });
   return p;
 }
 

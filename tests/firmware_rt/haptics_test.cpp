@@ -13,6 +13,7 @@
 #include "haptics/force_fade.hpp"
 #include "haptics/haptic_step.hpp"
 #include "malloc_guard.hpp"
+#include "patch_sheet.hpp"
 
 namespace lancet::haptics {
 namespace {
@@ -23,12 +24,7 @@ constexpr double kR = 0.001;  // proxy radius used throughout
 std::unique_ptr<TissuePatch> plane(float h = 0, float half = 0.05f, int n = 4, std::uint16_t mat = 1) {
   auto p = std::make_unique<TissuePatch>();
   const float s = 2 * half / static_cast<float>(n);
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) {
-      const float x0 = -half + s * static_cast<float>(i), y0 = -half + s * static_cast<float>(j);
-      { p->triangles[p->n_triangles] = {{{x0, y0, h}, {x0 + s, y0, h}, {x0 + s, y0 + s, h}}, mat, 0, p->n_triangles}; ++p->n_triangles; }
-      { p->triangles[p->n_triangles] = {{{x0, y0, h}, {x0 + s, y0 + s, h}, {x0, y0 + s, h}}, mat, 0, p->n_triangles}; ++p->n_triangles; }
-    }
+  test::add_sheet(*p, n, n, -half, -half, s, s, [h](float x, float y) { return Vec3f{x, y, h}; }, mat);
   return p;
 }
 

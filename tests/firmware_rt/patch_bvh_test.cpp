@@ -15,6 +15,7 @@
 #include "haptics/patch_bvh.hpp"
 #include "haptics/proxy.hpp"
 #include "malloc_guard.hpp"
+#include "patch_sheet.hpp"
 
 namespace lancet::haptics {
 namespace {
@@ -31,15 +32,7 @@ std::unique_ptr<TissuePatch> wavy_sheet(int n, float cell, float h = 0, float am
   const auto v = [&](float x, float y) {
     return Vec3f{x + static_cast<float>(shift.x), y + static_cast<float>(shift.y), z(x, y) + static_cast<float>(shift.z)};
   };
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) {
-      const float x0 = -half + cell * static_cast<float>(i), y0 = -half + cell * static_cast<float>(j);
-      const float x1 = x0 + cell, y1 = y0 + cell;
-      const std::uint32_t k = p->n_triangles;
-      p->triangles[k] = {{v(x0, y0), v(x1, y0), v(x1, y1)}, 1, 0, k + 1000};
-      p->triangles[k + 1] = {{v(x0, y0), v(x1, y1), v(x0, y1)}, 1, 0, k + 1001};
-      p->n_triangles += 2;
-    }
+  test::add_sheet(*p, n, n, -half, -half, cell, cell, v, 1, 1000);
   return p;
 }
 

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "malloc_guard.hpp"  // tests/support
+#include "patch_sheet.hpp"  // tests/support
 
 namespace lancet::servo {
 namespace {
@@ -22,12 +23,7 @@ std::unique_ptr<TissuePatch> plane_patch(std::int64_t t_ns) {
   auto p = std::make_unique<TissuePatch>();
   constexpr int n = 8;
   constexpr float half = 0.04f, s = 2 * half / n;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) {
-      const float x0 = -half + s * static_cast<float>(i), y0 = -half + s * static_cast<float>(j);
-      { p->triangles[p->n_triangles] = {{{x0, y0, 0}, {x0 + s, y0, 0}, {x0 + s, y0 + s, 0}}, 1, 0, p->n_triangles}; ++p->n_triangles; }
-      { p->triangles[p->n_triangles] = {{{x0, y0, 0}, {x0 + s, y0 + s, 0}, {x0, y0 + s, 0}}, 1, 0, p->n_triangles}; ++p->n_triangles; }
-    }
+  test::add_sheet(*p, n, n, -half, -half, s, s, [](float x, float y) { return Vec3f{x, y, 0}; });
   p->seq = 1;
   p->t_ns = t_ns;
   return p;
