@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cassert>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -952,6 +953,11 @@ void ChainMail::reset() noexcept {
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
         [this](std::int64_t i, std::int64_t j, std::int64_t k) { return material_at(i, j, k); });
   }
+}
+
+void ChainMail::set_steps_made_for_testing(std::uint32_t steps) noexcept {
+  assert(steps >= step_ && "ChainMail::set_steps_made_for_testing: the step counter only counts on");
+  step_ = steps;
 }
 
 void ChainMail::for_each_materialised(const std::function<void(const Index&, const Vec3&)>& fn) const {

@@ -225,6 +225,13 @@ class ChainMail {
   /// allocate.
   void reset() noexcept;
 
+  /// For tests only (product code never calls it): count on from `steps` steps made, as if the
+  /// steps in between had touched nothing, so that a test reaches the step counter's wrap (see
+  /// "Once per step" above: after 2^32 − 1 steps every mark's step is cleared) without making 4e9
+  /// steps. `steps` >= the steps made so far since the last wrap (counting back would let marks
+  /// of earlier steps read as those of the current one).
+  void set_steps_made_for_testing(std::uint32_t steps) noexcept;
+
   /// Calls fn(element, displacement) for every present element of every materialised brick, in
   /// brick creation order.
   void for_each_materialised(const std::function<void(const Index&, const Vec3&)>& fn) const;
