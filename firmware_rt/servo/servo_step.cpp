@@ -209,6 +209,9 @@ Result<ServoModel> model_from_blob(const ServoModelBlob& b) {
       if (!fin(x) || x < 0) return bad("haptic.materials[" + std::to_string(i) + "]: a value is negative or not finite");
   }
   if (!pos(h.safety.max_force) || !fin(h.safety.max_slew) || h.safety.max_slew < 0) return bad("haptic.safety: max_force or max_slew");
+  if (!pos(h.safety.max_passivity_damping))
+    return bad("haptic.safety.max_passivity_damping: expected a finite number > 0 N·s/m, found " +
+               std::to_string(h.safety.max_passivity_damping));
   if (m.fade.timeout_ns < 0 || m.fade.stale_after_ns < 0 || m.fade.fade_ns < 0) return bad("fade: a negative time");
   const int n = m.kinematics.joint_count();
   const auto kind = static_cast<unsigned>(m.kinematics.model());

@@ -616,8 +616,90 @@ TEST(Safety, AVirtualMassBouncingOnAStiffWallNeverGainsEnergy) {
   EXPECT_GE(bounces_pc, 3);
   // The observer is exact (held force × real displacement); the controller's correction uses the
   // velocity sampled at the tick, which gravity changes within it, so it settles each bounce's
-  // account to within that: here 1.00008 after 227 bounces, against 547x in 27 without it.
+  // account to within that. It never turns the wall's push into a pull, so what a bounce owes
+  // beyond the push it may cancel is taken back in free flight: here 1.0004 after 228 bounces
+  // (1.00008 when it could pull), against 547x in 27 without it.
   EXPECT_LE(pc, 1.001) << "the passivity controller must keep the energy from growing (" << bounces_pc << " bounces)";
+}
+
+// Energy owed, the hand nearly still: Hannaford & Ryu's unbounded α = E/(dt·|v|²) turned a 2 N
+// push along the motion into a pull at the clamp (−40 N here) and grew without bound as v → 0. The
+// bounded controller takes at most the part of the push along the motion, changes the force by at
+// most max_passivity_damping·|v|, stays finite at any velocity down to 0, and keeps the energy owed.
+TEST(Safety, PassivityControllerNeverReversesTheForceOfANearlyStillHand) {
+  SafetyParams sp;
+  sp.max_force = 40;
+  sp.max_slew = 0;
+  sp.passivity = true;
+  constexpr double dt = 0.001;
+  const double amax = sp.max_passivity_damping;
+  for (const Vec3 f : {Vec3{0, 0, 2}, Vec3{0, 0, 0.01}, Vec3{1.5, -0.5, 2}}) {
+    SafetyData owed;
+    std::uint32_t ev = 0;
+    // The push is sent with the hand at the origin; the hand then goes 1 mm along it: 2 mJ (or
+    // 10 µJ) delivered and not given back, owed.
+    (void)apply_safety(sp, owed, f, {}, {}, dt, ev);
+    for (const double speed : {0.1, 1e-2, 1e-3, 1e-5, 1e-9, 1e-15, 1e-160, 1e-300, 0.0}) {
+      for (const double sense : {1.0, -1.0}) {  // along the push, against it
+        SafetyData d = owed;
+        const Vec3 v{0, 0, sense * speed};
+        const Vec3 out = apply_safety(sp, d, f, {0, 0, 1e-3}, v, dt, ev);
+        char what[96];
+        std::snprintf(what, sizeof what, "f (%g, %g, %g) N, v.z %g m/s", f.x, f.y, f.z, v.z);
+        ASSERT_TRUE(is_finite(out)) << what;
+        EXPECT_EQ(out.x, f.x) << what << ": only the component along the motion is damped";
+        EXPECT_EQ(out.y, f.y) << what;
+        const double ulps = 4 * std::numeric_limits<double>::epsilon() * std::abs(f.z);  // f.z − α·v.z rounds
+        EXPECT_LE(std::abs(out.z - f.z), amax * speed + ulps) << what << ": at most max_passivity_damping·|v|";
+        if (sense > 0) {
+          EXPECT_GE(out.z, -1e-15) << what << ": a push along the motion is removed at most, never reversed";
+          EXPECT_LE(out.z, f.z) << what;
+          EXPECT_LE(norm(out), norm(f)) << what;
+        } else {
+          EXPECT_GE(out.z, f.z) << what << ": against the motion the damping adds resistance in the same sense";
+        }
+        EXPECT_NEAR(d.energy, f.z * 1e-3, 1e-15) << what << ": the energy stays owed";
+      }
+    }
+  }
+}
+
+// The energy the bounds hold back is taken back on the following ticks as the hand moves: 2.1 mJ
+// owed, then the hand leaves the tissue at 0.1 m/s into free air (no force asked). A drag of at
+// most 20 N·s/m × 0.1 m/s = 2 N takes 0.2 mJ a tick: ten ticks of it and one of 1 N pay the debt,
+// then no force at all (the unbounded controller took it all in one tick with a 21 N drag). The
+// observer credits exactly the work of the forces sent: paid in full, not more.
+TEST(Safety, PassivityControllerPaysOwedEnergyBackOverTheFollowingTicks) {
+  SafetyParams sp;
+  sp.max_force = 40;
+  sp.max_slew = 0;
+  sp.passivity = true;
+  constexpr double dt = 0.001, speed = 0.1, push = 2.1;  // N, over 1 mm: 2.1 mJ owed
+  const double amax = sp.max_passivity_damping;
+  SafetyData d;
+  std::uint32_t ev = 0;
+  (void)apply_safety(sp, d, {0, 0, push}, {}, {}, dt, ev);
+  Vec3 x{0, 0, 1e-3};
+  double paid = 0;  // J, work of the drag on the hand, negated
+  int dragging = 0;
+  for (int tick = 0; tick < 30; ++tick) {
+    const Vec3 sent = apply_safety(sp, d, {}, x, {0, 0, speed}, dt, ev);
+    ASSERT_TRUE(is_finite(sent)) << "tick " << tick;
+    EXPECT_EQ(sent.x, 0.0);
+    EXPECT_EQ(sent.y, 0.0);
+    EXPECT_LE(sent.z, 0.0) << "tick " << tick << ": a drag against the motion, never a push";
+    EXPECT_LE(-sent.z, amax * speed * (1 + 1e-12)) << "tick " << tick << ": at most max_passivity_damping·|v|";
+    if (tick == 10) {
+      EXPECT_NEAR(sent.z, -1.0, 1e-9) << "the last 0.1 mJ";
+    }
+    dragging += -sent.z > 1e-9 ? 1 : 0;
+    const Vec3 next = x + Vec3{0, 0, speed * dt};
+    paid -= dot(sent, next - x);
+    x = next;
+  }
+  EXPECT_EQ(dragging, 11) << "2 mJ at 0.2 mJ a tick, then the last 0.1 mJ";
+  EXPECT_NEAR(paid, push * 1e-3, 1e-12);
+  EXPECT_NEAR(d.energy, 0, 1e-12) << "paid, and not more";
 }
 
 TEST(Safety, NaNGuardClampAndSlew) {

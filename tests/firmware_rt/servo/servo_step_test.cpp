@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -198,6 +199,14 @@ TEST(ServoStep, AModelFromTheWireIsCheckedBeforeUse) {
   r = model_from_blob(to_blob(bad));
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("period_ns"), std::string::npos) << r.error().message;
+  // The passivity controller's damping bound: finite and > 0.
+  for (const double damping : {0.0, -1.0, std::nan(""), std::numeric_limits<double>::infinity()}) {
+    bad = m;
+    bad.haptic.safety.max_passivity_damping = damping;
+    r = model_from_blob(to_blob(bad));
+    ASSERT_FALSE(r.ok()) << damping;
+    EXPECT_NE(r.error().message.find("max_passivity_damping"), std::string::npos) << r.error().message;
+  }
   // A kinematic chain whose joint count was scribbled over: refused, never looped over.
   b = to_blob(m);
   const std::size_t at = offsetof(ServoModel, kinematics);
