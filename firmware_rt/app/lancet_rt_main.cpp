@@ -133,8 +133,8 @@ bool write_stats(const std::string& path, const StatsInput& in) {
   const lancet::SegmentHealth& h = st.health;
   j += "  \"segment\": {\"ring_resets\": " + num(h.ring_resets) + ", \"commands_rejected\": " + num(h.commands_rejected) +
        ", \"commands_deferred\": " + num(h.commands_deferred) + ", \"patches_rejected\": " + num(h.patches_rejected) +
-       ", \"targets_rejected\": " + num(h.targets_rejected) + ", \"sample_ring_resets\": " + num(h.sample_ring_resets) +
-       "},\n";
+       ", \"patches_unreadable\": " + num(h.patches_unreadable) + ", \"targets_rejected\": " + num(h.targets_rejected) +
+       ", \"sample_ring_resets\": " + num(h.sample_ring_resets) + "},\n";
   field("rearms", num(st.rearms));
   field("operator_requests", num(st.operator_requests));
   if (st.has_arm != 0) {
@@ -359,6 +359,9 @@ int main(int argc, char** argv) {
     std::memcpy(blob->text, text.data(), blob->size);
     shared.arm_config.write(*blob);
   }
+  // New patches are copied, checked and get their tree on a helper thread, below the servo's
+  // priority and off its CPU, so no tick pays for one.
+  const std::string intake_line = servo.start_patch_intake(setup_opts.enable, std::max(1, setup_opts.priority - 10), setup_opts.cpu);
   lancet::rt::RtLoop loop(loop_params);
   std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
@@ -376,6 +379,7 @@ int main(int argc, char** argv) {
   });
   for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
+  std::fprintf(stderr, "lancet-rt: %s\n", intake_line.c_str());
   std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
                1e9 / static_cast<double>(model.servo.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
 

@@ -45,7 +45,12 @@ void copy_text(char* dst, std::size_t size, const char* src) noexcept {
 }
 
 RtServo::RtServo(const RtModel& model, SharedState& shared, std::int64_t start_ns, device::Device* arm)
-    : model_(with_period(model)), shared_(shared), device_(arm), has_arm_(arm != nullptr), data_(std::make_unique<RtData>()) {
+    : model_(with_period(model)),
+      shared_(shared),
+      device_(arm),
+      has_arm_(arm != nullptr),
+      data_(std::make_unique<RtData>()),
+      intake_(std::make_unique<PatchIntake>(shared, model_.servo.period_ns)) {
   RtData& d = *data_;
   d.start_ns = start_ns;
   d.pid = static_cast<std::int32_t>(getpid());
@@ -223,19 +228,20 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
                       : model_.trajectory != nullptr ? model_.trajectory->at(t)
                                                      : device::scripted_target(t, model_.script_depth);
 
-  // Newest patch, into the back buffer; swap only on a consistent read of a valid patch.
-  TissuePatch& back = d.patches[static_cast<std::size_t>(1 - d.front)];
-  // Only the triangles in use are copied (a full 16k patch is 720 KB; a typical one a tenth).
-  const auto in_use = [](const TissuePatch& p) { return tissue_patch_bytes(p); };
-  if (shared_.patch.try_read_prefix_if_newer(back, d.patch_seen, offsetof(TissuePatch, triangles), in_use,
-                                             model_.patch_read_attempts) == ReadStatus::kOk) {
-    if (const char* why = wire::check(back, now_ns)) {
-      reject(d.health.patches_rejected, why);
-    } else {
-      d.front = 1 - d.front;
-      d.patch_version = d.patch_seen;
-      ++d.patches_received;
-    }
+  // The newest patch the intake has ready (copied, checked, its tree built): its helper thread's
+  // work, or, without one, done here.
+  if (!intake_->threaded()) (void)intake_->poll(now_ns);
+  const ReadyPatch* const ready = intake_->take();
+  if (ready != nullptr && ready->version != d.patch_version) {
+    d.patch_version = ready->version;
+    ++d.patches_received;
+  }
+  const IntakeCounters& ic = intake_->counters();
+  d.health.patches_rejected = ic.rejected.load(std::memory_order_relaxed);
+  d.health.patches_unreadable = ic.busy.load(std::memory_order_relaxed);
+  if (d.health.patches_rejected != d.patches_rejected_seen) {
+    d.patches_rejected_seen = d.health.patches_rejected;
+    d.last_reject.store(ic.last_reject.load(std::memory_order_relaxed), std::memory_order_relaxed);
   }
 
   // Read the device (the hand steering a simulated one first). While the supervisor holds it the
@@ -259,8 +265,9 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   in.reading = d.joints;
   in.read_status = d.last_read;
   in.device_held = !device_owned;
-  in.patch = d.patch_version != 0 ? &d.patches[static_cast<std::size_t>(d.front)] : nullptr;
-  in.patch_version = d.patch_version;
+  in.patch = ready != nullptr ? &ready->patch : nullptr;
+  in.patch_version = ready != nullptr ? ready->version : 0;
+  in.patch_tree = ready != nullptr ? &ready->tree : nullptr;
   in.viz_alive = alive;
   in.watchdog_tripped = ctx.watchdog.tripped();
   servo::ServoOutput& out = d.out;

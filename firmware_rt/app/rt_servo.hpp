@@ -4,8 +4,8 @@
 //
 // One tick: hand the device over if the supervisor asked → commands (at most
 // max_commands_per_tick, each checked), the script's tool changes and operator requests → the
-// hand's target (viz or script; checked) → take the newest TissuePatch (seqlock, never waits;
-// checked) → read the device → servo::servo_step (firmware_rt/servo: sense, haptics, fade and
+// hand's target (viz or script; checked)// checked) → the newest ready patch (app/patch_intake.hpp: copied, checked and with its tree, by
+// the intake's helper thread; O(1) here) → read the device → servo::servo_step (firmware_rt/servo: sense, haptics, fade and
 // watchdog, actuate, the sample) → write the device → push the ToolSample → publish RtStatus
 // (shared, and a private copy for the supervisor) and the heartbeat. The step is a pure function
 // of what this wrapper reads; everything it was given goes into the ToolSample, so a recording
@@ -26,6 +26,7 @@
 #include <cstdint>
 #include <memory>
 
+#include "app/patch_intake.hpp"
 #include "device/device.hpp"
 #include "device/sim_stylus.hpp"
 #include "device/trajectory.hpp"
@@ -50,9 +51,6 @@ struct RtModel {
   std::size_t max_commands_per_tick = 16;
   /// An operator request (lancetctl rearm) older than this when seen is ignored.
   std::int64_t operator_request_max_age_ns = 2'000'000'000;
-  /// Seqlock read attempts for the patch per tick (each a copy of the triangles in use, up to 720 KB); a busy writer is retried
-  /// next tick.
-  int patch_read_attempts = 2;
   /// While the arm's link is lost, the supervisor tries to reconnect this often.
   std::int64_t reconnect_interval_ns = 1'000'000'000;
 };
@@ -72,13 +70,9 @@ struct RtData {
   StylusTarget target{};                 ///< the last valid target
   StylusTarget target_scratch{};         ///< read from the segment, checked before it is taken
   std::uint64_t target_version = 0;
-  // Double-buffered patch: a read that fails (writer busy) or is rejected must not clobber the one
-  // in use.
-  std::array<TissuePatch, 2> patches{};
-  int front = 0;
-  std::uint64_t patch_seen = 0;          ///< seqlock version last read (accepted or not)
   std::uint64_t patch_version = 0;       ///< version of the patch in use (0: none)
-  std::uint64_t patches_received = 0;
+  std::uint64_t patches_received = 0;    ///< patches the servo started using
+  std::uint64_t patches_rejected_seen = 0;  ///< the intake's rejected count, last looked at
   bool viz_alive = false;
   std::int64_t viz_last_beat_ns = 0;
   std::int64_t viz_lost_at_beat_ns = 0;  ///< last beat seen before the viz was judged lost
@@ -138,6 +132,12 @@ class RtServo {
   /// Whether the loop thread runs SCHED_FIFO (reported in RtStatus).
   void set_fifo(bool fifo) noexcept { data_->fifo = fifo; }
 
+  /// Takes patches on a helper thread from now on (SCHED_FIFO at `priority` when `fifo`, off CPU
+  /// `avoid_cpu`: the servo's) instead of in the tick. Call before the loop starts. Returns a line
+  /// saying what it got. Without it, the tick takes patches itself (tests, deterministic tools).
+  std::string start_patch_intake(bool fifo, int priority, int avoid_cpu) { return intake_->start_thread(fifo, priority, avoid_cpu); }
+  [[nodiscard]] const PatchIntake& patch_intake() const noexcept { return *intake_; }
+
   /// The latest published status, from the servo's private copy (any thread). kEmpty before the
   /// first tick.
   [[nodiscard]] ReadStatus read_status(RtStatus& out) const noexcept { return data_->own_status.try_read(out, 1000); }
@@ -163,7 +163,8 @@ class RtServo {
   std::unique_ptr<device::SimStylus> stylus_;  // the built-in stylus, when no arm was given
   device::Device* device_ = nullptr;           // the arm, or stylus_
   bool has_arm_ = false;
-  std::unique_ptr<RtData> data_;  // large (two patches): on the heap, allocated once here
+  std::unique_ptr<RtData> data_;  // large: on the heap, allocated once here
+  std::unique_ptr<PatchIntake> intake_;
 };
 
 /// Copies a C string into a fixed status text, truncated and NUL-terminated. Real-time safe.

@@ -118,16 +118,18 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
   const SegmentHealth& r = health_reported_;
   const std::uint64_t rej = h.commands_rejected - r.commands_rejected, pat = h.patches_rejected - r.patches_rejected,
                       tar = h.targets_rejected - r.targets_rejected, rr = h.ring_resets - r.ring_resets,
-                      sr = h.sample_ring_resets - r.sample_ring_resets, def = h.commands_deferred - r.commands_deferred;
+                      sr = h.sample_ring_resets - r.sample_ring_resets, def = h.commands_deferred - r.commands_deferred,
+                      unr = h.patches_unreadable - r.patches_unreadable;
   bool said = false;
-  if (rej + pat + tar + rr + sr + def > 0) {
+  if (rej + pat + tar + rr + sr + def + unr > 0) {
     const char* why = servo_.data().last_reject.load(std::memory_order_relaxed);
-    out.push_back(fmt("shared segment: rejected %llu commands, %llu patches, %llu stylus targets; reset the command ring "
-                      "%llu and the sample ring %llu times; %llu ticks left commands queued (last: %s)",
+    out.push_back(fmt("shared segment: rejected %llu commands, %llu patches, %llu stylus targets; %llu patch reads got no "
+                      "whole copy; reset the command ring %llu and the sample ring %llu times; %llu ticks left commands "
+                      "queued (last: %s)",
                       static_cast<unsigned long long>(rej), static_cast<unsigned long long>(pat),
-                      static_cast<unsigned long long>(tar), static_cast<unsigned long long>(rr),
-                      static_cast<unsigned long long>(sr), static_cast<unsigned long long>(def),
-                      why != nullptr ? why : "-"));
+                      static_cast<unsigned long long>(tar), static_cast<unsigned long long>(unr),
+                      static_cast<unsigned long long>(rr), static_cast<unsigned long long>(sr),
+                      static_cast<unsigned long long>(def), why != nullptr ? why : "-"));
     health_reported_ = h;
     said = true;
   }

@@ -21,20 +21,25 @@ const MaterialParams& detail::material(const HapticModel& m, std::uint32_t id) n
 }
 
 const PatchBvh* detail::patch_tree(const HapticData& d, const HapticInput& in) noexcept {
-  return in.patch != nullptr && in.patch_version != 0 && d.bvh.version == in.patch_version ? &d.bvh : nullptr;
+  if (in.patch == nullptr || in.patch_version == 0) return nullptr;
+  if (in.tree != nullptr && in.tree->version == in.patch_version) return in.tree;
+  return d.bvh.version == in.patch_version ? &d.bvh : nullptr;
 }
 
 void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept {
   out = HapticOutput{};
-  const bool new_patch = in.patch != nullptr && in.patch_version != 0 && in.patch_version != d.bvh.version;
-  if (new_patch) build_patch_bvh(d.bvh, *in.patch, in.patch_version);
+  const bool new_patch = in.patch != nullptr && in.patch_version != 0 && in.patch_version != d.patch_version;
+  if (new_patch) {
+    d.patch_version = in.patch_version;
+    if (in.tree == nullptr || in.tree->version != in.patch_version) build_patch_bvh(d.bvh, *in.patch, in.patch_version);
+  }
   Vec3 prev_proxy = d.initialised ? d.proxy : in.device;
   d.initialised = true;
   // The riding proxy: a proxy resting on the surface moves with the triangle under it when a newer
   // patch moves that triangle (tool_steps' probe_step anchors it every tick it rests).
   ProbeData& probe = d.probe;
   if (new_patch && probe.anchor.valid && d.contact && d.stage == Stage::kDeform) {
-    if (carry_proxy(*in.patch, &d.bvh, probe.anchor, prev_proxy, m.ride_max_move + 4 * m.proxy_radius, m.ride_max_move,
+    if (carry_proxy(*in.patch, detail::patch_tree(d, in), probe.anchor, prev_proxy, m.ride_max_move + 4 * m.proxy_radius, m.ride_max_move,
                     prev_proxy)) {
       ++probe.carried;
     } else {

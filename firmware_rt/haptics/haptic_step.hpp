@@ -100,7 +100,10 @@ struct DrillData {
 };
 
 struct HapticData {
-  PatchBvh bvh{};              ///< search tree of the patch in use (built when its version changes)
+  /// The version of the patch in use (0: none or unversioned): a new one is one of another version.
+  std::uint64_t patch_version = 0;
+  /// Search tree of the patch in use, when the input brings none (built when its version changes).
+  PatchBvh bvh{};
   Stage stage = Stage::kFree;
   Vec3 proxy{};
   bool initialised = false;
@@ -122,6 +125,11 @@ struct HapticInput {
   /// patch through HapticData::bvh and carries the proxy across patch updates; 0 (unit tests):
   /// it scans the whole patch and does not carry
   std::uint64_t patch_version = 0;
+  /// The patch's search tree, built for patch_version by whoever brings the patch (lancet-rt's
+  /// patch intake, off the tick); null or built for another version: the step builds it into
+  /// HapticData::bvh on the tick the version changes. Either way the same tree (it is a function
+  /// of the patch), so a replay that brings none steps exactly as the live servo did.
+  const PatchBvh* tree = nullptr;
   std::uint64_t tick = 0;              ///< seq of the ToolSample this tick pushes
 };
 
@@ -136,8 +144,8 @@ struct HapticOutput {
 
 /// One tick: the tool's own step (haptics/probe.cpp, scalpel.cpp, retractor.cpp, drill.cpp), then
 /// the contact events and the safety layer. Real-time safe: no allocation, no exceptions; with a
-/// patch version, O(triangles near the tool) but on the tick a new patch arrives (the tree's
-/// build, O(patch triangles)); without, O(patch triangles).
+/// patch version, O(triangles near the tool), but on the tick a new patch arrives without its tree
+/// (the tree's build, O(patch triangles)); without a version, O(patch triangles).
 void haptic_step(const HapticModel& m, HapticData& d, const HapticInput& in, HapticOutput& out) noexcept;
 
 }  // namespace lancet::haptics

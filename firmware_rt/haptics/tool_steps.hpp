@@ -10,8 +10,8 @@ namespace lancet::haptics::detail {
 /// The material of id `id` (ids beyond the table: the last).
 [[nodiscard]] const MaterialParams& material(const HapticModel& m, std::uint32_t id) noexcept;
 
-/// The search tree of the patch in use (HapticData::bvh, built by haptic_step when the patch's
-/// version changed); null without a patch version: then the patch is scanned.
+/// The search tree of the patch in use (the input's, or HapticData::bvh, built by haptic_step
+/// when the patch's version changed); null without a patch version: then the patch is scanned.
 [[nodiscard]] const PatchBvh* patch_tree(const HapticData& d, const HapticInput& in) noexcept;
 
 /// Probe, swab, and scalpel before the rupture: proxy on the surface with friction; a scalpel

@@ -84,7 +84,7 @@ std::uint64_t state_hash(const ServoData& d) noexcept {
   const haptics::HapticData& hd = d.haptic;
   h.word(static_cast<std::uint64_t>(hd.stage)), h.v(hd.proxy), h.b(hd.initialised), h.b(hd.contact);
   h.b(hd.probe.sliding);
-  h.word(hd.bvh.version), h.b(hd.probe.anchor.valid), h.word(hd.probe.anchor.id), h.f(hd.probe.anchor.s),
+  h.word(hd.patch_version), h.b(hd.probe.anchor.valid), h.word(hd.probe.anchor.id), h.f(hd.probe.anchor.s),
       h.f(hd.probe.anchor.t), h.f(hd.probe.anchor.h), h.word(hd.probe.carried), h.word(hd.probe.carry_lost);
   h.v(hd.scalpel.normal), h.v(hd.scalpel.entry), h.word(hd.scalpel.material), h.v(hd.scalpel.last_event),
       h.word(hd.scalpel.ruptures);
@@ -136,6 +136,7 @@ void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOu
   hin.mode = d.mode;
   hin.patch = in.patch;
   hin.patch_version = in.patch != nullptr ? in.patch_version : 0;
+  hin.tree = in.patch != nullptr ? in.patch_tree : nullptr;
   hin.tick = d.tick;
   haptics::haptic_step(m.haptic, d.haptic, hin, out.haptic);
   std::uint32_t events = out.haptic.events;

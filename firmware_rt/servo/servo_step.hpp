@@ -113,6 +113,10 @@ struct ServoInput {
   bool device_held = false;        ///< the supervisor holds the device (reading not taken)
   const TissuePatch* patch = nullptr;  ///< the patch in use (null: none yet)
   std::uint64_t patch_version = 0; ///< its version (0: none)
+  /// Its search tree, built for patch_version off the tick (lancet-rt's patch intake); null: the
+  /// step builds it the tick the version changes (a replay). Not recorded: the same patch gives
+  /// the same tree.
+  const haptics::PatchBvh* patch_tree = nullptr;
   bool viz_alive = false;          ///< the visualizer's heartbeat is fresh
   bool watchdog_tripped = false;   ///< the loop's watchdog has tripped
 };

@@ -116,10 +116,12 @@ JitterResult run_jitter(const JitterOptions& o) {
   auto shared = std::make_unique<SharedState>();
   auto patch = std::make_unique<TissuePatch>();
   fill_workload_patch(*patch);
-  shared->patch.write(*patch);
+  shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
   app::RtModel model;
   model.servo.period_ns = o.rt.loop().period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
+  // As in lancet-rt: patches arrive through the intake's helper thread, off the servo's CPU.
+  (void)servo.start_patch_intake(setup_opts.enable, std::max(1, setup_opts.priority - 10), setup_opts.cpu);
 
   const int rounds = o.compare_recording ? std::max(2, o.rounds + o.rounds % 2) : std::max(1, o.rounds);
   const std::string record_path =
@@ -156,6 +158,19 @@ JitterResult run_jitter(const JitterOptions& o) {
       }
     }
     std::atomic<bool> consumer_stop{false};
+    // The viz's patches: a fresh one about every 16 ms (60 Hz), from a thread of its own as the
+    // viz publishes from its process.
+    std::thread publisher;
+    if (o.servo_workload) {
+      publisher = std::thread([&] {
+        while (!consumer_stop.load(std::memory_order_relaxed)) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(16));
+          patch->t_ns = monotonic_ns();
+          ++patch->seq;
+          shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
+        }
+      });
+    }
     std::thread consumer;
     if (o.compare_recording) {
       consumer = std::thread([&] {
@@ -176,11 +191,6 @@ JitterResult run_jitter(const JitterOptions& o) {
           [&](const rt::TickContext& c) {
             if (!o.servo_workload) return;
             shared->viz_heartbeat.beat(c.woke_ns, 0);
-            if (c.tick % 16 == 0) {  // a fresh patch at about 60 Hz, as the viz publishes
-              patch->t_ns = c.woke_ns;
-              ++patch->seq;
-              shared->patch.write(*patch);
-            }
             servo.tick(c);
             if (!o.compare_recording) {
               while (shared->samples.try_pop(drained)) {
@@ -192,6 +202,7 @@ JitterResult run_jitter(const JitterOptions& o) {
     t.join();
     consumer_stop.store(true);
     if (consumer.joinable()) consumer.join();
+    if (publisher.joinable()) publisher.join();
     if (recorder) {
       r.recorded_samples += recorder->samples();
       r.recorded_lost += recorder->samples_lost();

@@ -120,7 +120,7 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
     p.seq = frame_;
     p.t_ns = now_ns;
     p.samples_applied = samples_applied_;
-    s.patch.write_prefix(p, tissue_patch_bytes(p));
+    s.patch.publish_prefix(p, tissue_patch_bytes(p));
     patch_version_ = s.patch.version();
     ++patches_published_;
   }

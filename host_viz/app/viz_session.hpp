@@ -61,7 +61,7 @@ class VizSession {
   [[nodiscard]] const ToolSample& latest() const noexcept { return latest_; }
   [[nodiscard]] const TissuePatch& patch() const noexcept { return *patch_; }
   [[nodiscard]] std::uint64_t patches_published() const noexcept { return patches_published_; }
-  /// The seqlock version the last patch was published as (what ToolSample::patch_version names).
+  /// The version the last patch was published as (what ToolSample::patch_version names).
   [[nodiscard]] std::uint64_t patch_version() const noexcept { return patch_version_; }
   /// lancet-rt's servo model (published once at its start); false when not attached or unreadable.
   [[nodiscard]] bool read_servo_model(ServoModelBlob& out);

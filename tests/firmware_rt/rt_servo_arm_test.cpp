@@ -56,7 +56,7 @@ struct ArmRig {
     shared->viz_heartbeat.beat(t, 1);
     if (n % 16 == 0) {
       patch->t_ns = t;
-      shared->patch.write(*patch);
+      shared->patch.publish(*patch);
     }
     servo->tick(rt::TickContext{t, t, ++n, watchdog, live});
     ToolSample s;

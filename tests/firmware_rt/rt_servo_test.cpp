@@ -42,7 +42,7 @@ struct Rig {
     p->triangles[0] = {{{-s, -s, h}, {s, -s, h}, {s, s, h}}, 1, 0, 0};
     p->triangles[1] = {{{-s, -s, h}, {s, s, h}, {-s, s, h}}, 1, 0, 1};
     p->t_ns = t;
-    shared->patch.write(*p);
+    shared->patch.publish(*p);
     published = true;
   }
   /// The stylus held still at p (the viz's mouse target, refreshed every tick).
@@ -61,7 +61,7 @@ struct Rig {
     if (viz_beats) shared->viz_heartbeat.beat(t, 1);
     if (republish && published && n % 16 == 0) {
       scratch->t_ns = t;
-      shared->patch.write(*scratch);
+      shared->patch.publish(*scratch);
     }
     servo->tick(rt::TickContext{t, t, ++n, watchdog, live});
   }
@@ -208,7 +208,7 @@ TEST(RtServo, ForceIsClampedAndNeverNaN) {
   bad->t_ns = rig.t;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   bad->triangles[0] = {{{nan, 0, 0}, {0.1f, 0, 0}, {0, 0.1f, nan}}, 1, 0, 0};
-  rig.shared->patch.write(*bad);
+  rig.shared->patch.publish(*bad);
   const std::uint64_t in_use = rig.servo->data().patch_version;
   for (int i = 0; i < 10; ++i) {
     rig.tick(true, false);
@@ -398,7 +398,7 @@ TEST(RtServoSegment, GarbageEverywhereIsRejectedCountedAndAllocatesNothing) {
     (void)rig.shared->commands.try_push(c);
     if (i % 7 == 0) {
       fill(junk_patch.get(), sizeof(TissuePatch));
-      rig.shared->patch.write(*junk_patch);
+      rig.shared->patch.publish(*junk_patch);
     }
     if (i % 5 == 0) {
       fill(&junk_target, sizeof junk_target);
@@ -426,7 +426,7 @@ TEST(RtServoSegment, APatchOrTargetFromTheFutureIsRejected) {
   rig.tick(true);
   const std::uint64_t v = rig.servo->data().patch_version;
   rig.scratch->t_ns = rig.t + 10'000 * kMs;  // would never go stale
-  rig.shared->patch.write(*rig.scratch);
+  rig.shared->patch.publish(*rig.scratch);
   StylusTarget tg{};
   tg.active = 1;
   tg.t_ns = rig.t + 10'000 * kMs;  // would never time out

@@ -229,6 +229,7 @@ struct SegmentHealth {
   std::uint64_t patches_rejected;   ///< TissuePatches that failed validation (kept the previous one)
   std::uint64_t targets_rejected;   ///< StylusTargets that failed validation
   std::uint64_t sample_ring_resets; ///< ToolSample ring indices found impossible and reset
+  std::uint64_t patches_unreadable; ///< TissuePatch reads that got no whole copy (the claimed slot was written into)
 };
 
 /// Fixed text on the wire, always NUL-terminated by its writer (readers check).

@@ -107,6 +107,15 @@ class Seqlock {
     return read_impl(out, max_attempts, /*only_newer=*/true, seen, header_bytes, extent);
   }
 
+  /// Any reader, of a value published with write_prefix: like try_read_prefix_if_newer, whatever
+  /// the version. TripleBuffer reads its claimed slot with it.
+  template <class Extent>
+  [[nodiscard]] ReadStatus try_read_prefix(T& out, std::size_t header_bytes, Extent&& extent,
+                                           int max_attempts = kDefaultRetries) const noexcept {
+    std::uint64_t ignored = 0;
+    return read_impl(out, max_attempts, /*only_newer=*/false, ignored, header_bytes, extent);
+  }
+
   /// Number of completed writes (a version number; 0 means never written).
   [[nodiscard]] std::uint64_t version() const noexcept {
     return seq_.load(std::memory_order_acquire) / 2;

@@ -2,7 +2,7 @@
 // SharedState: everything lancet-rt and lancet-viz share, laid out in one ShmSegment payload, and
 // the layout hash that guards it. See ARCHITECTURE.md for the data flow:
 //   rt  → viz : ToolSample ring (one per tick), RtStatus (seqlock), rt heartbeat
-//   viz → rt  : TissuePatch (seqlock), StylusTarget (seqlock), Command ring, viz heartbeat
+//   viz → rt  : TissuePatch (triple buffer), StylusTarget (seqlock), Command ring, viz heartbeat
 
 #include <cstddef>
 #include <cstdint>
@@ -15,6 +15,7 @@
 #include "lancet/shared_model/seqlock.hpp"
 #include "lancet/shared_model/shm_segment.hpp"
 #include "lancet/shared_model/spsc_ring.hpp"
+#include "lancet/shared_model/triple_buffer.hpp"
 #include "lancet/shared_model/units.hpp"
 
 namespace lancet {
@@ -26,7 +27,9 @@ namespace lancet {
 ///    commands) and state_hash, for recording and exact replay.
 /// 8: TissuePatch holds 16384 triangles, each with its surface face id; the brick before the
 ///    triangles, and only the triangles in use are copied.
-inline constexpr std::uint64_t kProtocolVersion = 8;
+/// 9: the TissuePatch travels in a TripleBuffer (no reader is turned away by a busy writer);
+///    SegmentHealth::patches_unreadable.
+inline constexpr std::uint64_t kProtocolVersion = 9;
 /// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
 inline constexpr std::size_t kSampleRingCapacity = 4096;
 inline constexpr std::size_t kCommandRingCapacity = 256;
@@ -36,7 +39,7 @@ inline constexpr const char* kDefaultShmName = "/lancet";
 struct SharedState {
   SpscRing<ToolSample, kSampleRingCapacity> samples;  ///< rt → viz
   SpscRing<Command, kCommandRingCapacity> commands;   ///< viz → rt
-  Seqlock<TissuePatch> patch;                         ///< viz → rt
+  TripleBuffer<TissuePatch> patch;                    ///< viz → rt (lancet-rt's patch intake claims)
   Seqlock<StylusTarget> stylus_target;                ///< viz → rt
   Seqlock<RtStatus> rt_status;                        ///< rt → anyone
   Heartbeat rt_heartbeat;                             ///< written by lancet-rt every tick
