@@ -17,7 +17,7 @@ RtLoop::RtLoop(const LoopParams& params) : params_(params), stats_(std::make_uni
   stats_->window_max_us.clear();
 }
 
-void RtLoop::sleep_until(std::int64_t t_ns) const noexcept {
+void MonotonicClock::sleep_until(std::int64_t t_ns) const noexcept {
   timespec ts{};
   ts.tv_sec = static_cast<time_t>(t_ns / kNsPerSecond);
   ts.tv_nsec = static_cast<long>(t_ns % kNsPerSecond);
