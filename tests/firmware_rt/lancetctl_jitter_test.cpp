@@ -1,9 +1,12 @@
 // lancetctl jitter as a test rig runs it: the exit status follows the bounds, the JSON holds the
-// percentiles (of cyclictest too, when asked), errors are clear.
+// percentiles (of cyclictest too, when asked) and accounts for every deadline, errors are clear.
+// What the figures are on a given host is the rig's output, not a bound here (they belong in
+// docs/PERFORMANCE.md): these tests check the report's structure and its accounting only.
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <string>
 
@@ -42,6 +45,46 @@ class LancetctlJitter : public ::testing::Test {
   std::filesystem::path dir_;
 };
 
+// The JSON object that starts at "key": {, as text up to its end (nested objects included).
+std::string json_object(const std::string& json, const std::string& key) {
+  const auto at = json.find("\"" + key + "\": {");
+  if (at == std::string::npos) return "";
+  int depth = 0;
+  for (auto i = json.find('{', at); i < json.size(); ++i) {
+    if (json[i] == '{') ++depth;
+    if (json[i] == '}' && --depth == 0) return json.substr(at, i + 1 - at);
+  }
+  return "";
+}
+
+// A latency distribution as the report writes it is consistent: samples counted, percentiles in
+// order between min and max.
+void expect_consistent_distribution(const std::string& d, const std::string& what) {
+  SCOPED_TRACE(what + ": " + d);
+  ASSERT_FALSE(d.empty());
+  const double min = json_number(d, "min_us").value_or(-1), p50 = json_number(d, "p50_us").value_or(-1),
+               p99 = json_number(d, "p99_us").value_or(-1), max = json_number(d, "max_us").value_or(-1);
+  EXPECT_GT(json_number(d, "count").value_or(0), 0);
+  EXPECT_GE(min, 0);
+  EXPECT_LE(min, p50);
+  EXPECT_LE(p50, p99);
+  EXPECT_LE(p99, max);
+}
+
+// The loop's own accounting in the report: every deadline of every round is a tick or a skipped
+// one (`deadlines` of them), one wake-up and one compute time per tick, missed ⊇ skipped.
+void expect_every_deadline_accounted(const std::string& j, double deadlines) {
+  const std::string lancet = json_object(j, "lancet");
+  ASSERT_FALSE(lancet.empty()) << j;
+  const double ticks = json_number(lancet, "ticks").value_or(-1), overruns = json_number(lancet, "overruns").value_or(-1);
+  EXPECT_GT(ticks, 0) << lancet;
+  EXPECT_EQ(ticks + overruns, deadlines) << lancet;
+  EXPECT_GE(json_number(lancet, "missed").value_or(-1), overruns) << lancet;
+  EXPECT_EQ(json_number(json_object(lancet, "wake_latency"), "count").value_or(-1), ticks) << lancet;
+  EXPECT_EQ(json_number(json_object(lancet, "compute"), "count").value_or(-1), ticks) << lancet;
+  expect_consistent_distribution(json_object(lancet, "wake_latency"), "wake-up latency");
+}
+
 TEST_F(LancetctlJitter, ReportsPercentilesAndPassesWithoutBounds) {
   ASSERT_EQ(run({"jitter", "--duration", "1", "--json", path("j.json"), "--plot", path("j.svg")}), 0)
       << read_file(path("out.txt"));
@@ -49,11 +92,16 @@ TEST_F(LancetctlJitter, ReportsPercentilesAndPassesWithoutBounds) {
   EXPECT_NE(out.find("T: 0 ("), std::string::npos) << out;  // the cyclictest-style line
   EXPECT_NE(out.find("p99.99"), std::string::npos) << out;
   const std::string j = read_file(path("j.json"));
-  EXPECT_GE(json_number(j, "ticks").value_or(0), 900) << j;
-  EXPECT_GT(json_number(j, "p99_us").value_or(-1), -1) << j;
+  EXPECT_EQ(json_number(j, "interval_us").value_or(-1), 1000) << j;
+  expect_every_deadline_accounted(j, 1000);  // 1 s at 1 kHz (two rounds of 500)
   EXPECT_NE(j.find("\"cyclictest\": null"), std::string::npos) << j;
 #if !defined(__SANITIZE_ADDRESS__)  // lancetctl is ASan-instrumented too: its shadow memory faults in lazily
-  EXPECT_EQ(json_number(j, "page_faults").value_or(-1), 0) << j;
+  // Locked memory (root, as CI runs) must not fault in the loop; without the lock nothing is promised.
+  if (j.find("\"memory_locked\": true") != std::string::npos) {
+    EXPECT_EQ(json_number(j, "page_faults").value_or(-1), 0) << j;
+  } else {
+    std::printf("[ info     ] page faults not checked: mlockall was refused (run as root, as CI does)\n");
+  }
 #endif
   const std::string svg = read_file(path("j.svg"));
   EXPECT_NE(svg.find("<svg"), std::string::npos);
@@ -81,16 +129,20 @@ TEST_F(LancetctlJitter, ComparesWithCyclictestInTheSameRun) {
   const std::string out = read_file(path("out.txt"));
   EXPECT_NE(out.find("lancet/cyclictest"), std::string::npos) << out;
   const std::string j = read_file(path("c.json"));
-  const auto cyc = j.find("\"cyclictest\": {");
-  ASSERT_NE(cyc, std::string::npos) << j;
-  EXPECT_GE(json_number(j.substr(cyc), "count").value_or(0), 800) << j;
-  EXPECT_GT(json_number(j.substr(cyc), "p99_us").value_or(0), 0) << j;
-  EXPECT_NE(j.find("\"ratio\": {"), std::string::npos) << j;
+  expect_every_deadline_accounted(j, 2000);  // two rounds of 1 s at 1 kHz
+  const std::string cyc = json_object(j, "cyclictest");
+  ASSERT_FALSE(cyc.empty()) << j;
+  expect_consistent_distribution(cyc, "cyclictest");
+  const std::string ratio = json_object(j, "ratio");
+  ASSERT_FALSE(ratio.empty()) << j;
+  EXPECT_TRUE(json_number(ratio, "p50").has_value()) << ratio;
+  EXPECT_TRUE(json_number(ratio, "p99").has_value()) << ratio;
 }
 
 // Recording on and off in one run: the recorder drains and writes every sample (nothing lost, the
-// file reads back with every tick), and the servo's wake-up latency with it stays within noise of
-// without (a loose bound: this machine is noisy; the figures are in docs/PERFORMANCE.md).
+// file reads back with every tick, in order), and the report shows both rounds' wake-up latency
+// side by side. How much recording disturbs the servo is the rig's measurement (the figures are in
+// docs/PERFORMANCE.md), not a bound here.
 TEST_F(LancetctlJitter, ComparesRecordingOnAndOffInTheSameRun) {
   ASSERT_EQ(run({"jitter", "--duration", "2", "--rounds", "2", "--compare-recording", "--record-file", path("r.h5"), "--json",
                  path("r.json")}),
@@ -99,20 +151,25 @@ TEST_F(LancetctlJitter, ComparesRecordingOnAndOffInTheSameRun) {
   const std::string out = read_file(path("out.txt"));
   EXPECT_NE(out.find("recording off   recording on"), std::string::npos) << out;
   const std::string j = read_file(path("r.json"));
-  const auto at = j.find("\"recording\": {");
-  ASSERT_NE(at, std::string::npos) << j;
-  const std::string rec = j.substr(at);
-  const auto off = rec.find("\"off\": {"), on = rec.find("\"on\": {");
-  ASSERT_NE(off, std::string::npos);
-  ASSERT_NE(on, std::string::npos);
-  const double p50_off = json_number(rec.substr(off), "p50_us").value_or(0), p50_on = json_number(rec.substr(on), "p50_us").value_or(0);
-  std::printf("[ info     ] wake-up p50 %.1f us recording off, %.1f us on (ratio %.2f); p99 %.1f / %.1f us\n", p50_off, p50_on,
-              p50_on / p50_off, json_number(rec.substr(off), "p99_us").value_or(0), json_number(rec.substr(on), "p99_us").value_or(0));
-  EXPECT_GT(p50_off, 0);
-  EXPECT_LT(p50_on, 3 * p50_off + 50) << "recording must not disturb the servo beyond noise";
-  EXPECT_EQ(json_number(rec, "lost").value_or(-1), 0) << j;
-  const double samples = json_number(rec, "samples").value_or(0);
-  EXPECT_GE(samples, 900) << j;  // one round of about 1 s at 1 kHz
+  expect_every_deadline_accounted(j, 2000);  // two rounds of 1 s at 1 kHz
+  const std::string rec = json_object(j, "recording");
+  ASSERT_FALSE(rec.empty()) << j;
+  const std::string off = json_object(rec, "off"), on = json_object(rec, "on");
+  expect_consistent_distribution(off, "recording off");
+  expect_consistent_distribution(on, "recording on");
+  std::printf("[ info     ] wake-up p50 %.1f us recording off, %.1f us on; p99 %.1f / %.1f us\n",
+              json_number(off, "p50_us").value_or(0), json_number(on, "p50_us").value_or(0), json_number(off, "p99_us").value_or(0),
+              json_number(on, "p99_us").value_or(0));
+  // The rounds split the loop's wake-ups between them.
+  EXPECT_EQ(json_number(off, "count").value_or(-1) + json_number(on, "count").value_or(-1),
+            json_number(json_object(j, "lancet"), "ticks").value_or(-2));
+  // The recorder's rows: what the "on" rounds drained (ticks of the servo, one sample each).
+  const std::string after_on = rec.substr(rec.find(on) + on.size());
+  EXPECT_EQ(json_number(after_on, "lost").value_or(-1), 0) << rec;
+  const double samples = json_number(after_on, "samples").value_or(-1);
+  EXPECT_GT(samples, 0) << rec;
+  EXPECT_LE(samples, json_number(json_object(j, "lancet"), "ticks").value_or(0)) << rec;
+  EXPECT_NE(rec.find("\"error\": \"\""), std::string::npos) << rec;
   auto file = record::read_recording(path("r.h5"));
   ASSERT_TRUE(file.ok()) << file.error().message;
   EXPECT_EQ(static_cast<double>(file.value().samples.size()), samples);
