@@ -3,10 +3,15 @@
 // simulated arm flat out and faults it now and then, the viz side asks for re-arms, the
 // supervisor thread re-arms. Every fault must be re-armed, and the servo must never touch the
 // device while the supervisor holds it.
+//
+// The supervisor's re-arm is held open (GatedArm below) until the servo has ticked kTicksHeld
+// times with the device granted away, so the servo ticking on without the device is seen every
+// time, whatever the two threads' speeds.
 
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <functional>
 #include <memory>
 #include <thread>
 
@@ -14,9 +19,52 @@
 #include "arm/arm_config.hpp"
 #include "device/sim_arm.hpp"
 #include "lancet/shared_model/validate.hpp"
+#include "wait.hpp"
 
 namespace lancet::app {
 namespace {
+
+// The simulated arm behind a device whose re-arm (the supervisor's side, not real-time) waits,
+// before it re-arms the arm, until `release()` says so, and which counts any read or write that
+// arrives meanwhile (the servo must keep off a device it has granted away).
+class GatedArm final : public device::Device {
+ public:
+  GatedArm(device::SimArm& arm, std::function<bool()> release)
+      : Device("gated " + arm.name()), arm_(arm), release_(std::move(release)) {}
+  [[nodiscard]] int joint_count() const noexcept override { return arm_.joint_count(); }
+  void steer_hand(Vec3 target) noexcept override { arm_.steer_hand(target); }
+  [[nodiscard]] std::uint64_t touched_while_rearming() const noexcept { return touched_.load(); }
+  [[nodiscard]] std::uint64_t releases_missed() const noexcept { return releases_missed_.load(); }
+
+ protected:
+  Result<void> on_configure() override { return arm_.configure(); }
+  Result<void> on_activate() override { return arm_.activate(); }
+  Result<void> on_deactivate() override { return arm_.deactivate(); }
+  Result<void> on_rearm() override {
+    rearming_.store(true);
+    if (!test::eventually(release_)) releases_missed_.fetch_add(1);
+    rearming_.store(false);
+    return arm_.rearm();
+  }
+  // The arm's own fault is this device's fault (its kFault means "already faulted" to a caller).
+  device::IoStatus on_read(device::JointState& out) noexcept override {
+    if (rearming_.load()) touched_.fetch_add(1);
+    return own(arm_.read(out));
+  }
+  device::IoStatus on_write(const device::JointCommand& cmd) noexcept override {
+    if (rearming_.load()) touched_.fetch_add(1);
+    return own(arm_.write(cmd));
+  }
+  static device::IoStatus own(device::IoStatus s) noexcept {
+    return s == device::IoStatus::kFault ? device::IoStatus::kDeviceFault : s;
+  }
+
+ private:
+  device::SimArm& arm_;
+  std::function<bool()> release_;
+  std::atomic<bool> rearming_{false};
+  std::atomic<std::uint64_t> touched_{0}, releases_missed_{0};
+};
 
 TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   auto cfg = arm::load_arm_config(std::string(LANCET_SOURCE_DIR) + "/hw_configs/sim_3dof.toml");
@@ -25,20 +73,27 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   const arm::Kinematics kin = arm::make_kinematics(config).value();
   auto arm = std::move(device::SimArm::create(config).value());
   arm->set_fixed_dt(1e-3);
-  ASSERT_TRUE(arm->configure().ok());
-  ASSERT_TRUE(arm->activate().ok());
+  // Each re-arm holds the device until the servo has ticked kTicksHeld times while it was granted
+  // away (or the servo thread has given up: a hang, reported below).
+  constexpr std::uint64_t kTicksHeld = 5;
+  std::atomic<bool> done{false};
+  std::atomic<std::uint64_t> ticks_while_granted{0}, ticks_at_rearm{0};
+  std::atomic<int> rearms_started{0};
+  GatedArm gated(*arm, [&] {
+    return done.load() || ticks_while_granted.load() >= ticks_at_rearm.load() + kTicksHeld;
+  });
+  ASSERT_TRUE(gated.configure().ok());
+  ASSERT_TRUE(gated.activate().ok());
   RtModel model;
   model.servo.kinematics = kin;
   model.servo.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
   for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.servo.max_joint_torque[j] = config.safety.max_joint_torque[j];
   auto shared = std::make_unique<SharedState>();
   std::int64_t t = 1'000'000'000;
-  RtServo servo(model, *shared, t, arm.get());
+  RtServo servo(model, *shared, t, &gated);
 
   constexpr int kFaults = 20;
-  std::atomic<bool> done{false};
   std::atomic<int> faults_injected{0};
-  std::atomic<std::uint64_t> ticks_while_granted{0};
   std::thread servo_thread([&] {
     rt::Watchdog watchdog;
     rt::LoopLive live;
@@ -50,13 +105,13 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
       shared->viz_heartbeat.beat(t, 1);
       // The device is the servo's only while the handover is idle: inject then, and only then.
       const bool idle = servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kIdle);
-      if (idle && ++quiet_ticks > 50 && arm->state() == device::Lifecycle::kActive && faults_injected.load() < kFaults) {
+      if (idle && ++quiet_ticks > 50 && gated.state() == device::Lifecycle::kActive && faults_injected.load() < kFaults) {
         arm->inject(device::IoStatus::kDeviceFault, 1);
         faults_injected.fetch_add(1);
         quiet_ticks = 0;
       }
       // The viz's W key, pressed while faulted.
-      if (idle && arm->state() == device::Lifecycle::kFault && n % 20 == 0) {
+      if (idle && gated.state() == device::Lifecycle::kFault && n % 20 == 0) {
         Command c{};
         c.kind = CommandKind::kRearm;
         c.seq = ++seq;
@@ -65,13 +120,18 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
         (void)shared->commands.try_push(c);
       }
       servo.tick(rt::TickContext{t, t, ++n, watchdog, live});
+      ToolSample s{};
+      bool sampled = false;
+      while (shared->samples.try_pop(s)) sampled = true;
       if (servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kGranted)) {
         ticks_while_granted.fetch_add(1);
-        // The servo must not have touched the device this tick: it reports kFault without a read.
+        // The servo must not have touched the device this tick: it reports kFault without a read
+        // or a write, says so in its sample, and commands no force.
         EXPECT_EQ(servo.data().last_read, device::IoStatus::kFault);
-      }
-      ToolSample s;
-      while (shared->samples.try_pop(s)) {
+        EXPECT_EQ(servo.data().last_write, device::IoStatus::kFault);
+        EXPECT_TRUE(sampled) << "the servo ticks on while the device is held";
+        EXPECT_NE(s.inputs & input::kDeviceHeld, 0u);
+        EXPECT_EQ(s.force, Vec3{});
       }
       std::this_thread::yield();
     }
@@ -79,6 +139,11 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   });
   std::uint64_t jobs = 0;
   while (!done.load()) {
+    // The servo grants the device; the re-arm this call makes (under the gate) starts counting now.
+    if (servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kGranted)) {
+      ticks_at_rearm.store(ticks_while_granted.load());
+      rearms_started.fetch_add(1);
+    }
     if (servo.supervise()) ++jobs;
     std::this_thread::yield();
   }
@@ -88,7 +153,11 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   EXPECT_EQ(servo.data().rearms, static_cast<std::uint64_t>(kFaults));
   EXPECT_EQ(arm->counters().faults, static_cast<std::uint64_t>(kFaults));
   EXPECT_EQ(arm->state(), device::Lifecycle::kActive);
-  EXPECT_GT(ticks_while_granted.load(), 0u) << "the servo ticked on while the supervisor held the device";
+  EXPECT_EQ(gated.state(), device::Lifecycle::kActive);
+  EXPECT_EQ(gated.releases_missed(), 0u) << "a re-arm waited in vain for the servo to tick on while it held the device";
+  EXPECT_EQ(gated.touched_while_rearming(), 0u) << "the servo read or wrote the device during the supervisor's re-arm";
+  EXPECT_EQ(rearms_started.load(), kFaults);
+  EXPECT_GE(ticks_while_granted.load(), kFaults * kTicksHeld) << "the servo ticked on while the supervisor held the device";
 }
 
 }  // namespace
