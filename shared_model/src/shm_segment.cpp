@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cinttypes>
 #include <cstdio>
 #include <cstring>
@@ -112,9 +113,10 @@ Result<ShmSegment> ShmSegment::create(const std::string& name, std::size_t paylo
     SegmentHeader old{};
     std::uint64_t old_size = 0;
     // An object without a valid header may belong to a creator that has just made it with O_EXCL
-    // and not yet sized and stamped it: give it up to 200 ms before judging it garbage.
+    // and not yet sized and stamped it: give it header_grace_ms before judging it garbage.
     bool readable = peek_header(name, old, old_size);
-    for (int wait = 0; wait < 20 && !(readable && old.magic == kSegmentMagic); ++wait) {
+    const auto grace_end = std::chrono::steady_clock::now() + std::chrono::milliseconds(options.header_grace_ms);
+    while (!(readable && old.magic == kSegmentMagic) && std::chrono::steady_clock::now() < grace_end) {
       ::usleep(10'000);
       readable = peek_header(name, old, old_size);
     }

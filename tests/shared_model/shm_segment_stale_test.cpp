@@ -7,8 +7,10 @@
 // and the children start none, which TSan supports (it is fork() after threads that it does not).
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
@@ -16,13 +18,13 @@
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
-#include <fstream>
 #include <thread>
 #include <string>
 #include <utility>
 
 #include "ipc_test_support.hpp"
 #include "lancet/shared_model/shm_segment.hpp"
+#include "wait.hpp"
 
 namespace lancet {
 namespace {
@@ -171,15 +173,12 @@ TEST_F(ShmSegmentStale, ACreatorThatExitedButIsNotReapedCountsAsDead) {
     ::_exit(0);
   });
   ASSERT_GT(child, 0);
-  // Wait until the child is a zombie (exited, not reaped): kill(pid, 0) still succeeds then.
-  char state = '?';
-  for (int i = 0; i < 500 && state != 'Z'; ++i) {
-    ::usleep(2000);
-    std::ifstream in("/proc/" + std::to_string(child) + "/stat");
-    std::string line;
-    if (std::getline(in, line) && line.rfind(')') != std::string::npos) state = line[line.rfind(')') + 2];
-  }
-  ASSERT_EQ(state, 'Z');
+  // Wait for the child to exit without reaping it (WNOWAIT): it is a zombie now, and kill(pid, 0)
+  // still succeeds on it.
+  siginfo_t info{};
+  ASSERT_EQ(::waitid(P_PID, static_cast<id_t>(child), &info, WEXITED | WNOWAIT), 0);
+  ASSERT_EQ(info.si_code, CLD_EXITED);
+  ASSERT_EQ(::kill(child, 0), 0) << "an unreaped child still has its pid";
   EXPECT_FALSE(process_alive(child, 0));
   auto r = ShmSegment::open(name_, kPayload, kHash);
   ASSERT_FALSE(r.ok());
@@ -200,7 +199,9 @@ TEST_F(ShmSegmentStale, AnEmptyLeftoverObjectIsReplaced) {
 }
 
 TEST_F(ShmSegmentStale, AnObjectStillBeingCreatedIsNotStolen) {
-  // Another creator has made the object with O_EXCL and stamps its header 50 ms later.
+  // Another creator has made the object with O_EXCL and stamps its header 50 ms later (so that
+  // create() nearly always finds it still without one). create() waits for the header with a
+  // grace far beyond any scheduling delay: it must find the live creator, not steal the object.
   const int fd = ::shm_open(name_.c_str(), O_CREAT | O_EXCL | O_RDWR, 0600);
   ASSERT_GE(fd, 0);
   std::thread other([fd] {
@@ -216,7 +217,10 @@ TEST_F(ShmSegmentStale, AnObjectStillBeingCreatedIsNotStolen) {
     h->magic = kSegmentMagic;
     ::munmap(p, sizeof(SegmentHeader));
   });
-  auto r = ShmSegment::create(name_, kPayload, kHash, {});
+  ShmSegment::CreateOptions o;
+  o.lock_memory = false;
+  o.header_grace_ms = std::chrono::duration_cast<std::chrono::milliseconds>(test::kHangTimeout).count();
+  auto r = ShmSegment::create(name_, kPayload, kHash, o);
   other.join();
   ::close(fd);
   ASSERT_FALSE(r.ok()) << "the second creator stole a segment that was still being created";

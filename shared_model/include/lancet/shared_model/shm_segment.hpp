@@ -53,6 +53,9 @@ class ShmSegment {
     bool lock_memory = true;     ///< mlock the segment when permitted (noted when refused)
     bool replace_stale = true;   ///< unlink a segment whose creator died and create anew
     std::string creator_name = "lancet";
+    /// How long an existing object without a valid header may take to get one before it is judged
+    /// garbage (ms): another creator may have just made it with O_EXCL and not yet stamped it.
+    std::int64_t header_grace_ms = 200;
   };
 
   /// Creates segment `name` (must start with '/'). Fails with kInUse when a live process owns a
