@@ -389,10 +389,17 @@ Result<void> ModbusArm::reopen_link(const std::string& what) {
 
 void ModbusArm::reset_stream() noexcept {
   rx_len_ = 0;
-  tid_done_ = tid_;
-  late_ = {};
+  late_first_ = late_count_ = 0;
   need_flush_ = false;
 }
+
+void ModbusArm::set_response_timeout(double seconds) noexcept {
+  if (!(seconds > 0) || !std::isfinite(seconds)) return;
+  timeout_ns_ = std::max<std::int64_t>(1000, std::llround(std::min(seconds, 1e6) * 1e9));
+  bus_.response_timeout = seconds;
+}
+
+void ModbusArm::set_clock(Clock clock) noexcept { clock_ = clock; }
 
 Result<void> ModbusArm::write_word(const arm::RegisterField& f, std::uint32_t word, const std::string& what) {
   std::array<std::uint16_t, 2> regs{};
@@ -645,10 +652,11 @@ IoStatus ModbusArm::tcp_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
     rx_len_ = 0;  // consumed
     const std::uint16_t tid = be16(rx_.data());
     if (tid != tid_) {
-      // An id sent after the last answered one and before this request: its reply came late.
-      const auto age = static_cast<std::uint16_t>(tid - tid_done_);
-      const auto outstanding = static_cast<std::uint16_t>(tid_ - tid_done_);
-      if (age >= 1 && age < outstanding) {
+      // The id of a request that timed out: its reply came late (in whatever order).
+      std::size_t k = 0;
+      while (k < late_count_ && late_at(k).tid != tid) ++k;
+      if (k < late_count_) {
+        erase_late(k);
         count_stale_reply();
         continue;
       }
@@ -656,7 +664,6 @@ IoStatus ModbusArm::tcp_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
       last_errno_ = EMBBADDATA;
       return error(IoStatus::kProtocolError, tid, "reply with transaction id 0x%04X, expected 0x%04X", tid, tid_);
     }
-    tid_done_ = tid_;
     if (rx_[6] != static_cast<std::uint8_t>(bus_.unit_id)) {
       last_errno_ = EMBBADSLAVE;
       return error(IoStatus::kProtocolError, rx_[6], "reply from unit %u, expected unit %d", rx_[6], bus_.unit_id);
@@ -684,6 +691,7 @@ IoStatus ModbusArm::tcp_receive(int fd, std::int64_t deadline_ns) noexcept {
       const std::int64_t left = deadline_ns - monotonic_ns();
       if (left <= 0) {
         // What arrived of the reply stays in rx_: the next transaction finishes and drops it.
+        push_late({true, function_, address_, count_, tid_});
         last_errno_ = ETIMEDOUT;
         char what[48];
         std::snprintf(what, sizeof what, "%s %s registers %u..%u", function_ == kWriteMultiple ? "write" : "read",
@@ -710,15 +718,33 @@ bool ModbusArm::reply_matches(const Signature& s, const std::uint8_t* pdu, std::
   if (!s.valid || len < 2) return false;
   if (pdu[0] == (s.function | 0x80)) return true;
   if (pdu[0] != s.function) return false;
-  if (s.function == kWriteMultiple) return len >= 5 && be16(pdu + 1) == s.address && be16(pdu + 3) == s.count;
-  return pdu[1] == 2 * s.count;
+  if (s.function == kWriteMultiple) return len == 5 && be16(pdu + 1) == s.address && be16(pdu + 3) == s.count;
+  return pdu[1] == 2 * s.count && len == 2 + 2 * static_cast<std::size_t>(s.count);
+}
+
+void ModbusArm::push_late(const Signature& s) noexcept {
+  if (late_count_ == kMaxLateRequests) pop_late(1);  // the oldest is forgotten (see kMaxLateRequests)
+  late_[(late_first_ + late_count_) % kMaxLateRequests] = s;
+  ++late_count_;
+}
+
+void ModbusArm::pop_late(std::size_t k) noexcept {
+  k = std::min(k, late_count_);
+  late_first_ = (late_first_ + k) % kMaxLateRequests;
+  late_count_ -= k;
+}
+
+void ModbusArm::erase_late(std::size_t i) noexcept {
+  if (i >= late_count_) return;
+  for (std::size_t k = i; k + 1 < late_count_; ++k) late_[(late_first_ + k) % kMaxLateRequests] = late_at(k + 1);
+  --late_count_;
 }
 
 IoStatus ModbusArm::rtu_transact(std::size_t pdu_len, std::int64_t deadline_ns) noexcept {
   ::_modbus* c = ctx_.get();
   tx_[0] = static_cast<std::uint8_t>(bus_.unit_id);
   if (modbus_send_raw_request(c, tx_.data(), static_cast<int>(pdu_len + 1)) == -1) return link_error(errno, nullptr);
-  const Signature current{true, function_, address_, count_};
+  const Signature current{true, function_, address_, count_, 0};
   for (;;) {
     const std::int64_t left = deadline_ns - monotonic_ns();
     const std::int64_t us = std::max<std::int64_t>(1, left / 1000);
@@ -727,7 +753,7 @@ IoStatus ModbusArm::rtu_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
     const int err = left > 0 ? errno : ETIMEDOUT;
     if (n < 0) {
       if (err == ETIMEDOUT) {
-        late_ = current;  // its reply may still come: recognise it then
+        push_late(current);  // its reply may still come, after those owed before it
         last_errno_ = err;
         char what[48];
         std::snprintf(what, sizeof what, "%s %s registers %u..%u", function_ == kWriteMultiple ? "write" : "read",
@@ -735,6 +761,12 @@ IoStatus ModbusArm::rtu_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
         return error(IoStatus::kTimeout, ETIMEDOUT, "timed out, no reply within %.3g ms to %s", static_cast<double>(timeout_ns_) * 1e-6, what);
       }
       if (err == EMBBADCRC) {
+        // The garbled frame answered the request owed a reply first: an earlier one if any is owed
+        // (then this one's reply may still come), else this one.
+        if (late_count_ > 0) {
+          pop_late(1);
+          push_late(current);
+        }
         need_flush_ = true;
         last_errno_ = err;
         return error(IoStatus::kCrcError, 0, "CRC error in the reply to %s %s registers %u..%u", function_ == kWriteMultiple ? "write" : "read",
@@ -749,12 +781,17 @@ IoStatus ModbusArm::rtu_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
     }
     const std::uint8_t* pdu = rx_.data() + 1;
     const auto len = static_cast<std::size_t>(n - 3);  // less the unit id and the CRC
-    if (!reply_matches(current, pdu, len) && reply_matches(late_, pdu, len)) {
-      late_ = {};
+    // The line keeps order: the reply answers the oldest owed request it fits, and the ones owed
+    // before that went unanswered. Where an owed request and this one look alike, the owed one
+    // wins: at worst this request times out, never is a stale reading taken for a fresh one.
+    std::size_t k = 0;
+    while (k < late_count_ && !reply_matches(late_at(k), pdu, len)) ++k;
+    if (k < late_count_) {
+      pop_late(k + 1);
       count_stale_reply();
       continue;
     }
-    late_ = {};
+    late_count_ = 0;  // this request's reply (or a wrong one): no earlier reply is still coming
     return check_reply(pdu, len);
   }
 }
@@ -802,7 +839,7 @@ IoStatus ModbusArm::write_blocks() noexcept {
 IoStatus ModbusArm::on_read(JointState& out) noexcept {
   const IoStatus s = read_blocks();
   if (s != IoStatus::kOk) return s;
-  const std::int64_t now = monotonic_ns();
+  const std::int64_t now = clock_ != nullptr ? clock_() : monotonic_ns();
   const arm::ModbusRegisterMap& m = bus_.registers;
   const std::span<const std::uint16_t> regs(rbuf_);
   out.n = n_;

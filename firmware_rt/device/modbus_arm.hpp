@@ -27,13 +27,20 @@
 //   reconnect()  (fault only) close and reopen the link (TCP connect / serial reopen), zero the
 //                setpoints and write enable `off`: the drives stay disabled until rearm()
 //
-// Late replies. Over TCP the driver frames Modbus itself on libmodbus's socket: every request has
-// its own MBAP transaction id, so a reply that arrives after its request timed out is recognised
-// by its id, thrown away and counted (IoCounters::stale_replies), never taken for the answer to a
-// later request; a frame cut by a timeout is finished on the next transaction. Over RTU (no id) a
-// late reply is recognised where its function code or length differs from the current request's
-// (a read's late reply arriving during the following write, say); one that cannot be told apart
-// is taken as the answer. Only garbled replies (bad framing, CRC) flush the line.
+// Late replies. The driver remembers the requests that timed out and are still owed a reply (up
+// to kMaxLateRequests, oldest first). Over TCP the driver frames Modbus itself on libmodbus's
+// socket: every request has its own MBAP transaction id, so a reply that arrives after its request
+// timed out is recognised by its id (in whatever order the server answers), thrown away and
+// counted (IoCounters::stale_replies), never taken for the answer to a later request; a frame cut
+// by a timeout is finished on the next transaction. Over RTU (no id) the line keeps order: a
+// reply answers the oldest owed request it fits (function code, byte count; a write's echo also
+// its address and count). Those owed replies are thrown away and counted as they come, however
+// many timed out in a row; a reply that fits no owed request but the current one is the current
+// one's, and the owed requests before it are taken as never answered. When an owed request and
+// the current one look alike (same function and length) the reply is taken for the owed one: at
+// worst the current request times out (counted), never is a stale reading taken for a fresh one.
+// Only garbled replies (bad framing, CRC) flush the line; opening the link (configure, reconnect,
+// a rearm or activate that reconnects) starts with nothing owed.
 //
 // read() and write() are real-time safe: they never allocate (checked with the malloc guard,
 // libmodbus included) or throw, and each transaction is bounded by the config's response_timeout
@@ -144,6 +151,21 @@ class ModbusArm final : public Device {
   /// The last motor current sent per joint (A), after the clamps and the register's quantisation
   /// (for a torque setpoint: the torque sent / the torque constant).
   [[nodiscard]] double commanded_current(int j) const noexcept { return sent_current_[static_cast<std::size_t>(j)]; }
+  /// The response timeout (s): the config's response_timeout_ms until set_response_timeout().
+  [[nodiscard]] double response_timeout() const noexcept { return static_cast<double>(timeout_ns_) * 1e-9; }
+  /// Bounds every transaction from the next one on by `seconds` (> 0 and finite, else ignored; at
+  /// least 1 µs). For tools and tests (a short timeout while a reply is withheld on purpose, a
+  /// generous one otherwise); not to be called while another thread drives the arm.
+  void set_response_timeout(double seconds) noexcept;
+  /// What stamps each reading for the velocity estimate: CLOCK_MONOTONIC (ns) by default; nullptr
+  /// restores it. Tests drive their own clock to get exact finite differences.
+  using Clock = std::int64_t (*)() noexcept;
+  void set_clock(Clock clock) noexcept;
+  /// How many timed-out requests whose replies may still come are remembered (oldest first).
+  /// Beyond that the oldest is forgotten: over TCP its reply, should it come, is a protocol error;
+  /// over RTU it could be taken for a later request's if it came after kMaxLateRequests later
+  /// requests timed out too (the default fault policy trips long before; rearm() starts afresh).
+  static constexpr std::size_t kMaxLateRequests = 16;
 
  protected:
   Result<void> on_configure() override;
@@ -164,11 +186,13 @@ class ModbusArm final : public Device {
     modbus::Layout layout;
     std::uint16_t offset = 0;  // into rbuf_ / wbuf_
   };
-  /// What identifies a request's reply on a line without transaction ids (RTU).
+  /// What identifies a request's reply: its transaction id (TCP), or on a line without ids (RTU)
+  /// its function, address and count.
   struct Signature {
     bool valid = false;
     std::uint8_t function = 0;
     std::uint16_t address = 0, count = 0;
+    std::uint16_t tid = 0;
   };
 
   ModbusArm(const arm::ArmConfig& config, FaultPolicy policy);
@@ -195,6 +219,10 @@ class ModbusArm final : public Device {
   IoStatus rtu_transact(std::size_t pdu_len, std::int64_t deadline_ns) noexcept;
   IoStatus check_reply(const std::uint8_t* pdu, std::size_t len) noexcept;
   bool reply_matches(const Signature& s, const std::uint8_t* pdu, std::size_t len) const noexcept;
+  void push_late(const Signature& s) noexcept;
+  void pop_late(std::size_t k) noexcept;
+  void erase_late(std::size_t i) noexcept;
+  [[nodiscard]] const Signature& late_at(std::size_t i) const noexcept { return late_[(late_first_ + i) % kMaxLateRequests]; }
   void flush_input() noexcept;
   IoStatus link_error(int err, const char* what) noexcept;
   IoStatus error(IoStatus s, std::uint32_t code, const char* fmt, ...) noexcept __attribute__((format(printf, 4, 5)));
@@ -226,8 +254,9 @@ class ModbusArm final : public Device {
   std::array<std::uint8_t, 264> rx_{};  // TCP: one frame, possibly cut by a timeout; RTU: one ADU
   std::size_t rx_len_ = 0;              // TCP: bytes of the current frame received so far
   std::uint16_t tid_ = 0;               // TCP: transaction id of the last request sent
-  std::uint16_t tid_done_ = 0;          // TCP: the last id whose reply came; ids in between are late
-  Signature late_;                      // RTU: the last request that timed out
+  std::array<Signature, kMaxLateRequests> late_{};  // requests owed a reply (a ring, oldest at late_first_)
+  std::size_t late_first_ = 0, late_count_ = 0;
+  Clock clock_ = nullptr;               // stamps readings for the velocity estimate (nullptr: monotonic_ns)
 
   std::uint32_t enable_word_ = 0;
   std::uint32_t heartbeat_count_ = 0;
