@@ -427,6 +427,10 @@ std::uint64_t Recorder::gaps() const noexcept {
   const std::lock_guard lock(mutex_);
   return gaps_;
 }
+std::uint64_t Recorder::samples_flushed() const noexcept {
+  const std::lock_guard lock(mutex_);
+  return n_flushed_;
+}
 
 Result<void> Recorder::flush_pending(std::vector<ToolSample>& samples, std::vector<FrameRecord>& frames,
                                      std::vector<SceneEvent>& events) {
@@ -454,9 +458,11 @@ void Recorder::run() {
     frames.swap(frames_);
     events.swap(events_);
     const bool stop = stop_;
+    const std::size_t n = samples.size();
     lock.unlock();
     const Result<void> r = flush_pending(samples, frames, events);
     lock.lock();
+    if (r.ok()) n_flushed_ += n;
     if (!r.ok() && error_.empty()) error_ = r.error().message;
     if (stop && samples_.empty() && frames_.empty() && events_.empty()) return;
   }

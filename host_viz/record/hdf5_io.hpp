@@ -56,6 +56,9 @@ class Recorder {
   [[nodiscard]] std::uint64_t frames() const noexcept;
   [[nodiscard]] std::uint64_t samples_lost() const noexcept;
   [[nodiscard]] std::uint64_t gaps() const noexcept;
+  /// Samples written to the file and flushed (H5Fflush) so far: what a reader of the file, or
+  /// one after a crash, would find. Lags samples() by up to a quarter second.
+  [[nodiscard]] std::uint64_t samples_flushed() const noexcept;
 
  private:
   struct File;
@@ -71,7 +74,7 @@ class Recorder {
   std::vector<FrameRecord> frames_;
   std::vector<SceneEvent> events_;
   std::uint64_t n_events_ = 0;
-  std::uint64_t n_samples_ = 0, n_frames_ = 0, lost_ = 0, gaps_ = 0, last_seq_ = 0;
+  std::uint64_t n_samples_ = 0, n_frames_ = 0, lost_ = 0, gaps_ = 0, last_seq_ = 0, n_flushed_ = 0;
   bool stop_ = false, finished_ = false;
   std::string error_;  // the writer thread's first error
   std::thread thread_;

@@ -3,6 +3,7 @@
 #include "record/hdf5_io.hpp"
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cstdio>
@@ -10,10 +11,10 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <thread>
 #include <string>
 
 #include "synthetic_recording.hpp"
+#include "../../support/wait.hpp"  // tests/support (this target does not link lancet::test_headers)
 
 namespace lancet::record {
 namespace {
@@ -155,20 +156,26 @@ TEST(Hdf5Io, ABrokenFileGetsAClearError) {
   r = read_recording(temp_path("absent.h5"));
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kNotFound);
-  // A recorder that never finished (the process died): said so.
+  // A recorder that never finished (the process died): said so. A child records, waits until its
+  // samples are flushed to the file and dies there, as a crashed lancet-viz would: no finish(), no
+  // destructor, and nobody writing the file while it is read.
   const std::string unfinished = temp_path("unfinished.h5");
-  {
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
     auto rec = Recorder::create(unfinished, sample_recording());
-    ASSERT_TRUE(rec.ok());
-    // Copy the file while the recorder still has it open and unfinished.
+    if (!rec.ok()) ::_exit(2);
     rec.value()->add_samples(std::span<const ToolSample>(sample_recording().samples).first(100));
-    std::this_thread::sleep_for(std::chrono::milliseconds(400));  // one flush
-    std::filesystem::copy_file(unfinished, unfinished + ".copy", std::filesystem::copy_options::overwrite_existing);
+    if (!lancet::test::eventually([&] { return rec.value()->samples_flushed() == 100; })) ::_exit(3);
+    ::_exit(0);
   }
-  r = read_recording(unfinished + ".copy");
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "the recording child failed, status " << status;
+  r = read_recording(unfinished);
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("not finished"), std::string::npos) << r.error().message;
-  for (const auto& p : {path, cut, garbage, unfinished, unfinished + ".copy"}) std::filesystem::remove(p);
+  for (const auto& p : {path, cut, garbage, unfinished}) std::filesystem::remove(p);
 }
 
 // h5py, an independent reader (the one users have), reads the rows by name with their units.
