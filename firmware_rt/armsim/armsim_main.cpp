@@ -6,13 +6,27 @@
 //
 // Once listening it prints one line, `lancet-armsim: serving '<name>' on 127.0.0.1:<port>`, and
 // flushes stdout, so a parent can find the port. Runs until SIGINT / SIGTERM or --duration.
+//
+// --control PATH: faults at run time. lancet-armsim makes a FIFO at PATH (or takes the FIFO that
+// is there) and reads one command per line from it (`echo "late 5" > PATH`; the commands are
+// ArmServer::control()'s: fault, drop S, late S [US], garbage S, glitch [COUNTS], clear), without
+// ever blocking on it; each applied command is acknowledged on stdout, flushed, as
+// `armsim: control: <command>` once it has taken effect (`armsim: control: error: ...` for one
+// it refuses), so a driver can wait for that line. The FIFO it made is removed when it exits.
 
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <cstdio>
+#include <cstring>
 #include <string>
+#include <vector>
 
 #include "arm/arm_config.hpp"
 #include "armsim/canopen_nodes.hpp"
@@ -117,6 +131,56 @@ int serve_can(lancet::arm::ArmConfig config, const CanOptions& can, const Server
   return 0;
 }
 
+// The --control FIFO: opened for reading without blocking, with a writer of our own kept open so
+// that the reader never sees end-of-file between the driver's writes.
+class ControlFifo {
+ public:
+  ~ControlFifo() {
+    if (read_fd_ >= 0) close(read_fd_);
+    if (keep_fd_ >= 0) close(keep_fd_);
+    if (made_) unlink(path_.c_str());
+  }
+  /// Makes (or takes) the FIFO at path; an error message, empty on success.
+  std::string open(const std::string& path) {
+    path_ = path;
+    struct stat st {};
+    if (stat(path.c_str(), &st) == 0) {
+      if (!S_ISFIFO(st.st_mode)) return "--control " + path + ": exists and is not a FIFO";
+    } else if (mkfifo(path.c_str(), 0600) != 0) {
+      return "--control " + path + ": cannot make a FIFO: " + std::strerror(errno);
+    } else {
+      made_ = true;
+    }
+    read_fd_ = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    if (read_fd_ < 0) return "--control " + path + ": cannot open it: " + std::strerror(errno);
+    keep_fd_ = ::open(path.c_str(), O_WRONLY | O_NONBLOCK | O_CLOEXEC);
+    return {};
+  }
+  [[nodiscard]] int fd() const { return read_fd_; }
+  /// The complete lines that have arrived (without waiting).
+  std::vector<std::string> lines() {
+    char buf[512];
+    for (;;) {
+      const ssize_t n = read(read_fd_, buf, sizeof buf);
+      if (n <= 0) break;
+      pending_.append(buf, static_cast<std::size_t>(n));
+    }
+    std::vector<std::string> out;
+    for (std::size_t eol = pending_.find('\n'); eol != std::string::npos; eol = pending_.find('\n')) {
+      std::string line = pending_.substr(0, eol);
+      pending_.erase(0, eol + 1);
+      if (line.find_first_not_of(" \t\r") != std::string::npos) out.push_back(std::move(line));
+    }
+    if (pending_.size() > 4096) pending_.clear();  // no line that long is a command
+    return out;
+  }
+
+ private:
+  std::string path_, pending_;
+  int read_fd_ = -1, keep_fd_ = -1;
+  bool made_ = false;
+};
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -143,12 +207,20 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   cli.add_option("--corrupt", o.faults.corrupt, "probability of flipping a byte of a reply (TCP: a framing byte; RTU: caught by the CRC)")
       ->check(CLI::Range(0.0, 1.0));
-  cli.add_option("--disconnect-after", o.disconnect_after, "close the clients' sockets after this many seconds (TCP; 0: never)")
+  cli.add_option("--disconnect-after", o.disconnect_after,
+                 "Modbus TCP: close the clients' sockets this many seconds after a client first wrote with the drives enabled; "
+                 "CAN: silence the nodes this many seconds after start (0: never)")
       ->check(CLI::NonNegativeNumber);
   cli.add_option("--reconnect-after", o.reconnect_after, "after the disconnect, refuse connections for this many seconds more")
       ->check(CLI::NonNegativeNumber);
   cli.add_option("--encoder-glitch", o.faults.encoder_glitch, "probability that a reply puts a big jump on one encoder")
       ->check(CLI::Range(0.0, 1.0));
+  cli.add_option("--glitch-counts", o.faults.glitch_counts, "size of an encoder glitch in counts (default: one motor revolution)")
+      ->check(CLI::Range(std::int64_t{1}, std::int64_t{1'000'000'000}));
+  std::string control_path;
+  cli.add_option("--control", control_path,
+                 "Modbus: make a FIFO at this path and take fault commands from it at run time (fault, drop S, late S [US], "
+                 "garbage S, glitch [COUNTS], clear); each acknowledged on stdout as 'armsim: control: <command>'");
   cli.add_option("--seed", o.seed, "seed of the fault injection")->capture_default_str();
   cli.add_option("--duration", duration, "seconds to run; 0: until SIGINT or SIGTERM")->check(CLI::NonNegativeNumber);
   CanOptions can;
@@ -170,7 +242,13 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "lancet-armsim: %s\n", config.error().message.c_str());
     return 2;
   }
-  if (config.value().backend == lancet::arm::Backend::kCanopen) return serve_can(config.value(), can, o, duration);
+  if (config.value().backend == lancet::arm::Backend::kCanopen) {
+    if (!control_path.empty()) {
+      std::fprintf(stderr, "lancet-armsim: --control: Modbus only (this config is CANopen)\n");
+      return 2;
+    }
+    return serve_can(config.value(), can, o, duration);
+  }
   auto server = ArmServer::create(config.value(), o);
   if (!server.ok()) {
     std::fprintf(stderr, "%s\n", server.error().message.c_str());
@@ -183,6 +261,15 @@ int main(int argc, char** argv) {
 
   ArmServer& s = *server.value();
   const std::string& name = config.value().name;
+  // Ready before the serving line: a driver that saw it may write commands at once.
+  ControlFifo control;
+  if (!control_path.empty()) {
+    const std::string err = control.open(control_path);
+    if (!err.empty()) {
+      std::fprintf(stderr, "lancet-armsim: %s\n", err.c_str());
+      return 2;
+    }
+  }
   if (rtu_fd >= 0) {
     const auto started = s.start_rtu(rtu_fd);
     if (!started.ok()) {
@@ -205,7 +292,19 @@ int main(int argc, char** argv) {
   int sig = 0;
   std::uint64_t trips = 0;
   while (end == 0 || mono_ns() < end) {
-    const timespec poll_interval{0, 20'000'000};
+    if (control.fd() >= 0) {
+      pollfd p{control.fd(), POLLIN, 0};
+      (void)poll(&p, 1, 20);
+      for (const std::string& line : control.lines()) {
+        auto applied = s.control(line);
+        if (applied.ok())
+          std::printf("armsim: control: %s\n", applied.value().c_str());
+        else
+          std::printf("armsim: control: error: %s\n", applied.error().message.c_str());
+        std::fflush(stdout);
+      }
+    }
+    const timespec poll_interval{0, control.fd() >= 0 ? 0 : 20'000'000};
     sig = sigtimedwait(&stop_signals, nullptr, &poll_interval);
     if (sig == SIGINT || sig == SIGTERM) break;
     // Say it when the drive-side watchdog acts: the host stopped writing the heartbeat.

@@ -11,8 +11,10 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <numbers>
 #include <string>
@@ -36,10 +38,6 @@ std::int64_t mono_ns() noexcept {
   timespec ts{};
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
-}
-
-void sleep_ns(std::int64_t ns) {
-  if (ns > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(ns));
 }
 
 bool is_write(int function) {
@@ -186,7 +184,7 @@ void ArmServer::apply_control() noexcept {
   }
   const bool on = !enable_.present || get_word(enable_) == map.enable_on;
   enabled_ = on && !drive_fault_ && !estop_;
-  watch_heartbeat(mono_ns());
+  watch_heartbeat(drive_now());
   put_word(status_, status_word());
 }
 
@@ -226,7 +224,10 @@ void ArmServer::publish() noexcept {
   put_word(status_, status_word());
 }
 
+std::int64_t ArmServer::drive_now() const noexcept { return options_.manual_clock ? clock_ns_ : mono_ns(); }
+
 void ArmServer::step_locked(double dt) noexcept {
+  if (options_.manual_clock) clock_ns_ += std::llround(dt * 1e9);
   apply_control();
   device::JointCommand cmd{};
   cmd.n = physics_->joint_count();
@@ -280,6 +281,7 @@ ArmSnapshot ArmServer::snapshot() const {
   s.heartbeat = get_word(heartbeat_);
   s.watchdog_ms = !heartbeat_.present ? 0.0 : watchdog_timeout_.present ? get_value(watchdog_timeout_) : config_.modbus->drive_watchdog * 1e3;
   s.steps = steps_;
+  s.clock_ns = drive_now();
   s.tool = physics_->tool_position();
   s.target = target_;
   s.stats = stats_;
@@ -327,8 +329,118 @@ void ArmServer::step_physics(double dt, int steps) {
 }
 
 void ArmServer::disconnect_clients(double refuse_s) {
+  std::unique_lock lock(mu_);
+  refuse_request_s_ = refuse_s > 0 ? refuse_s : 0.0;  // NaN: 0
+  // The server thread takes it within its poll period; without one there is nothing to cut.
+  if (serve_thread_.joinable()) cv_.wait(lock, [this] { return refuse_request_s_ < 0 || stop_; });
+}
+
+void ArmServer::accept_connections() {
+  std::unique_lock lock(mu_);
+  accept_request_ = true;
+  if (serve_thread_.joinable()) cv_.wait(lock, [this] { return !accept_request_ || stop_; });
+}
+
+void ArmServer::hold_replies(int n) {
   std::lock_guard lock(mu_);
-  refuse_request_s_ = std::max(0.0, refuse_s);
+  hold_next_ += std::max(0, n);
+}
+
+int ArmServer::held_replies() const {
+  std::lock_guard lock(mu_);
+  return static_cast<int>(std::count_if(outbox_.begin(), outbox_.end(), [](const Outgoing& o) { return o.held; }));
+}
+
+void ArmServer::release_replies(int n) {
+  std::lock_guard lock(mu_);
+  for (Outgoing& o : outbox_) {
+    if (n == 0) break;
+    if (!o.held) continue;
+    o.held = false;
+    o.due_ns = 0;
+    if (n > 0) --n;
+  }
+  send_due(mono_ns());
+}
+
+void ArmServer::release_replies_with_next_request() {
+  std::lock_guard lock(mu_);
+  release_with_next_ = true;
+}
+
+void ArmServer::discard_held_replies() {
+  std::lock_guard lock(mu_);
+  std::erase_if(outbox_, [](const Outgoing& o) { return o.held; });
+}
+
+Result<std::string> ArmServer::control(const std::string& line) {
+  std::vector<std::string> words;
+  for (std::size_t i = 0; i < line.size();) {
+    while (i < line.size() && std::isspace(static_cast<unsigned char>(line[i])) != 0) ++i;
+    std::size_t j = i;
+    while (j < line.size() && std::isspace(static_cast<unsigned char>(line[j])) == 0) ++j;
+    if (j > i) words.push_back(line.substr(i, j - i));
+    i = j;
+  }
+  std::string applied;
+  for (const std::string& w : words) applied += (applied.empty() ? "" : " ") + w;
+  const auto bad = [&](const std::string& why) { return Error{ErrorCode::kInvalid, "'" + applied + "': " + why}; };
+  if (words.empty()) return bad("an empty command (expected fault, drop S, late S [US], garbage S, glitch [COUNTS] or clear)");
+  const std::string& cmd = words[0];
+  // S: seconds, >= 0, or inf; US / COUNTS: whole numbers.
+  const auto seconds = [&](std::size_t i, double& out) {
+    if (i >= words.size()) return false;
+    char* end = nullptr;
+    out = std::strtod(words[i].c_str(), &end);
+    return end != nullptr && *end == '\0' && out >= 0;  // NaN fails
+  };
+  const auto whole = [&](std::size_t i, std::int64_t& out, std::int64_t lo, std::int64_t hi) {
+    char* end = nullptr;
+    const long long v = std::strtoll(words[i].c_str(), &end, 10);
+    out = v;
+    return end != nullptr && *end == '\0' && !words[i].empty() && v >= lo && v <= hi;
+  };
+  const auto until = [](double s) {
+    return std::isinf(s) ? std::numeric_limits<std::int64_t>::max() : mono_ns() + static_cast<std::int64_t>(std::min(s, 1e9) * 1e9);
+  };
+  double s = 0;
+  if (cmd == "fault" && words.size() == 1) {
+    set_drive_fault(true);
+  } else if (cmd == "drop" && words.size() == 2 && seconds(1, s)) {
+    disconnect_clients(s);
+  } else if (cmd == "late" && (words.size() == 2 || words.size() == 3) && seconds(1, s)) {
+    std::int64_t us = 0;
+    if (words.size() == 3 && !whole(2, us, 1, 3'600'000'000)) return bad("the delay: expected microseconds, 1..3600000000");
+    std::lock_guard lock(mu_);
+    if (us == 0) us = faults_.delay_us > 0 ? faults_.delay_us : std::max<std::int64_t>(1000, std::llround(4e6 * config_.modbus->response_timeout));
+    late_delay_us_ = us;
+    late_until_ns_ = until(s);
+  } else if (cmd == "garbage" && words.size() == 2 && seconds(1, s)) {
+    std::lock_guard lock(mu_);
+    garbage_until_ns_ = until(s);
+  } else if (cmd == "glitch" && words.size() <= 2) {
+    std::int64_t counts = 0;
+    if (words.size() == 2 && !whole(1, counts, 1, 1'000'000'000)) return bad("the size: expected counts, 1..1000000000");
+    std::lock_guard lock(mu_);
+    glitch_next_ = true;
+    glitch_next_counts_ = counts;
+  } else if (cmd == "clear" && words.size() == 1) {
+    {
+      std::lock_guard lock(mu_);
+      late_until_ns_ = garbage_until_ns_ = 0;
+      glitch_next_ = false;
+      // Late replies already waiting go out now (in their order).
+      for (Outgoing& o : outbox_)
+        if (o.delayed) o.due_ns = 0;
+      send_due(mono_ns());
+    }
+    accept_connections();
+  } else {
+    return bad("expected fault, drop S, late S [US], garbage S, glitch [COUNTS] or clear (S: seconds or inf)");
+  }
+  std::lock_guard lock(mu_);
+  ++stats_.control_commands;
+  return applied;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -362,6 +474,7 @@ Result<int> ArmServer::start_tcp(int port) {
   }
   (void)modbus_set_slave(ctx_, config_.modbus->unit_id);
   (void)modbus_set_indication_timeout(ctx_, 1, 0);
+  tcp_ = true;
   start_threads();
   serve_thread_ = std::thread([this] { tcp_loop(); });
   return port_;
@@ -377,6 +490,7 @@ Result<void> ArmServer::start_rtu(int fd) {
     return Result<void>::failure(ErrorCode::kInvalid, "lancet-armsim: bad unit id " + std::to_string(config_.modbus->unit_id));
   (void)modbus_set_indication_timeout(ctx_, 1, 0);
   (void)modbus_set_socket(ctx_, fd);
+  tcp_ = false;
   start_threads();
   serve_thread_ = std::thread([this, fd] { rtu_loop(fd); });
   return Result<void>::success();
@@ -385,19 +499,24 @@ Result<void> ArmServer::start_rtu(int fd) {
 void ArmServer::start_threads() {
   started_ = true;
   stop_ = false;
-  start_ns_ = mono_ns();
   if (options_.physics_rate > 0) physics_thread_ = std::thread([this] { physics_loop(); });
 }
 
 void ArmServer::stop() {
-  stop_ = true;
+  {
+    std::lock_guard lock(mu_);
+    stop_ = true;
+  }
+  cv_.notify_all();
   if (physics_thread_.joinable()) physics_thread_.join();
   if (serve_thread_.joinable()) serve_thread_.join();
+  std::lock_guard lock(mu_);
   close_clients();
   if (listen_fd_ >= 0) {
     close(listen_fd_);
     listen_fd_ = -1;
   }
+  outbox_.clear();
 }
 
 void ArmServer::physics_loop() {
@@ -420,6 +539,7 @@ void ArmServer::physics_loop() {
 
 void ArmServer::close_clients() {
   for (int fd : clients_) {
+    forget_replies_to(fd);
     shutdown(fd, SHUT_RDWR);
     close(fd);
   }
@@ -431,58 +551,90 @@ bool ArmServer::relisten() {
   return listen_fd_ >= 0;
 }
 
+void ArmServer::take_requests(std::int64_t now, bool& scheduled_done, std::int64_t& relisten_at) {
+  std::lock_guard lock(mu_);
+  // Cutting the clients off: on schedule (--disconnect-after, from a client's first write with the
+  // drives enabled) or on request (disconnect_clients, control()).
+  double refuse_s = -1;
+  if (!scheduled_done && first_enabled_ns_ != 0 && now - first_enabled_ns_ >= static_cast<std::int64_t>(options_.disconnect_after * 1e9)) {
+    scheduled_done = true;
+    refuse_s = options_.reconnect_after;
+  }
+  if (refuse_request_s_ >= 0) {
+    refuse_s = refuse_request_s_;
+    refuse_request_s_ = -1;
+    cv_.notify_all();
+  }
+  const auto end_of = [now](double s) {
+    return std::isinf(s) ? std::numeric_limits<std::int64_t>::max() : now + static_cast<std::int64_t>(std::min(s, 1e9) * 1e9);
+  };
+  if (refuse_s >= 0) {
+    ++stats_.forced_disconnects;
+    if (tcp_) {
+      // The listening socket first: a client that sees its connection go finds nobody listening.
+      if (refuse_s > 0) {
+        if (listen_fd_ >= 0) close(listen_fd_);  // connection attempts now get ECONNREFUSED
+        listen_fd_ = -1;
+        relisten_at = end_of(refuse_s);
+      }
+      close_clients();
+    } else {
+      silent_until_ns_ = end_of(refuse_s);
+    }
+  }
+  if (accept_request_) {
+    accept_request_ = false;
+    relisten_at = 0;
+    silent_until_ns_ = 0;
+    if (tcp_ && listen_fd_ < 0 && !relisten()) relisten_at = now + 50'000'000;
+    cv_.notify_all();
+  }
+  if (tcp_ && listen_fd_ < 0 && now >= relisten_at && !relisten()) relisten_at = now + 50'000'000;
+  // The drive-side watchdog runs with or without the physics thread.
+  watch_heartbeat(drive_now());
+  send_due(now);
+}
+
+int ArmServer::poll_timeout_ms(std::int64_t now) const {
+  std::lock_guard lock(mu_);
+  std::int64_t ms = kPollMs;
+  std::vector<int> seen;  // RTU: only the first reply on the line can go
+  for (const Outgoing& o : outbox_) {
+    if (!tcp_) {
+      if (std::find(seen.begin(), seen.end(), o.fd) != seen.end()) continue;
+      seen.push_back(o.fd);
+    }
+    if (!o.held) ms = std::min(ms, std::max<std::int64_t>(0, (o.due_ns - now + 999'999) / 1'000'000));
+  }
+  return static_cast<int>(ms);
+}
+
 void ArmServer::tcp_loop() {
   std::vector<std::uint8_t> query(MODBUS_TCP_MAX_ADU_LENGTH);
   std::vector<pollfd> pfds;
   bool scheduled_done = options_.disconnect_after <= 0;
   std::int64_t relisten_at = 0;
   while (!stop_) {
-    // Cutting the clients off: on schedule (--disconnect-after) or on request (tests).
-    const std::int64_t now = mono_ns();
-    double refuse_s = -1;
-    if (!scheduled_done && now - start_ns_ >= static_cast<std::int64_t>(options_.disconnect_after * 1e9)) {
-      scheduled_done = true;
-      refuse_s = options_.reconnect_after;
-    }
-    {
-      std::lock_guard lock(mu_);
-      if (refuse_request_s_ >= 0) {
-        refuse_s = refuse_request_s_;
-        refuse_request_s_ = -1;
-      }
-      if (refuse_s >= 0) ++stats_.forced_disconnects;
-    }
-    if (refuse_s >= 0) {
-      close_clients();
-      if (refuse_s > 0 && listen_fd_ >= 0) {
-        close(listen_fd_);  // connection attempts now get ECONNREFUSED
-        listen_fd_ = -1;
-        relisten_at = now + static_cast<std::int64_t>(refuse_s * 1e9);
-      }
-    }
-    if (listen_fd_ < 0 && mono_ns() >= relisten_at && !relisten()) relisten_at = mono_ns() + 50'000'000;
-
-    {
-      // The drive-side watchdog runs with or without the physics thread.
-      std::lock_guard lock(mu_);
-      watch_heartbeat(mono_ns());
-    }
+    take_requests(mono_ns(), scheduled_done, relisten_at);
     pfds.clear();
-    if (listen_fd_ >= 0) pfds.push_back({listen_fd_, POLLIN, 0});
-    for (int fd : clients_) pfds.push_back({fd, POLLIN, 0});
-    if (poll(pfds.data(), pfds.size(), kPollMs) <= 0) continue;
+    {
+      std::lock_guard lock(mu_);
+      if (listen_fd_ >= 0) pfds.push_back({listen_fd_, POLLIN, 0});
+      for (int fd : clients_) pfds.push_back({fd, POLLIN, 0});
+    }
+    if (poll(pfds.data(), pfds.size(), poll_timeout_ms(mono_ns())) <= 0) continue;
     std::size_t i = 0;
-    if (listen_fd_ >= 0) {
+    if (!pfds.empty() && pfds[0].fd == listen_fd_ && listen_fd_ >= 0) {
       if ((pfds[0].revents & POLLIN) != 0) {
         const int fd = accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC);
         if (fd >= 0) {
+          std::lock_guard lock(mu_);
           if (static_cast<int>(clients_.size()) >= kMaxClients) {
             close(fd);
           } else {
             const int one = 1;
             (void)setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
             clients_.push_back(fd);
-            std::lock_guard lock(mu_);
             ++stats_.connections;
           }
         }
@@ -501,7 +653,9 @@ void ArmServer::tcp_loop() {
         gone.push_back(fd);  // closed by the client, or garbage we cannot frame
       }
     }
+    std::lock_guard lock(mu_);
     for (int fd : gone) {
+      forget_replies_to(fd);
       close(fd);
       clients_.erase(std::remove(clients_.begin(), clients_.end(), fd), clients_.end());
     }
@@ -510,13 +664,12 @@ void ArmServer::tcp_loop() {
 
 void ArmServer::rtu_loop(int fd) {
   std::vector<std::uint8_t> query(MODBUS_RTU_MAX_ADU_LENGTH);
+  bool scheduled_done = true;  // no connections to cut
+  std::int64_t relisten_at = 0;
   while (!stop_) {
-    {
-      std::lock_guard lock(mu_);
-      watch_heartbeat(mono_ns());
-    }
+    take_requests(mono_ns(), scheduled_done, relisten_at);
     pollfd p{fd, POLLIN, 0};
-    if (poll(&p, 1, kPollMs) <= 0) continue;
+    if (poll(&p, 1, poll_timeout_ms(mono_ns())) <= 0) continue;
     if ((p.revents & POLLIN) == 0) {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));  // nobody has the other end open
       continue;
@@ -532,9 +685,10 @@ void ArmServer::rtu_loop(int fd) {
   }
 }
 
-bool ArmServer::maybe_glitch(const std::uint8_t* req, int h) {
+bool ArmServer::maybe_glitch(const FaultInjection& f, const std::uint8_t* req, int h) {
+  const bool once = glitch_next_;
   const int function = req[h];
-  if (!(faults_.encoder_glitch > 0) || (function != MODBUS_FC_READ_INPUT_REGISTERS && function != MODBUS_FC_READ_HOLDING_REGISTERS)) return false;
+  if ((!once && !(f.encoder_glitch > 0)) || (function != MODBUS_FC_READ_INPUT_REGISTERS && function != MODBUS_FC_READ_HOLDING_REGISTERS)) return false;
   const auto table = function == MODBUS_FC_READ_INPUT_REGISTERS ? arm::RegisterTable::kInput : arm::RegisterTable::kHolding;
   if (table != encoders_.table) return false;
   const int addr = (req[h + 1] << 8) | req[h + 2];
@@ -548,32 +702,47 @@ bool ArmServer::maybe_glitch(const std::uint8_t* req, int h) {
     const int a = encoders_.address[static_cast<std::size_t>(j)];
     if (a + rc > addr && a < addr + nb) joints[k++] = j;
   }
-  if (k == 0 || !(uniform() < faults_.encoder_glitch)) return false;
-  const int j = joints[static_cast<int>(uniform() * k) % k];
-  const std::int64_t size = faults_.glitch_counts != 0 ? faults_.glitch_counts
-                                                       : config_.joints[static_cast<std::size_t>(j)].counts_per_rev;
-  put_value(encoders_, static_cast<double>(published_[static_cast<std::size_t>(j)] + (uniform() < 0.5 ? -size : size)), j);
+  if (k == 0) return false;
+  int j = joints[0];
+  std::int64_t size = 0;
+  if (once) {
+    // control("glitch"): the first joint this reply carries, upwards.
+    glitch_next_ = false;
+    size = glitch_next_counts_ != 0 ? glitch_next_counts_ : f.glitch_counts;
+  } else {
+    if (!(uniform() < f.encoder_glitch)) return false;
+    j = joints[static_cast<int>(uniform() * k) % k];
+    size = f.glitch_counts;
+  }
+  if (size == 0) size = config_.joints[static_cast<std::size_t>(j)].counts_per_rev;
+  if (!once && uniform() < 0.5) size = -size;
+  put_value(encoders_, static_cast<double>(published_[static_cast<std::size_t>(j)] + size), j);
   ++stats_.glitches;
   return true;
 }
 
-void ArmServer::send_reply_corrupted(int fd, const std::uint8_t* req, int len, bool tcp) {
-  // Let libmodbus build the reply into a socket pair, flip one byte, pass it on.
+std::vector<std::uint8_t> ArmServer::build_reply(const std::uint8_t* req, int len) {
+  // Let libmodbus build the reply into a socket pair and take it from the other end.
+  std::vector<std::uint8_t> out;
   int sp[2];
-  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sp) != 0) return;
+  if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sp) != 0) return out;
   (void)modbus_set_socket(ctx_, sp[0]);
   (void)modbus_reply(ctx_, req, len, mapping_);
-  (void)modbus_set_socket(ctx_, fd);
   std::uint8_t buf[MODBUS_TCP_MAX_ADU_LENGTH + 8];
   const ssize_t got = recv(sp[1], buf, sizeof buf, MSG_DONTWAIT);
   close(sp[0]);
   close(sp[1]);
-  if (got <= 0) return;
-  const auto size = static_cast<std::size_t>(got);
+  if (got > 0) out.assign(buf, buf + got);
+  return out;
+}
+
+void ArmServer::corrupt_reply(std::vector<std::uint8_t>& buf, bool tcp) {
+  const std::size_t size = buf.size();
+  if (size == 0) return;
   std::size_t at = 0;
   if (tcp) {
     // A byte the client checks: the transaction id, the function code or (reads) the byte count.
-    std::size_t choices[4] = {0, 1, 7, 8};
+    const std::size_t choices[4] = {0, 1, 7, 8};
     const bool read_reply = size > 9 && (buf[7] == MODBUS_FC_READ_INPUT_REGISTERS || buf[7] == MODBUS_FC_READ_HOLDING_REGISTERS);
     const std::size_t k = static_cast<std::size_t>(uniform() * (read_reply ? 4 : 3)) % (read_reply ? 4 : 3);
     at = std::min(choices[k], size - 1);
@@ -583,44 +752,94 @@ void ArmServer::send_reply_corrupted(int fd, const std::uint8_t* req, int len, b
   }
   const auto mask = static_cast<std::uint8_t>(1 + static_cast<int>(uniform() * 255) % 255);
   buf[at] = static_cast<std::uint8_t>(buf[at] ^ mask);
-  if (tcp)
-    (void)send(fd, buf, size, MSG_NOSIGNAL);
+}
+
+void ArmServer::send_bytes(int fd, const std::vector<std::uint8_t>& bytes) {
+  if (bytes.empty()) return;
+  if (tcp_)
+    (void)send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL);
   else
-    (void)write(fd, buf, size);
+    (void)write(fd, bytes.data(), bytes.size());
+  ++stats_.replies;
+}
+
+void ArmServer::send_due(std::int64_t now) {
+  // Over RTU a reply waits for every earlier one on the line; over TCP each goes when due.
+  std::vector<int> blocked;
+  for (auto it = outbox_.begin(); it != outbox_.end();) {
+    const bool behind = !tcp_ && std::find(blocked.begin(), blocked.end(), it->fd) != blocked.end();
+    if (!behind && !it->held && it->due_ns <= now) {
+      send_bytes(it->fd, it->bytes);
+      it = outbox_.erase(it);
+      continue;
+    }
+    if (!tcp_) blocked.push_back(it->fd);
+    ++it;
+  }
+}
+
+void ArmServer::forget_replies_to(int fd) {
+  std::erase_if(outbox_, [fd](const Outgoing& o) { return o.fd == fd; });
 }
 
 void ArmServer::handle_request(int fd, const std::uint8_t* req, int len, int header_length) {
-  FaultInjection f;
-  bool drop = false, corrupt = false, delay = false;
-  {
-    std::lock_guard lock(mu_);
-    ++stats_.requests;
-    f = faults_;
-    drop = f.drop_replies > 0 && uniform() < f.drop_replies;
-    corrupt = !drop && f.corrupt > 0 && uniform() < f.corrupt;
-    delay = !drop && f.delay_us > 0 && (f.delay_probability >= 1 || uniform() < f.delay_probability);
-    if (drop) ++stats_.dropped;
-    if (delay) ++stats_.delayed;
-  }
-  if (drop) return;  // as if the request was lost: not applied, not answered
-  if (delay) {
-    const std::int64_t until = mono_ns() + f.delay_us * 1000;
-    while (!stop_ && mono_ns() < until) sleep_ns(std::min<std::int64_t>(until - mono_ns(), 10'000'000));
-  }
   std::lock_guard lock(mu_);
-  const bool glitched = maybe_glitch(req, header_length);
-  if (corrupt) {
-    send_reply_corrupted(fd, req, len, header_length == kTcpHeader);
-    ++stats_.corrupted;
-  } else {
+  const std::int64_t now = mono_ns();
+  ++stats_.requests;
+  if (release_with_next_) {
+    // The held replies go out first: late replies arriving while the client waits for this one.
+    release_with_next_ = false;
+    for (Outgoing& o : outbox_) {
+      if (!o.held) continue;
+      o.held = false;
+      o.due_ns = 0;
+    }
+  }
+  send_due(now);
+  // The start-up faults, with what control() asked for on top.
+  FaultInjection f = faults_;
+  if (now < late_until_ns_) {
+    f.delay_us = late_delay_us_;
+    f.delay_probability = 1;
+  }
+  if (now < garbage_until_ns_) f.corrupt = 1;
+  const bool silent = now < silent_until_ns_;
+  const bool drop = silent || (f.drop_replies > 0 && uniform() < f.drop_replies);
+  const bool corrupt = !drop && f.corrupt > 0 && (f.corrupt >= 1 || uniform() < f.corrupt);
+  const bool delay = !drop && f.delay_us > 0 && (f.delay_probability >= 1 || uniform() < f.delay_probability);
+  const bool hold = !drop && hold_next_ > 0;
+  if (drop) {
+    ++stats_.dropped;
+    return;  // as if the request was lost: not applied, not answered
+  }
+  if (hold) {
+    --hold_next_;
+    ++stats_.held;
+  }
+  if (delay) ++stats_.delayed;
+  const bool glitched = maybe_glitch(f, req, header_length);
+  const bool waiting = !tcp_ && std::any_of(outbox_.begin(), outbox_.end(), [fd](const Outgoing& o) { return o.fd == fd; });
+  if (!corrupt && !delay && !hold && !waiting) {
     (void)modbus_set_socket(ctx_, fd);
     (void)modbus_reply(ctx_, req, len, mapping_);
+    ++stats_.replies;
+  } else {
+    Outgoing o{fd, delay ? now + f.delay_us * 1000 : now, hold, delay, build_reply(req, len)};
+    if (corrupt) {
+      corrupt_reply(o.bytes, tcp_);
+      ++stats_.corrupted;
+    }
+    outbox_.push_back(std::move(o));
+    send_due(now);
+    (void)modbus_set_socket(ctx_, fd);
   }
-  ++stats_.replies;
   if (glitched)
     for (int j = 0; j < physics_->joint_count(); ++j) put_value(encoders_, static_cast<double>(published_[static_cast<std::size_t>(j)]), j);
   // Control writes act at once (a fault reset clears the status the client reads next).
-  if (is_write(req[header_length])) apply_control();
+  if (is_write(req[header_length])) {
+    apply_control();
+    if (enabled_ && first_enabled_ns_ == 0) first_enabled_ns_ = now;  // --disconnect-after counts from here
+  }
 }
 
 }  // namespace lancet::armsim
