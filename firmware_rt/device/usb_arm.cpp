@@ -197,6 +197,12 @@ std::string UsbArm::device_location() const { return handle_ == nullptr ? std::s
 
 void UsbArm::set_velocity_cutoff_hz(double hz) noexcept { velocity_.set_cutoff_hz(hz); }
 
+void UsbArm::set_timeout(double seconds) noexcept {
+  if (!(seconds > 0) || !std::isfinite(seconds)) return;
+  timeout_ms_ = static_cast<unsigned int>(std::clamp(std::ceil(seconds * 1e3 - 1e-9), 1.0, 3'600'000.0));
+  timeout_ns_ = static_cast<std::int64_t>(timeout_ms_) * 1'000'000;
+}
+
 void UsbArm::reset_estimator() noexcept {
   have_sample_ = false;
   last_raw_.fill(0);
@@ -526,6 +532,7 @@ IoStatus UsbArm::transfer(Slot& slot, unsigned char endpoint) noexcept {
   }
   slot.completed = 0;
   slot.actual_length = 0;
+  slot.transfer->timeout = timeout_ms_;  // set_timeout() may have changed it
   const int r = libusb_submit_transfer(slot.transfer);
   if (r != 0) return status_from_error(r);
   ++stats_.submitted;

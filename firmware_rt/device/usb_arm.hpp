@@ -79,6 +79,12 @@ class UsbArm final : public Device {
   [[nodiscard]] const arm::UsbBusConfig& bus() const noexcept { return usb_; }
   /// "bus 001 address 002" of the open device, empty when none is open.
   [[nodiscard]] std::string device_location() const;
+  /// The transfer timeout (s): bus.usb.timeout_ms, rounded up to whole ms, until set_timeout().
+  [[nodiscard]] double timeout() const noexcept { return static_cast<double>(timeout_ns_) * 1e-9; }
+  /// Bounds every transfer from the next one on by `seconds` (> 0 and finite, else ignored;
+  /// rounded up to whole ms). For tools and tests (a short timeout while a reply is withheld on
+  /// purpose, a generous one otherwise); not to be called while another thread drives the arm.
+  void set_timeout(double seconds) noexcept;
   /// Cutoff of the velocity low-pass (Hz, > 0; default 200). Not real-time: call while inactive.
   void set_velocity_cutoff_hz(double hz) noexcept;
   [[nodiscard]] double velocity_cutoff_hz() const noexcept { return velocity_.cutoff_hz(); }
