@@ -389,6 +389,7 @@ Result<void> ModbusArm::reopen_link(const std::string& what) {
 
 void ModbusArm::reset_stream() noexcept {
   rx_len_ = 0;
+  tid_done_ = tid_;
   late_first_ = late_count_ = 0;
   need_flush_ = false;
 }
@@ -652,10 +653,13 @@ IoStatus ModbusArm::tcp_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
     rx_len_ = 0;  // consumed
     const std::uint16_t tid = be16(rx_.data());
     if (tid != tid_) {
-      // The id of a request that timed out: its reply came late (in whatever order).
+      // The id of a request that timed out: its reply came late. Owed ones are found in whatever
+      // order they come; one sent since the last answered request is late even when forgotten.
       std::size_t k = 0;
       while (k < late_count_ && late_at(k).tid != tid) ++k;
-      if (k < late_count_) {
+      const auto age = static_cast<std::uint16_t>(tid - tid_done_);
+      const auto outstanding = static_cast<std::uint16_t>(tid_ - tid_done_);
+      if (k < late_count_ || (age >= 1 && age < outstanding)) {
         erase_late(k);
         count_stale_reply();
         continue;
@@ -664,6 +668,7 @@ IoStatus ModbusArm::tcp_transact(std::size_t pdu_len, std::int64_t deadline_ns) 
       last_errno_ = EMBBADDATA;
       return error(IoStatus::kProtocolError, tid, "reply with transaction id 0x%04X, expected 0x%04X", tid, tid_);
     }
+    tid_done_ = tid_;
     if (rx_[6] != static_cast<std::uint8_t>(bus_.unit_id)) {
       last_errno_ = EMBBADSLAVE;
       return error(IoStatus::kProtocolError, rx_[6], "reply from unit %u, expected unit %d", rx_[6], bus_.unit_id);

@@ -162,9 +162,10 @@ class ModbusArm final : public Device {
   using Clock = std::int64_t (*)() noexcept;
   void set_clock(Clock clock) noexcept;
   /// How many timed-out requests whose replies may still come are remembered (oldest first).
-  /// Beyond that the oldest is forgotten: over TCP its reply, should it come, is a protocol error;
-  /// over RTU it could be taken for a later request's if it came after kMaxLateRequests later
-  /// requests timed out too (the default fault policy trips long before; rearm() starts afresh).
+  /// Beyond that the oldest is forgotten: over TCP its reply is still known by its id if no
+  /// request was answered since (else it is a protocol error); over RTU it could be taken for a
+  /// later request's if it came after kMaxLateRequests later requests timed out too (the default
+  /// fault policy trips long before; rearm() starts afresh).
   static constexpr std::size_t kMaxLateRequests = 16;
 
  protected:
@@ -254,6 +255,7 @@ class ModbusArm final : public Device {
   std::array<std::uint8_t, 264> rx_{};  // TCP: one frame, possibly cut by a timeout; RTU: one ADU
   std::size_t rx_len_ = 0;              // TCP: bytes of the current frame received so far
   std::uint16_t tid_ = 0;               // TCP: transaction id of the last request sent
+  std::uint16_t tid_done_ = 0;          // TCP: the last id whose reply came; ids after it are late
   std::array<Signature, kMaxLateRequests> late_{};  // requests owed a reply (a ring, oldest at late_first_)
   std::size_t late_first_ = 0, late_count_ = 0;
   Clock clock_ = nullptr;               // stamps readings for the velocity estimate (nullptr: monotonic_ns)

@@ -1645,6 +1645,21 @@ TEST_P(ModbusArmLate, AReplyThatNeverComesLeavesTheNextOnesFresh) {
 
 INSTANTIATE_TEST_SUITE_P(Transports, ModbusArmLate, ::testing::Values(Transport::kTcp, Transport::kRtu), transport_name);
 
+TEST(ModbusArmLateTcp, MoreLateRepliesThanItRemembersAreStillKnownByTheirIds) {
+  // Past kMaxLateRequests the oldest owed ids are forgotten; replies sent since the last answered
+  // request are known as late by their ids all the same.
+  Rig rig(Transport::kTcp, {.max_consecutive_errors = 100});
+  ASSERT_TRUE(rig.up);
+  const int n = static_cast<int>(ModbusArm::kMaxLateRequests) + 4;
+  for (int i = 0; i < n; ++i) ASSERT_EQ(rig.withheld(i % 2 == 0), IoStatus::kTimeout) << i;
+  rig.server->release_replies();
+  EXPECT_TRUE(rig.reads_fresh());
+  rig.ticks_stay_fresh(20);
+  const IoCounters& c = rig.arm->counters();
+  EXPECT_EQ(c.stale_replies, static_cast<std::uint64_t>(n)) << describe(c);
+  EXPECT_EQ(c.protocol_errors, 0u) << describe(c);
+}
+
 TEST(ModbusArmLateRtu, AnUnansweredReadCostsTheNextLookalikeReadATimeoutNeverAStaleReading) {
   // Over RTU the reply to the next read looks like the reply owed to the unanswered one: the
   // driver takes it for that (the safe guess), so this read times out; the write after it, which
