@@ -34,8 +34,8 @@
 // for its next one); a client's timeout is then produced by the test, never by the machine's speed.
 // Faults at run time (lancet-armsim --control): control() takes one command line (see there).
 //
-// Time: the drive model (the heartbeat watchdog, the physics' time) runs on CLOCK_MONOTONIC, or,
-// with ServerOptions::manual_clock, on a clock that only step_physics() advances (tests check the
+// Time: the drive model's clock (the heartbeat watchdog's) is CLOCK_MONOTONIC, or,
+// with ServerOptions::manual_clock, a clock that only step_physics() advances (tests check the
 // watchdog in simulated time). Delays and refusal windows always run on CLOCK_MONOTONIC.
 //
 // Not real-time: the server takes a mutex shared with the physics, and allocates.
