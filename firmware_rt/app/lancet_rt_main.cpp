@@ -210,6 +210,13 @@ int main(int argc, char** argv) {
   cli.add_option("--max-force", model.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
   cli.add_option("--viz-timeout-ms", timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
   cli.add_option("--fade-ms", fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
+  double stale_patch_ms = 100;
+  cli.add_option("--stale-patch-ms", stale_patch_ms, "tissue patch age after which the force fades (the viz stopped publishing)")
+      ->check(CLI::Range(1.0, 10000.0))->capture_default_str();
+  bool script_waits = false;
+  cli.add_flag("--script-waits-for-tissue", script_waits,
+               "the scripted hand (or --trajectory) holds its starting point until the first tissue patch arrives, so a "
+               "viz that takes long to build its tissue misses none of the script");
   cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
       ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
   cli.add_option("--stats", stats_path, "write a JSON summary here on exit (also after a signal or a stall)");
@@ -237,6 +244,9 @@ int main(int argc, char** argv) {
                  "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
                  "built-in stylus");
   CLI11_PARSE(cli, argc, argv);
+  // At once: a signal during start-up (loading the arm, waiting for its first read) ends the run,
+  // also when lancet-rt was started in the background, where the shell left SIGINT ignored.
+  install_signal_handlers();
 
   std::optional<lancet::device::Trajectory> trajectory;
   if (!trajectory_path.empty()) {
@@ -320,6 +330,8 @@ int main(int argc, char** argv) {
   }
   model.servo.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
   model.servo.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
+  model.servo.fade.stale_after_ns = static_cast<std::int64_t>(stale_patch_ms * 1e6);
+  model.script_waits_for_tissue = script_waits;
 
   lancet::ShmSegment::CreateOptions seg_opts;
   seg_opts.creator_name = "lancet-rt";

@@ -193,6 +193,8 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   RtData& d = *data_;
   const std::int64_t deadline_ns = ctx.deadline_ns;
   const std::int64_t now_ns = ctx.woke_ns;
+  // The script's clock (held at its start until the tissue is there, when asked to wait for it).
+  if (model_.script_waits_for_tissue && d.patch_version == 0) d.start_ns = deadline_ns;
   const double t = static_cast<double>(deadline_ns - d.start_ns) * 1e-9;
 
   // The device handover first: a requested device is granted before anything else touches it.

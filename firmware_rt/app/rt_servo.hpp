@@ -45,6 +45,9 @@ struct RtModel {
   double script_depth = 0.004;                   ///< m below z = 0 the script presses to
   std::int64_t target_timeout_ns = 250'000'000;  ///< a StylusTarget older than this is ignored
   const device::Trajectory* trajectory = nullptr;  ///< replayed instead of the script (optional)
+  /// The script's (or trajectory's) clock starts at the first patch: until the tissue is there the
+  /// hand holds its starting point.
+  bool script_waits_for_tissue = false;
   /// Commands taken from the ring per tick at most (the rest wait for the next tick): whatever the
   /// ring's indices say, a tick's work stays bounded. At most kSampleCommands (every command a
   /// tick applies is recorded in its ToolSample).

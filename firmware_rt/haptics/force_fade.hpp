@@ -5,8 +5,10 @@
 //   - the patch in use is fresh (no older than stale_after_ns; no patch at all counts as fresh:
 //     there is no force to fade).
 // The scale moves toward 1 (trusted) or 0 (not) by dt / fade_ns per tick, so neither edge is a
-// force step: after the last heartbeat (or once the patch turned stale) the force is exactly zero
-// within timeout (stale_after) + fade_ns + one tick, and it ramps back in as fast when trust returns.
+// force step. The servo (servo_step) gives the time since its last tick when fading out, skipped
+// deadlines included, and one period when fading in: after the last heartbeat (or once the patch
+// turned stale) the force is exactly zero within timeout (stale_after) + fade_ns + the longest gap
+// between two ticks, and it ramps back in over fade_ns of ticks when trust returns.
 
 #include <algorithm>
 #include <cstdint>

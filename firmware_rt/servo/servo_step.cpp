@@ -98,7 +98,7 @@ std::uint64_t state_hash(const ServoData& d) noexcept {
   const haptics::SafetyData& s = hd.safety;
   h.v(s.last), h.v(s.last_position), h.b(s.has_position), h.f(s.energy);
   h.word(s.nan_guards), h.word(s.clamps), h.word(s.slew_limits), h.word(s.passivity_actions);
-  h.f(d.fade.scale());
+  h.f(d.fade.scale()), h.word(static_cast<std::uint64_t>(d.last_deadline_ns));
   h.v(d.tool), h.v(d.tool_velocity);
   h.word(static_cast<std::uint64_t>(d.jacobian.n));
   for (const Vec3& c : d.jacobian.column) h.v(c);
@@ -144,8 +144,15 @@ void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOu
   if (d.contact) ++d.contact_ticks;
 
   // Fade and watchdog: they only ever shrink the force the safety layer made safe.
+  // Fading out counts the servo's own time, deadlines skipped while the host stalled included, so
+  // the force is zero within timeout + fade of the loss whatever the host does; fading in counts
+  // ticks, so a stall never turns into a step up of the force.
   const std::int64_t patch_age = in.patch != nullptr ? in.woke_ns - in.patch->t_ns : -1;
-  out.fade_scale = d.fade.update(haptics::ForceFade::trusted(m.fade, in.viz_alive, patch_age), m.period_ns, m.fade);
+  const bool trusted = haptics::ForceFade::trusted(m.fade, in.viz_alive, patch_age);
+  const std::int64_t since_last = d.last_deadline_ns != 0 ? in.deadline_ns - d.last_deadline_ns : m.period_ns;
+  const std::int64_t fade_dt = trusted ? m.period_ns : std::clamp(since_last, m.period_ns, std::max(m.period_ns, m.fade.fade_ns));
+  d.last_deadline_ns = in.deadline_ns;
+  out.fade_scale = d.fade.update(trusted, fade_dt, m.fade);
   if (out.fade_scale < 1.0) {
     events |= event::kForceFaded;
     ++d.faded_ticks;

@@ -84,6 +84,7 @@ struct ServoData {
   ToolMode mode = ToolMode::kProbe;
   haptics::HapticData haptic{};
   haptics::ForceFade fade{};
+  std::int64_t last_deadline_ns = 0;  ///< the previous tick's deadline (0: none since the reset): the fade's clock
   Vec3 tool{}, tool_velocity{};    ///< tissue frame (m, m/s), of the last good reading
   arm::Jacobian jacobian{};        ///< of the last good reading
   Vec3 force{};                    ///< sent this tick (N)

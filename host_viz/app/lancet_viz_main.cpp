@@ -260,6 +260,12 @@ int main(int argc, char** argv) {
   cli.add_option("--replay-speed", replay_speed, "replay at this multiple of real time (space pauses in the window)")
       ->check(CLI::Range(0.01, 1000.0))->capture_default_str()->needs(replay_opt);
   CLI11_PARSE(cli, argc, argv);
+  // At once, before the tissue is built (a second or more): a Ctrl-C during start-up ends the run
+  // (at its first frame), and so does a SIGINT sent to a viz started in the background, where the
+  // shell left SIGINT ignored.
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+  std::signal(SIGHUP, on_signal);
   if (!record_path.empty() && !replay_path.empty()) {
     std::fprintf(stderr, "lancet-viz: --record and --replay: one at a time\n");
     return 2;
@@ -302,9 +308,9 @@ int main(int argc, char** argv) {
     }
     replay = std::move(rp).value();
     setup = replay->sim().setup();
-    std::printf("lancet-viz: replaying %s: %zu ticks, %zu frames, %.1f s, recorded %s by lancet %s\n", replay_path.c_str(),
+    std::printf("lancet-viz: replaying %s: %zu ticks, %zu frames, %.1f s, recorded %s by lancet %s%s\n", replay_path.c_str(),
                 recording->samples.size(), recording->frames.size(), replay->duration_s(), recording->created.c_str(),
-                recording->lancet_version.c_str());
+                recording->lancet_version.c_str(), recording->cut_short ? " (cut short: the recorder never finished it)" : "");
   } else {
     if (!scenario_path.empty()) {
       auto text = lancet::scenario::read_scenario_text(scenario_path);
@@ -315,6 +321,8 @@ int main(int argc, char** argv) {
       setup.scenario_toml = std::move(text).value();
       setup.scenario_file = scenario_path;
     }
+    std::printf("lancet-viz: building the tissue (%s)\n", scenario_path.empty() ? tissue.c_str() : scenario_path.c_str());
+    std::fflush(stdout);
     auto made = lancet::record::SceneSim::create(setup);
     if (!made.ok()) {
       std::fprintf(stderr, "lancet-viz: %s\n", made.error().message.c_str());
@@ -331,6 +339,7 @@ int main(int argc, char** argv) {
   }
   if (tool == "none") tool.clear();
   double blood_ms = 0;  // spent on the blood, all frames
+  std::string replay_error;  // why a replay stopped before its end
   std::vector<lancet::Vec3> guide;
   if (scenario != nullptr) {
     if (scenario->task == lancet::scenario::TaskKind::kIncision) guide = sim().scene().drape(scenario->incision.line);
@@ -345,10 +354,6 @@ int main(int argc, char** argv) {
     keys += keys.empty() ? "" : " / ";
     keys += std::to_string(static_cast<int>(m) + 1) + ": " + lancet::tool_name(m);
   }
-
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
-  std::signal(SIGHUP, on_signal);
 
   auto window = lancet::render::Window::create({o.width, o.height, !o.headless, "Lancet"});
   if (!window) {
@@ -372,6 +377,12 @@ int main(int argc, char** argv) {
   std::uint64_t rec_frames = 0, rec_last_seq = 0;
   std::vector<lancet::record::SceneEvent> scene_events;
   std::string rec_message;
+  // While recording is armed: the patches this viz published (newest last, at most 8), for the
+  // recording's start: the servo's first recorded ticks may still use one published a frame or two
+  // before (the reset is sent only once the servo uses one of them, never a patch of a viz before
+  // this one, which the recording could not hold).
+  std::deque<std::pair<std::uint64_t, std::unique_ptr<lancet::TissuePatch>>> armed_patches;
+  constexpr std::size_t kArmedPatches = 8;
   const auto stop_recording = [&] {
     if (!recorder) return;
     const auto done = recorder->finish();
@@ -410,6 +421,18 @@ int main(int argc, char** argv) {
       const auto is_reset = [](const lancet::ToolSample& t) { return t.reset_mode != lancet::kNoReset; };
       while (i < frame_batch.size() && !is_reset(frame_batch[i])) ++i;
       use = use.subspan(i);
+      // The reset tick's patch and every newer one this viz published: what the recorded ticks use
+      // before the first recorded frame publishes.
+      const std::uint64_t reset_patch = use.empty() ? 0 : use.front().patch_version;
+      const bool have_patches = reset_patch == 0 || std::any_of(armed_patches.begin(), armed_patches.end(),
+                                                                [&](const auto& a) { return a.first == reset_patch; });
+      if (!use.empty() && !have_patches) {
+        // (Only if the reset took longer than kArmedPatches frames to come back.) Ask again.
+        std::fprintf(stderr, "lancet-viz: the servo's reset used patch %llu, no longer kept: sending the reset again\n",
+                     static_cast<unsigned long long>(reset_patch));
+        rec = Rec::kArmed;
+        use = {};
+      }
       if (!use.empty()) {
         lancet::record::Recording meta;
         meta.lancet_version = LANCET_VERSION;
@@ -430,8 +453,11 @@ int main(int argc, char** argv) {
         (void)session.read_servo_model(meta.servo_model);
         meta.arm_config = session.read_arm_config();
         meta.period_ns = session.rt_status() ? session.rt_status()->period_ns : 1'000'000;
-        meta.first_patch = session.patch();  // the one the servo may still use: published before this frame
-        meta.first_patch_version = session.patch_version();
+        for (const auto& [version, kept] : armed_patches) {
+          if (reset_patch == 0 || version < reset_patch) continue;
+          meta.first_patch_versions.push_back(version);
+          meta.first_patches.push_back(*kept);
+        }
         auto made = lancet::record::Recorder::create(rec_path, meta);
         if (made.ok()) {
           recorder = std::move(made).value();
@@ -520,6 +546,7 @@ int main(int argc, char** argv) {
           auto stepped = replay->step_frame();
           if (!stepped.ok()) {
             std::fprintf(stderr, "lancet-viz: --replay: %s\n", stepped.error().message.c_str());
+            replay_error = stepped.error().message;
             exit_code = 1;
             g_stop.store(true);
             break;
@@ -535,10 +562,25 @@ int main(int argc, char** argv) {
         }
       } else {
         session.frame(now, on_samples, fill_patch);
+        if ((rec == Rec::kArmed || rec == Rec::kWaitingReset) && session.patches_published() != published_before) {
+          std::unique_ptr<lancet::TissuePatch> kept;
+          if (armed_patches.size() >= kArmedPatches) {
+            kept = std::move(armed_patches.front().second);
+            armed_patches.pop_front();
+          } else {
+            kept = std::make_unique<lancet::TissuePatch>();
+          }
+          std::memcpy(static_cast<void*>(kept.get()), &session.patch(), lancet::tissue_patch_bytes(session.patch()));
+          armed_patches.emplace_back(session.patch_version(), std::move(kept));
+        }
+        if (rec == Rec::kOff || rec == Rec::kOn) armed_patches.clear();
       }
-      // The session's start: the tool (and, when recording is armed, the servo's reset before it).
+      // The session's start: the tool (and, when recording is armed, the servo's reset before it,
+      // once the servo uses a patch this viz published).
       const bool connected = !replay && session.link() == lancet::viz::Link::kConnected;
-      if (connected && rec == Rec::kArmed) {
+      const bool servo_uses_ours = session.has_sample() && !armed_patches.empty() &&
+                                   session.latest().patch_version >= armed_patches.front().first;
+      if (connected && rec == Rec::kArmed && servo_uses_ours) {
         lancet::Command c{};
         c.kind = lancet::CommandKind::kReset;
         if (session.send(c, now)) {
@@ -911,13 +953,29 @@ int main(int argc, char** argv) {
   stop_recording();
   if (replay) {
     const lancet::record::ReplayCheck& ck = replay->check();
+    // A verdict only for what was checked: a replay that stopped early says so, and one that
+    // checked nothing is no evidence of anything.
+    const bool all = replay_error.empty() && replay->done();
+    const char* verdict = !ck.exact()          ? "DIFFERS"
+                          : ck.ticks == 0      ? "nothing replayed"
+                          : !all               ? "bit-exact as far as it went"
+                                               : "bit-exact";
     std::printf("lancet-viz: replay of %s: %llu of %zu ticks and %llu of %zu frames; servo state hashes %llu checked, %llu differ; "
                 "samples differing %llu; scene hashes %llu checked, %llu differ: %s\n",
                 replay_path.c_str(), static_cast<unsigned long long>(ck.ticks), recording->samples.size(),
                 static_cast<unsigned long long>(ck.frames), recording->frames.size(), static_cast<unsigned long long>(ck.servo_hashes),
                 static_cast<unsigned long long>(ck.servo_hash_mismatches), static_cast<unsigned long long>(ck.sample_mismatches),
-                static_cast<unsigned long long>(ck.scene_hashes), static_cast<unsigned long long>(ck.scene_hash_mismatches),
-                ck.exact() ? "bit-exact" : "DIFFERS");
+                static_cast<unsigned long long>(ck.scene_hashes), static_cast<unsigned long long>(ck.scene_hash_mismatches), verdict);
+    if (recording->cut_short)
+      std::printf("lancet-viz: the recording was cut short (its recorder never finished it: the viz was killed or the power "
+                  "lost): replayed up to where the file ends\n");
+    if (ck.gap_seq != 0)
+      std::printf("lancet-viz: %llu servo ticks are missing before tick %llu (the viz stalled longer than the sample ring holds): "
+                  "the servo was checked up to there, the scene throughout (%llu ticks after the gap drove it as recorded)\n",
+                  static_cast<unsigned long long>(ck.ticks_lost), static_cast<unsigned long long>(ck.gap_seq),
+                  static_cast<unsigned long long>(ck.ticks_unchecked));
+    if (!replay_error.empty()) std::printf("lancet-viz: the replay stopped: %s\n", replay_error.c_str());
+    if (!replay_error.empty() || (o.headless && (!all || ck.ticks == 0))) exit_code = exit_code ? exit_code : 1;
     if (!ck.exact()) {
       std::printf("lancet-viz: the first difference: servo tick %llu, frame %llu\n", static_cast<unsigned long long>(ck.first_bad_seq),
                   static_cast<unsigned long long>(ck.first_bad_frame > 0 ? ck.first_bad_frame - 1 : 0));

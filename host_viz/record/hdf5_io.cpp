@@ -255,15 +255,44 @@ bool read_string_dataset(hid_t loc, const char* name, std::string& out) {
                      [&](hid_t mem, void* buf) { return H5Dread(d, mem, H5S_ALL, H5S_ALL, H5P_DEFAULT, buf); }, out);
 }
 
-// Opaque bytes (the servo's model, a patch: read back only by this build's layout), deflated.
+// Opaque bytes (the servo's model, patches: read back only by this build's layout), deflated.
 bool write_bytes(hid_t loc, const char* name, const void* data, std::size_t n) {
-  const hsize_t dims = n, chunk = std::min<hsize_t>(n, 65536);
+  const hsize_t dims = n, chunk = std::max<hsize_t>(1, std::min<hsize_t>(n, 65536));
   const Handle space{H5Screate_simple(1, &dims, nullptr), H5Sclose};
   const Handle props{H5Pcreate(H5P_DATASET_CREATE), H5Pclose};
-  H5Pset_chunk(props, 1, &chunk);
-  H5Pset_deflate(props, 6);
+  if (n > 0) {
+    H5Pset_chunk(props, 1, &chunk);
+    H5Pset_deflate(props, 6);
+  }
   const Handle d{H5Dcreate2(loc, name, H5T_NATIVE_UINT8, space, H5P_DEFAULT, props, H5P_DEFAULT), H5Dclose};
-  return d.ok() && H5Dwrite(d, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) >= 0;
+  return d.ok() && (n == 0 || H5Dwrite(d, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) >= 0);
+}
+
+bool write_u64s(hid_t loc, const char* name, const std::vector<std::uint64_t>& v) {
+  const hsize_t dims = v.size();
+  const Handle space{H5Screate_simple(1, &dims, nullptr), H5Sclose};
+  const Handle d{H5Dcreate2(loc, name, H5T_NATIVE_UINT64, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Dclose};
+  return d.ok() && (v.empty() || H5Dwrite(d, H5T_NATIVE_UINT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) >= 0);
+}
+
+// A 1-D dataset's length (-1: missing or not 1-D).
+long long extent_1d(hid_t loc, const char* name) {
+  if (H5Lexists(loc, name, H5P_DEFAULT) <= 0) return -1;
+  const Handle d{H5Dopen2(loc, name, H5P_DEFAULT), H5Dclose};
+  const Handle space{d.ok() ? H5Dget_space(d) : H5I_INVALID_HID, H5Sclose};
+  hsize_t dims = 0;
+  if (!space.ok() || H5Sget_simple_extent_ndims(space) != 1) return -1;
+  H5Sget_simple_extent_dims(space, &dims, nullptr);
+  return static_cast<long long>(dims);
+}
+
+bool read_u64s(hid_t loc, const char* name, std::vector<std::uint64_t>& out, std::size_t max) {
+  const long long n = extent_1d(loc, name);
+  if (n < 0 || static_cast<std::size_t>(n) > max) return false;
+  out.assign(static_cast<std::size_t>(n), 0);
+  if (n == 0) return true;
+  const Handle d{H5Dopen2(loc, name, H5P_DEFAULT), H5Dclose};
+  return d.ok() && H5Dread(d, H5T_NATIVE_UINT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.data()) >= 0;
 }
 
 bool read_bytes(hid_t loc, const char* name, void* data, std::size_t n) {
@@ -301,6 +330,9 @@ bool append_rows(hid_t dataset, hid_t type, hsize_t& rows, const void* data, hsi
   return true;
 }
 
+// Rows a table may claim before the reader calls it corrupt: 24 hours of servo ticks.
+constexpr hsize_t kMaxRows = 24ull * 3600 * 1000;
+
 template <class Row>
 bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out, std::string& why) {
   if (H5Lexists(file, name, H5P_DEFAULT) <= 0) {
@@ -315,12 +347,38 @@ bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out,
   }
   hsize_t n = 0;
   H5Sget_simple_extent_dims(space, &n, nullptr);
+  if (n > kMaxRows) {
+    why = std::string(name) + ": " + std::to_string(n) + " rows, more than a recording holds (" + std::to_string(kMaxRows) + ")";
+    return false;
+  }
   out.assign(static_cast<std::size_t>(n), Row{});
   if (n > 0 && H5Dread(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.data()) < 0) {
     why = std::string(name) + ": cannot read its " + std::to_string(n) + " rows (truncated or corrupted?)";
     return false;
   }
   return true;
+}
+
+// A recording cut short holds what its writer flushed: rows a table was extended by but never
+// got (a crash between the two) read back as zeros and go, then every frame that applied a tick
+// the file does not hold, then the events of frames that went. The counts the finished file would
+// have carried are counted here.
+void trim_cut_short(Recording& r) {
+  while (!r.samples.empty() && r.samples.back().seq == 0) r.samples.pop_back();
+  while (!r.frames.empty() && r.frames.back().t_ns == 0) r.frames.pop_back();
+  while (!r.events.empty() && r.events.back().t_ns == 0) r.events.pop_back();
+  const std::uint64_t last_seq = r.samples.empty() ? 0 : r.samples.back().seq;
+  while (!r.frames.empty() && r.frames.back().last_seq > last_seq) r.frames.pop_back();
+  const std::uint64_t frames = r.frames.size();
+  while (!r.events.empty() && r.events.back().frame >= frames) r.events.pop_back();
+  r.samples_lost = 0, r.gaps = 0;
+  for (std::size_t i = 1; i < r.samples.size(); ++i) {
+    const std::uint64_t a = r.samples[i - 1].seq, b = r.samples[i].seq;
+    if (b != a + 1) {
+      ++r.gaps;
+      if (b > a) r.samples_lost += b - a - 1;
+    }
+  }
 }
 
 }  // namespace
@@ -336,8 +394,14 @@ struct Recorder::File {
 Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, const Recording& meta) {
   quiet_hdf5();
   auto f = std::make_unique<File>();
-  f->file = Handle{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose};
+  // SWMR (single writer, multiple readers) needs the latest file format; in it, what the writer
+  // has flushed stays readable whatever happens to the writer afterwards.
+  const Handle fapl{H5Pcreate(H5P_FILE_ACCESS), H5Pclose};
+  H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST);
+  f->file = Handle{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl), H5Fclose};
   if (!f->file.ok()) return fail(path, "cannot create the recording", ErrorCode::kSystem);
+  if (meta.first_patch_versions.size() != meta.first_patches.size())
+    return Error{ErrorCode::kInvalid, path + ": first_patch_versions and first_patches differ in length"};
   f->sample_type = sample_type();
   f->frame_type = frame_type();
   f->event_type = event_type();
@@ -353,12 +417,20 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
             write_attr(root, "scene_hash_every", H5T_NATIVE_UINT32, meta.scene_hash_every) &&
             write_string_attr(root, "tissue", meta.tissue) && write_string_attr(root, "volume_path", meta.volume_path) &&
             write_attr(root, "patch_radius_m", H5T_NATIVE_DOUBLE, meta.patch_radius) &&
-            write_attr(root, "first_patch_version", H5T_NATIVE_UINT64, meta.first_patch_version);
+            // The counts and complete = 1 are written by finish(); here, so that they exist before
+            // SWMR mode (which allows no new attributes), their values for a file cut short.
+            write_attr(root, "samples", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
+            write_attr(root, "frames", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
+            write_attr(root, "events", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
+            write_attr(root, "samples_lost", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
+            write_attr(root, "gaps", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
+            write_attr(root, "complete", H5T_NATIVE_UINT32, std::uint32_t{0});
   if (ok) {
     const Handle g{H5Gcreate2(root, "meta", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose};
     ok = g.ok() && write_string_dataset(g, "scenario", meta.scenario_toml) && write_string_dataset(g, "arm_config", meta.arm_config) &&
          write_bytes(g, "servo_model", &meta.servo_model, sizeof meta.servo_model) &&
-         write_bytes(g, "first_patch", &meta.first_patch, sizeof meta.first_patch);
+         write_u64s(g, "first_patch_versions", meta.first_patch_versions) &&
+         write_bytes(g, "first_patches", meta.first_patches.data(), meta.first_patches.size() * sizeof(TissuePatch));
   }
   if (ok) {
     const Handle servo{H5Gcreate2(root, "servo", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose};
@@ -371,6 +443,7 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
     ok = f->samples.ok() && f->frames.ok() && f->events.ok();
   }
   if (!ok) return fail(path, "cannot write the recording's header", ErrorCode::kSystem);
+  if (H5Fstart_swmr_write(f->file) < 0) return fail(path, "cannot start writing in SWMR mode", ErrorCode::kSystem);
   (void)H5Fflush(f->file, H5F_SCOPE_GLOBAL);
   return std::unique_ptr<Recorder>(new Recorder(path, std::move(f)));
 }
@@ -478,15 +551,19 @@ Result<void> Recorder::finish() {
   wake_.notify_one();
   if (thread_.joinable()) thread_.join();
   File& f = *file_;
-  const hid_t root = f.file;
-  const bool ok = write_attr(root, "samples", H5T_NATIVE_UINT64, n_samples_) &&
-                  write_attr(root, "frames", H5T_NATIVE_UINT64, n_frames_) &&
-                  write_attr(root, "events", H5T_NATIVE_UINT64, n_events_) &&
-                  write_attr(root, "samples_lost", H5T_NATIVE_UINT64, lost_) && write_attr(root, "gaps", H5T_NATIVE_UINT64, gaps_) &&
-                  write_attr(root, "complete", H5T_NATIVE_UINT32, std::uint32_t{1});
-  if (!ok && error_.empty()) error_ = fail(path_, "cannot write the recording's final counts").message;
   f.samples.reset(), f.frames.reset(), f.events.reset(), f.sample_type.reset(), f.frame_type.reset(), f.event_type.reset();
   f.file.reset();
+  // Out of SWMR mode: the final counts and complete = 1 (new attribute values), in the file
+  // opened again the ordinary way.
+  const Handle fapl{H5Pcreate(H5P_FILE_ACCESS), H5Pclose};
+  H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST);
+  const Handle file{H5Fopen(path_.c_str(), H5F_ACC_RDWR, fapl), H5Fclose};
+  const bool ok = file.ok() && write_attr(file, "samples", H5T_NATIVE_UINT64, n_samples_) &&
+                  write_attr(file, "frames", H5T_NATIVE_UINT64, n_frames_) &&
+                  write_attr(file, "events", H5T_NATIVE_UINT64, n_events_) &&
+                  write_attr(file, "samples_lost", H5T_NATIVE_UINT64, lost_) && write_attr(file, "gaps", H5T_NATIVE_UINT64, gaps_) &&
+                  write_attr(file, "complete", H5T_NATIVE_UINT32, std::uint32_t{1});
+  if (!ok && error_.empty()) error_ = fail(path_, "cannot write the recording's final counts").message;
   return error_.empty() ? Result<void>::success() : Error{ErrorCode::kSystem, error_};
 }
 
@@ -508,18 +585,23 @@ Result<Recording> read_recording(const std::string& path) {
   if (!std::filesystem::exists(path, ec)) return Error{ErrorCode::kNotFound, path + ": no such file"};
   if (H5Fis_hdf5(path.c_str()) <= 0)
     return Error{ErrorCode::kInvalid, path + ": not an HDF5 file, or truncated or corrupted (its superblock cannot be read)"};
-  const Handle file{H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose};
+  Handle file{H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose};
+  // A file whose SWMR writer never closed it (killed, power lost) is still marked open for writing:
+  // it opens as a SWMR reader would, with everything the writer flushed.
+  if (!file.ok()) file = Handle{H5Fopen(path.c_str(), H5F_ACC_RDONLY | H5F_ACC_SWMR_READ, H5P_DEFAULT), H5Fclose};
   if (!file.ok()) return fail(path, "cannot open as HDF5 (truncated or corrupted?)");
   Recording r;
   std::uint32_t complete = 0;
   if (!read_attr(file, "format_version", H5T_NATIVE_UINT32, r.format_version))
     return Error{ErrorCode::kInvalid, path + ": attribute format_version: missing (not a Lancet recording)"};
-  if (r.format_version != kFormatVersion)
-    return Error{ErrorCode::kInvalid, path + ": attribute format_version: expected " + std::to_string(kFormatVersion) +
+  if (r.format_version != kFormatVersion && r.format_version != 1)
+    return Error{ErrorCode::kInvalid, path + ": attribute format_version: expected 1 or " + std::to_string(kFormatVersion) +
                                           ", found " + std::to_string(r.format_version)};
-  if (!read_attr(file, "complete", H5T_NATIVE_UINT32, complete) || complete != 1)
+  // Version 1 files were written whole or not at all: one not finished is refused as before.
+  if (!read_attr(file, "complete", H5T_NATIVE_UINT32, complete) || (complete != 1 && r.format_version == 1))
     return Error{ErrorCode::kInvalid, path + ": the recording was not finished (attribute complete is missing): the "
                                              "recorder stopped before closing it"};
+  r.cut_short = complete != 1;
   std::uint64_t n_samples = 0, n_frames = 0, n_events = 0;
   const char* missing = nullptr;
   const auto need = [&](bool ok, const char* name) {
@@ -542,19 +624,39 @@ Result<Recording> read_recording(const std::string& path) {
   need(read_string_attr(file, "tissue", r.tissue), "tissue");
   need(read_string_attr(file, "volume_path", r.volume_path), "volume_path");
   need(read_attr(file, "patch_radius_m", H5T_NATIVE_DOUBLE, r.patch_radius), "patch_radius_m");
-  need(read_attr(file, "first_patch_version", H5T_NATIVE_UINT64, r.first_patch_version), "first_patch_version");
+  std::uint64_t v1_first_version = 0;
+  if (r.format_version == 1) need(read_attr(file, "first_patch_version", H5T_NATIVE_UINT64, v1_first_version), "first_patch_version");
   if (missing != nullptr) return fail(path, std::string("root attribute ") + missing + ": missing or unreadable");
   if (!read_string_dataset(file, "/meta/scenario", r.scenario_toml) || !read_string_dataset(file, "/meta/arm_config", r.arm_config))
     return fail(path, "/meta/scenario or /meta/arm_config: missing or unreadable");
   if (!read_bytes(file, "/meta/servo_model", &r.servo_model, sizeof r.servo_model))
     return fail(path, "/meta/servo_model: missing, or not " + std::to_string(sizeof r.servo_model) + " bytes (recorded by another layout)");
-  if (!read_bytes(file, "/meta/first_patch", &r.first_patch, sizeof r.first_patch))
-    return fail(path, "/meta/first_patch: missing, or not " + std::to_string(sizeof r.first_patch) + " bytes (recorded by another layout)");
+  if (r.format_version == 1) {
+    auto first = std::make_unique<TissuePatch>();
+    if (!read_bytes(file, "/meta/first_patch", first.get(), sizeof(TissuePatch)))
+      return fail(path, "/meta/first_patch: missing, or not " + std::to_string(sizeof(TissuePatch)) + " bytes (recorded by another layout)");
+    if (v1_first_version != 0) {
+      r.first_patch_versions.push_back(v1_first_version);
+      r.first_patches.push_back(*first);
+    }
+  } else {
+    // At most 64 first patches (a recording keeps 8): a bigger claim is a corrupt file.
+    if (!read_u64s(file, "/meta/first_patch_versions", r.first_patch_versions, 64))
+      return fail(path, "/meta/first_patch_versions: missing, unreadable or more than 64");
+    r.first_patches.resize(r.first_patch_versions.size());
+    if (!read_bytes(file, "/meta/first_patches", r.first_patches.data(), r.first_patches.size() * sizeof(TissuePatch)))
+      return fail(path, "/meta/first_patches: missing, or not " + std::to_string(r.first_patches.size()) + " patches of " +
+                            std::to_string(sizeof(TissuePatch)) + " bytes (recorded by another layout)");
+  }
   std::string why;
   const Handle st = sample_type(), ft = frame_type(), et = event_type();
   if (!read_table(file, "/servo/samples", st, r.samples, why) || !read_table(file, "/viz/frames", ft, r.frames, why) ||
       !read_table(file, "/viz/events", et, r.events, why))
     return fail(path, why);
+  if (r.cut_short) {
+    trim_cut_short(r);
+    return r;
+  }
   if (r.samples.size() != n_samples || r.frames.size() != n_frames || r.events.size() != n_events)
     return Error{ErrorCode::kInvalid, path + ": /servo/samples has " + std::to_string(r.samples.size()) + " rows and /viz/frames " +
                                           std::to_string(r.frames.size()) + " and /viz/events " + std::to_string(r.events.size()) +

@@ -298,6 +298,10 @@ Metrics compute_metrics(const Recording& rec, const scenario::Scenario* s) {
     out.notes.push_back(std::to_string(rec.samples_lost) + " ticks missing from the recording (" + std::to_string(rec.gaps) +
                         " gaps): sums over ticks undercount");
   }
+  if (rec.cut_short) {
+    out.notes.push_back("the recording was cut short (the recorder never finished it: the viz was killed or the power lost): "
+                        "scored up to where the file ends, " + std::to_string(rec.samples.size()) + " ticks");
+  }
   if (s == nullptr) out.notes.emplace_back("no scenario: no task metrics and no bands");
 
   add_motion(out, rec, w, s);

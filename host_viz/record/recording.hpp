@@ -23,8 +23,10 @@
 
 namespace lancet::record {
 
-/// The file format's version (the /meta attribute format_version).
-inline constexpr std::uint32_t kFormatVersion = 1;
+/// The file format's version (the /meta attribute format_version). 2: written in HDF5's SWMR mode
+/// (a file whose writer died is readable up to its last flush), /meta/first_patches with
+/// /meta/first_patch_versions. Version 1 files (one /meta/first_patch) are still read.
+inline constexpr std::uint32_t kFormatVersion = 2;
 
 /// One visualizer frame of the session.
 struct FrameRecord {
@@ -86,10 +88,11 @@ struct Recording {
   double patch_radius = 0.03;      ///< m, lancet-viz's --patch-radius-mm
   /// The servo's model as lancet-rt published it (ServoModelBlob: the replay steps with exactly it).
   ServoModelBlob servo_model{};
-  /// The TissuePatch the servo was using when the recording began (it came from before the first
-  /// recorded frame), and its version.
-  TissuePatch first_patch{};
-  std::uint64_t first_patch_version = 0;
+  /// The patches the first recorded ticks may use before the first recorded frame publishes one:
+  /// the reset tick's and every newer one published before the recording began (versions
+  /// ascending, one patch each).
+  std::vector<std::uint64_t> first_patch_versions;
+  std::vector<TissuePatch> first_patches;
   std::int64_t period_ns = 1'000'000;  ///< the servo period
   std::uint32_t servo_hash_every = 0;  ///< ToolSample::state_hash is set every this many ticks
   std::uint32_t scene_hash_every = 0;  ///< FrameRecord::scene_hash is set every this many frames
@@ -100,6 +103,10 @@ struct Recording {
   // What the recorder saw go wrong (0 for a complete recording).
   std::uint64_t samples_lost = 0;   ///< ticks missing from `samples` (the sample ring overflowed)
   std::uint64_t gaps = 0;           ///< places where seq jumped
+  /// The recorder never finished the file (the viz was killed, the machine lost power): what it
+  /// had flushed is here (every row up to its last flush, a quarter second at most before the
+  /// end), frames that applied ticks the file does not hold are dropped.
+  bool cut_short = false;
 };
 
 }  // namespace lancet::record

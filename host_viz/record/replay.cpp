@@ -161,9 +161,6 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
                                            std::to_string(rec.protocol) + ", lancet " + rec.lancet_version +
                                            "); this build's is " + hex(kSharedLayoutHash) + " (protocol " +
                                            std::to_string(kProtocolVersion) + "): replay it with the build that recorded it"};
-  if (rec.samples_lost > 0 || rec.gaps > 0)
-    return Error{ErrorCode::kInvalid, "the recording lost " + std::to_string(rec.samples_lost) + " servo ticks in " +
-                                          std::to_string(rec.gaps) + " gaps: it cannot be replayed exactly"};
   if (rec.samples.empty() || rec.frames.empty()) return Error{ErrorCode::kInvalid, "the recording has no ticks or no frames"};
   for (const ToolSample& s : rec.samples)
     if ((s.inputs & input::kCommandsCut) != 0)
@@ -191,7 +188,8 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
                                           ") is not the servo's reset: it cannot be replayed from a known state"};
   r->data_.tick = first.seq - 1;
   r->data_.mode = static_cast<ToolMode>(first.reset_mode);
-  if (rec.first_patch_version != 0) r->patches_.emplace_back(rec.first_patch_version, std::make_unique<TissuePatch>(rec.first_patch));
+  for (std::size_t i = 0; i < rec.first_patch_versions.size() && i < rec.first_patches.size(); ++i)
+    r->patches_.emplace_back(rec.first_patch_versions[i], std::make_unique<TissuePatch>(rec.first_patches[i]));
   r->replayed_.reserve(rec.samples.size());
   return r;
 }
@@ -222,6 +220,20 @@ Result<bool> Replay::step_frame() {
   batch_.clear();
   while (next_sample_ < rec_->samples.size() && rec_->samples[next_sample_].seq <= f.last_seq) {
     const ToolSample& s = rec_->samples[next_sample_++];
+    // A gap (the viz stalled longer than the sample ring holds): the servo's state after it
+    // depends on ticks nobody kept, so from here the servo is not re-stepped; the scene goes on
+    // with the recorded ticks, exactly what the live scene was given, and is still checked.
+    if (check_.gap_seq == 0 && has_latest_ && s.seq != latest_.seq + 1) {
+      check_.gap_seq = s.seq;
+      check_.ticks_lost = s.seq > latest_.seq ? s.seq - latest_.seq - 1 : 0;
+    }
+    if (check_.gap_seq != 0) {
+      ++check_.ticks_unchecked;
+      batch_.push_back(s);
+      replayed_.push_back(s);
+      latest_ = s;
+      continue;
+    }
     servo::ServoInput in = servo::input_from_sample(s);
     if (s.patch_version != 0) {
       in.patch = find_patch(s.patch_version);
@@ -241,6 +253,8 @@ Result<bool> Replay::step_frame() {
     if ((!hash_ok || !output_ok) && check_.first_bad_seq == 0) check_.first_bad_seq = s.seq;
     batch_.push_back(o);
     replayed_.push_back(o);
+    latest_ = s;
+    has_latest_ = true;
   }
   timing_.servo += since(t0);
   // The visualizer's frame: the batch, then the patch around the newest tool, then the blood.

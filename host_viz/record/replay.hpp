@@ -11,7 +11,11 @@
 // Replay checks, as it goes: every replayed ToolSample against the recorded one (force, proxy,
 // stage, events, and the servo's state hash every kServoHashEvery ticks), and the scene's hash
 // wherever the recording has one. Bit-exact: the same build replays its recordings with zero
-// mismatches; a recording from another shared layout is refused (both hashes named).
+// mismatches; a recording from another shared layout is refused (both hashes named). After a gap
+// in the recorded ticks (a viz that stalled longer than the sample ring holds) the servo cannot be
+// re-stepped: the recorded ticks then drive the scene, whose hashes are still checked
+// (ReplayCheck::gap_seq says where). A recording cut short (Recording::cut_short) replays up to
+// where its file ends.
 
 #include <cstdint>
 #include <deque>
@@ -89,6 +93,11 @@ struct ReplayCheck {
   std::uint64_t scene_hashes = 0, scene_hash_mismatches = 0;
   std::uint64_t first_bad_seq = 0;      ///< 0: none
   std::uint64_t first_bad_frame = 0;    ///< frame + 1 (0: none)
+  /// The first tick after a gap in the recording (0: none): the servo is re-stepped and checked up
+  /// to it; after it the recorded ticks drive the scene, which is still checked.
+  std::uint64_t gap_seq = 0;
+  std::uint64_t ticks_lost = 0;         ///< missing at that gap
+  std::uint64_t ticks_unchecked = 0;    ///< recorded ticks from the gap on (not re-stepped)
   [[nodiscard]] bool exact() const noexcept {
     return servo_hash_mismatches == 0 && sample_mismatches == 0 && scene_hash_mismatches == 0;
   }
@@ -101,8 +110,8 @@ struct ReplayTiming {
 
 class Replay {
  public:
-  /// Refuses a recording of another shared layout or servo model layout (naming both), one
-  /// whose ticks have gaps, or one whose scene cannot be built.
+  /// Refuses a recording of another shared layout or servo model layout (naming both), one with
+  /// no ticks or frames, or one whose scene cannot be built.
   [[nodiscard]] static Result<std::unique_ptr<Replay>> create(const Recording& recording);
 
   /// Replays the next recorded frame: its servo ticks, the scene's batch, the patch, the blood,

@@ -518,6 +518,7 @@ std::string json_attempt(const ReportInput& in) {
   s += "      \"samples\": " + std::to_string(rec.samples.size()) + ",\n";
   s += "      \"frames\": " + std::to_string(rec.frames.size()) + ",\n";
   s += "      \"samples_lost\": " + std::to_string(rec.samples_lost) + ",\n";
+  s += std::string("      \"cut_short\": ") + (rec.cut_short ? "true" : "false") + ",\n";
   s += "      \"window_s\": [" + json_number(m.window_begin_s) + ", " + json_number(m.window_end_s) + "],\n";
   s += "      \"settings\": {\"force_limit_n\": " + json_number(m.score.force_limit) +
        ", \"movement_speed_mm_s\": " + json_number(m.score.movement_speed * 1e3) +

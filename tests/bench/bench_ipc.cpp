@@ -5,7 +5,7 @@
 //
 // Ring: lancet::SpscRing against BareRing, a minimal SPSC ring written below (two atomic
 // indices side by side, no cache-line padding, no cached indices, a memcpy per slot). Same
-// capacity (4096), same messages (a 64-byte struct and the real ToolSample), both placed in a
+// capacity (the real sample ring's), same messages (a 64-byte struct and the real ToolSample), both placed in a
 // MAP_SHARED | MAP_ANONYMOUS mapping shared by fork()ed processes, as the real segment is. A
 // third ring, the bare one with its slots cache-line aligned, shows how much of the difference
 // is slot alignment alone.
@@ -57,7 +57,7 @@
 namespace {
 
 using Clock = std::chrono::steady_clock;
-constexpr std::size_t kCapacity = lancet::kSampleRingCapacity;  // 4096, the real sample ring
+constexpr std::size_t kCapacity = lancet::kSampleRingCapacity;  // the real sample ring
 
 // ---------------------------------------------------------------------------------------------
 // The yardstick: the smallest correct SPSC ring. Head and tail share a cache line (and the

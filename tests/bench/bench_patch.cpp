@@ -146,7 +146,7 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
           if (v != last_version && v != 0) {
             last_version = v;
             const std::int64_t pub = (*published_ns)[v % kStamps].load(std::memory_order_acquire);
-            if (latency.size() < max_ticks && pub != 0) latency.push_back(static_cast<double>(ctx.woke_ns - pub) / 1e6 + 1.0);
+            if (latency.size() < max_ticks && pub != 0) latency.push_back(static_cast<double>(ctx.woke_ns - pub) / static_cast<double>(lp.period_ns));
             if (arrival.size() < max_ticks) arrival.push_back(us);
           } else if (other.size() < max_ticks) {
             other.push_back(us);

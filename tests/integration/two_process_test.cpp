@@ -1,17 +1,25 @@
-// Starts the real lancet-rt and lancet-viz (headless, under Xvfb) and checks that they talk:
+// Starts the real lancet-rt and lancet-viz (headless, through EGL) and checks that they talk:
 // samples arrive in order without loss, the tissue patch reaches lancet-rt and produces a force,
 // the screenshot is not blank, killing the viz fades the force to zero within the configured
 // time while lancet-rt keeps running, and the viz survives lancet-rt going away.
+//
+// Every run lasts until what it checks has happened (a number of ticks drained by the viz, a
+// contact, the end of the scripted hand's trajectory), read from the segment as events, never a
+// fixed time: a slower or busier machine only makes the tests take longer. The scripted hands
+// start when the tissue does (lancet-rt --script-waits-for-tissue).
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sys/mman.h>
 
+#include <algorithm>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -19,6 +27,7 @@
 #include "lancet/shared_model/shared_state.hpp"
 #include "process_test.hpp"  // tests/support
 #include "shared_data.hpp"   // tests/support
+#include "wait.hpp"          // tests/support
 
 namespace lancet {
 namespace {
@@ -42,15 +51,18 @@ class TwoProcess : public test::ProcessTest {
   }
 
   std::unique_ptr<Child> start_rt(const std::vector<std::string>& extra = {}) {
-    std::vector<std::string> argv{kRt, "--shm", shm_, "-q", "--stats", path("rt.json"), "--viz-timeout-ms",
-                                  std::to_string(kTimeoutMs), "--fade-ms", std::to_string(kFadeMs)};
+    std::vector<std::string> argv{kRt, "--shm", shm_, "-q", "--stats", path("rt.json"), "--fade-ms", std::to_string(kFadeMs)};
+    if (std::find(extra.begin(), extra.end(), "--viz-timeout-ms") == extra.end())
+      argv.insert(argv.end(), {"--viz-timeout-ms", std::to_string(kTimeoutMs)});
     argv.insert(argv.end(), extra.begin(), extra.end());
     auto rt = std::make_unique<Child>(argv, path("rt.log"));
-    // Wait until its segment is ready.
-    for (int i = 0; i < 500; ++i) {
-      if (SharedChannel::open(shm_)) break;
-      std::this_thread::sleep_for(10ms);
-    }
+    // Wait until its segment is ready, and keep it open to watch the servo.
+    EXPECT_TRUE(test::eventually([&] {
+      auto ch = SharedChannel::open(shm_);
+      if (!ch) return false;
+      channel_.emplace(std::move(ch).value());
+      return true;
+    })) << read_file(path("rt.log"));
     return rt;
   }
   std::unique_ptr<Child> start_viz(const std::vector<std::string>& extra) {
@@ -61,34 +73,76 @@ class TwoProcess : public test::ProcessTest {
     // sanitizer builds (its session logic is leak-checked by the host_viz unit tests).
     return std::make_unique<Child>(argv, path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"});
   }
-  // Polls RtStatus until pred holds or timeout; returns the last status read.
-  template <class Pred>
-  RtStatus wait_status(SharedState& s, Pred pred, std::chrono::milliseconds timeout, bool& ok) {
+  /// lancet-rt's latest status (a zero one before the first).
+  RtStatus status() {
     RtStatus st{};
-    const auto end = std::chrono::steady_clock::now() + timeout;
-    ok = false;
-    while (std::chrono::steady_clock::now() < end) {
-      if (s.rt_status.try_read(st) == ReadStatus::kOk && pred(st)) {
-        ok = true;
-        break;
-      }
-      std::this_thread::sleep_for(1ms);
-    }
+    if (channel_) (void)channel_->state().rt_status.try_read(st);
     return st;
   }
+  /// Waits (a hang-catching deadline) until lancet-rt's status satisfies pred; returns it.
+  template <class Pred>
+  RtStatus wait_status(Pred pred, bool& ok) {
+    RtStatus st{};
+    ok = test::eventually([&] {
+      st = status();
+      return st.tick > 0 && pred(st);
+    });
+    return st;
+  }
+  /// The newest servo tick the viz has applied, as its latest patch says (0: no patch yet).
+  std::uint64_t viz_applied() {
+    if (!channel_) return 0;
+    auto p = std::make_unique<TissuePatch>();
+    return channel_->state().patch.try_peek(*p) == ReadStatus::kOk ? p->samples_applied : 0;
+  }
+  /// Waits until the viz has applied `ticks` servo ticks after the first one it applied with a
+  /// patch in use by the servo (the scripted hand's clock starts there with
+  /// --script-waits-for-tissue).
+  bool wait_viz_applied_after_tissue(std::uint64_t ticks) {
+    bool ok = false;
+    const RtStatus first = wait_status([](const RtStatus& st) { return st.patch_version != 0; }, ok);
+    return ok && test::eventually([&] { return viz_applied() >= first.tick + ticks; }, std::chrono::seconds(180));
+  }
+  /// Asks the viz to end (SIGINT, as Ctrl-C does) and checks that it did, cleanly.
+  void stop_viz(Child& viz) {
+    viz.signal(SIGINT);
+    const auto vs = viz.wait_exit(120s);
+    ASSERT_TRUE(vs.has_value()) << "lancet-viz did not end after SIGINT";
+    EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  }
+  void stop_rt(Child& rt) {
+    rt.signal(SIGTERM);
+    const auto rs = rt.wait_exit(30s);
+    ASSERT_TRUE(rs.has_value());
+    EXPECT_TRUE(WIFEXITED(*rs) && WEXITSTATUS(*rs) == 0) << read_file(path("rt.log"));
+  }
+
+ private:
+  std::optional<SharedChannel> channel_;
 };
 
 TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
   auto rt = start_rt();
   ASSERT_TRUE(rt->running());
-  auto viz = start_viz({"--duration", "2", "--screenshot", path("shot.png"), "--stats", path("viz.json")});
-  const auto vs = viz->wait_exit(60s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  auto viz = start_viz({"--duration", "600", "--screenshot", path("shot.png"), "--stats", path("viz.json")});
+  // The viz drains 2000 ticks, publishes patches, and the servo feels the tissue.
+  std::uint64_t first = 0;
+  ASSERT_TRUE(test::eventually([&] {
+    const std::uint64_t a = viz_applied();
+    if (first == 0) first = a;
+    return first != 0 && a >= first + 2000;
+  })) << read_file(path("viz.log"));
+  bool ok = false;
+  (void)wait_status([](const RtStatus& st) { return st.contact != 0 && norm(st.force) > 0.2; }, ok);
+  ASSERT_TRUE(ok) << "no contact force";
+  stop_viz(*viz);
 
   const std::string v = read_file(path("viz.json"));
   ASSERT_FALSE(v.empty()) << read_file(path("viz.log"));
-  EXPECT_GE(json_number(v, "samples_received").value_or(0), 1900) << v;
+  // Every tick from the first the viz took to the last: in order, none lost.
+  const double received = json_number(v, "samples_received").value_or(0);
+  EXPECT_GE(received, 2000) << v;
+  EXPECT_EQ(received, json_number(v, "last_seq").value_or(0) - json_number(v, "first_seq").value_or(0) + 1) << v;
   EXPECT_EQ(json_number(v, "lost").value_or(-1), 0) << v;
   EXPECT_EQ(json_number(v, "out_of_order").value_or(-1), 0) << v;
   EXPECT_GT(json_number(v, "patches_published").value_or(0), 0) << v;
@@ -97,10 +151,7 @@ TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
   ASSERT_TRUE(std::filesystem::exists(path("shot.png")));
   EXPECT_GT(std::filesystem::file_size(path("shot.png")), 10'000u);
 
-  rt->signal(SIGTERM);
-  const auto rs = rt->wait_exit(10s);
-  ASSERT_TRUE(rs.has_value());
-  EXPECT_TRUE(WIFEXITED(*rs) && WEXITSTATUS(*rs) == 0) << read_file(path("rt.log"));
+  stop_rt(*rt);
   const std::string r = read_file(path("rt.json"));
   EXPECT_GT(json_number(r, "patches_received").value_or(0), 0) << r;
   EXPECT_GT(json_number(r, "contact_ticks").value_or(0), 0) << r;
@@ -113,14 +164,13 @@ TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
 TEST_F(TwoProcess, PhantomSkinTissueGivesContactAndForce) {
   auto rt = start_rt();
   ASSERT_TRUE(rt->running());
-  auto viz = start_viz({"--duration", "2.5", "--tissue", "phantom", "--stats", path("viz.json")});
-  const auto vs = viz->wait_exit(60s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  auto viz = start_viz({"--duration", "600", "--tissue", "phantom", "--stats", path("viz.json")});
+  bool ok = false;
+  (void)wait_status([](const RtStatus& st) { return st.contact != 0 && norm(st.force) > 0.2; }, ok);
+  ASSERT_TRUE(ok) << "no contact force on the phantom's skin\n" << read_file(path("viz.log"));
+  stop_viz(*viz);
   EXPECT_GT(json_number(read_file(path("viz.json")), "patches_published").value_or(0), 0);
-  rt->signal(SIGTERM);
-  const auto rs = rt->wait_exit(10s);
-  ASSERT_TRUE(rs.has_value());
+  stop_rt(*rt);
   const std::string r = read_file(path("rt.json"));
   EXPECT_GT(json_number(r, "contact_ticks").value_or(0), 0) << r;
   EXPECT_GT(json_number(r, "max_force_n").value_or(0), 0.2) << r;
@@ -132,6 +182,7 @@ struct TraceRow {
   int stage = 0;
   std::uint32_t events = 0;
   Vec3 tool, proxy, force;
+  std::uint64_t patch_version = 0;
 };
 
 std::vector<TraceRow> read_trace(const std::string& file) {
@@ -150,7 +201,7 @@ std::vector<TraceRow> read_trace(const std::string& file) {
     EXPECT_TRUE(ss) << file << ": " << line;
     if (!ss) break;
     rows.push_back({v[0], static_cast<int>(v[1]), static_cast<std::uint32_t>(v[2]), {v[3], v[4], v[5]}, {v[6], v[7], v[8]},
-                    {v[9], v[10], v[11]}});
+                    {v[9], v[10], v[11]}, static_cast<std::uint64_t>(v[12])});
   }
   return rows;
 }
@@ -159,29 +210,37 @@ std::vector<TraceRow> read_trace(const std::string& file) {
 // seconds; every tick from contact on renders k·depth. (The viz once published its dented mesh
 // as the haptic patch, so the surface, and the proxy on it, followed the tool down and the force
 // shrank while the stylus stayed below the surface; and a stylus that was already below the
-// surface when the first patch came was never touched by it.) viz_delay_s starts lancet-viz that
-// long after lancet-rt, when the stylus is already pressed in.
-void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
+// surface when the first patch came was never touched by it.) With `pressed_first`, lancet-viz
+// starts once the stylus is already pressed in. The fades' timeouts are generous: this test is
+// about the force against the depth, not about how fast a loaded machine draws.
+void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
   constexpr double kStiffness = 300;  // N/m, every material
-  const double end_s = viz_delay_s + hold_s;
   {
     std::ofstream csv(fx.path("press.csv"));
     csv << "t_s,x_mm,y_mm,z_mm\n";
-    for (int i = 0; i <= static_cast<int>(end_s * 100) + 100; ++i) {
+    for (int i = 0; i <= 100 * 600; i += i < 200 ? 1 : 100) {  // then held for ten minutes
       const double t = i * 0.01;
       const double a = t < 1.0 ? 0.5 - 0.5 * std::cos(M_PI * t) : 1.0;  // 10 mm above → 3 mm below in 1 s
       csv << t << ",0,0," << 10.0 + a * (-3.0 - 10.0) << "\n";
     }
   }
-  auto rt = fx.start_rt({"--trajectory", fx.path("press.csv"), "--stiffness", std::to_string(kStiffness)});
+  auto rt = fx.start_rt({"--trajectory", fx.path("press.csv"), "--stiffness", std::to_string(kStiffness), "--viz-timeout-ms",
+                         "10000", "--stale-patch-ms", "10000"});
   ASSERT_TRUE(rt->running());
-  std::this_thread::sleep_for(std::chrono::duration<double>(viz_delay_s));
-  auto viz = fx.start_viz({"--duration", std::to_string(hold_s), "--trace", fx.path("trace.csv"), "--stats", fx.path("viz.json")});
-  const auto vs = viz->wait_exit(60s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(fx.path("viz.log"));
-  rt->signal(SIGTERM);
-  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  bool ok = false;
+  if (pressed_first) {
+    (void)fx.wait_status([](const RtStatus& st) { return st.tool.z < -0.0025; }, ok);
+    ASSERT_TRUE(ok) << "the scripted hand never pressed in";
+  }
+  auto viz = fx.start_viz({"--duration", "600", "--trace", fx.path("trace.csv"), "--stats", fx.path("viz.json")});
+  // Held: from the first contact, hold_s of ticks applied by the viz (so all of them are traced).
+  const RtStatus contact = fx.wait_status([](const RtStatus& st) { return st.contact != 0; }, ok);
+  ASSERT_TRUE(ok) << "no contact at all\n" << read_file(fx.path("viz.log"));
+  const auto hold_ticks = static_cast<std::uint64_t>(hold_s * 1000);
+  ASSERT_TRUE(test::eventually([&] { return fx.viz_applied() >= contact.tick + hold_ticks; }, std::chrono::seconds(180)))
+      << read_file(fx.path("viz.log"));
+  fx.stop_viz(*viz);
+  fx.stop_rt(*rt);
 
   // How deep the proxy sphere (radius 1 mm, HapticParams::proxy_radius) centred on the tool point
   // reaches into the tissue block's rest surface (surface/placeholder_mesh: a·sin(x/L)·cos(y/L),
@@ -192,38 +251,38 @@ void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
     const double gx = a / L * std::cos(x / L) * std::cos(y / L), gy = -a / L * std::sin(x / L) * std::sin(y / L);
     return (h - z) / std::sqrt(1 + gx * gx + gy * gy) + kProxyRadius;
   };
-  double first_t = -1, contact_t = -1, last_t = 0, worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0;
-  std::size_t checked = 0, free_after_contact = 0, faded = 0;
+  constexpr std::size_t kSettle = 500;  // ticks after contact while the hand settles against the tissue
+  std::size_t rows = 0, since_contact = 0, checked = 0, free_after_contact = 0, faded = 0;
+  double worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0, contact_t = -1;
+  int first_patch_stage = -1;
   for (const TraceRow& r : read_trace(fx.path("trace.csv"))) {
-    const double t = r.t;
-    const int stage = r.stage;
+    ++rows;
     const double d = depth_m(r.tool.x * 1e-3, r.tool.y * 1e-3, r.tool.z * 1e-3);
-    if (first_t < 0) first_t = t;
-    last_t = t;
+    if (first_patch_stage < 0 && r.patch_version != 0) first_patch_stage = r.stage;
     if (contact_t < 0) {
-      if (stage != 0) contact_t = t, depth_at_contact = d;
+      if (r.stage != 0) contact_t = r.t, depth_at_contact = d;
       continue;
     }
-    if (t - contact_t < 0.5) continue;  // the hand settles against the tissue
-    if (stage == 0) ++free_after_contact;
+    if (++since_contact < kSettle) continue;
+    if (r.stage == 0) ++free_after_contact;
     if ((r.events & event::kForceFaded) != 0) {
-      ++faded;  // the safety's fade: the viz stalled past --viz-timeout-ms (a sanitizer build does)
+      ++faded;
       continue;
     }
     const double f = norm(r.force);
     const double err = std::abs(f - kStiffness * d) / (kStiffness * d);
-    if (err > worst) worst = err, worst_t = t - contact_t;
+    if (err > worst) worst = err, worst_t = r.t - contact_t;
     min_depth = std::min(min_depth, d);
     ++checked;
   }
-  ASSERT_GE(contact_t, 0) << "no contact at all\n" << read_file(fx.path("viz.log"));
-  if (viz_delay_s > 0) {
+  ASSERT_GE(contact_t, 0) << "no contact in the trace (" << rows << " rows)\n" << read_file(fx.path("viz.log"));
+  if (pressed_first) {
     EXPECT_GT(depth_at_contact, 0.003) << "the stylus was already pressed in when the tissue appeared";
-    EXPECT_LT(contact_t - first_t, 1.0) << "contact within a second of the first patch";
+    EXPECT_NE(first_patch_stage, 0) << "the first tick with a patch is in contact: the stylus is pushed out at once";
   }
-  EXPECT_GT(last_t - contact_t, hold_s - 1.5) << "the trace must cover the whole hold";
-  EXPECT_GT(static_cast<double>(checked), (hold_s - 2.0) * 900) << "ticks checked (1 kHz for the hold)";
-  EXPECT_LT(static_cast<double>(faded), 0.1 * static_cast<double>(checked)) << "ticks faded because the viz stalled";
+  EXPECT_GE(since_contact + 1, hold_ticks) << "the trace holds every tick of the hold";
+  EXPECT_GE(checked + faded, hold_ticks - kSettle);
+  EXPECT_EQ(faded, 0u) << "ticks faded (the fades' timeouts are 10 s here)";
   EXPECT_EQ(free_after_contact, 0u) << "ticks without contact while the stylus is held below the surface";
   EXPECT_GT(min_depth, 0.002) << "the stylus stays well below the surface";
   EXPECT_LT(worst, 0.10) << "force against k·depth, worst " << worst * 100 << " % at " << worst_t << " s after contact";
@@ -231,9 +290,9 @@ void held_press_is_felt(TwoProcess& fx, double viz_delay_s, double hold_s) {
   EXPECT_EQ(json_number(viz_stats, "lost").value_or(-1), 0) << viz_stats;
 }
 
-TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_press_is_felt(*this, 0, 7); }
+TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_press_is_felt(*this, false, 7); }
 
-TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, 2.0, 4); }
+TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, true, 4); }
 
 // The drill: every patch carries the voxel brick around the tool, lancet-rt's drill passes the
 // soft tissue, stops at the bone and removes it voxel by voxel as the hand presses on; lancet-viz
@@ -251,19 +310,15 @@ void drill_meets_bone(TwoProcess& fx, const std::string& tissue, double y_mm, do
       csv << t << ",0," << y_mm << "," << 10.0 + a * (target - 10.0) << "\n";
     }
   }
-  // The viz first: building the phantom takes seconds in a sanitizer build, and the hand must not
-  // be in the bone before the first brick comes (a drill that starts inside bone is not pushed out).
-  auto viz = fx.start_viz({"--duration", "7", "--tissue", tissue, "--tool", "drill", "--trace", fx.path("trace.csv"), "--stats",
+  // The hand must not be in the bone before the first brick comes (a drill that starts inside bone
+  // is not pushed out): its trajectory starts with the tissue. It runs 9 s; the viz applies them all.
+  auto viz = fx.start_viz({"--duration", "600", "--tissue", tissue, "--tool", "drill", "--trace", fx.path("trace.csv"), "--stats",
                            fx.path("viz.json")});
-  for (int i = 0; i < 600 && read_file(fx.path("viz.log")).find("is lancet-rt running?") == std::string::npos; ++i)
-    std::this_thread::sleep_for(100ms);
-  auto rt = fx.start_rt({"--trajectory", fx.path("drill.csv")});
+  auto rt = fx.start_rt({"--trajectory", fx.path("drill.csv"), "--script-waits-for-tissue"});
   ASSERT_TRUE(rt->running());
-  const auto vs = viz->wait_exit(90s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(fx.path("viz.log"));
-  rt->signal(SIGTERM);
-  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  ASSERT_TRUE(fx.wait_viz_applied_after_tissue(9'100)) << read_file(fx.path("viz.log"));
+  fx.stop_viz(*viz);
+  fx.stop_rt(*rt);
 
   double first_contact_z = 1, deepest_proxy = 1, max_force = 0, tool_at_contact = 0;
   std::size_t drilling = 0, removals = 0;
@@ -303,21 +358,16 @@ TEST_F(TwoProcess, TheDrillStopsAtTheBlocksBonePlate) { drill_meets_bone(*this, 
 // incision and pulls it open; the swab sweeps the opening. Measured on the viz's mesh: one cut, its
 // length, its opening; and the blood: it bled, the swab took some, the ledger held.
 TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
-  // As ./lancet demo runs it: lancet-viz on the skin-incision scenario first (building the
-  // phantom's scene takes a while), then lancet-rt with the scripted hand once the viz waits.
+  // As ./lancet demo runs it: lancet-viz on the skin-incision scenario, lancet-rt with the scripted
+  // hand, whose 14 s script starts with the tissue; the viz applies all of it.
   auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml", "--tool",
-                        "none", "--duration", "12", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
+                        "none", "--duration", "600", "--trace", path("trace.csv"), "--stats", path("viz.json"), "--screenshot",
                         path("demo.png")});
-  for (int i = 0; i < 600 && read_file(path("viz.log")).find("does not exist") == std::string::npos; ++i)
-    std::this_thread::sleep_for(100ms);
-  ASSERT_NE(read_file(path("viz.log")).find("does not exist"), std::string::npos) << read_file(path("viz.log"));
-  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/demo_incision.csv"});
+  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/demo_incision.csv", "--script-waits-for-tissue"});
   ASSERT_TRUE(rt->running());
-  const auto vs = viz->wait_exit(90s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
-  rt->signal(SIGTERM);
-  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+  ASSERT_TRUE(wait_viz_applied_after_tissue(14'100)) << read_file(path("viz.log"));
+  stop_viz(*viz);
+  stop_rt(*rt);
   std::size_t ruptures = 0, cutting = 0, pulls = 0;
   for (const TraceRow& r : read_trace(path("trace.csv"))) {
     ruptures += (r.events & event::kRupture) != 0 ? 1 : 0;
@@ -355,18 +405,15 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
 // The bone-drilling scenario with a scripted drill: the burr stops at the exposed bone, lancet-rt
 // removes the cortex under it, and the viz carves what it reports into the scene's volume and
 // counts it against the window.
+constexpr std::uint64_t kDrillWindowMs = 9'000;  // docs/examples/drill_window.csv's length
 TEST_F(TwoProcess, TheDrillingScenarioRemovesBoneInTheWindow) {
   auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/bone_drilling.toml", "--tool",
-                        "none", "--duration", "8", "--stats", path("viz.json"), "--screenshot", path("drill.png")});
-  for (int i = 0; i < 600 && read_file(path("viz.log")).find("does not exist") == std::string::npos; ++i)
-    std::this_thread::sleep_for(100ms);
-  ASSERT_NE(read_file(path("viz.log")).find("does not exist"), std::string::npos) << read_file(path("viz.log"));
-  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/drill_window.csv"});
-  const auto vs = viz->wait_exit(90s);
-  ASSERT_TRUE(vs.has_value()) << "lancet-viz did not finish";
-  ASSERT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
-  rt->signal(SIGTERM);
-  ASSERT_TRUE(rt->wait_exit(10s).has_value());
+                        "none", "--duration", "600", "--stats", path("viz.json"), "--screenshot", path("drill.png")});
+  auto rt = start_rt({"--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/drill_window.csv", "--script-waits-for-tissue"});
+  ASSERT_TRUE(rt->running());
+  ASSERT_TRUE(wait_viz_applied_after_tissue(kDrillWindowMs)) << read_file(path("viz.log"));
+  stop_viz(*viz);
+  stop_rt(*rt);
   const std::string stats = read_file(path("viz.json"));
   std::printf("[ info     ] drilling scenario: %s removals, %s voxels, window %s%% done\n",
               std::to_string(json_number(stats, "drill_removals").value_or(-1)).c_str(),
@@ -419,58 +466,69 @@ TEST_F(TwoProcess, EveryShippedScenarioRuns) {
 
 TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto rt = start_rt();
-  auto ch = SharedChannel::open(shm_);
-  ASSERT_TRUE(ch) << ch.error().message;
-  SharedState& s = ch.value().state();
-  auto viz = start_viz({});
+  auto viz = start_viz({"--duration", "600"});
   bool ok = false;
-  const RtStatus pressing = wait_status(
-      s, [](const RtStatus& st) { return st.viz_alive && st.contact && st.force_scale == 1.0 && norm(st.force) > 0.2; },
-      20s, ok);
-  ASSERT_TRUE(ok) << "no contact force within 20 s; last force " << norm(pressing.force) << "\n"
+  const RtStatus pressing =
+      wait_status([](const RtStatus& st) { return st.viz_alive && st.contact && st.force_scale == 1.0 && norm(st.force) > 0.2; }, ok);
+  ASSERT_TRUE(ok) << "no contact force; last force " << norm(pressing.force) << "\n"
                   << read_file(path("viz.log")) << read_file(path("rt.log"));
 
   viz->signal(SIGKILL);
-  ASSERT_TRUE(viz->wait_exit(5s).has_value());
-  const RtStatus faded = wait_status(
-      s, [](const RtStatus& st) { return !st.viz_alive && st.force_zero_ns != 0; }, 5s, ok);
+  ASSERT_TRUE(viz->wait_exit(30s).has_value());
+  const RtStatus faded = wait_status([](const RtStatus& st) { return !st.viz_alive && st.force_zero_ns != 0; }, ok);
   ASSERT_TRUE(ok) << "force never reached zero after the viz was killed";
   EXPECT_EQ(faded.force, Vec3{});
   // Measured on lancet-rt's own clock: from the viz's last heartbeat to the first zero-force tick.
+  // Not before the timeout; by timeout + fade, give or take the gaps between the servo's ticks (the
+  // fade counts the servo's time, so a host that stalls the loop delays zero force by the stall
+  // at most: force_fade.hpp).
   const double ms = static_cast<double>(faded.force_zero_ns - faded.viz_last_beat_ns) / 1e6;
+  const double gap_ms = std::max(1.0, static_cast<double>(faded.longest_stall_ns) / 1e6);
   EXPECT_GT(ms, kTimeoutMs - 1) << "the force must not drop before the timeout";
-  EXPECT_LE(ms, kTimeoutMs + kFadeMs + 2.0);
+  EXPECT_LE(ms, kTimeoutMs + kFadeMs + 2 * gap_ms + 1.0) << "the longest gap between ticks was " << gap_ms << " ms";
 
   // lancet-rt keeps running, at zero force.
   const std::uint64_t tick = faded.tick;
-  const RtStatus later = wait_status(s, [tick](const RtStatus& st) { return st.tick > tick + 200; }, 5s, ok);
+  const RtStatus later = wait_status([tick](const RtStatus& st) { return st.tick > tick + 200; }, ok);
   ASSERT_TRUE(ok);
   EXPECT_EQ(later.force, Vec3{});
   EXPECT_TRUE(rt->running());
-  rt->signal(SIGTERM);
-  const auto rs = rt->wait_exit(10s);
-  ASSERT_TRUE(rs.has_value());
-  EXPECT_TRUE(WIFEXITED(*rs) && WEXITSTATUS(*rs) == 0);
+  stop_rt(*rt);
 }
 
 TEST_F(TwoProcess, VizSurvivesRtGoingAwayAndSaysSo) {
   auto rt = start_rt();
-  auto ch = SharedChannel::open(shm_);
-  ASSERT_TRUE(ch) << ch.error().message;
-  auto viz = start_viz({"--duration", "4", "--stats", path("viz.json"), "--screenshot", path("lost.png")});
+  auto viz = start_viz({"--duration", "600", "--stats", path("viz.json"), "--screenshot", path("lost.png")});
   bool ok = false;
-  (void)wait_status(ch.value().state(), [](const RtStatus& st) { return st.viz_alive != 0; }, 20s, ok);
+  (void)wait_status([](const RtStatus& st) { return st.viz_alive != 0; }, ok);
   ASSERT_TRUE(ok) << read_file(path("viz.log"));
   rt->signal(SIGKILL);
-  ASSERT_TRUE(rt->wait_exit(5s).has_value());
-
-  const auto vs = viz->wait_exit(60s);
-  ASSERT_TRUE(vs.has_value());
-  EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  ASSERT_TRUE(rt->wait_exit(30s).has_value());
+  ASSERT_TRUE(test::eventually([&] { return read_file(path("viz.log")).find("lancet-rt is not running") != std::string::npos; }))
+      << read_file(path("viz.log"));
+  EXPECT_TRUE(viz->running()) << "lancet-viz keeps running without lancet-rt";
+  stop_viz(*viz);
   const std::string v = read_file(path("viz.json"));
   EXPECT_EQ(json_number(v, "rt_losses").value_or(0), 1) << v;
   EXPECT_NE(v.find("\"link\": \"lost\""), std::string::npos) << v;
-  EXPECT_NE(read_file(path("viz.log")).find("lancet-rt is not running"), std::string::npos) << read_file(path("viz.log"));
+}
+
+// Ctrl-C right after launching ends lancet-viz, also while it is still building its tissue and
+// when it was started in the background, where the shell leaves SIGINT ignored (a soak found it
+// ignored there until the viz installed its handler, after the build).
+TEST_F(TwoProcess, ASigintWhileTheVizBuildsItsTissueEndsIt) {
+  struct sigaction ignore {}, old {};
+  ignore.sa_handler = SIG_IGN;
+  sigemptyset(&ignore.sa_mask);
+  ASSERT_EQ(sigaction(SIGINT, &ignore, &old), 0);
+  auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml", "--duration", "600"});
+  sigaction(SIGINT, &old, nullptr);
+  ASSERT_TRUE(test::eventually([&] { return read_file(path("viz.log")).find("building the tissue") != std::string::npos; }))
+      << read_file(path("viz.log"));
+  viz->signal(SIGINT);  // during the build (the phantom's skin takes a while), or at the latest its first frame
+  const auto vs = viz->wait_exit(120s);
+  ASSERT_TRUE(vs.has_value()) << "SIGINT during start-up was lost: lancet-viz runs on\n" << read_file(path("viz.log"));
+  EXPECT_TRUE(WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
 }
 
 TEST_F(TwoProcess, MismatchedPeerIsRefusedWithBothHashes) {

@@ -6,12 +6,15 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <span>
 #include <string>
+#include <vector>
 
 #include "synthetic_recording.hpp"
 #include "../../support/wait.hpp"  // tests/support (this target does not link lancet::test_headers)
@@ -44,9 +47,12 @@ Recording sample_recording() {
   r.servo_hash_every = 100;
   r.scene_hash_every = 30;
   r.servo_model.layout = 42, r.servo_model.size = 3, r.servo_model.bytes[2] = 9;
-  r.first_patch.n_triangles = 5;
-  r.first_patch.triangles[4].v[1].y = 0.25f;
-  r.first_patch_version = 11;
+  r.first_patches.resize(2);
+  r.first_patches[0].n_triangles = 5;
+  r.first_patches[0].triangles[4].v[1].y = 0.25f;
+  r.first_patches[1].n_triangles = 7;
+  r.first_patches[1].triangles[6].v[2].z = -0.5f;
+  r.first_patch_versions = {10, 11};
   for (std::uint64_t k = 0; k < 150; ++k) {
     FrameRecord f;
     f.frame = k;
@@ -85,8 +91,12 @@ TEST(Hdf5Io, ARecordingReadsBackBitIdentical) {
   EXPECT_EQ(b.layout_hash, r.layout_hash);
   EXPECT_EQ(b.servo_hash_every, 100u);
   EXPECT_EQ(std::memcmp(&b.servo_model, &r.servo_model, sizeof r.servo_model), 0);
-  EXPECT_EQ(b.first_patch.triangles[4].v[1].y, 0.25f);
-  EXPECT_EQ(b.first_patch_version, 11u);
+  ASSERT_EQ(b.first_patches.size(), 2u);
+  EXPECT_EQ(b.first_patches[0].triangles[4].v[1].y, 0.25f);
+  EXPECT_EQ(b.first_patches[1].n_triangles, 7u);
+  EXPECT_EQ(b.first_patches[1].triangles[6].v[2].z, -0.5f);
+  EXPECT_EQ(b.first_patch_versions, (std::vector<std::uint64_t>{10, 11}));
+  EXPECT_FALSE(b.cut_short);
   ASSERT_EQ(b.samples.size(), r.samples.size());
   for (std::size_t i = 0; i < r.samples.size(); ++i) {
     // Every named field (padding aside): compare field by field through the bytes of the members.
@@ -156,26 +166,55 @@ TEST(Hdf5Io, ABrokenFileGetsAClearError) {
   r = read_recording(temp_path("absent.h5"));
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, ErrorCode::kNotFound);
-  // A recorder that never finished (the process died): said so. A child records, waits until its
-  // samples are flushed to the file and dies there, as a crashed lancet-viz would: no finish(), no
-  // destructor, and nobody writing the file while it is read.
+  for (const auto& p : {path, cut, garbage}) std::filesystem::remove(p);
+}
+
+// A recorder that never finished (lancet-viz killed, the power lost) leaves a file that reads up
+// to its last flush, marked cut short. A child records, waits until its rows are flushed to the
+// file, and is killed (SIGKILL: no finish(), no destructor, the file still marked open for writing
+// by its SWMR writer) while it goes on recording; the parent reads what is there.
+TEST(Hdf5Io, ARecordingCutShortReadsUpToItsLastFlush) {
   const std::string unfinished = temp_path("unfinished.h5");
+  const Recording whole = sample_recording();
+  int ready[2];
+  ASSERT_EQ(::pipe(ready), 0);
   const pid_t child = ::fork();
   ASSERT_GE(child, 0);
   if (child == 0) {
-    auto rec = Recorder::create(unfinished, sample_recording());
+    ::close(ready[0]);
+    auto rec = Recorder::create(unfinished, whole);
     if (!rec.ok()) ::_exit(2);
-    rec.value()->add_samples(std::span<const ToolSample>(sample_recording().samples).first(100));
+    for (std::size_t k = 0; k < 8; ++k) rec.value()->add_frame(whole.frames[k]);  // last_seq 16 .. 128
+    rec.value()->add_event(whole.events[0]);
+    rec.value()->add_samples(std::span<const ToolSample>(whole.samples).first(100));
     if (!lancet::test::eventually([&] { return rec.value()->samples_flushed() == 100; })) ::_exit(3);
-    ::_exit(0);
+    (void)!::write(ready[1], "f", 1);
+    // Recording on, as a viz would, until it is killed.
+    for (std::size_t i = 100;; ++i) {
+      if (i < whole.samples.size()) rec.value()->add_samples(std::span<const ToolSample>(whole.samples).subspan(i, 1));
+      ::usleep(100);
+    }
   }
+  ::close(ready[1]);
+  char c = 0;
+  ASSERT_EQ(::read(ready[0], &c, 1), 1) << "the recording child failed before its first flush";
+  ::close(ready[0]);
+  ::kill(child, SIGKILL);
   int status = 0;
   ASSERT_EQ(::waitpid(child, &status, 0), child);
-  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "the recording child failed, status " << status;
-  r = read_recording(unfinished);
-  ASSERT_FALSE(r.ok());
-  EXPECT_NE(r.error().message.find("not finished"), std::string::npos) << r.error().message;
-  for (const auto& p : {path, cut, garbage, unfinished}) std::filesystem::remove(p);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the recording child ended by itself, status " << status;
+  auto r = read_recording(unfinished);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Recording& b = r.value();
+  EXPECT_TRUE(b.cut_short);
+  ASSERT_GE(b.samples.size(), 100u) << "rows flushed before the kill are missing";
+  for (std::size_t i = 0; i < 100; ++i) ASSERT_EQ(b.samples[i].seq, whole.samples[i].seq);
+  // Frames that applied ticks the file does not hold are dropped; the others are there.
+  ASSERT_FALSE(b.frames.empty());
+  EXPECT_LE(b.frames.back().last_seq, b.samples.back().seq);
+  EXPECT_GE(b.frames.size(), 6u) << "frames up to tick 96 were flushed with the first 100 ticks";
+  EXPECT_EQ(b.first_patches.size(), 2u);
+  std::filesystem::remove(unfinished);
 }
 
 // h5py, an independent reader (the one users have), reads the rows by name with their units.

@@ -28,10 +28,12 @@ namespace lancet {
 /// 8: TissuePatch holds 16384 triangles, each with its surface face id; the brick before the
 ///    triangles, and only the triangles in use are copied.
 /// 9: the TissuePatch travels in a TripleBuffer (no reader is turned away by a busy writer);
-///    SegmentHealth::patches_unreadable.
+///    SegmentHealth::patches_unreadable; a 16 s sample ring.
 inline constexpr std::uint64_t kProtocolVersion = 9;
-/// 4096 ToolSamples = 4 s of ticks at 1 kHz: the viz may stall that long without loss.
-inline constexpr std::size_t kSampleRingCapacity = 4096;
+/// 16384 ToolSamples = 16 s of ticks at 1 kHz (7 MB): the viz may stall that long without loss (a
+/// laptop swapping, a debugger's breakpoint). A longer stall loses ticks: a recording marks the gap
+/// and its replay checks the servo up to it (record/replay.hpp).
+inline constexpr std::size_t kSampleRingCapacity = 16384;
 inline constexpr std::size_t kCommandRingCapacity = 256;
 /// Default segment name; processes take --shm to use another.
 inline constexpr const char* kDefaultShmName = "/lancet";
