@@ -16,6 +16,7 @@
 #include "lancet/shared_model/shared_state.hpp"
 #include "lancet/shared_model/validate.hpp"
 #include "process_test.hpp"  // tests/support
+#include "wait.hpp"          // tests/support
 
 namespace lancet {
 namespace {
@@ -40,7 +41,7 @@ class RtRobustness : public test::ProcessTest {
     std::vector<std::string> argv{kRt, "--shm", shm_, "-q", "--no-rt", "--stats", path("rt.json")};
     argv.insert(argv.end(), extra.begin(), extra.end());
     auto rt = std::make_unique<Child>(argv, path("rt.log"));
-    for (int i = 0; i < 500 && !SharedChannel::open(shm_); ++i) std::this_thread::sleep_for(10ms);
+    EXPECT_TRUE(test::eventually([&] { return SharedChannel::open(shm_).ok(); })) << read_file(path("rt.log"));
     return rt;
   }
   /// The newest status that passes the checks (lancet-rt's tick counter), or 0.
@@ -57,14 +58,16 @@ TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegme
     std::filesystem::remove(path("rt.json"));
     auto rt = start_rt({});
     ASSERT_TRUE(segment_exists());
-    std::this_thread::sleep_for(300ms);
-    const auto t0 = std::chrono::steady_clock::now();
+    auto ch = SharedChannel::open(shm_);
+    ASSERT_TRUE(ch.ok()) << ch.error().message;
+    ASSERT_TRUE(test::eventually([&] { return tick_of(ch.value().state()) > 0; })) << "lancet-rt never ticked";
     rt->signal(sig);
-    const auto st = rt->wait_exit(5s);
-    ASSERT_TRUE(st.has_value()) << "still running 5 s after " << name << "\n" << read_file(path("rt.log"));
-    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    EXPECT_LT(took, 2.0) << "bounded: the loop ends at its next tick";
+    const auto st = rt->wait_exit(60s);
+    ASSERT_TRUE(st.has_value()) << "still running a minute after " << name << "\n" << read_file(path("rt.log"));
+    // Promptly: the servo thread stopped at its next tick, within the shutdown grace (had it not,
+    // lancet-rt would have left without it: exit 4, clean_exit false).
     EXPECT_TRUE(WIFEXITED(*st) && WEXITSTATUS(*st) == 0) << read_file(path("rt.log"));
+    EXPECT_EQ(read_file(path("rt.log")).find("did not stop within"), std::string::npos) << read_file(path("rt.log"));
     const std::string stats = read_file(path("rt.json"));
     EXPECT_NE(stats.find(std::string("\"ended_by\": \"") + name + "\""), std::string::npos) << stats;
     EXPECT_NE(stats.find("\"clean_exit\": true"), std::string::npos) << stats;
@@ -73,12 +76,12 @@ TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegme
 }
 
 TEST_F(RtRobustness, AServoThreadThatStopsTickingEndsTheProcessWithinABoundedTime) {
+  // Bounded by construction: the supervisor declares the stall after 300 ms without a tick, and
+  // leaves without the stuck thread after a 300 ms grace; the log and the exit status show that
+  // this path, and no other, ended it.
   auto rt = start_rt({"--inject-stall-s", "0.5", "--stall-timeout-ms", "300", "--shutdown-grace-ms", "300"});
-  const auto t0 = std::chrono::steady_clock::now();
-  const auto st = rt->wait_exit(10s);
+  const auto st = rt->wait_exit(60s);
   ASSERT_TRUE(st.has_value()) << "a stalled servo must not keep lancet-rt alive\n" << read_file(path("rt.log"));
-  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  EXPECT_LT(took, 0.5 + 0.3 + 0.3 + 2.0) << "stall + timeout + grace, with room for a loaded machine";
   ASSERT_TRUE(WIFEXITED(*st)) << read_file(path("rt.log"));
   EXPECT_EQ(WEXITSTATUS(*st), 4) << "left without the stuck thread\n" << read_file(path("rt.log"));
   const std::string log = read_file(path("rt.log"));
@@ -87,29 +90,28 @@ TEST_F(RtRobustness, AServoThreadThatStopsTickingEndsTheProcessWithinABoundedTim
   const std::string stats = read_file(path("rt.json"));
   EXPECT_NE(stats.find("\"ended_by\": \"stall\""), std::string::npos) << stats;
   EXPECT_NE(stats.find("\"clean_exit\": false"), std::string::npos) << stats;
-  EXPECT_GT(json_number(stats, "ticks").value_or(0), 100) << stats;
+  EXPECT_GT(json_number(stats, "ticks").value_or(0), 0) << "it ticked until the stall\n" << stats;
   EXPECT_FALSE(segment_exists()) << "the segment must be removed even then";
 }
 
 TEST_F(RtRobustness, EightBytesIntoARingIndexAreCountedAndTheServoTicksOnToItsDuration) {
-  auto rt = start_rt({"--duration", "3"});
+  auto rt = start_rt({"--duration", "5"});
   auto ch = SharedChannel::open(shm_);
   ASSERT_TRUE(ch.ok()) << ch.error().message;
   SharedState& s = ch.value().state();
-  std::this_thread::sleep_for(300ms);
+  ASSERT_TRUE(test::eventually([&] { return tick_of(s) > 0; })) << "lancet-rt never ticked";
   // The attack from the report: eight bytes into the producer index of the command ring.
   auto* ring = reinterpret_cast<unsigned char*>(&s.commands);
   const std::uint64_t garbage = 0x4141414141414141ull;
   std::memcpy(ring + s.commands.head_offset(), &garbage, sizeof garbage);
   const std::uint64_t before = tick_of(s);
-  std::this_thread::sleep_for(500ms);
-  const std::uint64_t after = tick_of(s);
-  EXPECT_GT(after, before + 100) << "the servo keeps ticking (it used to spin in the command drain for good)";
+  EXPECT_TRUE(test::eventually([&] { return tick_of(s) > before + 100; }))
+      << "the servo keeps ticking (it used to spin in the command drain for good)";
   // And again, the other way round: the consumer's index far ahead.
   std::memcpy(ring + s.commands.tail_offset(), &garbage, sizeof garbage);
   std::memcpy(ring + s.commands.head_offset(), &before, sizeof before);
-  const auto st = rt->wait_exit(8s);
-  ASSERT_TRUE(st.has_value()) << "--duration 3 must be honoured\n" << read_file(path("rt.log"));
+  const auto st = rt->wait_exit(60s);
+  ASSERT_TRUE(st.has_value()) << "--duration 5 must be honoured\n" << read_file(path("rt.log"));
   EXPECT_TRUE(WIFEXITED(*st) && WEXITSTATUS(*st) == 0) << read_file(path("rt.log"));
   const std::string stats = read_file(path("rt.json"));
   EXPECT_GE(json_number(stats, "ring_resets").value_or(0), 1) << stats;
