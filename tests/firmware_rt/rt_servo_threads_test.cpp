@@ -25,14 +25,16 @@ namespace lancet::app {
 namespace {
 
 // The simulated arm behind a device whose re-arm (the supervisor's side, not real-time) waits,
-// before it re-arms the arm, until `release()` says so, and which counts any read or write that
-// arrives meanwhile (the servo must keep off a device it has granted away).
+// before it re-arms the arm, until `progress()` has grown by `hold` since the re-arm began (or
+// `abandon()` says the other side gave up), and which counts any read or write that arrives
+// meanwhile (the servo must keep off a device it has granted away).
 class GatedArm final : public device::Device {
  public:
-  GatedArm(device::SimArm& arm, std::function<bool()> release)
-      : Device("gated " + arm.name()), arm_(arm), release_(std::move(release)) {}
+  GatedArm(device::SimArm& arm, std::function<std::uint64_t()> progress, std::uint64_t hold, std::function<bool()> abandon)
+      : Device("gated " + arm.name()), arm_(arm), progress_(std::move(progress)), hold_(hold), abandon_(std::move(abandon)) {}
   [[nodiscard]] int joint_count() const noexcept override { return arm_.joint_count(); }
   void steer_hand(Vec3 target) noexcept override { arm_.steer_hand(target); }
+  [[nodiscard]] std::uint64_t rearms_held() const noexcept { return held_.load(); }
   [[nodiscard]] std::uint64_t touched_while_rearming() const noexcept { return touched_.load(); }
   [[nodiscard]] std::uint64_t releases_missed() const noexcept { return releases_missed_.load(); }
 
@@ -42,7 +44,12 @@ class GatedArm final : public device::Device {
   Result<void> on_deactivate() override { return arm_.deactivate(); }
   Result<void> on_rearm() override {
     rearming_.store(true);
-    if (!test::eventually(release_)) releases_missed_.fetch_add(1);
+    const std::uint64_t from = progress_();
+    if (test::eventually([&] { return progress_() >= from + hold_ || abandon_(); })) {
+      if (progress_() >= from + hold_) held_.fetch_add(1);
+    } else {
+      releases_missed_.fetch_add(1);
+    }
     rearming_.store(false);
     return arm_.rearm();
   }
@@ -61,9 +68,11 @@ class GatedArm final : public device::Device {
 
  private:
   device::SimArm& arm_;
-  std::function<bool()> release_;
+  std::function<std::uint64_t()> progress_;
+  std::uint64_t hold_;
+  std::function<bool()> abandon_;
   std::atomic<bool> rearming_{false};
-  std::atomic<std::uint64_t> touched_{0}, releases_missed_{0};
+  std::atomic<std::uint64_t> held_{0}, touched_{0}, releases_missed_{0};
 };
 
 TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
@@ -77,11 +86,9 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   // away (or the servo thread has given up: a hang, reported below).
   constexpr std::uint64_t kTicksHeld = 5;
   std::atomic<bool> done{false};
-  std::atomic<std::uint64_t> ticks_while_granted{0}, ticks_at_rearm{0};
-  std::atomic<int> rearms_started{0};
-  GatedArm gated(*arm, [&] {
-    return done.load() || ticks_while_granted.load() >= ticks_at_rearm.load() + kTicksHeld;
-  });
+  std::atomic<std::uint64_t> ticks_while_granted{0};
+  GatedArm gated(
+      *arm, [&] { return ticks_while_granted.load(); }, kTicksHeld, [&] { return done.load(); });
   ASSERT_TRUE(gated.configure().ok());
   ASSERT_TRUE(gated.activate().ok());
   RtModel model;
@@ -139,11 +146,6 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   });
   std::uint64_t jobs = 0;
   while (!done.load()) {
-    // The servo grants the device; the re-arm this call makes (under the gate) starts counting now.
-    if (servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kGranted)) {
-      ticks_at_rearm.store(ticks_while_granted.load());
-      rearms_started.fetch_add(1);
-    }
     if (servo.supervise()) ++jobs;
     std::this_thread::yield();
   }
@@ -156,7 +158,7 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
   EXPECT_EQ(gated.state(), device::Lifecycle::kActive);
   EXPECT_EQ(gated.releases_missed(), 0u) << "a re-arm waited in vain for the servo to tick on while it held the device";
   EXPECT_EQ(gated.touched_while_rearming(), 0u) << "the servo read or wrote the device during the supervisor's re-arm";
-  EXPECT_EQ(rearms_started.load(), kFaults);
+  EXPECT_EQ(gated.rearms_held(), static_cast<std::uint64_t>(kFaults)) << "every re-arm held the device while the servo ticked";
   EXPECT_GE(ticks_while_granted.load(), kFaults * kTicksHeld) << "the servo ticked on while the supervisor held the device";
 }
 
