@@ -1,5 +1,7 @@
 #include "tools/bringup.hpp"
 
+#include "lancet/shared_model/text.hpp"
+
 #include <libusb.h>
 
 #include <algorithm>
@@ -230,7 +232,47 @@ std::optional<RtStatus> read_rt_status(const SharedState& shared, double wait_s,
 
 }  // namespace
 
-int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out) {
+namespace {
+std::string fmt_num(const char* f, double v) {
+  char b[64];
+  std::snprintf(b, sizeof b, f, v);
+  return b;
+}
+// One status as a JSON object on one line (lancetctl monitor --rt --json): what a test rig or a
+// soak reads; every text was checked (wire::check) and is printed escaped.
+void print_status_json(std::FILE* out, double t, int pid, const RtStatus& st) {
+  const auto num = [](double v) { return std::isfinite(v) ? fmt_num("%.9g", v) : std::string("null"); };
+  const auto u = [](std::uint64_t v) { return std::to_string(v); };
+  const SegmentHealth& h = st.health;
+  std::string j = "{\"t_s\": " + fmt_num("%.3f", t) + ", \"pid\": " + std::to_string(pid) + ", \"alive\": true, \"tick\": " + u(st.tick);
+  j += ", \"t_ns\": " + std::to_string(st.t_ns);
+  j += ", \"force_n\": [" + num(st.force.x) + ", " + num(st.force.y) + ", " + num(st.force.z) + "], \"force_scale\": " + num(st.force_scale);
+  j += ", \"contact\": " + std::string(st.contact ? "true" : "false") + ", \"tool_mm\": [" + num(st.tool.x * 1e3) + ", " + num(st.tool.y * 1e3) + ", " + num(st.tool.z * 1e3) + "]";
+  j += ", \"viz_alive\": " + std::string(st.viz_alive ? "true" : "false") + ", \"patch_version\": " + u(st.patch_version);
+  j += ", \"has_arm\": " + std::string(st.has_arm ? "true" : "false");
+  j += ", \"device_state\": " + json_string(device::to_string(static_cast<device::Lifecycle>(st.device_state)));
+  j += ", \"fault_cause\": " + json_string(st.device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault)
+                                                 ? device::to_string(static_cast<device::IoStatus>(st.device_fault_cause))
+                                                 : "");
+  j += ", \"fault_text\": " + json_string(st.fault_text) + ", \"link_lost\": " + std::string(st.link_lost ? "true" : "false");
+  j += ", \"rearms\": " + u(st.rearms) + ", \"rearm_failures\": " + u(st.rearm_failures) +
+       ", \"rearm_pending\": " + std::string(st.rearm_pending ? "true" : "false") +
+       ", \"operator_requests\": " + u(st.operator_requests);
+  j += ", \"watchdog_tripped\": " + std::string(st.watchdog_tripped ? "true" : "false");
+  j += ", \"missed\": " + u(st.missed) + ", \"wake_p99_us\": " + num(static_cast<double>(st.wake_p99_ns) / 1e3);
+  j += ", \"samples_pushed\": " + u(st.samples_pushed) + ", \"samples_dropped\": " + u(st.samples_dropped);
+  j += ", \"device_errors\": " + u(st.device_errors) + ", \"bus_glitches\": " + u(st.bus.glitches) +
+       ", \"bus_timeouts\": " + u(st.bus.timeouts) + ", \"bus_protocol_errors\": " + u(st.bus.protocol_errors) +
+       ", \"bus_disconnects\": " + u(st.bus.disconnects) + ", \"bus_device_faults\": " + u(st.bus.device_faults) +
+       ", \"bus_reconnects\": " + u(st.bus.reconnects);
+  j += ", \"segment\": {\"ring_resets\": " + u(h.ring_resets) + ", \"commands_rejected\": " + u(h.commands_rejected) +
+       ", \"patches_rejected\": " + u(h.patches_rejected) + ", \"patches_unreadable\": " + u(h.patches_unreadable) +
+       ", \"targets_rejected\": " + u(h.targets_rejected) + ", \"sample_ring_resets\": " + u(h.sample_ring_resets) + "}}";
+  std::fprintf(out, "%s\n", j.c_str());
+}
+}  // namespace
+
+int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out, bool json) {
   if (!(rate_hz > 0) || !(duration_s >= 0)) {
     std::fprintf(out, "monitor: --rate must be > 0 and --duration >= 0\n");
     return 2;
@@ -253,17 +295,33 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
       // A status that stopped changing says nothing about the arm now: say that instead.
       const std::int64_t last = shared.rt_heartbeat.last_ns();
       if (last == 0 || !ch.value().segment().creator_alive()) {
-        std::fprintf(out, "%8.3f s  lancet-rt has stopped (pid %d)\n", t, ch.value().segment().creator_pid());
+        if (json) {
+          std::fprintf(out, "{\"t_s\": %.3f, \"pid\": %d, \"alive\": false, \"stopped\": true}\n", t, ch.value().segment().creator_pid());
+        } else {
+          std::fprintf(out, "%8.3f s  lancet-rt has stopped (pid %d)\n", t, ch.value().segment().creator_pid());
+        }
         std::fflush(out);
         return 1;
       }
-      std::fprintf(out, "%8.3f s  lancet-rt is NOT TICKING: last heartbeat %.0f ms ago; its last status is not the arm's state\n", t,
-                   static_cast<double>(now_ns - last) / 1e6);
+      if (json) {
+        std::fprintf(out, "{\"t_s\": %.3f, \"pid\": %d, \"alive\": false, \"heartbeat_age_ms\": %.1f}\n", t,
+                     ch.value().segment().creator_pid(), static_cast<double>(now_ns - last) / 1e6);
+      } else {
+        std::fprintf(out, "%8.3f s  lancet-rt is NOT TICKING: last heartbeat %.0f ms ago; its last status is not the arm's state\n", t,
+                     static_cast<double>(now_ns - last) / 1e6);
+      }
     } else if (r == ReadStatus::kOk) {
       // What lancet-rt wrote is checked before any of it is printed.
       if (const char* bad = wire::check(st)) {
         ++rejected;
-        std::fprintf(out, "%8.3f s  status rejected (%s); %llu so far\n", t, bad, static_cast<unsigned long long>(rejected));
+        if (json) {
+          std::fprintf(out, "{\"t_s\": %.3f, \"rejected\": %s, \"rejected_count\": %llu}\n", t, json_string(bad).c_str(),
+                       static_cast<unsigned long long>(rejected));
+        } else {
+          std::fprintf(out, "%8.3f s  status rejected (%s); %llu so far\n", t, bad, static_cast<unsigned long long>(rejected));
+        }
+      } else if (json) {
+        print_status_json(out, t, ch.value().segment().creator_pid(), st);
       } else {
         std::fprintf(out, "%8.3f s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  arm %s  errors %llu  wake p99 %.0f us%s\n",
                      t, st.tool.x * 1e3, st.tool.y * 1e3, st.tool.z * 1e3, st.force.x, st.force.y, st.force.z, st.force_scale,

@@ -21,7 +21,7 @@ int run_probe(const std::string& config_path, std::FILE* out);
 int run_monitor(const std::string& config_path, double duration_s, double rate_hz, std::FILE* out);
 /// While lancet-rt drives the arm (it owns the bus): its live status from shared memory: tool
 /// position, commanded force and fade, contact, the arm's state and error count, wake-up p99.
-int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out);
+int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, std::FILE* out, bool json = false);
 /// Re-arms a running lancet-rt's faulted arm and tripped watchdog: shows the fault, asks for
 /// "yes" on `in` unless `confirmed`, sends the request (SharedState::operator_request) and waits
 /// up to timeout_s for the outcome. 0: re-armed or nothing to do; 1: refused, failed or no

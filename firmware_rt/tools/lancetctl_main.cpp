@@ -98,6 +98,8 @@ int main(int argc, char** argv) {
       ->expected(0, 1)->default_str("/lancet");
   monitor->add_option("--duration", mon_duration, "seconds; 0 runs until interrupted")->check(CLI::NonNegativeNumber)->capture_default_str();
   monitor->add_option("--rate", mon_rate, "lines per second")->check(CLI::Range(0.1, 1000.0))->capture_default_str();
+  bool mon_json = false;
+  monitor->add_flag("--json", mon_json, "with --rt: one JSON object a line (every field of lancet-rt's status), for rigs and scripts");
   std::vector<double> home;
   bool write_cal = false;
   CLI::App* calibrate = cli.add_subcommand(
@@ -132,7 +134,7 @@ int main(int argc, char** argv) {
   if (cli.got_subcommand("list")) return lancet::tools::run_list(stdout);
   if (probe->parsed()) return lancet::tools::run_probe(config_path, stdout);
   if (monitor->parsed()) {
-    if (monitor->count("--rt") > 0) return lancet::tools::run_monitor_rt(mon_shm.empty() ? "/lancet" : mon_shm, mon_duration, mon_rate, stdout);
+    if (monitor->count("--rt") > 0) return lancet::tools::run_monitor_rt(mon_shm.empty() ? "/lancet" : mon_shm, mon_duration, mon_rate, stdout, mon_json);
     if (config_path.empty()) {
       std::fprintf(stderr, "lancetctl monitor: give the arm's config, or --rt to follow a running lancet-rt\n");
       return 2;

@@ -20,6 +20,7 @@
 #include <cstring>
 #include <ctime>
 #include <deque>
+#include <filesystem>
 #include <limits>
 #include <map>
 #include <memory>
@@ -372,6 +373,8 @@ int main(int argc, char** argv) {
   // from the tick that applied it, with a fresh scene; Stop (or the end) finishes the file.
   enum class Rec { kOff, kArmed, kWaitingReset, kOn };
   Rec rec = record_path.empty() ? Rec::kOff : Rec::kArmed;
+  int record_parts = 1;  // --record FILE: attempts recorded so far (a lancet-rt restart starts the next)
+  std::uint32_t rt_losses_recorded = 0;  // lancet-rt losses the recording has reacted to
   std::string rec_path = record_path;
   std::unique_ptr<lancet::record::Recorder> recorder;
   std::uint64_t rec_frames = 0, rec_last_seq = 0;
@@ -899,6 +902,20 @@ int main(int argc, char** argv) {
       if (act.replay_pause) replay_paused = !replay_paused;
       if (act.replay_speed > 0) replay_speed = act.replay_speed;
       if (act.record) want_record = true;
+      // Arms a recording to `name` on a fresh scene (an attempt starts from untouched tissue).
+      const auto arm_recording = [&](const std::string& name) {
+        auto fresh = lancet::record::SceneSim::create(setup);
+        if (fresh.ok()) {
+          sim_owned = std::move(fresh).value();
+          scenario = sim().scenario();  // the old sim's went with it
+          shown_revision = ~std::uint64_t{0};
+          raycaster.reset();
+          rec_path = name;
+          rec = Rec::kArmed;
+        } else {
+          rec_message = fresh.error().message;
+        }
+      };
       if (want_record) {  // Record: a fresh scene and the servo's reset; Stop: finish the file
         want_record = false;
         if (rec != Rec::kOff) {
@@ -908,17 +925,26 @@ int main(int argc, char** argv) {
           char name[64];
           const std::time_t wall = std::time(nullptr);
           std::strftime(name, sizeof name, "lancet-%Y%m%d-%H%M%S.h5", std::localtime(&wall));
-          auto fresh = lancet::record::SceneSim::create(setup);
-          if (fresh.ok()) {
-            sim_owned = std::move(fresh).value();
-            shown_revision = ~std::uint64_t{0};
-            raycaster.reset();
-            rec_path = name;
-            rec = Rec::kArmed;
-          } else {
-            rec_message = fresh.error().message;
-          }
+          arm_recording(name);
         }
+      }
+      // lancet-rt went away while recording: its servo's state went with it, so the attempt (and its
+      // recording) ends here. With --record, the next attempt is recorded once lancet-rt is back,
+      // on a fresh scene, to FILE-2.h5, FILE-3.h5, ...
+      const bool rt_lost = !replay && session.rt_losses() != rt_losses_recorded;
+      if (rt_lost) rt_losses_recorded = session.rt_losses();
+      if (rt_lost && rec != Rec::kOff) {
+        const bool was_recording = rec == Rec::kOn;
+        stop_recording();
+        rec = Rec::kOff;
+        if (was_recording) std::printf("lancet-viz: lancet-rt went away: the recording ends there\n");
+        if (!record_path.empty()) {
+          const std::filesystem::path base(record_path);
+          const std::string next = (base.parent_path() / (base.stem().string() + "-" + std::to_string(++record_parts) + base.extension().string())).string();
+          std::printf("lancet-viz: the next attempt will be recorded to %s once lancet-rt is back\n", next.c_str());
+          arm_recording(next);
+        }
+        std::fflush(stdout);
       }
       if (want_snapshot) {  // lancet-YYYYmmdd-HHMMSS.png in the working directory
         want_snapshot = false;

@@ -275,8 +275,11 @@ Result<bool> Replay::step_frame() {
     p->t_ns = f.patch_t_ns;
     p->samples_applied = f.patch_samples_applied;
     patches_.emplace_back(f.patch_version, std::move(p));
-    while (patches_.size() > 8) patches_.pop_front();
   }
+  // The patches a later tick may still use: the servo takes newer versions only, so none older
+  // than the next recorded tick's (however many frames a stalled servo let pass meanwhile).
+  const std::uint64_t needed = next_sample_ < rec_->samples.size() ? rec_->samples[next_sample_].patch_version : ~std::uint64_t{0};
+  while (patches_.size() > 1 && patches_.front().first < needed) patches_.pop_front();
   timing_.patch += since(t0);
   t0 = Clock::now();
   sim_->advance_blood(f.blood_dt);

@@ -145,7 +145,7 @@ class Replay {
   servo::ServoData data_{};
   servo::ServoOutput out_{};
   std::size_t next_sample_ = 0, next_frame_ = 0;
-  std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>> patches_;  // by version, the last few
+  std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>> patches_;  // by version: those later ticks may use
   std::vector<ToolSample> batch_, replayed_;
   ToolSample latest_{};
   bool has_latest_ = false;

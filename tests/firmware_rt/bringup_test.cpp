@@ -139,6 +139,18 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   EXPECT_NE(out.find("tool    1.00    2.00   -3.00 mm"), std::string::npos) << out;
   EXPECT_NE(out.find("force   0.00   0.00   1.50 N (x1.00) contact"), std::string::npos) << out;
   EXPECT_NE(out.find("arm fault (timeout): 3 timeouts in a row on 127.0.0.1:1502  errors 7"), std::string::npos) << out;
+  // --json: one object a line, for rigs and scripts (scripts/soak reads it).
+  const auto [jcode, jout] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.2, 20, f, true); });
+  EXPECT_EQ(jcode, 0);
+  const std::string first = jout.substr(0, jout.find('\n'));
+  EXPECT_EQ(first.front(), '{') << jout;
+  EXPECT_EQ(first.back(), '}') << jout;
+  EXPECT_NE(first.find("\"alive\": true"), std::string::npos) << first;
+  EXPECT_NE(first.find("\"force_n\": [0, 0, 1.5]"), std::string::npos) << first;
+  EXPECT_NE(first.find("\"tool_mm\": [1, 2, -3]"), std::string::npos) << first;
+  EXPECT_NE(first.find("\"device_state\": \"fault\", \"fault_cause\": \"timeout\""), std::string::npos) << first;
+  EXPECT_NE(first.find("\"fault_text\": \"3 timeouts in a row on 127.0.0.1:1502\""), std::string::npos) << first;
+  EXPECT_NE(first.find("\"device_errors\": 7"), std::string::npos) << first;
   // What lancet-rt's segment says is checked before it is printed: no "inf", no 3e142 N.
   st.force = {3e142, 0, 0};
   ch.value().state().rt_status.write(st);
@@ -146,6 +158,9 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   EXPECT_EQ(code2, 0);
   EXPECT_NE(out2.find("status rejected (rt_status.force: not finite or above 1000 N)"), std::string::npos) << out2;
   EXPECT_EQ(out2.find("e+142"), std::string::npos) << out2;
+  const auto [jcode2, jout2] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f, true); });
+  EXPECT_NE(jout2.find("\"rejected\": \"rt_status.force: not finite or above 1000 N\""), std::string::npos) << jout2;
+  EXPECT_EQ(jout2.find("e+142"), std::string::npos) << jout2;
   // A lancet-rt whose servo stopped ticking: its last status is not presented as the arm's state.
   ch.value().state().rt_heartbeat.beat(monotonic_ns() - 2'000'000'000, static_cast<std::int32_t>(getpid()));
   const auto [code3, out3] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f); });

@@ -208,6 +208,33 @@ TEST_F(RecordReplay, AVizStartedWhileLancetRtRunsRecordsASessionThatReplays) {
   replay_in_process(file, 1800);
 }
 
+// lancet-rt killed and started again while the viz records: the servo's state is gone, so the
+// attempt's recording ends there (complete, replayable), and the next attempt is recorded, on a
+// fresh scene, to FILE-2.h5 once lancet-rt is back; it replays too.
+TEST_F(RecordReplay, ARestartedLancetRtEndsTheAttemptAndTheNextIsRecordedToo) {
+  const std::string file = path("attempt.h5"), next = path("attempt-2.h5");
+  Child viz = start_recording_viz("skin_incision", file);
+  {
+    Child rt({kRt, "--shm", shm_, "-q", "--trajectory", kSrc + "/docs/examples/demo_incision.csv"}, path("rt1.log"));
+    ASSERT_TRUE(test::eventually([&] { return recorded_s(file) >= 1.5; }, 180s, 300ms)) << read_file(path("viz.log"));
+    rt.signal(SIGKILL);
+    ASSERT_TRUE(rt.wait_exit(30s).has_value());
+  }
+  Child rt({kRt, "--shm", shm_, "-q", "--trajectory", kSrc + "/docs/examples/demo_incision.csv"}, path("rt2.log"));
+  ASSERT_TRUE(test::eventually([&] { return recorded_s(next) >= 1.5; }, 180s, 300ms)) << read_file(path("viz.log"));
+  viz.signal(SIGINT);
+  const auto vs = viz.wait_exit(120s);
+  ASSERT_TRUE(vs.has_value() && WIFEXITED(*vs) && WEXITSTATUS(*vs) == 0) << read_file(path("viz.log"));
+  for (const std::string& f : {file, next}) {
+    auto rec = record::read_recording(f);
+    ASSERT_TRUE(rec.ok()) << rec.error().message;
+    EXPECT_FALSE(rec.value().cut_short) << f << ": finished when its servo went away";
+    const auto [rc, log] = replay_cli(f);
+    EXPECT_EQ(rc, 0) << log;
+    EXPECT_NE(log.find(": bit-exact\n"), std::string::npos) << log;
+  }
+}
+
 // lancet-viz killed while it records (a crash, a power cut): the file keeps what was flushed,
 // says it was cut short, and replays bit-exactly up to its end.
 TEST_F(RecordReplay, ARecordingCutShortByAKilledVizReplaysUpToItsEnd) {

@@ -28,7 +28,9 @@ struct Live {
 
 // 40 frames of a probe pressing into the block and sliding; the ticks of frames [gap_from,
 // gap_from + 3) are stepped but never delivered (nor recorded). gap_from < 0: none lost.
-Live run_live(int gap_from) {
+// hold_from >= 0: the ticks of that frame reach the viz twelve frames later (a tick held in the
+// device's I/O: it took its patch, then waited), the frames between get none and keep publishing.
+Live run_live(int gap_from, int hold_from = -1) {
   Live live;
   Recording& rec = live.rec;
   SceneSetup setup;
@@ -58,9 +60,12 @@ Live run_live(int gap_from) {
   const std::uint8_t reset[] = {servo::pack_command(CommandKind::kReset, ToolMode::kProbe)};
   std::uint64_t tick = 0;
   Vec3 latest{};
+  std::vector<ToolSample> held;
   for (int frame = 0; frame < 40; ++frame) {
     std::vector<ToolSample> batch;
-    for (int k = 0; k < kTicksPerFrame; ++k, ++tick) {
+    if (hold_from >= 0 && frame == hold_from + 12) batch.swap(held);
+    const bool holding = hold_from >= 0 && frame >= hold_from && frame < hold_from + 12;
+    for (int k = 0; k < (holding && frame > hold_from ? 0 : kTicksPerFrame); ++k, ++tick) {
       const double t = static_cast<double>(tick) * 1e-3;
       servo::ServoInput in;
       in.deadline_ns = kT0 + static_cast<std::int64_t>(tick) * 1'000'000;
@@ -78,7 +83,7 @@ Live run_live(int gap_from) {
         continue;
       }
       if (gap_from >= 0 && frame >= gap_from + 3 && live.gap_seq == 0) live.gap_seq = out->sample.seq;
-      batch.push_back(out->sample);
+      (holding ? held : batch).push_back(out->sample);
     }
     // The viz's frame: the batch, then the patch around the newest tool, then the blood.
     sim->apply(batch);
@@ -86,7 +91,7 @@ Live run_live(int gap_from) {
     if (!batch.empty()) latest = batch.back().tool.position;
     FrameRecord f;
     f.frame = static_cast<std::uint64_t>(frame);
-    f.t_ns = kT0 + static_cast<std::int64_t>(tick) * 1'000'000;
+    f.t_ns = kT0 + static_cast<std::int64_t>(frame) * 16'000'000;
     f.last_seq = rec.samples.back().seq;
     patch->n_triangles = 0;
     patch->brick.valid = 0;
@@ -134,6 +139,19 @@ TEST(ReplayGap, AfterAGapTheServoIsNoLongerSteppedAndTheSceneIsStillChecked) {
   EXPECT_EQ(c.ticks, 12u * kTicksPerFrame) << "the servo is re-stepped up to the gap";
   EXPECT_EQ(c.scene_hashes, 40u) << "every frame's scene is checked, after the gap too";
   EXPECT_EQ(c.scene_hash_mismatches, 0u);
+}
+
+// A tick held in the device's I/O for twelve frames uses a patch published long before the frame
+// that applies it: the replay still has it (it keeps every patch a later tick may use, not the
+// last few).
+TEST(ReplayGap, ATickHeldForTwelveFramesStillFindsItsPatch) {
+  const Live live = run_live(-1, 10);
+  auto replay = Replay::create(live.rec);
+  ASSERT_TRUE(replay.ok()) << replay.error().message;
+  auto ck = replay.value()->run();
+  ASSERT_TRUE(ck.ok()) << ck.error().message;
+  EXPECT_TRUE(ck.value().exact());
+  EXPECT_EQ(ck.value().ticks, live.rec.samples.size());
 }
 
 // What the checks are worth: a scene that does not match after the gap is caught.
