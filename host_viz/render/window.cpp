@@ -144,7 +144,12 @@ bool Window::should_close() const { return window_ != nullptr && glfwWindowShoul
 
 void Window::swap_and_poll() {
   if (window_ == nullptr) {
-    glFlush();
+    // No swap paces a headless loop: without a wait, llvmpipe queues every flushed frame (up to
+    // 64 scenes, each holding the frame's binned triangles) while the loop draws the next, and a
+    // loop that draws faster than the rasterizer finishes holds dozens of frames
+    // (docs/PERFORMANCE.md, "lancet-viz memory"). So the frame is finished here, as a swap
+    // finishes it: the driver then holds at most the frame being drawn.
+    glFinish();
     return;
   }
   glfwSwapBuffers(window_);

@@ -35,6 +35,8 @@ class Window {
   [[nodiscard]] GLFWwindow* handle() const noexcept { return window_; }
   [[nodiscard]] bool headless() const noexcept { return window_ == nullptr; }
   [[nodiscard]] bool should_close() const;
+  /// Ends the frame: shows it and polls the window's events; headless, waits until the frame is
+  /// drawn (glFinish), so that the driver never queues frames behind it (see window.cpp).
   void swap_and_poll();
   /// Framebuffer size in pixels.
   void framebuffer_size(int& w, int& h) const;
