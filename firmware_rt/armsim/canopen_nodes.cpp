@@ -183,7 +183,14 @@ void CanopenNodeSet::on_heartbeat(int producer, std::int64_t now) {
     Emu& e = nodes_[static_cast<std::size_t>(j)];
     // An unplugged node hears nothing; a consumer entry with node id or time 0 is off (CiA 301).
     if (e.silent || (e.consumer & 0xFFFF) == 0 || static_cast<int>((e.consumer >> 16) & 0x7F) != producer) continue;
-    if (e.consumer_armed) e.max_gap_ms = std::max(e.max_gap_ms, static_cast<double>(now - e.producer_seen_ns) * 1e-6);
+    if (e.consumer_armed) {
+      e.max_gap_ms = std::max(e.max_gap_ms, static_cast<double>(now - e.producer_seen_ns) * 1e-6);
+    } else if (options_.on_event) {
+      char line[120];
+      std::snprintf(line, sizeof line, "node %d: watching the master heartbeat (0x%03X, consumer time %u ms)", e.id,
+                    0x700u + static_cast<unsigned>(producer), e.consumer & 0xFFFF);
+      options_.on_event(line);
+    }
     e.consumer_armed = true;
     e.producer_seen_ns = now;
     ++e.master_heartbeats;
@@ -236,6 +243,9 @@ std::int64_t CanopenNodeSet::send_delayed(std::int64_t now) {
     const Delayed& d = delayed_[static_cast<std::size_t>(k)];
     if (d.due_ns <= now) {
       send(d.cob, d.data.data(), d.len);
+      Pdo& p = nodes_[static_cast<std::size_t>(d.node)].tpdo[static_cast<std::size_t>(d.pdo)];
+      p.answered_sync = d.answered_sync;
+      p.sent_ns = mono_ns();
     } else {
       wait = std::min(wait, d.due_ns - now);
       delayed_[static_cast<std::size_t>(kept++)] = d;
@@ -682,12 +692,17 @@ void CanopenNodeSet::on_sync(std::int64_t now) {
       if (e.tpdo_delay_ns > 0 && n_delayed_ < static_cast<int>(delayed_.size())) {
         Delayed& late = delayed_[static_cast<std::size_t>(n_delayed_++)];
         late.due_ns = now + e.tpdo_delay_ns;
+        late.node = j;
+        late.pdo = k;
+        late.answered_sync = syncs_heard_;
         late.cob = p.cob_id & 0x7FF;
         late.len = static_cast<std::uint8_t>(offset);
         std::memcpy(late.data.data(), d, sizeof d);
         continue;
       }
       send(p.cob_id & 0x7FF, d, offset);
+      p.answered_sync = syncs_heard_;
+      p.sent_ns = mono_ns();
     }
   }
 }
@@ -701,6 +716,7 @@ void CanopenNodeSet::handle(const void* frame, std::int64_t now) {
     return;
   }
   if (cob == 0x080) {
+    ++syncs_heard_;
     on_sync(now);
     return;
   }
@@ -806,8 +822,8 @@ CanopenNodeSet::NodeView CanopenNodeSet::node(int node_id) const {
   v.ip_value = e->ip_value;
   v.ip_index = e->ip_index;
   for (std::size_t k = 0; k < 4; ++k) {
-    v.tpdo[k] = {e->tpdo[k].cob_id, e->tpdo[k].type, e->tpdo[k].count, e->tpdo[k].map};
-    v.rpdo[k] = {e->rpdo[k].cob_id, e->rpdo[k].type, e->rpdo[k].count, e->rpdo[k].map};
+    v.tpdo[k] = {e->tpdo[k].cob_id, e->tpdo[k].type, e->tpdo[k].count, e->tpdo[k].map, e->tpdo[k].answered_sync, e->tpdo[k].sent_ns};
+    v.rpdo[k] = {e->rpdo[k].cob_id, e->rpdo[k].type, e->rpdo[k].count, e->rpdo[k].map, 0, 0};
   }
   v.syncs = e->syncs;
   v.rpdos = e->rpdos;
@@ -818,12 +834,18 @@ CanopenNodeSet::NodeView CanopenNodeSet::node(int node_id) const {
   v.sdo_downloads = e->sdo_downloads;
   v.nmt_commands = e->nmt_commands;
   v.master_heartbeats = e->master_heartbeats;
+  v.watching = e->consumer_armed;
   v.heartbeat_losses = e->heartbeat_losses;
   v.last_loss_ms = e->last_loss_ms;
   v.max_gap_ms = e->max_gap_ms;
   v.emcys = e->emcys;
   v.last_emcy = e->last_emcy;
   return v;
+}
+
+std::uint64_t CanopenNodeSet::syncs_heard() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return syncs_heard_;
 }
 
 }  // namespace lancet::armsim

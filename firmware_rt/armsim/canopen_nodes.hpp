@@ -50,9 +50,12 @@ class CanopenNodeSet {
     std::uint32_t device_type = 0x00020192; ///< 0x1000: CiA 402, servo drive
     bool boot_up_at_start = true;           ///< send the boot-up messages when started
     std::int64_t tpdo_delay_us = 0;         ///< every node sends its TPDOs this long after the SYNC
-    /// Told what the nodes do on their own (a heartbeat consumer timeout), one line each, e.g.
-    /// "node 1: master heartbeat (0x77F) lost after 203 ms (consumer time 200 ms): torque off,
-    /// disable voltage (0x6007 = 2), EMCY 0x8130". Called on the nodes' thread with their lock held.
+    /// Told what the nodes do on their own, one line each: a heartbeat consumer that starts
+    /// watching (its first heartbeat of the producer since 0x1016:1 was written or since it last
+    /// timed out), e.g. "node 1: watching the master heartbeat (0x77F, consumer time 200 ms)", and
+    /// a consumer timeout, e.g. "node 1: master heartbeat (0x77F) lost after 203 ms (consumer time
+    /// 200 ms): torque off, disable voltage (0x6007 = 2), EMCY 0x8130". Called on the nodes' thread
+    /// with their lock held.
     std::function<void(const std::string&)> on_event;
   };
 
@@ -91,6 +94,10 @@ class CanopenNodeSet {
     std::uint8_t type = 0;
     std::uint8_t count = 0;
     std::array<std::uint32_t, 8> map{};
+    // TPDOs: the last frame sent (0, 0: none since the PDO was last reset). Tests use them to tell
+    // a TPDO the master missed from one that went out late.
+    std::uint64_t answered_sync = 0;  ///< which SYNC it answered: syncs_heard() when that SYNC came
+    std::int64_t sent_ns = 0;         ///< CLOCK_MONOTONIC once its write() returned (vcan has delivered it)
   };
   struct NodeView {
     int node_id = 0;
@@ -112,6 +119,7 @@ class CanopenNodeSet {
     std::uint64_t sdo_downloads = 0;      ///< SDO download requests (writes), taken or not
     std::uint64_t nmt_commands = 0;       ///< NMT commands addressed to the node (or to all)
     std::uint64_t master_heartbeats = 0;  ///< heartbeats heard from the consumer's producer
+    bool watching = false;                ///< the consumer is armed: it heard its producer since 0x1016:1 was written or it last timed out
     double max_gap_ms = 0;                ///< the longest wait between two of them while the consumer was armed
     std::uint64_t heartbeat_losses = 0;   ///< consumer timeouts
     double last_loss_ms = 0;              ///< at the last timeout: ms since the producer's last heartbeat
@@ -119,6 +127,8 @@ class CanopenNodeSet {
     std::uint16_t last_emcy = 0;          ///< the last one's error code
   };
   [[nodiscard]] NodeView node(int node_id) const;
+  /// SYNC frames received since start(), from anyone (silent nodes or not).
+  [[nodiscard]] std::uint64_t syncs_heard() const;
   /// The physics under the nodes' lock.
   template <class F>
   decltype(auto) with_physics(F&& f) {
@@ -133,6 +143,8 @@ class CanopenNodeSet {
     std::uint8_t count = 0;
     std::array<std::uint32_t, 8> map{};
     std::uint32_t syncs = 0;  ///< SYNCs since NMT start (TPDO)
+    std::uint64_t answered_sync = 0;  ///< (TPDO) see PdoView
+    std::int64_t sent_ns = 0;
   };
   enum class Drive : std::uint8_t { kNotReady, kSwitchOnDisabled, kReady, kSwitchedOn, kEnabled, kQuickStop, kFault };
   struct Emu {
@@ -180,6 +192,8 @@ class CanopenNodeSet {
   /// A TPDO held back by tpdo_delay_ns.
   struct Delayed {
     std::int64_t due_ns = 0;
+    int node = 0, pdo = 0;  ///< nodes_[node].tpdo[pdo]
+    std::uint64_t answered_sync = 0;
     std::uint32_t cob = 0;
     std::uint8_t len = 0;
     std::array<std::uint8_t, 8> data{};
@@ -223,6 +237,7 @@ class CanopenNodeSet {
   std::array<Emu, device::kMaxJoints> nodes_{};
   int n_ = 0;
   std::int64_t last_sync_ns_ = 0;
+  std::uint64_t syncs_heard_ = 0;
   std::array<Delayed, 64> delayed_{};
   int n_delayed_ = 0;
   std::thread thread_;

@@ -843,14 +843,17 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
   ++sync_count_;
   const std::int64_t deadline = cycle_t_ns_ + wait_ns;
   for (;;) {
-    if (!drain(monotonic_ns())) return IoStatus::kDisconnected;
+    // The clock is read before the drain: the last drain comes after the deadline, so a frame
+    // that arrived in time is never left in the socket while a preempted read gives up.
+    const std::int64_t now = monotonic_ns();
+    if (!drain(now)) return IoStatus::kDisconnected;
     bool all = true;
     for (int j = 0; j < n_ && all; ++j) {
       const Node& nd = nodes_[static_cast<std::size_t>(j)];
       all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
     }
     if (all) return IoStatus::kOk;
-    if (monotonic_ns() >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
+    if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
     wait_frames(deadline);
     if (socket_failed_) return IoStatus::kDisconnected;
   }
@@ -998,7 +1001,8 @@ CanopenArm::SdoReply CanopenArm::sdo_request(int i, const ::can_frame& request, 
   if (send(request) != IoStatus::kOk) return {K::kSocket, 0};
   const std::int64_t deadline = monotonic_ns() + sdo_timeout_ns_;
   for (;;) {
-    if (!drain(monotonic_ns())) return {K::kSocket, 0};
+    const std::int64_t now = monotonic_ns();  // before the drain, as in exchange()
+    if (!drain(now)) return {K::kSocket, 0};
     if (nd.sdo_reply) {
       nd.sdo_reply = false;
       const std::uint8_t* d = nd.sdo_data.data();
@@ -1012,7 +1016,7 @@ CanopenArm::SdoReply CanopenArm::sdo_request(int i, const ::can_frame& request, 
       }
       // Anything else is not the answer to this request (a late one): keep waiting.
     }
-    if (monotonic_ns() >= deadline) return {K::kTimeout, 0};
+    if (now >= deadline) return {K::kTimeout, 0};
     wait_frames(deadline);
     if (socket_failed_) return {K::kSocket, 0};
   }
@@ -1214,11 +1218,12 @@ Result<std::uint32_t> CanopenArm::sdo_upload(int i, std::uint16_t index, std::ui
 void CanopenArm::wait_boot_ups(double timeout_s, std::uint32_t node_mask) {
   const std::int64_t deadline = monotonic_ns() + ns_of(timeout_s);
   for (;;) {
-    (void)drain(monotonic_ns());
+    const std::int64_t now = monotonic_ns();  // before the drain, as in exchange()
+    (void)drain(now);
     bool all = true;
     for (int j = 0; j < n_; ++j)
       if ((node_mask & (1u << j)) != 0 && !nodes_[static_cast<std::size_t>(j)].boot_seen) all = false;
-    if (all || monotonic_ns() >= deadline) return;
+    if (all || now >= deadline) return;
     wait_frames(deadline);
   }
 }

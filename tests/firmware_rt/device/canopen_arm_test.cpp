@@ -19,6 +19,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <climits>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -37,6 +38,7 @@
 #include "armsim/canopen_nodes.hpp"
 #include "malloc_guard.hpp"
 #include "process.hpp"
+#include "wait.hpp"
 
 namespace lancet::device {
 namespace {
@@ -64,15 +66,27 @@ std::string config_path() {
 #endif
 }
 
-// The drive-side watchdog of the tests: long enough for a TCG guest on a shared host (under a
-// parallel build the whole guest can stall for well over 100 ms, and lancet-rt's start-up leaves
-// up to ~190 ms between two heartbeats), short enough to see it fire quickly.
-constexpr int kDriveWatchdogMs = 300;
+// The guest is an emulated CPU on a shared host: under load the whole guest stalls now and then
+// (hundreds of ms have been seen; no bound can be promised), and every thread in it with it. So
+// each timeout on the bus that a test is not about is far longer than such a stall:
+//
+// The drive-side watchdog. The master's heartbeat goes out every kDriveWatchdogMs / 4, so a false
+// trip needs the guest to stall for 3/4 of it. The watchdog tests wait for it to fire (2 s each).
+constexpr int kDriveWatchdogMs = 2000;
 constexpr int kMasterNodeId = 127;
+// The nodes' heartbeat, and how many periods the master waits before one is overdue: 2 s, so a
+// false kHeartbeatLost needs a stall of 1.75 s. Short periods keep activate() quick (it waits for
+// each node's first heartbeat); the heartbeat tests are about which node is overdue and why.
+constexpr int kNodeHeartbeatMs = 250;
+constexpr double kHeartbeatTimeoutFactor = 8;
+// lancet-rt and lancetctl wait the driver's default 2 heartbeat periods: their config says 1 s.
+constexpr int kProgramHeartbeatMs = 1000;
 
-// hw_configs/canopen_arm.toml on the test interface, with a 50 ms heartbeat so that a lost one
-// shows within 100 ms, a 300 ms drive-side watchdog and a 4 ms SYNC (LANCET_CAN_SYNC_US overrides
-// it): in a QEMU TCG guest one SYNC → TPDO round trip takes 0.5–1 ms, too close to the config's 1 ms.
+std::chrono::milliseconds master_heartbeat_period() { return std::chrono::milliseconds(kDriveWatchdogMs / 4); }
+
+// hw_configs/canopen_arm.toml on the test interface, with the heartbeats and the drive-side
+// watchdog above and a 4 ms SYNC (LANCET_CAN_SYNC_US overrides it): in a QEMU TCG guest one SYNC →
+// TPDO round trip takes 0.2–1 ms, too close to the config's 1 ms.
 arm::ArmConfig test_config() {
   auto c = arm::load_arm_config(config_path());
   if (!c.ok()) {
@@ -81,7 +95,7 @@ arm::ArmConfig test_config() {
   }
   arm::ArmConfig cfg = std::move(c).value();
   cfg.canopen->interface_name = iface_name();
-  cfg.canopen->heartbeat_period = 0.05;
+  cfg.canopen->heartbeat_period = kNodeHeartbeatMs * 1e-3;
   const char* wd = std::getenv("LANCET_CAN_DRIVE_WATCHDOG_MS");  // the bench without it: 0
   cfg.canopen->drive_watchdog = (wd != nullptr ? std::atof(wd) : kDriveWatchdogMs) * 1e-3;
   cfg.canopen->master_node_id = kMasterNodeId;
@@ -90,13 +104,15 @@ arm::ArmConfig test_config() {
   return cfg;
 }
 
-// Waits short enough for the tests, long enough for a QEMU TCG guest.
+// Waits far longer than a stall of the guest: a test that hits one on purpose (a node that does
+// not answer) pays it once. The read budget stays what the tests exercise: 0.9 of the period.
 CanopenTiming test_timing() {
   CanopenTiming t;
   t.read_budget_fraction = 0.9;
-  t.sdo_timeout = 0.2;
-  t.boot_timeout = 0.3;
-  t.state_timeout = 0.5;
+  t.sdo_timeout = 2.0;
+  t.boot_timeout = 3.0;
+  t.state_timeout = 3.0;
+  t.heartbeat_timeout_factor = kHeartbeatTimeoutFactor;
   return t;
 }
 
@@ -347,12 +363,18 @@ TEST(CanopenArmCreate, RefusesAPeriodOrAMasterIdTheBusCannotUse) {
 
 class CanopenArmBus : public ::testing::Test {
  protected:
+  // Timeouts in a row never trip the arm in these tests (a stalled guest makes runs of late round
+  // trips), except where they are the subject: that test passes its own policy. What trips at once
+  // (a lost link, a heartbeat overdue, a reboot, an EMCY) still does.
+  static FaultPolicy tolerant() { return FaultPolicy{1'000'000}; }
+
   void SetUp() override {
     std::string why;
     if (!bus_available(iface_name(), why)) GTEST_SKIP() << why;
     cfg_ = test_config();
     ASSERT_TRUE(cfg_.canopen.has_value());
     period_ns_ = static_cast<std::int64_t>(std::llround(cfg_.canopen->sync_period * 1e9));
+    budget_ns_ = static_cast<std::int64_t>(std::llround(cfg_.canopen->sync_period * test_timing().read_budget_fraction * 1e9));
   }
 
   void start_nodes(CanopenNodeSet::Options o = {}) {
@@ -361,13 +383,13 @@ class CanopenArmBus : public ::testing::Test {
     nodes_ = std::move(r).value();
   }
 
-  void make_arm(FaultPolicy p = {}) {
+  void make_arm(FaultPolicy p = tolerant()) {
     auto a = CanopenArm::create(cfg_, p, test_timing());
     ASSERT_TRUE(a.ok()) << a.error().message;
     arm_ = std::move(a).value();
   }
 
-  void bring_up(FaultPolicy policy = {}) {
+  void bring_up(FaultPolicy policy = tolerant()) {
     start_nodes();
     make_arm(policy);
     const Result<void> c = arm_->configure();
@@ -377,10 +399,17 @@ class CanopenArmBus : public ::testing::Test {
     next_tick_ = now_ns();
   }
 
-  // One servo tick at the sync period: read, then write.
+  // One servo tick at the sync period: read, then write. A read that times out must be the
+  // nodes' doing, never the driver's (see timeout_is_justified).
   IoStatus tick(const JointCommand& cmd) {
     pace();
+    const std::int64_t t0 = now_ns();
+    last_read_t0_ = t0;
     const IoStatus r = arm_->read(state_);
+    if (r == IoStatus::kTimeout) {
+      char why[200];
+      if (!timeout_is_justified(t0, why, sizeof why)) ADD_FAILURE() << why;
+    }
     last_write_ = arm_->write(cmd);
     return r;
   }
@@ -389,18 +418,58 @@ class CanopenArmBus : public ::testing::Test {
     zero.n = 4;
     return tick(zero);
   }
+  // Whether the read that began at t0 (CLOCK_MONOTONIC) and reported kTimeout had a reason to: the
+  // TPDO it names was not on the bus while it waited. The node records which SYNC each TPDO answered
+  // and when its write() returned, by which time vcan has delivered the frame to every socket (in
+  // the writer's softirq; only when the kernel has handed softirqs to ksoftirqd, after a stall
+  // inside one, a little later: half the read budget is left for that). The read's deadline is at
+  // least t0 + the budget, and the driver drains the socket once more after it. So a TPDO of this
+  // SYNC sent within half the budget of t0 must have been taken: reported missing, the driver lost
+  // it. A stall of the guest only makes TPDOs later (then they are not judged), never earlier.
+  // Fills `why` when not justified; allocates nothing (the no-allocation test calls it).
+  bool timeout_is_justified(std::int64_t t0, char* why, std::size_t n) const {
+    const CanopenEvent& e = arm_->last_event();
+    if (e.what != CanopenEvent::What::kMissingTpdo) {
+      std::snprintf(why, n, "a read timed out without naming a missing TPDO (event %d)", static_cast<int>(e.what));
+      return false;
+    }
+    const CanopenNodeSet::NodeView v = nodes_->node(e.node_id);
+    for (const CanopenNodeSet::PdoView& p : v.tpdo) {
+      if ((p.cob_id & 0x7FFu) != e.cob_id || (p.cob_id & 0x80000000u) != 0) continue;
+      const std::uint64_t syncs = arm_->syncs();
+      // The driver's rule for a TPDO sent every nth SYNC: missing after 2n + 1 SYNCs without one.
+      const std::uint64_t slack = p.type <= 1 ? 0 : 2u * p.type + 1;
+      const bool recent = p.sent_ns != 0 && p.answered_sync <= syncs && syncs - p.answered_sync <= slack;
+      const bool in_time = p.type <= 1 ? p.sent_ns - t0 <= budget_ns_ / 2 : p.sent_ns <= t0;
+      if (recent && in_time) {
+        std::snprintf(why, n,
+                      "node %d: TPDO 0x%03X answering SYNC %llu went out %.3f ms after the read began (budget %.3f ms), "
+                      "yet the read reported it missing",
+                      e.node_id, e.cob_id, static_cast<unsigned long long>(p.answered_sync), static_cast<double>(p.sent_ns - t0) * 1e-6,
+                      static_cast<double>(budget_ns_) * 1e-6);
+        return false;
+      }
+      return true;
+    }
+    std::snprintf(why, n, "the timeout names 0x%03X, which is no valid TPDO of node %d", e.cob_id, e.node_id);
+    return false;
+  }
   // A tick that should be good. The guest runs on an emulated CPU on a shared host: now and then a
-  // round trip overruns the read budget. A timeout that leaves the device active (fewer than three
-  // in a row) is counted in late_ and the tick is repeated; TearDown bounds how many there were.
+  // round trip overruns the read budget (each such timeout checked by tick()). The tick is then
+  // repeated, until one is good or the device left kActive (which it does not for timeouts under
+  // the tolerant policy) or a hang.
   IoStatus good_tick(const JointCommand& cmd) {
-    IoStatus s = IoStatus::kOk;
-    for (int attempt = 0; attempt < 3; ++attempt) {
+    const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+    for (;;) {
       ++ticks_;
-      s = tick(cmd);
-      if (s != IoStatus::kTimeout || arm_->state() != Lifecycle::kActive) return s;
+      const IoStatus s = tick(cmd);
+      if (s == IoStatus::kOk) {
+        // What timeout_is_justified() relies on: the nodes count the same SYNCs as the driver.
+        EXPECT_EQ(nodes_->syncs_heard(), arm_->syncs()) << "the nodes heard a SYNC the driver did not count, or missed one";
+      }
+      if (s != IoStatus::kTimeout || arm_->state() != Lifecycle::kActive || now_ns() > give_up) return s;
       ++late_;
     }
-    return s;
   }
   IoStatus good_tick() {
     JointCommand zero{};
@@ -408,18 +477,13 @@ class CanopenArmBus : public ::testing::Test {
     return good_tick(zero);
   }
   void TearDown() override {
-    if (late_ > 0) std::printf("  %d of %d ticks were late (TPDOs after the read budget): repeated\n", late_, ticks_);
-    EXPECT_LE(late_, 2 + ticks_ / 20) << "too many late round trips for the guest's load";
+    // How many were late says how loaded the host was, not whether the driver works: printed.
+    if (late_ > 0) std::printf("  %d of %d ticks were late (TPDOs after the read budget, each the node's doing): repeated\n", late_, ticks_);
   }
-  // Waits (up to 1 s) for the emulated nodes to have processed what was sent.
+  // Waits for the emulated nodes to have processed what was sent (a deadline that catches hangs).
   template <class Pred>
-  bool eventually(Pred pred) {
-    const std::int64_t end = now_ns() + 1'000'000'000;
-    while (!pred()) {
-      if (now_ns() > end) return false;
-      usleep(1000);
-    }
-    return true;
+  static bool eventually(Pred pred) {
+    return test::eventually(pred);
   }
   void pace() {
     const std::int64_t now = now_ns();
@@ -431,14 +495,19 @@ class CanopenArmBus : public ::testing::Test {
     }
     next_tick_ += period_ns_;
   }
-  // Ticks until the device leaves kActive (at most `max` ticks); returns the ticks taken.
-  int ticks_until_fault(const JointCommand& cmd, int max) {
-    for (int i = 1; i <= max; ++i) {
+  // Ticks until the device leaves kActive (at most `max` ticks, or until a hang); returns the
+  // ticks taken, -1 when it did not.
+  int ticks_until_fault(const JointCommand& cmd, int max = INT_MAX) {
+    const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+    for (int i = 1; i <= max && now_ns() < give_up; ++i) {
       (void)tick(cmd);
       if (arm_->state() == Lifecycle::kFault) return i;
     }
     return -1;
   }
+  // Lets more than one of the master's heartbeat periods pass: a master still producing would owe
+  // a heartbeat by then, which its next read() sends (it sends one whenever one is due).
+  static void sleep_past_a_master_heartbeat_period() { std::this_thread::sleep_for(master_heartbeat_period() * 5 / 4); }
   static JointCommand torques(std::initializer_list<double> t) {
     JointCommand c{};
     for (double v : t) c.tau[static_cast<std::size_t>(c.n++)] = v;
@@ -468,7 +537,9 @@ class CanopenArmBus : public ::testing::Test {
   IoStatus last_write_ = IoStatus::kOk;
   int ticks_ = 0, late_ = 0;
   std::int64_t period_ns_ = 1'000'000;
+  std::int64_t budget_ns_ = 900'000;
   std::int64_t next_tick_ = 0;
+  std::int64_t last_read_t0_ = 0;  ///< when the last tick's read() began
 };
 
 TEST_F(CanopenArmBus, ConfigureAndReadOnlyObserve) {
@@ -525,7 +596,7 @@ TEST_F(CanopenArmBus, ActivateConfiguresTheNodesAndEnablesTheDrives) {
     EXPECT_EQ(arm_->node(j).mode_display, 10);
     EXPECT_EQ(v.rated_torque_mnm, canopen::rated_torque_mnm(cfg_.actuators[static_cast<std::size_t>(j)]));
     EXPECT_EQ(v.max_torque, static_cast<std::uint16_t>(arm_->node(j).max_torque));
-    EXPECT_EQ(v.heartbeat_ms, 50);
+    EXPECT_EQ(v.heartbeat_ms, kNodeHeartbeatMs);
     // The drive-side watchdog and the cycle.
     EXPECT_EQ(v.consumer, static_cast<std::uint32_t>(kMasterNodeId) << 16 | kDriveWatchdogMs) << "0x1016:1";
     EXPECT_EQ(v.abort_option, canopen::kAbortConnectionDisableVoltage) << "0x6007";
@@ -554,15 +625,20 @@ TEST_F(CanopenArmBus, ActivateConfiguresTheNodesAndEnablesTheDrives) {
   EXPECT_EQ(good_tick(), IoStatus::kOk);
   EXPECT_EQ(last_write_, IoStatus::kOk);
   EXPECT_EQ(state_.status & 0xFFFFu, 0xFu) << "all four enabled, none faulted";
-  // The master's heartbeat keeps coming with the ticks (one every drive watchdog / 4).
+  // The master's heartbeat keeps coming with the ticks (one every drive watchdog / 4): tick until
+  // node 1 has heard two more.
   const std::uint64_t before = nodes_->node(1).master_heartbeats;
-  for (int i = 0; i < 40; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk);
-  EXPECT_GE(nodes_->node(1).master_heartbeats - before, 2u);
-  EXPECT_EQ(nodes_->node(1).heartbeat_losses, 0u);
-  // Every drive hears it (checked after ticks: the emulated nodes count on their own thread).
+  const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+  while (nodes_->node(1).master_heartbeats < before + 2) {
+    ASSERT_LT(now_ns(), give_up) << "node 1 heard " << nodes_->node(1).master_heartbeats - before << " heartbeats of the master in "
+                                 << test::kHangTimeout.count() << " s of ticks";
+    ASSERT_EQ(good_tick(), IoStatus::kOk);
+  }
+  // Every drive hears it, and none has missed it for the watchdog time.
   for (int j = 0; j < 4; ++j) {
     const int id = cfg_.canopen->node_ids[static_cast<std::size_t>(j)];
     EXPECT_GT(nodes_->node(id).master_heartbeats, 0u) << "node " << id << " hears the master's heartbeat";
+    EXPECT_EQ(nodes_->node(id).heartbeat_losses, 0u) << "node " << id;
   }
 }
 
@@ -587,7 +663,7 @@ TEST_F(CanopenArmBus, AModeTheDriveRefusesFailsActivationNamingBoth) {
   }
   const std::uint64_t sent = arm_->master_heartbeats();
   EXPECT_EQ(arm_->read(state_), IoStatus::kOk) << arm_->last_error().c_str();
-  usleep(100'000);
+  sleep_past_a_master_heartbeat_period();
   EXPECT_EQ(arm_->read(state_), IoStatus::kOk);
   EXPECT_EQ(arm_->master_heartbeats(), sent) << "the master's heartbeat stopped";
 }
@@ -637,7 +713,7 @@ TEST_F(CanopenArmBus, ButtonsFollowTheButtonsNodesDigitalInputs) {
   for (i = 0; i < 30 && state_.buttons != 2u; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk);
   EXPECT_EQ(state_.buttons, 2u);
   nodes_->set_digital_inputs(1, 0xFFFF0000u);  // another node's inputs are not the buttons
-  for (i = 0; i < 12; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk);
+  for (i = 0; i < 25; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk);  // node 1's TPDO2 came (and was read) at least once
   EXPECT_EQ(state_.buttons, 2u);
 }
 
@@ -683,41 +759,48 @@ TEST_F(CanopenArmBus, TorquesArriveAsPerMilleAndMoveTheArm) {
   }
 }
 
+// The subject is the fault policy's run of timeouts: this test has its own (eight in a row; a
+// run of eight late round trips before the node goes silent would take a guest too slow for any
+// of these tests). The silent node is node 1, the first the driver checks: every tick from then on
+// names it, whatever other node a stalled guest makes late as well.
 TEST_F(CanopenArmBus, ANodeThatStopsAnsweringTimesOutToAFaultWithZeroTorque) {
-  bring_up();
+  constexpr int kRun = 8;
+  bring_up(FaultPolicy{kRun});
   const JointCommand cmd = torques({0.2, 0.2, 1.0, 0.01});
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
   EXPECT_NE(nodes_->node(1).target_torque, 0);
-  nodes_->set_silent(2, true);
+  EXPECT_EQ(arm_->counters().consecutive_errors, 0u) << "a good read ends a run of errors";
+  nodes_->set_silent(1, true);
   EXPECT_EQ(tick(cmd), IoStatus::kTimeout);
-  EXPECT_EQ(arm_->last_event().node_id, 2);
-  EXPECT_EQ(arm_->last_event().cob_id, 0x182u);
-  const int n = ticks_until_fault(cmd, 10);
+  EXPECT_EQ(arm_->last_event().node_id, 1);
+  EXPECT_EQ(arm_->last_event().cob_id, 0x181u);
+  EXPECT_EQ(arm_->state(), Lifecycle::kActive) << "one timeout does not trip";
+  const int n = ticks_until_fault(cmd, 2 * kRun);
   ASSERT_GT(n, 0);
-  EXPECT_LE(n, 2) << "three timeouts in a row trip the fault";
+  EXPECT_EQ(n, kRun - 1) << kRun << " timeouts in a row trip the fault, not fewer, not more";
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kTimeout);
-  EXPECT_EQ(arm_->fault_detail().node, 2);
-  EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("node 2: TPDO1 (0x182) missing"), std::string::npos)
+  EXPECT_EQ(arm_->fault_detail().node, 1);
+  EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("node 1: TPDO1 (0x181) missing"), std::string::npos)
       << arm_->fault_detail().c_str();
   EXPECT_EQ(last_write_, IoStatus::kFault);
   (void)tick(cmd);  // one more SYNC: the zero torque the fault sent is applied
-  expect_all_torque_zero("after the fault", 2);
+  expect_all_torque_zero("after the fault", 1);
   std::printf("  %s\n", arm_->describe(arm_->last_event()).c_str());
 
   // The node comes back; an explicit rearm brings the torque back.
-  nodes_->set_silent(2, false);
+  nodes_->set_silent(1, false);
   const Result<void> r = arm_->rearm();
   ASSERT_TRUE(r.ok()) << r.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 5; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;
-  EXPECT_EQ(nodes_->node(2).target_torque, expected_per_mille(cfg_, 1, 0.2));
+  EXPECT_EQ(nodes_->node(1).target_torque, expected_per_mille(cfg_, 0, 0.2));
 }
 
 TEST_F(CanopenArmBus, AMissingHeartbeatIsADisconnect) {
   bring_up();
   const JointCommand cmd = torques({0.2, 0.2, 1.0, 0.01});
   nodes_->set_heartbeat_enabled(3, false);
-  const int n = ticks_until_fault(cmd, 2000);
+  const int n = ticks_until_fault(cmd);
   ASSERT_GT(n, 0);
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDisconnected);
   EXPECT_EQ(arm_->last_event().what, CanopenEvent::What::kHeartbeatLost);
@@ -732,18 +815,24 @@ TEST_F(CanopenArmBus, AMissingHeartbeatIsADisconnect) {
   nodes_->set_heartbeat_enabled(3, true);
   const Result<void> r = arm_->rearm();
   ASSERT_TRUE(r.ok()) << r.error().message;
+  // Good ticks for longer than a heartbeat takes to be overdue: node 3's heartbeats are heard again.
+  const std::int64_t rearmed = now_ns();
+  const auto overdue_ns = static_cast<std::int64_t>(kNodeHeartbeatMs * kHeartbeatTimeoutFactor * 1e6);
   next_tick_ = now_ns();
-  for (int i = 0; i < 100; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i;  // > 2 heartbeat periods
+  for (int i = 0; now_ns() - rearmed < overdue_ns + 2LL * kNodeHeartbeatMs * 1'000'000; ++i) {
+    ASSERT_EQ(good_tick(cmd), IoStatus::kOk) << "tick " << i << ": " << arm_->last_error().c_str();
+  }
 }
 
 TEST_F(CanopenArmBus, AnEmcyIsADeviceFaultAndAFaultResetRecovers) {
   bring_up();
   const JointCommand cmd = torques({0.2, 0.2, 1.0, 0.01});
   for (int i = 0; i < 3; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
+  // inject_fault() itself sends the EMCY: it waits in the driver's socket, ahead of any TPDO of
+  // the next SYNC, so the next read finds it, however late that read's TPDOs are.
   nodes_->inject_fault(1, 0x2310, 0x03);  // continuous over-current; error register: generic + current
   const int n = ticks_until_fault(cmd, 20);
-  EXPECT_GT(n, 0);
-  EXPECT_LE(n, 2) << "the EMCY is read at the next SYNC";
+  EXPECT_EQ(n, 1) << "the EMCY is read at the next SYNC";
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDeviceFault);
   const CanopenEvent& e = arm_->last_event();
   EXPECT_EQ(e.what, CanopenEvent::What::kEmcy);
@@ -775,8 +864,10 @@ TEST_F(CanopenArmBus, AnEmcyIsADeviceFaultAndAFaultResetRecovers) {
 TEST_F(CanopenArmBus, AShortTpdoIsAProtocolErrorThatDoesNotTripAlone) {
   bring_up();
   nodes_->corrupt_next_tpdos(2, 1);
+  // A late frame is reported a tick later; a stalled guest may make more than one tick late first.
   IoStatus s = IoStatus::kTimeout;
-  for (int i = 0; i < 3 && s == IoStatus::kTimeout; ++i) s = tick();  // a late frame is reported a tick later
+  const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+  while (s == IoStatus::kTimeout && now_ns() < give_up) s = tick();
   EXPECT_EQ(s, IoStatus::kProtocolError);
   EXPECT_EQ(arm_->last_event().what, CanopenEvent::What::kBadLength);
   EXPECT_STREQ(arm_->last_error().c_str(), "node 2: frame 0x182 has 5 bytes, its mapping 6");
@@ -787,10 +878,10 @@ TEST_F(CanopenArmBus, AShortTpdoIsAProtocolErrorThatDoesNotTripAlone) {
 
 TEST_F(CanopenArmBus, ARebootedNodeIsConfiguredAgainByRearm) {
   bring_up();
+  // power_cycle() itself sends the boot-up message: the next read finds it (as the EMCY test says).
   nodes_->power_cycle(3);
   const int n = ticks_until_fault(torques({0, 0, 0, 0}), 20);
-  EXPECT_GT(n, 0);
-  EXPECT_LE(n, 2) << "the boot-up message is read at the next SYNC";
+  EXPECT_EQ(n, 1) << "the boot-up message is read at the next SYNC";
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDisconnected);
   EXPECT_EQ(arm_->last_event().what, CanopenEvent::What::kNotOperational);
   EXPECT_STREQ(arm_->fault_detail().c_str(), "node 3: boot-up message (0x703): the node rebooted");
@@ -870,7 +961,7 @@ TEST_F(CanopenArmBus, DeactivateZeroesTorqueDisablesAndLeavesOperational) {
   const std::uint64_t syncs = arm_->syncs(), sent = arm_->master_heartbeats();
   EXPECT_EQ(arm_->read(state_), IoStatus::kOk) << arm_->last_error().c_str();
   EXPECT_EQ(state_.status & 0xFu, 0u);
-  usleep(100'000);
+  sleep_past_a_master_heartbeat_period();
   EXPECT_EQ(arm_->read(state_), IoStatus::kOk);
   EXPECT_EQ(arm_->syncs(), syncs);
   EXPECT_EQ(arm_->master_heartbeats(), sent);
@@ -896,8 +987,9 @@ TEST_F(CanopenArmBus, AFaultBitWithoutEmcyNamesTheNodeAndItsStatusword) {
 
 TEST_F(CanopenArmBus, ATpdoLateWithinTheReadBudgetIsOnTime) {
   start_nodes();
-  // A quarter period after the SYNC (the budget here is 0.9 of it): the reads still get it. The
-  // guest's own round trip comes on top, so more ticks than elsewhere may be late under load.
+  // A quarter period after the SYNC (the budget here is 0.9 of it): the reads still get it. Every
+  // tick that timed out is checked: its TPDO went out past half the budget (the guest stalled), or
+  // the test fails (tick()); how many did is the host's load, printed.
   for (int id : cfg_.canopen->node_ids) nodes_->set_tpdo_delay_us(id, period_ns_ / 4000);
   make_arm();
   ASSERT_TRUE(arm_->configure().ok());
@@ -905,51 +997,75 @@ TEST_F(CanopenArmBus, ATpdoLateWithinTheReadBudgetIsOnTime) {
   ASSERT_TRUE(a.ok()) << a.error().message;
   next_tick_ = now_ns();
   for (int i = 0; i < 60; ++i) ASSERT_EQ(good_tick(), IoStatus::kOk) << arm_->last_error().c_str();
-  EXPECT_LE(late_, ticks_ / 4) << late_ << " of " << ticks_ << " ticks late";
-  std::printf("  %d of %d ticks late with the TPDOs a quarter period after the SYNC\n", late_, ticks_);
-  late_ = 0;  // bounded here, not by TearDown's tighter bound
+  // The delay took effect: a good tick's TPDOs went out at least the delay after its read began.
+  // (After a late tick, a TPDO of the last SYNC may come after the next SYNC went out; CANopen
+  // cannot tell it from this SYNC's, and the read takes it. So: a tick whose TPDOs all answered
+  // its own SYNC.)
+  auto answered_this_sync = [&] {
+    for (int id : cfg_.canopen->node_ids)
+      if (nodes_->node(id).tpdo[0].answered_sync != arm_->syncs()) return false;
+    return true;
+  };
+  const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+  do {
+    ASSERT_LT(now_ns(), give_up);
+    ASSERT_EQ(good_tick(), IoStatus::kOk) << arm_->last_error().c_str();
+  } while (!answered_this_sync());
+  for (int id : cfg_.canopen->node_ids) {
+    const CanopenNodeSet::PdoView p = nodes_->node(id).tpdo[0];
+    EXPECT_GE(p.sent_ns - last_read_t0_, period_ns_ / 4) << "node " << id << ": its TPDO1 was held back";
+  }
 }
 
 // The host stops: no read, no write, so no SYNC and no heartbeat of the master. Each drive's
-// watchdog must take its torque off on its own within the consumer time; back on the bus, the master
-// finds the cause (EMCY 0x8130), and a rearm enables the drives again.
+// watchdog must take its torque off on its own once the consumer time has passed; back on the bus,
+// the master finds the cause (EMCY 0x8130), and a rearm enables the drives again.
+//
+// The event and its cause are asserted. Time: the drive never trips early, measured on the drive's
+// own clock (from the last heartbeat it heard to its trip: a stalled guest only makes that
+// longer); how late it trips after that is the scheduling of a loaded emulated guest (printed; a
+// hang deadline catches a drive that never does).
 TEST_F(CanopenArmBus, WhenTheMasterFallsSilentTheDrivesTakeTheirTorqueOff) {
   bring_up();
   nodes_->with_physics([](ArmPhysics& p) { p.set_hand_holding(true); });
   const JointCommand cmd = torques({0.05, 0.05, 0.5, 0.005});
-  for (int i = 0; i < 10; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
-  for (int id : cfg_.canopen->node_ids) ASSERT_NE(nodes_->node(id).torque_actual, 0) << "node " << id;
-  const std::int64_t t0 = now_ns();
-  std::vector<double> after_ms(cfg_.canopen->node_ids.size(), -1);
-  while (now_ns() - t0 < 2'000'000'000) {
-    bool all = true;
-    for (std::size_t k = 0; k < after_ms.size(); ++k) {
-      if (after_ms[k] < 0 && nodes_->node(cfg_.canopen->node_ids[k]).heartbeat_losses > 0) {
-        after_ms[k] = static_cast<double>(now_ns() - t0) * 1e-6;
-      }
-      all = all && after_ms[k] >= 0;
-    }
-    if (all) break;
-    usleep(1000);
+  // Ticks until every drive watches the master's heartbeat: a drive arms its watchdog at the first
+  // heartbeat after 0x1016:1 was written (up to a heartbeat period, drive_watchdog / 4, after activate).
+  auto all_watching = [&] {
+    for (int id : cfg_.canopen->node_ids)
+      if (!nodes_->node(id).watching) return false;
+    return true;
+  };
+  const std::int64_t give_up = now_ns() + std::chrono::nanoseconds(test::kHangTimeout).count();
+  for (int i = 0; i < 10 || !all_watching(); ++i) {
+    ASSERT_LT(now_ns(), give_up) << "the drives never armed their watchdog";
+    ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
   }
-  for (std::size_t k = 0; k < after_ms.size(); ++k) {
-    const int id = cfg_.canopen->node_ids[k];
+  for (int id : cfg_.canopen->node_ids) {
+    ASSERT_NE(nodes_->node(id).torque_actual, 0) << "node " << id;
+    ASSERT_EQ(nodes_->node(id).heartbeat_losses, 0u) << "node " << id;
+  }
+  const std::int64_t t0 = now_ns();
+  const bool all = test::eventually([&] {
+    for (int id : cfg_.canopen->node_ids)
+      if (nodes_->node(id).heartbeat_losses == 0) return false;
+    return true;
+  });
+  const double after_ms = static_cast<double>(now_ns() - t0) * 1e-6;
+  for (int id : cfg_.canopen->node_ids) {
     const auto v = nodes_->node(id);
-    ASSERT_GE(after_ms[k], 0) << "node " << id << " never noticed";
-    // The last heartbeat went out at most a quarter of the watchdog before the host stopped.
-    EXPECT_GE(after_ms[k], kDriveWatchdogMs * 0.75 - 5) << "node " << id;
-    EXPECT_LE(after_ms[k], kDriveWatchdogMs + 200) << "node " << id;
-    EXPECT_GE(v.last_loss_ms, kDriveWatchdogMs) << "node " << id;
-    EXPECT_LE(v.last_loss_ms, kDriveWatchdogMs + 150) << "node " << id;
+    ASSERT_EQ(v.heartbeat_losses, 1u) << "node " << id << (all ? "" : " never noticed");
+    EXPECT_GE(v.last_loss_ms, kDriveWatchdogMs) << "node " << id << ": tripped before its consumer time";
     EXPECT_EQ(v.torque_actual, 0) << "node " << id;
     EXPECT_EQ(canopen::cia402_state(v.statusword), Cia402State::kSwitchOnDisabled) << "node " << id << ": 0x6007 = 2";
     EXPECT_EQ(v.last_emcy, canopen::kEmcyHeartbeat) << "node " << id;
-    std::printf("  node %d: torque off %.0f ms after the host stopped (%.0f ms after its last heartbeat)\n", id, after_ms[k],
-                v.last_loss_ms);
+    std::printf("  node %d: torque off %.0f ms after its last heartbeat of the master (watchdog %d ms)\n", id, v.last_loss_ms,
+                kDriveWatchdogMs);
   }
-  // The host comes back: the EMCY is the cause it reports.
+  std::printf("  all four torque-free %.0f ms after the host stopped\n", after_ms);
+  // The host comes back: the EMCYs wait in its socket, and the first read reports them.
   next_tick_ = now_ns();
-  ASSERT_GT(ticks_until_fault(cmd, 5), 0);
+  EXPECT_EQ(ticks_until_fault(cmd, 5), 1);
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDeviceFault);
   EXPECT_EQ(arm_->fault_detail().code, canopen::kEmcyHeartbeat);
   EXPECT_NE(std::string(arm_->fault_detail().c_str()).find("EMCY 0x8130 heartbeat / life guard error"), std::string::npos)
@@ -1034,26 +1150,21 @@ class CanopenPrograms : public CanopenArmBus {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
     base_ = std::string("/tmp/lancet_can_") + info->name();
   }
-  // The test config as a file: this interface and period, the drive watchdog of the tests.
+  // The test config as a file: this interface and period, the drive watchdog of the tests, and a
+  // node heartbeat the programs (which wait the driver's default 2 periods) do not miss in a stall.
   std::string config_file(std::vector<std::pair<std::string, std::string>> extra = {}) {
     std::vector<std::pair<std::string, std::string>> keys = {
         {"interface", "\"" + iface_name() + "\""},
         {"sync_period_us", std::to_string(std::llround(cfg_.canopen->sync_period * 1e6))},
-        {"heartbeat_ms", "50"},
+        {"heartbeat_ms", std::to_string(kProgramHeartbeatMs)},
         {"master_node_id", std::to_string(kMasterNodeId)},
         {"drive_watchdog_ms", std::to_string(kDriveWatchdogMs)},
     };
     for (auto& e : extra) keys.push_back(std::move(e));
     return write_text(base_ + ".toml", canopen_toml(keys));
   }
-  static bool wait_for(const std::function<bool()>& pred, double seconds) {
-    const std::int64_t end = now_ns() + static_cast<std::int64_t>(seconds * 1e9);
-    while (!pred()) {
-      if (now_ns() > end) return false;
-      usleep(2000);
-    }
-    return true;
-  }
+  // Waits for an event of a program (a deadline that catches hangs).
+  static bool wait_for(const std::function<bool()>& pred) { return test::eventually(pred, test::kHangTimeout, std::chrono::milliseconds(2)); }
   bool all_enabled() const {
     for (int id : cfg_.canopen->node_ids)
       if (canopen::cia402_state(nodes_->node(id).statusword) != Cia402State::kOperationEnabled) return false;
@@ -1069,11 +1180,14 @@ class CanopenPrograms : public CanopenArmBus {
                                                                    "--period-us", period, "-q"},
                                          rt_log_);
   }
-  // lancet-rt until `steady` (it enabled the drives and ticks). Once more when it was not: in the
-  // guest, lancet-rt's start-up between activating the arm and the servo's first tick can outlast
-  // the drives' watchdog, which then (rightly) takes the torque off; the log says so.
+  // lancet-rt until `steady` (it enabled the drives and ticks). Once more when it was not: should
+  // lancet-rt's start-up between activating the arm and the servo's first tick (or a stall of the
+  // guest) outlast the drives' watchdog, the drives (rightly) take the torque off; the log says so.
+  // Before the second start, the killed first one's watch must be over (`unwatched`: no drive
+  // still watching a heartbeat; each that was has timed out), so that no loss of the first counts
+  // against the second.
   std::unique_ptr<test::Child> start_steady_lancet_rt(const std::string& config, const std::string& tag,
-                                                      const std::function<bool()>& steady) {
+                                                      const std::function<bool()>& steady, const std::function<bool()>& unwatched) {
     for (int attempt = 1;; ++attempt) {
       auto rt = start_lancet_rt(config, tag + std::to_string(attempt));
       if (!rt->started()) {
@@ -1089,6 +1203,10 @@ class CanopenPrograms : public CanopenArmBus {
       rt->signal(SIGKILL);
       (void)rt->wait_exit(std::chrono::seconds(5));
       ::shm_unlink(shm_.c_str());
+      if (!wait_for(unwatched)) {
+        ADD_FAILURE() << "the drives still watch the killed lancet-rt's heartbeat";
+        return rt;
+      }
     }
   }
   void TearDown() override {
@@ -1099,56 +1217,73 @@ class CanopenPrograms : public CanopenArmBus {
 };
 
 // SIGSTOP: lancet-rt is alive but stalled (nothing it could do itself). The emulated drives (the
-// code lancet-armsim runs) must go torque-free within the watchdog time.
+// code lancet-armsim runs) must go torque-free once the watchdog time has passed. Asserted: the
+// event, its cause (EMCY 0x8130, 0x6007 = 2) and that no drive tripped early (on its own clock);
+// how soon after the watchdog time they did is the guest's scheduling (printed; a hang deadline).
 TEST_F(CanopenPrograms, LancetRtStalledByASignalLeavesTheDrivesTorqueFree) {
   start_nodes();
   const std::string config = config_file();
-  auto steady = [&] {
-    std::uint64_t losses = 0;
-    for (int id : cfg_.canopen->node_ids) losses += nodes_->node(id).heartbeat_losses;
-    if (!wait_for([&] { return all_enabled() && nodes_->node(1).master_heartbeats > 2; }, 20.0)) return false;
-    usleep(300'000);  // a few servo ticks and heartbeats
-    std::uint64_t now = 0;
-    for (int id : cfg_.canopen->node_ids) now += nodes_->node(id).heartbeat_losses;
-    return all_enabled() && now == losses;
+  auto losses = [&] {
+    std::uint64_t n = 0;
+    for (int id : cfg_.canopen->node_ids) n += nodes_->node(id).heartbeat_losses;
+    return n;
   };
-  auto rt = start_steady_lancet_rt(config, "stop", steady);
+  // Steady: every drive enabled and watching lancet-rt's heartbeats as they come (two more each),
+  // with no loss since this lancet-rt started.
+  auto steady = [&] {
+    const std::uint64_t before = losses();
+    std::vector<std::uint64_t> heard;
+    for (int id : cfg_.canopen->node_ids) heard.push_back(nodes_->node(id).master_heartbeats);
+    const bool up = wait_for([&] {
+      if (!all_enabled()) return false;
+      for (std::size_t k = 0; k < heard.size(); ++k) {
+        const auto v = nodes_->node(cfg_.canopen->node_ids[k]);
+        if (!v.watching || v.master_heartbeats < heard[k] + 2) return false;
+      }
+      return true;
+    });
+    return up && all_enabled() && losses() == before;
+  };
+  auto unwatched = [&] {
+    for (int id : cfg_.canopen->node_ids)
+      if (nodes_->node(id).watching) return false;
+    return true;
+  };
+  auto rt = start_steady_lancet_rt(config, "stop", steady, unwatched);
   ASSERT_FALSE(HasFailure());
   std::printf("  longest wait between two of lancet-rt's heartbeats so far: %.0f ms\n", nodes_->node(1).max_gap_ms);
+  std::vector<std::uint64_t> before;
+  for (int id : cfg_.canopen->node_ids) before.push_back(nodes_->node(id).heartbeat_losses);
   rt->signal(SIGSTOP);
   const std::int64_t t0 = now_ns();
-  const bool lost = wait_for(
-      [&] {
-        for (int id : cfg_.canopen->node_ids)
-          if (nodes_->node(id).heartbeat_losses == 0) return false;
-        return true;
-      },
-      2.0);
+  const bool lost = wait_for([&] {
+    for (std::size_t k = 0; k < before.size(); ++k)
+      if (nodes_->node(cfg_.canopen->node_ids[k]).heartbeat_losses == before[k]) return false;
+    return true;
+  });
   const double elapsed_ms = static_cast<double>(now_ns() - t0) * 1e-6;
   rt->signal(SIGKILL);
   (void)rt->wait_exit(std::chrono::seconds(5));
-  ASSERT_TRUE(lost) << "the drives did not notice within 2 s";
-  EXPECT_LE(elapsed_ms, kDriveWatchdogMs + 300) << "all four torque-free within the watchdog (plus a margin for the guest)";
+  ASSERT_TRUE(lost) << "the drives did not notice within " << test::kHangTimeout.count() << " s";
   for (int id : cfg_.canopen->node_ids) {
     const auto v = nodes_->node(id);
-    EXPECT_GE(v.last_loss_ms, kDriveWatchdogMs) << "node " << id;
-    EXPECT_LE(v.last_loss_ms, kDriveWatchdogMs + 150) << "node " << id;
+    EXPECT_GE(v.last_loss_ms, kDriveWatchdogMs) << "node " << id << ": tripped before its consumer time";
     EXPECT_EQ(v.torque_actual, 0) << "node " << id;
     EXPECT_EQ(canopen::cia402_state(v.statusword), Cia402State::kSwitchOnDisabled) << "node " << id;
     EXPECT_EQ(v.last_emcy, canopen::kEmcyHeartbeat) << "node " << id;
   }
-  std::printf("  lancet-rt stopped: all drives torque-free after %.0f ms (node 1: %.0f ms after the last heartbeat)\n", elapsed_ms,
-              nodes_->node(1).last_loss_ms);
+  std::printf("  lancet-rt stopped: all drives torque-free after %.0f ms (node 1: %.0f ms after the last heartbeat; watchdog %d ms)\n",
+              elapsed_ms, nodes_->node(1).last_loss_ms, kDriveWatchdogMs);
 }
 
 // kill -9 of lancet-rt, the nodes served by the lancet-armsim program: its stderr says when each
-// drive went torque-free.
+// drive started watching lancet-rt's heartbeat and when each went torque-free.
 TEST_F(CanopenPrograms, LancetRtKilledLeavesLancetArmsimsDrivesTorqueFree) {
   const std::string config = config_file();
   const std::string sim_log = base_ + "_armsim.log";
   test::Child sim({tools_ + "/lancet-armsim", config, "--can", iface_name(), "--hand", "hold"}, sim_log);
   ASSERT_TRUE(sim.started());
-  ASSERT_TRUE(wait_for([&] { return test::read_file(sim_log).find("serving") != std::string::npos; }, 10.0)) << test::read_file(sim_log);
+  ASSERT_TRUE(wait_for([&] { return test::read_file(sim_log).find("serving") != std::string::npos; })) << test::read_file(sim_log);
   const std::regex line_re("node ([0-9]+): master heartbeat \\(0x77F\\) lost after ([0-9]+) ms \\(consumer time ([0-9]+) ms\\): "
                            "torque off, disable voltage \\(0x6007 = 2\\), EMCY 0x8130");
   auto losses = [&] {
@@ -1160,31 +1295,42 @@ TEST_F(CanopenPrograms, LancetRtKilledLeavesLancetArmsimsDrivesTorqueFree) {
     }
     return out;
   };
-  auto steady = [&] {
-    const std::size_t before = losses().size();
-    if (!wait_for([&] { return test::read_file(rt_log_).find("is active") != std::string::npos; }, 20.0)) return false;
-    usleep(300'000);
-    return losses().size() == before;
+  const std::string watching = "master heartbeat (0x77F, consumer time " + std::to_string(kDriveWatchdogMs) + " ms)";
+  auto watchers = [&] {
+    const std::string log = test::read_file(sim_log);
+    std::size_t n = 0;
+    for (std::size_t at = log.find(watching); at != std::string::npos; at = log.find(watching, at + 1)) ++n;
+    return n;
   };
-  auto rt = start_steady_lancet_rt(config, "kill", steady);
+  // Steady: lancet-rt is active and all four drives watch its heartbeat, none lost since it started.
+  auto steady = [&] {
+    const std::size_t lost_before = losses().size(), watching_before = watchers();
+    const bool up = wait_for([&] {
+      return test::read_file(rt_log_).find("is active") != std::string::npos && watchers() >= watching_before + 4;
+    });
+    return up && losses().size() == lost_before;
+  };
+  // Each drive that started watching times out once when the heartbeat stops (unless a new master
+  // writes 0x1016:1 first, and none does between the two starts).
+  auto unwatched = [&] { return losses().size() >= watchers(); };
+  auto rt = start_steady_lancet_rt(config, "kill", steady, unwatched);
   ASSERT_FALSE(HasFailure()) << test::read_file(sim_log);
   const std::size_t before = losses().size();
   rt->signal(SIGKILL);
   const std::int64_t t0 = now_ns();
-  const bool all = wait_for([&] { return losses().size() >= before + 4; }, 2.0);
+  const bool all = wait_for([&] { return losses().size() >= before + 4; });
   const double elapsed_ms = static_cast<double>(now_ns() - t0) * 1e-6;
   (void)rt->wait_exit(std::chrono::seconds(5));
   sim.signal(SIGTERM);
   (void)sim.wait_exit(std::chrono::seconds(5));
   std::printf("%s", test::read_file(sim_log).c_str());
   ASSERT_TRUE(all) << "lancet-armsim did not report four drives torque-free";
-  EXPECT_LE(elapsed_ms, kDriveWatchdogMs + 300);
   const auto lost = losses();
+  EXPECT_EQ(lost.size(), before + 4) << "one loss per drive";
   for (std::size_t k = before; k < lost.size(); ++k) {
-    EXPECT_GE(lost[k].second, kDriveWatchdogMs) << "node " << lost[k].first;
-    EXPECT_LE(lost[k].second, kDriveWatchdogMs + 150) << "node " << lost[k].first;
+    EXPECT_GE(lost[k].second, kDriveWatchdogMs) << "node " << lost[k].first << ": tripped before its consumer time";
   }
-  std::printf("  lancet-rt killed: lancet-armsim's four drives torque-free within %.0f ms\n", elapsed_ms);
+  std::printf("  lancet-rt killed: lancet-armsim's four drives torque-free within %.0f ms (watchdog %d ms)\n", elapsed_ms, kDriveWatchdogMs);
 }
 
 // lancetctl probe and monitor only observe: against drives whose TPDOs come a whole period after
@@ -1196,7 +1342,7 @@ TEST_F(CanopenPrograms, ProbeAndMonitorMoveNoDriveAndDoNotWaitForLateTpdos) {
   const std::string config = config_file();
   const std::string out = base_ + "_probe.log";
   test::Child probe({tools_ + "/lancetctl", "probe", config}, out);
-  const auto st = probe.wait_exit(std::chrono::seconds(20));
+  const auto st = probe.wait_exit(test::kHangTimeout);
   const std::string text = test::read_file(out);
   std::printf("%s", text.c_str());
   ASSERT_TRUE(st.has_value()) << "probe hangs";
@@ -1205,12 +1351,17 @@ TEST_F(CanopenPrograms, ProbeAndMonitorMoveNoDriveAndDoNotWaitForLateTpdos) {
   EXPECT_NE(text.find("status 0x0\n"), std::string::npos) << "no drive enabled or faulted: " << text;
 
   const std::string mon = base_ + "_monitor.log";
-  test::Child monitor({tools_ + "/lancetctl", "monitor", config, "--duration", "0.5", "--rate", "20"}, mon);
-  const auto ms = monitor.wait_exit(std::chrono::seconds(20));
+  test::Child monitor({tools_ + "/lancetctl", "monitor", config, "--duration", "1", "--rate", "20"}, mon);
+  const auto ms = monitor.wait_exit(test::kHangTimeout);
   const std::string mtext = test::read_file(mon);
   ASSERT_TRUE(ms.has_value()) << "monitor hangs";
   EXPECT_TRUE(WIFEXITED(*ms) && WEXITSTATUS(*ms) == 0) << mtext;
-  EXPECT_GE(std::count(mtext.begin(), mtext.end(), '\n'), 5) << mtext;
+  // Each line a good reading (how many fit in the second is the guest's speed), none a failed read.
+  const std::regex sample_re("^ *[0-9]+\\.[0-9]+ s  q ");
+  std::istringstream mlines(mtext);
+  int samples = 0;
+  for (std::string line; std::getline(mlines, line);) samples += std::regex_search(line, sample_re) ? 1 : 0;
+  EXPECT_GE(samples, 1) << mtext;
   EXPECT_EQ(mtext.find("read:"), std::string::npos) << mtext;
 
   for (int id : cfg_.canopen->node_ids) {
@@ -1229,14 +1380,23 @@ TEST_F(CanopenArmBus, ReadAndWriteDoNotAllocate) {
   bring_up();
   const JointCommand cmd = torques({0.01, 0.01, 0.1, 0.001});
   for (int i = 0; i < 50; ++i) ASSERT_EQ(good_tick(cmd), IoStatus::kOk);
-  int bad = 0, late = 0;
+  // 500 ticks paced at the SYNC period span several of the master's heartbeat periods and of the
+  // nodes': sending the one and decoding the other happen under the guard too.
+  int bad = 0, late = 0, unjustified = 0;
+  char why[200] = "";
+  const std::uint64_t master_before = arm_->master_heartbeats(), node_before = arm_->node(0).heartbeats;
   {
     lancet::test::MallocGuard guard;
     for (int i = 0; i < 500; ++i) {
       pace();
+      const std::int64_t t0 = now_ns();
       const IoStatus r = arm_->read(state_);
-      if (r == IoStatus::kTimeout) ++late;
-      else if (r != IoStatus::kOk) ++bad;
+      if (r == IoStatus::kTimeout) {
+        ++late;
+        if (!timeout_is_justified(t0, why, sizeof why)) ++unjustified;
+      } else if (r != IoStatus::kOk) {
+        ++bad;
+      }
       if (arm_->write(cmd) != IoStatus::kOk) ++bad;
     }
     EXPECT_EQ(guard.count(), 0u) << "allocations in 500 read+write ticks";
@@ -1244,10 +1404,29 @@ TEST_F(CanopenArmBus, ReadAndWriteDoNotAllocate) {
   // Under AddressSanitizer the guard cannot interpose malloc (ASan owns it): only operator new is counted.
   EXPECT_TRUE(lancet::test::malloc_is_counted() || lancet::test::kAddressSanitizer) << "plain malloc not counted in this build";
   EXPECT_EQ(bad, 0);
-  EXPECT_LE(late, 25);
+  EXPECT_EQ(unjustified, 0) << why;
+  EXPECT_GT(arm_->master_heartbeats(), master_before) << "the master's heartbeat went out under the guard";
+  EXPECT_GT(arm_->node(0).heartbeats, node_before) << "node 1's heartbeat was decoded under the guard";
   EXPECT_EQ(arm_->state(), Lifecycle::kActive);
-  // The fault path too: a silent node, timeouts, kFault, zero torque.
-  nodes_->set_silent(4, true);
+  if (late > 0) std::printf("  %d of 500 guarded ticks were late (each the node's doing)\n", late);
+  // The fault paths too: a silent node (timeouts, each reported and described; node 1, the first
+  // the driver checks, so that each names it), then a node that rebooted (a disconnect: kFault and
+  // zero torque at once, then the faulted reads and writes).
+  nodes_->set_silent(1, true);
+  int timeouts = 0;
+  {
+    lancet::test::MallocGuard guard;
+    for (int i = 0; i < 10; ++i) {
+      pace();
+      if (arm_->read(state_) == IoStatus::kTimeout) ++timeouts;
+      (void)arm_->write(cmd);
+    }
+    EXPECT_EQ(guard.count(), 0u) << "allocations on the timeout path";
+  }
+  EXPECT_EQ(timeouts, 10);
+  EXPECT_EQ(arm_->last_event().node_id, 1);
+  nodes_->set_silent(1, false);
+  nodes_->power_cycle(1);
   {
     lancet::test::MallocGuard guard;
     for (int i = 0; i < 10; ++i) {
@@ -1258,24 +1437,37 @@ TEST_F(CanopenArmBus, ReadAndWriteDoNotAllocate) {
     EXPECT_EQ(guard.count(), 0u) << "allocations on the fault path";
   }
   EXPECT_EQ(arm_->state(), Lifecycle::kFault);
+  EXPECT_EQ(arm_->fault_cause(), IoStatus::kDisconnected);
+  expect_all_torque_zero("after the fault");
 }
 
+// A benchmark, not a test: it runs only when LANCET_CAN_BENCH_TICKS is set (the runner passes
+// LANCET_CAN_* into the guest), e.g.
+//   LANCET_CAN_BENCH_TICKS=1000 tests/firmware_rt/device/run_can_tests_in_qemu.sh
+//       build/tests/firmware_rt/canopen_arm_test build/can-qemu --gtest_filter=CanopenArmBus.BenchTickIo
+// and prints one JSON line: the per-tick read + write time inside the guest (docs/PERFORMANCE.md).
+// The figures are the emulator's and the host's; what it asserts is only the accounting.
 TEST_F(CanopenArmBus, BenchTickIo) {
-  // Count late round trips, do not stop at three in a row; and a node heartbeat timeout (400 ms)
-  // longer than the guest's stalls under host load, which would otherwise fault the arm mid-bench.
-  cfg_.canopen->heartbeat_period = 0.2;
-  bring_up(FaultPolicy{1'000'000});
-  const JointCommand cmd = torques({0.01, 0.01, 0.1, 0.001});
   const char* n_env = std::getenv("LANCET_CAN_BENCH_TICKS");
-  const int ticks = n_env != nullptr ? std::max(10, std::atoi(n_env)) : 1000;
+  if (n_env == nullptr || *n_env == '\0') GTEST_SKIP() << "a benchmark: LANCET_CAN_BENCH_TICKS=N runs it (N ticks)";
+  bring_up();  // tolerant: late round trips are counted, never a fault
+  const JointCommand cmd = torques({0.01, 0.01, 0.1, 0.001});
+  const int ticks = std::max(10, std::atoi(n_env));
   std::vector<double> us;
   us.reserve(static_cast<std::size_t>(ticks));
-  int errors = 0;
+  int late = 0, bad = 0, unjustified = 0;
+  char why[200] = "";
   for (int i = 0; i < ticks; ++i) {
     pace();
     const std::int64_t t0 = now_ns();
-    if (arm_->read(state_) != IoStatus::kOk) ++errors;
-    if (arm_->write(cmd) != IoStatus::kOk) ++errors;
+    const IoStatus r = arm_->read(state_);
+    if (r == IoStatus::kTimeout) {
+      ++late;
+      if (!timeout_is_justified(t0, why, sizeof why)) ++unjustified;
+    } else if (r != IoStatus::kOk) {
+      ++bad;
+    }
+    if (arm_->write(cmd) != IoStatus::kOk) ++bad;
     us.push_back(static_cast<double>(now_ns() - t0) * 1e-3);
   }
   std::sort(us.begin(), us.end());
@@ -1283,13 +1475,12 @@ TEST_F(CanopenArmBus, BenchTickIo) {
   const char* env = std::getenv("LANCET_CAN_ENV");
   std::printf(
       "{\"bench\": \"canopen_tick_io\", \"interface\": \"%s\", \"nodes\": 4, \"sync_period_us\": %.0f, \"ticks\": %d, "
-      "\"p50_us\": %.1f, \"p99_us\": %.1f, \"max_us\": %.1f, \"errors\": %d, \"env\": \"%s\"}\n",
-      iface_name().c_str(), cfg_.canopen->sync_period * 1e6, ticks, pct(0.5), pct(0.99), us.back(), errors,
+      "\"p50_us\": %.1f, \"p99_us\": %.1f, \"max_us\": %.1f, \"late\": %d, \"env\": \"%s\"}\n",
+      iface_name().c_str(), cfg_.canopen->sync_period * 1e6, ticks, pct(0.5), pct(0.99), us.back(), late,
       env != nullptr ? env : "unknown");
-  // Late round trips (timeouts) come from the host more than from the driver: on the shared 2-core
-  // host under a parallel build the guest loses up to ~4 % of them, with or without the driver's
-  // heartbeat. The same bound as the other bus tests' late ticks.
-  EXPECT_LE(errors, ticks / 20) << "late round trips (timeouts)";
+  EXPECT_EQ(bad, 0) << "every read is good or late";
+  EXPECT_EQ(unjustified, 0) << why;
+  EXPECT_EQ(arm_->state(), Lifecycle::kActive);
 }
 
 }  // namespace
