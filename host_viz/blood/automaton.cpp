@@ -43,22 +43,30 @@ Network NetworkBuilder::build() const {
     bucket[fill[p.a]++] = {p.b, p.conductance};
     bucket[fill[p.b]++] = {p.a, p.conductance};
   }
-  n.first.assign(cells + 1, 0);
-  n.to.reserve(bucket.size());
-  n.conductance.reserve(bucket.size());
+  // Per cell, its entries sorted by neighbour and the duplicates merged in place at the front of
+  // its range; then the arrays are made at their final size (a mesh edge comes from both its
+  // faces, so the bucket holds each half-edge twice: sized by it, they were twice too long).
   for (std::size_t i = 0; i < cells; ++i) {
     const auto b = bucket.begin() + start[i], e = bucket.begin() + start[i + 1];
     std::stable_sort(b, e, [](const Half& x, const Half& y) { return x.to < y.to; });
+    auto w = b;
     for (auto it = b; it != e; ++it) {
-      if (n.to.size() > n.first[i] && n.to.back() == it->to) {
-        n.conductance.back() += it->conductance;
-      } else {
-        n.to.push_back(it->to);
-        n.conductance.push_back(it->conductance);
-      }
+      if (w != b && (w - 1)->to == it->to)
+        (w - 1)->conductance += it->conductance;
+      else
+        *w++ = *it;
     }
-    n.first[i + 1] = static_cast<std::uint32_t>(n.to.size());
+    fill[i] = static_cast<std::uint32_t>(w - b);  // this cell's distinct neighbours
   }
+  n.first.assign(cells + 1, 0);
+  for (std::size_t i = 0; i < cells; ++i) n.first[i + 1] = n.first[i] + fill[i];
+  n.to.resize(n.first[cells]);
+  n.conductance.resize(n.first[cells]);
+  for (std::size_t i = 0; i < cells; ++i)
+    for (std::uint32_t k = 0; k < fill[i]; ++k) {
+      n.to[n.first[i] + k] = bucket[start[i] + k].to;
+      n.conductance[n.first[i] + k] = bucket[start[i] + k].conductance;
+    }
   n.twin.resize(n.to.size());
   for (std::size_t i = 0; i < cells; ++i)
     for (std::uint32_t k = n.first[i]; k < n.first[i + 1]; ++k) {

@@ -112,7 +112,12 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     }
   }
 
-  // 2. Edges, faces and their half-edge cycles.
+  // 2. Edges, faces and their half-edge cycles. The edge count is known now (a paired corner
+  // shares its edge): the arrays are reserved for exactly that, as growing them one edge at a
+  // time would double their capacity whenever the caller's estimate falls short.
+  std::size_t n_edges = 0;
+  for (std::uint32_t c = 0; c < 3 * nt; ++c) n_edges += partner[c] == kNone || partner[c] > c ? 1 : 0;
+  mesh.reserve(mesh.n_vertices(), mesh.n_edges() + n_edges, mesh.n_faces() + nt);
   std::vector<HH> half(3 * nt);  // corner → its half-edge (from → to)
   for (std::uint32_t c = 0; c < 3 * nt; ++c) {
     if (half[c].is_valid()) continue;

@@ -1,6 +1,6 @@
 // The bleeding automaton (CPU reference): the mass ledger over 10,000 steps with sources and
-// sinks, depths never negative, blood running down a tilted plane at the rate the pipe model
-// predicts, a pool levelling out in a bowl, blood crossing a cut through the groove's cells
+// sinks, depths never negative, a mesh's network one pipe each way per edge (and no longer),
+// blood running down a tilted plane at the rate the pipe model predicts, a pool levelling out in a bowl, blood crossing a cut through the groove's cells
 // without loss, and results that do not depend on the threads or on skipping idle tiles.
 
 #include "blood/automaton.hpp"
@@ -55,6 +55,19 @@ TEST(BloodAutomaton, TheLedgerHoldsOverTenThousandStepsWithSourcesAndSinksAndNoD
   Ledger wrong = l;
   wrong.now *= 1.0001;
   EXPECT_GT(wrong.relative_error(), 1e-5);
+}
+
+// A mesh edge comes from both its faces: the network merges the two into one pipe each way and
+// holds its pipe arrays at exactly that size (sized by the unmerged count, they were twice as long).
+TEST(BloodAutomaton, AMeshNetworkHasOnePipeEachWayPerEdgeAndArraysOfThatSize) {
+  const auto g = grid(20, 20, kH, [](float, float) { return 0.0f; });
+  const Network n = mesh_network(g.xyz, g.tri, kDown, 2e-5f);
+  const std::size_t edges = 19 * 20 * 2 + 19 * 19;  // rows, columns and one diagonal per square
+  EXPECT_EQ(n.pipes(), 2 * edges);
+  EXPECT_EQ(n.to.capacity(), n.pipes());
+  EXPECT_EQ(n.conductance.capacity(), n.pipes());
+  EXPECT_EQ(n.twin.capacity(), n.pipes());
+  for (std::size_t k = 0; k < n.pipes(); ++k) ASSERT_EQ(n.twin[n.twin[k]], k);
 }
 
 TEST(BloodAutomaton, BloodRunsDownATiltedPlaneAtTheRateThePipeModelPredicts) {

@@ -1,7 +1,7 @@
 // build_triangle_mesh against add_face: the same mesh face for face (same faces in the same order,
 // the same vertex cycles, the same one-rings in the same cyclic order), consistent half-edge
-// links, closed where the surface is closed, open where it is cut; and inputs that are not a
-// manifold refused before the mesh is touched.
+// links, closed where the surface is closed, open where it is cut; the edge arrays reserved for
+// exactly the edges made; and inputs that are not a manifold refused before the mesh is touched.
 #include "volume/halfedge_build.hpp"
 
 #include <gtest/gtest.h>
@@ -123,6 +123,21 @@ TEST(HalfedgeBuild, ThePhantomsClosedSkinEqualsTheAddFaceBuild) {
 TEST(HalfedgeBuild, AnOpenSkinCutByTheVolumesSidesEqualsTheAddFaceBuild) {
   const IsoSurface s = phantom_skin(false);
   EXPECT_GT(expect_same_as_add_face(s.positions.size(), triangles_of(s)), 100u) << "open where the volume ends";
+}
+
+// The edge count is known before the first edge is made: the edge arrays (OpenMesh's and every
+// edge property's) are reserved for exactly that many, even when the caller reserved too few (one
+// edge at a time, they grew to twice what they hold).
+TEST(HalfedgeBuild, TheEdgeArraysAreReservedForExactlyTheEdgesMade) {
+  const IsoSurface s = phantom_skin(false);
+  IsoMesh m;
+  OpenMesh::EPropHandleT<std::uint8_t> per_edge;
+  m.add_property(per_edge);
+  m.reserve(s.positions.size(), s.triangles.size(), s.triangles.size());  // an edge per triangle: too few
+  const auto vh = add_vertices(m, s.positions.size());
+  ASSERT_TRUE(build_triangle_mesh(m, std::span<const IsoMesh::VertexHandle>(vh), std::span<const Tri>(s.triangles)));
+  EXPECT_GT(m.n_edges(), s.triangles.size());
+  EXPECT_EQ(m.property(per_edge).data_vector().capacity(), m.n_edges());
 }
 
 TEST(HalfedgeBuild, SmallMeshesWithBoundariesEqualTheAddFaceBuild) {
