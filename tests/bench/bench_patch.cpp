@@ -86,7 +86,12 @@ struct CaseResult {
   std::uint64_t published = 0, used = 0, ticks = 0;
 };
 
-constexpr std::size_t kStamps = 1u << 20;  // publish times by version (a ring)
+constexpr std::size_t kStamps = 1u << 20;  // publish times by version (a ring; each slot says whose it is)
+
+struct Stamp {
+  std::atomic<std::uint64_t> version{0};
+  std::atomic<std::int64_t> ns{0};
+};
 
 CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
   CaseResult r;
@@ -100,12 +105,18 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
   so.hold_dma_latency = false;
   if (c.thread) (void)servo.start_patch_intake(rt_ok, so.priority - 10, so.cpu);
 
-  auto published_ns = std::make_unique<std::array<std::atomic<std::int64_t>, kStamps>>();
+  auto published_ns = std::make_unique<std::array<Stamp, kStamps>>();
+  const auto stamp = [&](std::uint64_t version, std::int64_t ns) {
+    Stamp& st = (*published_ns)[version % kStamps];
+    st.version.store(0, std::memory_order_relaxed);
+    st.ns.store(ns, std::memory_order_relaxed);
+    st.version.store(version, std::memory_order_release);
+  };
   std::atomic<bool> stop{false};
   auto patch = make_patch(c.triangles);
   patch->t_ns = monotonic_ns();
   shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
-  (*published_ns)[1].store(monotonic_ns());
+  stamp(1, monotonic_ns());
   std::uint64_t published = 1;
   std::thread viz([&] {
     const std::int64_t gap = c.hz > 0 ? static_cast<std::int64_t>(1e9 / c.hz) : 0;
@@ -120,7 +131,7 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
       ++patch->seq;
       shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
       ++published;
-      (*published_ns)[published % kStamps].store(monotonic_ns(), std::memory_order_release);
+      stamp(published, monotonic_ns());
     }
   });
 
@@ -145,7 +156,8 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
           }
           if (v != last_version && v != 0) {
             last_version = v;
-            const std::int64_t pub = (*published_ns)[v % kStamps].load(std::memory_order_acquire);
+            const Stamp& st = (*published_ns)[v % kStamps];
+            const std::int64_t pub = st.version.load(std::memory_order_acquire) == v ? st.ns.load(std::memory_order_relaxed) : 0;
             if (latency.size() < max_ticks && pub != 0) latency.push_back(static_cast<double>(ctx.woke_ns - pub) / static_cast<double>(lp.period_ns));
             if (arrival.size() < max_ticks) arrival.push_back(us);
           } else if (other.size() < max_ticks) {
