@@ -17,8 +17,8 @@
 # Exit status: the binary's; 1 when the guest dies before reporting, or when it does not report
 # within LANCET_QEMU_TIMEOUT seconds (boot and the whole suite; default 280: just under the ctest
 # TIMEOUT of 300, so that this script, not ctest, says what timed out: the boot, or which test was
-# running). The suite takes about 30 s of an idle 2-core host under TCG and several times that on
-# a loaded one; the tests inside have their own hang deadlines (30 s each). When QEMU, busybox or
+# running), and several times what the suite takes under TCG on a loaded 2-core host; the tests
+# inside have their own hang deadlines (30 s each). When QEMU, busybox or
 # the kernel package is not available or cannot run: 77 (skip) with the reason on stdout, or, with
 # CI=true in the environment, 1 (a CI machine must run the CAN suite, not skip it).
 # Needs: qemu-system-x86, busybox-static, dpkg-deb, gzip, apt (first run only); strip (optional).
