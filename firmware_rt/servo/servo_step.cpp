@@ -200,6 +200,12 @@ Result<ServoModel> model_from_blob(const ServoModelBlob& b) {
                                            std::to_string(kServoModelLayout) + ")"};
   if (b.size != sizeof(ServoModel))
     return bad("size: expected " + std::to_string(sizeof(ServoModel)) + " bytes, found " + std::to_string(b.size));
+  // A bool holding anything but 0 or 1 is undefined behaviour once read: its byte is checked first.
+  constexpr std::size_t kPassivityAt =
+      offsetof(ServoModel, haptic) + offsetof(haptics::HapticModel, safety) + offsetof(haptics::SafetyParams, passivity);
+  static_assert(sizeof(haptics::SafetyParams::passivity) == 1);
+  if (b.bytes[kPassivityAt] > 1)
+    return bad("haptic.safety.passivity: expected 0 or 1, found " + std::to_string(static_cast<unsigned>(b.bytes[kPassivityAt])));
   ServoModel m;
   std::memcpy(&m, b.bytes, sizeof(ServoModel));
   const auto fin = [](double x) { return std::isfinite(x); };

@@ -199,6 +199,12 @@ TEST(ServoStep, AModelFromTheWireIsCheckedBeforeUse) {
   r = model_from_blob(to_blob(bad));
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().message.find("period_ns"), std::string::npos) << r.error().message;
+  // A bool that is not 0 or 1 (a corrupted or hostile blob) is refused before it is read.
+  b = to_blob(m);
+  b.bytes[offsetof(ServoModel, haptic) + offsetof(haptics::HapticModel, safety) + offsetof(haptics::SafetyParams, passivity)] = 2;
+  r = model_from_blob(b);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("passivity"), std::string::npos) << r.error().message;
   // The passivity controller's damping bound: finite and > 0.
   for (const double damping : {0.0, -1.0, std::nan(""), std::numeric_limits<double>::infinity()}) {
     bad = m;
