@@ -463,6 +463,7 @@ class CanopenArmBus : public ::testing::Test {
     for (;;) {
       ++ticks_;
       const IoStatus s = tick(cmd);
+      if (s != IoStatus::kOk && s != IoStatus::kTimeout) std::printf("  a tick that should be good: %s\n", bus_story().c_str());
       if (s != IoStatus::kTimeout || arm_->state() != Lifecycle::kActive || now_ns() > give_up) return s;
       ++late_;
     }
@@ -471,6 +472,20 @@ class CanopenArmBus : public ::testing::Test {
     JointCommand zero{};
     zero.n = 4;
     return good_tick(zero);
+  }
+  // What the driver last reported, and what each drive's watchdog saw (for failure messages).
+  std::string bus_story() const {
+    std::string out = std::string(to_string(arm_->state() == Lifecycle::kFault ? arm_->fault_cause() : arm_->last_event().status)) + ": " +
+                      (arm_->state() == Lifecycle::kFault ? arm_->fault_detail().c_str() : arm_->last_error().c_str());
+    char line[160];
+    for (int id : cfg_.canopen->node_ids) {
+      const auto v = nodes_->node(id);
+      std::snprintf(line, sizeof line, "; node %d: statusword 0x%04X, %llu master heartbeats, longest gap %.0f ms, %llu lost (last after %.0f ms)",
+                    id, v.statusword, static_cast<unsigned long long>(v.master_heartbeats), v.max_gap_ms,
+                    static_cast<unsigned long long>(v.heartbeat_losses), v.last_loss_ms);
+      out += line;
+    }
+    return out;
   }
   void TearDown() override {
     // What timeout_is_justified() relies on: the nodes number the SYNCs as the driver does (one
@@ -1410,7 +1425,7 @@ TEST_F(CanopenArmBus, ReadAndWriteDoNotAllocate) {
   EXPECT_EQ(unjustified, 0) << why;
   EXPECT_GT(arm_->master_heartbeats(), master_before) << "the master's heartbeat went out under the guard";
   EXPECT_GT(arm_->node(0).heartbeats, node_before) << "node 1's heartbeat was decoded under the guard";
-  EXPECT_EQ(arm_->state(), Lifecycle::kActive);
+  ASSERT_EQ(arm_->state(), Lifecycle::kActive) << bus_story();
   if (late > 0) std::printf("  %d of 500 guarded ticks were late (each the node's doing)\n", late);
   // The fault paths too: a silent node (timeouts, each reported and described; node 1, the first
   // the driver checks, so that each names it), then a node that rebooted (a disconnect: kFault and
