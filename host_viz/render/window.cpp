@@ -129,6 +129,7 @@ Result<std::unique_ptr<Window>> Window::create(const WindowParams& p) {
 }
 
 Window::~Window() {
+  last_frame_.reset();  // while the context is current
   if (window_ != nullptr) {
     glfwDestroyWindow(window_);
     glfwTerminate();
@@ -147,9 +148,13 @@ void Window::swap_and_poll() {
     // No swap paces a headless loop: without a wait, llvmpipe queues every flushed frame (up to
     // 64 scenes, each holding the frame's binned triangles) while the loop draws the next, and a
     // loop that draws faster than the rasterizer finishes holds dozens of frames
-    // (docs/PERFORMANCE.md, "lancet-viz memory"). So the frame is finished here, as a swap
-    // finishes it: the driver then holds at most the frame being drawn.
-    glFinish();
+    // (docs/PERFORMANCE.md, "lancet-viz memory"). So, as a double-buffered swap does, this frame
+    // is queued and the one before it waited for: the rasterizer still draws a frame while the
+    // loop simulates the next, and the driver holds at most those two.
+    Fence ended = Fence::insert();
+    glFlush();
+    (void)last_frame_.wait();
+    last_frame_ = std::move(ended);
     return;
   }
   glfwSwapBuffers(window_);

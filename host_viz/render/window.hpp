@@ -10,6 +10,7 @@
 #include <string>
 
 #include "lancet/shared_model/result.hpp"
+#include "render/gl_objects.hpp"
 
 struct GLFWwindow;
 
@@ -35,8 +36,9 @@ class Window {
   [[nodiscard]] GLFWwindow* handle() const noexcept { return window_; }
   [[nodiscard]] bool headless() const noexcept { return window_ == nullptr; }
   [[nodiscard]] bool should_close() const;
-  /// Ends the frame: shows it and polls the window's events; headless, waits until the frame is
-  /// drawn (glFinish), so that the driver never queues frames behind it (see window.cpp).
+  /// Ends the frame: shows it and polls the window's events. Headless, where no swap paces the
+  /// loop, it waits for the frame before this one to be drawn, so that the driver holds at most
+  /// one frame besides the one being drawn (see window.cpp).
   void swap_and_poll();
   /// Framebuffer size in pixels.
   void framebuffer_size(int& w, int& h) const;
@@ -52,6 +54,7 @@ class Window {
   void* egl_display_ = nullptr;
   void* egl_context_ = nullptr;
   std::string egl_platform_;
+  Fence last_frame_;  ///< headless: the end of the frame before the one being drawn
 };
 
 }  // namespace lancet::render

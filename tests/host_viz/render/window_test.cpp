@@ -1,12 +1,14 @@
-// Window headless (EGL, no X server): a frame is finished when swap_and_poll() returns, as a swap
-// finishes it, so that llvmpipe never queues frames behind the one being drawn (each queued frame
-// holds its binned triangles: a loop that outran the rasterizer held dozens of them).
+// Window headless (EGL, no X server): as a double-buffered swap, swap_and_poll() returns once the
+// frame before the one it ends is drawn, so that llvmpipe never queues more than one frame behind
+// the one being drawn (each queued frame holds its binned triangles: a loop that outran the
+// rasterizer held dozens of them).
 
 #include "render/window.hpp"
 
 #include <gtest/gtest.h>
 
 #include "headless_gl.hpp"
+#include "render/gl_objects.hpp"
 #include "render/scene_renderer.hpp"
 #include "surface/placeholder_mesh.hpp"
 
@@ -15,7 +17,13 @@ namespace {
 
 using WindowTest = test::HeadlessGl<640, 480>;
 
-TEST_F(WindowTest, AHeadlessFrameIsFinishedWhenSwapAndPollReturns) {
+bool signalled(const GLsync s) {
+  GLint status = 0;
+  glGetSynciv(s, GL_SYNC_STATUS, 1, nullptr, &status);
+  return status == GL_SIGNALED;
+}
+
+TEST_F(WindowTest, AHeadlessSwapReturnsOnceTheFrameBeforeIsDrawn) {
   SceneRenderer r(640, 480);
   surface::TissueBlockParams p;
   p.cells = 300;  // 180 000 triangles: far longer to rasterize than to queue
@@ -23,16 +31,32 @@ TEST_F(WindowTest, AHeadlessFrameIsFinishedWhenSwapAndPollReturns) {
   SceneInput in;
   in.camera_pitch = 1.5f;
   in.camera_distance = 0.12f;
-  for (int frame = 0; frame < 3; ++frame) {
+  for (int i = 0; i < 3; ++i) {
+    // A heavy frame, a fence after its draws (only queried, never waited on), then a frame that
+    // draws nothing and so ends at once: its swap must still wait for the heavy one.
     r.render(in);
-    // A fence after everything the frame drew; it is only queried below, never waited on.
-    GLsync drawn = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
+    GLsync heavy = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
     window_->swap_and_poll();
-    GLint status = 0;
-    glGetSynciv(drawn, GL_SYNC_STATUS, 1, nullptr, &status);
-    glDeleteSync(drawn);
-    EXPECT_EQ(status, GL_SIGNALED) << "frame " << frame << " was still queued after swap_and_poll()";
+    window_->swap_and_poll();
+    EXPECT_TRUE(signalled(heavy)) << "the heavy frame was still queued after the next frame's swap";
+    glDeleteSync(heavy);
   }
+}
+
+TEST_F(WindowTest, AFenceWaitsForWhatCameBeforeIt) {
+  SceneRenderer r(640, 480);
+  surface::TissueBlockParams p;
+  p.cells = 300;
+  r.set_mesh(surface::make_tissue_block(p));
+  r.render(SceneInput{});
+  GLsync drawn = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
+  Fence f = Fence::insert();
+  Fence moved = std::move(f);
+  EXPECT_TRUE(f.empty());  // a moved-from fence is empty
+  EXPECT_TRUE(f.wait()) << "an empty fence has nothing to wait for";
+  EXPECT_TRUE(moved.wait());
+  EXPECT_TRUE(signalled(drawn));
+  glDeleteSync(drawn);
 }
 
 }  // namespace
