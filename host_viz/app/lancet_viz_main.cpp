@@ -377,7 +377,7 @@ int main(int argc, char** argv) {
   std::uint32_t rt_losses_recorded = 0;  // lancet-rt losses the recording has reacted to
   std::string rec_path = record_path;
   std::unique_ptr<lancet::record::Recorder> recorder;
-  std::uint64_t rec_frames = 0, rec_last_seq = 0;
+  std::uint64_t rec_frames = 0, rec_last_seq = 0, rec_frame_ticks = 0;
   std::vector<lancet::record::SceneEvent> scene_events;
   std::string rec_message;
   // While recording is armed: the patches this viz published (newest last, at most 8), for the
@@ -479,6 +479,7 @@ int main(int argc, char** argv) {
     sim().apply(use);
     if (rec == Rec::kOn) recorder->add_samples(use);
     if (!use.empty()) rec_last_seq = use.back().seq;
+    rec_frame_ticks = rec == Rec::kOn ? use.size() : 0;
     frame_batch.clear();
     (void)sim().export_patch(at, patch);
   };
@@ -601,6 +602,8 @@ int main(int argc, char** argv) {
         frame_record.frame = rec_frames;
         frame_record.t_ns = now;
         frame_record.last_seq = rec_last_seq;
+        frame_record.ticks = rec_frame_ticks;
+        rec_frame_ticks = 0;
         if (session.patches_published() != published_before) {
           const lancet::TissuePatch& p = session.patch();
           frame_record.patch_version = session.patch_version();

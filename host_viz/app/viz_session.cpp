@@ -85,17 +85,26 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
     drained += n;
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      if (const char* why = wire::check(batch_[i])) {
+      const char* why = wire::check(batch_[i]);
+      // The ticks come in order, a ring's worth at most ahead of the last: a sample a little behind
+      // (a stale slot) or far ahead (no overflow is that long) is garbage in the segment; applying
+      // it would replay old events or make every later tick look old. A sample far *behind* says
+      // the last one taken was the garbage: it is taken, and the count starts from it.
+      const std::uint64_t seq = batch_[i].seq, last = samples_applied_;
+      const bool stale = seq <= last && last - seq <= kSampleRingCapacity;
+      if (why == nullptr && last != 0 && (stale || (seq > last && seq - last > kSampleRingCapacity)))
+        why = "sample.seq: not after the last one, or further ahead than the ring holds";
+      if (why != nullptr) {
         ++stats_.rejected;
         stats_.last_reject = why;
         continue;
       }
+      samples_applied_ = seq;
       batch_[kept++] = batch_[i];
     }
     if (kept > 0) {
       stats_.ingest(batch_.data(), kept);
       latest_ = batch_[kept - 1];
-      samples_applied_ = std::max(samples_applied_, latest_.seq);
       if (on_samples) on_samples(std::span<const ToolSample>(batch_.data(), kept));
     }
     if (n < batch_.size()) break;

@@ -120,6 +120,7 @@ Handle frame_type() {
   LANCET_FIELD(frame, H5T_NATIVE_UINT64);
   LANCET_FIELD(t_ns, H5T_NATIVE_INT64);
   LANCET_FIELD(last_seq, H5T_NATIVE_UINT64);
+  LANCET_FIELD(ticks, H5T_NATIVE_UINT64);
   LANCET_FIELD(blood_dt, H5T_NATIVE_DOUBLE);
   LANCET_FIELD(patch_version, H5T_NATIVE_UINT64);
   LANCET_FIELD(patch_seq, H5T_NATIVE_UINT64);
@@ -162,7 +163,8 @@ constexpr const char* kEventUnits =
     "(value mm^3); position: m";
 
 constexpr const char* kFrameUnits =
-    "frame: index; t_ns, patch_t_ns: ns, CLOCK_MONOTONIC; last_seq: the newest servo tick applied; blood_dt: s; "
+    "frame: index; t_ns, patch_t_ns: ns, CLOCK_MONOTONIC; last_seq: the newest servo tick applied; ticks: the recorded "
+    "ticks applied this frame; blood_dt: s; "
     "patch_centre, max_deviation: m; task_progress, outside: fraction 0..1; damaged: bit i = avoid[i] reached; "
     "drilled_mm3, drilled_outside_mm3: mm^3; blood_*_ml: mL; scene_hash: the scene's hash every scene_hash_every "
     "frames, else 0";
@@ -361,14 +363,23 @@ bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out,
 
 // A recording cut short holds what its writer flushed: rows a table was extended by but never
 // got (a crash between the two) read back as zeros and go, then every frame that applied a tick
-// the file does not hold, then the events of frames that went. The counts the finished file would
+// the file does not hold, the ticks no frame it holds applied (format 2), and the events of
+// frames that went. The counts the finished file would
 // have carried are counted here.
 void trim_cut_short(Recording& r) {
   while (!r.samples.empty() && r.samples.back().seq == 0) r.samples.pop_back();
   while (!r.frames.empty() && r.frames.back().t_ns == 0) r.frames.pop_back();
   while (!r.events.empty() && r.events.back().t_ns == 0) r.events.pop_back();
-  const std::uint64_t last_seq = r.samples.empty() ? 0 : r.samples.back().seq;
-  while (!r.frames.empty() && r.frames.back().last_seq > last_seq) r.frames.pop_back();
+  if (r.format_version >= 2) {  // frames count their ticks
+    std::uint64_t ticks = 0;
+    std::size_t keep = 0;
+    while (keep < r.frames.size() && ticks + r.frames[keep].ticks <= r.samples.size()) ticks += r.frames[keep++].ticks;
+    r.frames.resize(keep);
+    r.samples.resize(static_cast<std::size_t>(ticks));  // and the ticks no kept frame applied
+  } else {
+    const std::uint64_t last_seq = r.samples.empty() ? 0 : r.samples.back().seq;
+    while (!r.frames.empty() && r.frames.back().last_seq > last_seq) r.frames.pop_back();
+  }
   const std::uint64_t frames = r.frames.size();
   while (!r.events.empty() && r.events.back().frame >= frames) r.events.pop_back();
   r.samples_lost = 0, r.gaps = 0;

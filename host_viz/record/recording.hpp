@@ -25,7 +25,8 @@ namespace lancet::record {
 
 /// The file format's version (the /meta attribute format_version). 2: written in HDF5's SWMR mode
 /// (a file whose writer died is readable up to its last flush), /meta/first_patches with
-/// /meta/first_patch_versions. Version 1 files (one /meta/first_patch) are still read.
+/// /meta/first_patch_versions, FrameRecord::ticks. Version 1 files (one /meta/first_patch; frames
+/// delimited by last_seq) are still read.
 inline constexpr std::uint32_t kFormatVersion = 2;
 
 /// One visualizer frame of the session.
@@ -33,6 +34,9 @@ struct FrameRecord {
   std::uint64_t frame = 0;         ///< 0, 1, 2, ... from the start of the recording
   std::int64_t t_ns = 0;           ///< the viz clock (CLOCK_MONOTONIC) at the frame
   std::uint64_t last_seq = 0;      ///< newest ToolSample::seq the scene had applied after this frame (0: none yet)
+  /// How many recorded ticks the scene applied this frame (format 2): the replay takes exactly these,
+  /// whatever their seq says (a sample garbled in the segment may carry any seq).
+  std::uint64_t ticks = 0;
   double blood_dt = 0;             ///< s of blood simulated this frame
   // The TissuePatch published this frame (patch_version 0: none).
   std::uint64_t patch_version = 0; ///< the seqlock version it was published as (ToolSample::patch_version refers to it)

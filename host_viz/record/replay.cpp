@@ -218,7 +218,11 @@ Result<bool> Replay::step_frame() {
   auto t0 = Clock::now();
   // The servo ticks the frame had applied, through the same step with the recorded inputs.
   batch_.clear();
-  while (next_sample_ < rec_->samples.size() && rec_->samples[next_sample_].seq <= f.last_seq) {
+  // The frame's ticks: as many as it applied (format 2), or (format 1) those up to its last_seq.
+  const bool by_count = rec_->format_version >= 2;
+  const std::size_t frame_end = by_count ? std::min(rec_->samples.size(), next_sample_ + static_cast<std::size_t>(std::min<std::uint64_t>(f.ticks, rec_->samples.size())))
+                                         : rec_->samples.size();
+  while (next_sample_ < frame_end && (by_count || rec_->samples[next_sample_].seq <= f.last_seq)) {
     const ToolSample& s = rec_->samples[next_sample_++];
     // A gap (the viz stalled longer than the sample ring holds): the servo's state after it
     // depends on ticks nobody kept, so from here the servo is not re-stepped; the scene goes on

@@ -138,6 +138,7 @@ int main(int argc, char** argv) {
     f.frame = k;
     f.t_ns = static_cast<std::int64_t>(k) * 16'000'000;
     f.last_seq = std::min<std::uint64_t>(ticks, (k + 1) * 16);
+    f.ticks = f.last_seq - std::min<std::uint64_t>(ticks, k * 16);
     f.blood_dt = 0.016;
     f.patch_version = k + 2;
     f.blood_lost_ml = 0.001 * static_cast<double>(k);

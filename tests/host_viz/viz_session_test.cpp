@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "hybrid/patch_export.hpp"
 #include "hybrid/tissue_scene.hpp"
@@ -178,6 +179,24 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   EXPECT_EQ(patch->brick.valid, 1u);
   EXPECT_EQ(brick_centre, (Vec3{0.001, 0.0, -0.002}));
   EXPECT_EQ(patch->samples_applied, 620u);
+
+  // Garbage in the ring's slots: a tick that goes back (a stale slot) or leaps ahead further than
+  // the ring holds is rejected and counted, and the ticks after it are taken.
+  std::vector<std::uint64_t> handed;
+  const auto record_seqs = [&](std::span<const ToolSample> batch) {
+    for (const ToolSample& t : batch) handed.push_back(t.seq);
+  };
+  const std::uint64_t rejected_before = s.stats().rejected;
+  for (const std::uint64_t seq : {621ull, 615ull, 622ull, 622ull + 5 * kSampleRingCapacity, 623ull, 624ull})
+    ASSERT_TRUE(shared.samples.try_push(sample(seq, {0.001, 0.0, -0.002})));
+  now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  s.frame(now, record_seqs, with_brick);
+  EXPECT_EQ(handed, (std::vector<std::uint64_t>{621, 622, 623, 624}));
+  EXPECT_EQ(s.stats().rejected, rejected_before + 2);
+  EXPECT_EQ(s.stats().lost, 0u);
+  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  EXPECT_EQ(patch->samples_applied, 624u);
 
   // Stylus target and commands travel the other way.
   s.set_stylus_target(true, {0.01, 0.02, -0.003}, now);

@@ -93,6 +93,7 @@ Live run_live(int gap_from, int hold_from = -1) {
     f.frame = static_cast<std::uint64_t>(frame);
     f.t_ns = kT0 + static_cast<std::int64_t>(frame) * 16'000'000;
     f.last_seq = rec.samples.back().seq;
+    f.ticks = batch.size();
     patch->n_triangles = 0;
     patch->brick.valid = 0;
     (void)sim->export_patch(latest, *patch);
