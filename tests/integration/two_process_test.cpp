@@ -405,7 +405,10 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
 // The bone-drilling scenario with a scripted drill: the burr stops at the exposed bone, lancet-rt
 // removes the cortex under it, and the viz carves what it reports into the scene's volume and
 // counts it against the window.
-constexpr std::uint64_t kDrillWindowMs = 9'000;  // docs/examples/drill_window.csv's length
+// The first 6 s of docs/examples/drill_window.csv: down onto the bone and pressing into it
+// harder and harder. (Held on for its last 3 s, a burr may get through the cortex to the canal:
+// how far it gets then depends on how often the viz's bricks arrive.)
+constexpr std::uint64_t kDrillWindowMs = 6'000;
 TEST_F(TwoProcess, TheDrillingScenarioRemovesBoneInTheWindow) {
   auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/bone_drilling.toml", "--tool",
                         "none", "--duration", "600", "--stats", path("viz.json"), "--screenshot", path("drill.png")});
