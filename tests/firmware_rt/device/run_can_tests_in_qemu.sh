@@ -15,9 +15,9 @@
 # reports its status through the isa-debug-exit port (QEMU exits with status·2 + 1).
 #
 # Exit status: the binary's; 1 when the guest dies before reporting, or when it does not report
-# within LANCET_QEMU_TIMEOUT seconds (boot and the whole suite; default 280: just under the ctest
-# TIMEOUT of 300, so that this script, not ctest, says what timed out: the boot, or which test was
-# running), and several times what the suite takes under TCG on a loaded 2-core host; the tests
+# within LANCET_QEMU_TIMEOUT seconds (boot and the whole suite; default 280; ctest sets 870, just
+# under its TIMEOUT of 900, so that this script, not ctest, says what timed out: the boot, or which
+# test was running), several times what the suite takes under TCG on a loaded 2-core host; the tests
 # inside have their own hang deadlines (30 s each). When QEMU, busybox or
 # the kernel package is not available or cannot run: 77 (skip) with the reason on stdout, or, with
 # CI=true in the environment, 1 (a CI machine must run the CAN suite, not skip it).
