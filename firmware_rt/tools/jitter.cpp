@@ -203,6 +203,15 @@ JitterResult run_jitter(const JitterOptions& o) {
     consumer_stop.store(true);
     if (consumer.joinable()) consumer.join();
     if (publisher.joinable()) publisher.join();
+    if (o.compare_recording) {
+      // What the round pushed and the consumer had not drained yet: the round's own ticks, recorded
+      // (an "on" round) or dropped, never left for the next round.
+      std::vector<ToolSample> rest(4096);
+      std::size_t n = 0;
+      while ((n = shared->samples.try_pop_n(rest.data(), rest.size())) > 0) {
+        if (recorder) recorder->add_samples(std::span<const ToolSample>(rest.data(), n));
+      }
+    }
     if (recorder) {
       r.recorded_samples += recorder->samples();
       r.recorded_lost += recorder->samples_lost();

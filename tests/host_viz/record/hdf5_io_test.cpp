@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "synthetic_recording.hpp"
-#include "../../support/wait.hpp"  // tests/support (this target does not link lancet::test_headers)
+#include "wait.hpp"  // tests/support
 
 namespace lancet::record {
 namespace {
