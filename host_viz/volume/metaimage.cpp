@@ -1,7 +1,5 @@
 #include "volume/metaimage.hpp"
-#include "volume/detail/io.hpp"
-
-#include <zlib.h>
+#include "volume/detail/header_fields.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -11,7 +9,6 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <map>
 #include <optional>
 #include <string_view>
 #include <system_error>
@@ -34,68 +31,6 @@ constexpr ElemInfo kElems[] = {
     {"MET_FLOAT", Elem::kF32, 4, VoxelType::kF32},  {"MET_DOUBLE", Elem::kF64, 8, VoxelType::kF32},
 };
 
-// One header line "Key = value".
-struct Field {
-  std::string value;
-  int line = 0;
-};
-
-class Header {
- public:
-  explicit Header(std::string path) : path_(std::move(path)) {}
-
-  const std::string& path() const { return path_; }
-  void set(std::string_view key, Field f) { fields_[lower(key)] = {std::string(key), std::move(f)}; }
-  bool has(std::string_view key) const { return fields_.count(lower(key)) != 0; }
-
-  // The first of several synonyms present (e.g. Offset / Position / Origin), or nullptr.
-  const std::pair<std::string, Field>* find(std::initializer_list<std::string_view> keys) const {
-    for (std::string_view k : keys) {
-      const auto it = fields_.find(lower(k));
-      if (it != fields_.end()) return &it->second;
-    }
-    return nullptr;
-  }
-
-  Error field_error(const std::pair<std::string, Field>& f, const std::string& expected) const {
-    return invalid(path_ + ":" + std::to_string(f.second.line) + ": " + f.first + ": expected " + expected +
-                   ", found " + shown(f.second.value));
-  }
-
-  Result<std::vector<double>> doubles(const std::pair<std::string, Field>& f, std::size_t n, bool positive) const {
-    const auto words = split_words(f.second.value);
-    const std::string expected = std::to_string(n) + (positive ? " positive finite numbers" : " finite numbers");
-    if (words.size() != n) return field_error(f, expected);
-    std::vector<double> out;
-    for (std::string_view w : words) {
-      const auto v = parse_double(w);
-      if (!v || !std::isfinite(*v) || (positive && !(*v > 0))) return field_error(f, expected);
-      out.push_back(*v);
-    }
-    return out;
-  }
-
-  Result<std::int64_t> integer(const std::pair<std::string, Field>& f, std::int64_t lo, std::int64_t hi) const {
-    const auto words = split_words(f.second.value);
-    const std::string expected = "an integer in " + std::to_string(lo) + ".." + std::to_string(hi);
-    if (words.size() != 1) return field_error(f, expected);
-    const auto v = parse_int(words[0]);
-    if (!v || *v < lo || *v > hi) return field_error(f, expected);
-    return *v;
-  }
-
-  Result<bool> boolean(const std::pair<std::string, Field>& f) const {
-    const std::string v = lower(trim(f.second.value));
-    if (v == "true" || v == "1" || v == "yes") return true;
-    if (v == "false" || v == "0" || v == "no") return false;
-    return field_error(f, "True or False");
-  }
-
- private:
-  std::string path_;
-  std::map<std::string, std::pair<std::string, Field>> fields_;  // lower-case key → (key as written, field)
-};
-
 // Where and how the voxels are stored, once the header is understood.
 struct Layout {
   std::array<int, 3> dims{};
@@ -114,100 +49,12 @@ std::uint64_t voxel_count(const std::array<int, 3>& d) {
   return static_cast<std::uint64_t>(d[0]) * static_cast<std::uint64_t>(d[1]) * static_cast<std::uint64_t>(d[2]);
 }
 
-// Reads `count` bytes at `offset`, reporting progress from p0 to p1. The caller has checked that
-// the file holds them, so the allocation is bounded by the file's real size.
+// Reads `count` bytes at `offset` of `path`, reporting progress from p0 to p1.
 Result<std::vector<unsigned char>> read_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count,
                                               const Progress& progress, double p0, double p1) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
-  in.seekg(static_cast<std::streamoff>(offset));
-  if (!in) return invalid(path + ": cannot seek to byte " + std::to_string(offset));
-  std::vector<unsigned char> out(static_cast<std::size_t>(count));
-  const std::uint64_t chunk = std::max<std::uint64_t>(kMinChunk, count / kProgressSteps + 1);
-  std::uint64_t done = 0;
-  while (done < count) {
-    const std::uint64_t n = std::min(chunk, count - done);
-    in.read(reinterpret_cast<char*>(out.data() + done), static_cast<std::streamsize>(n));
-    if (static_cast<std::uint64_t>(in.gcount()) != n) {
-      return invalid(path + ": truncated data: expected " + std::to_string(count) + " bytes from byte " +
-                     std::to_string(offset) + ", found " + std::to_string(done + static_cast<std::uint64_t>(in.gcount())));
-    }
-    done += n;
-    report(progress, p0 + (p1 - p0) * static_cast<double>(done) / static_cast<double>(count));
-  }
-  return out;
-}
-
-// Inflates a zlib (or gzip) stream into exactly `expected` bytes. The output grows only as data
-// really comes out, so a tiny file that claims a huge image cannot make us allocate it.
-Result<std::vector<unsigned char>> inflate_exact(const std::string& path, const std::vector<unsigned char>& in,
-                                                 std::uint64_t expected, const Progress& progress, double p0,
-                                                 double p1) {
-  z_stream zs{};
-  if (inflateInit2(&zs, 15 + 32) != Z_OK) return Error{ErrorCode::kSystem, path + ": zlib inflateInit failed"};
   std::vector<unsigned char> out;
-  out.resize(static_cast<std::size_t>(std::min<std::uint64_t>(expected, kMinChunk)));
-  constexpr std::size_t kMaxStep = 1u << 30;  // zlib counts in 32-bit uInt
-  std::size_t in_pos = 0;
-  std::uint64_t produced = 0;
-  int rc = Z_OK;
-  int reported = 0;
-  const std::uint64_t report_every = std::max<std::uint64_t>(1, expected / kProgressSteps);
-  while (true) {
-    if (produced == out.size()) {
-      if (produced == expected) break;
-      out.resize(static_cast<std::size_t>(std::min<std::uint64_t>(expected, std::max<std::uint64_t>(2 * out.size(), kMinChunk))));
-    }
-    if (zs.avail_in == 0 && in_pos < in.size()) {
-      const std::size_t n = std::min(kMaxStep, in.size() - in_pos);
-      zs.next_in = const_cast<Bytef*>(in.data() + in_pos);  // zlib's API is not const; it only reads
-      zs.avail_in = static_cast<uInt>(n);
-      in_pos += n;
-    }
-    const std::size_t room = std::min<std::size_t>(kMaxStep, out.size() - static_cast<std::size_t>(produced));
-    zs.next_out = out.data() + produced;
-    zs.avail_out = static_cast<uInt>(room);
-    rc = inflate(&zs, Z_NO_FLUSH);
-    produced += room - zs.avail_out;
-    if (rc == Z_STREAM_END) break;
-    if (rc == Z_BUF_ERROR && zs.avail_in == 0 && in_pos >= in.size()) break;  // input ran out
-    if (rc != Z_OK && rc != Z_BUF_ERROR) break;
-    const int step = static_cast<int>(produced / report_every);
-    if (step > reported) {
-      reported = step;
-      report(progress, p0 + (p1 - p0) * static_cast<double>(produced) / static_cast<double>(expected));
-    }
-  }
-  // A stream that holds more than the image is as wrong as one that holds less.
-  bool more = false;
-  if (produced == expected && rc != Z_STREAM_END) {
-    unsigned char extra = 0;
-    zs.next_out = &extra;
-    zs.avail_out = 1;
-    if (zs.avail_in == 0 && in_pos < in.size()) {
-      const std::size_t n = std::min(kMaxStep, in.size() - in_pos);
-      zs.next_in = const_cast<Bytef*>(in.data() + in_pos);
-      zs.avail_in = static_cast<uInt>(n);
-      in_pos += n;
-    }
-    rc = inflate(&zs, Z_NO_FLUSH);
-    more = zs.avail_out == 0;
-  }
-  const std::string msg = zs.msg != nullptr ? zs.msg : "";
-  inflateEnd(&zs);
-  if (rc == Z_DATA_ERROR || rc == Z_NEED_DICT || rc == Z_MEM_ERROR || rc == Z_STREAM_ERROR) {
-    return invalid(path + ": CompressedData: corrupt zlib stream after " + std::to_string(produced) +
-                   " of " + std::to_string(expected) + " expected bytes" + (msg.empty() ? "" : " (" + msg + ")"));
-  }
-  if (more) {
-    return invalid(path + ": CompressedData: the zlib stream holds more than the expected " +
-                   std::to_string(expected) + " bytes (DimSize × element size)");
-  }
-  if (produced != expected) {
-    return invalid(path + ": CompressedData: truncated zlib stream: expected " + std::to_string(expected) +
-                   " bytes (DimSize × element size), found " + std::to_string(produced));
-  }
-  report(progress, p1);
+  auto r = append_file_bytes(path, offset, count, out, progress, p0, p1);
+  if (!r) return r.error();
   return out;
 }
 
@@ -275,10 +122,14 @@ Result<std::vector<unsigned char>> read_voxel_bytes(const std::string& header_pa
   if (csize == 0) return invalid(where + ": CompressedData: no compressed data in the file");
   auto compressed = read_bytes(layout.data_path, layout.data_start + skip, csize, progress, 0.0, 0.1);
   if (!compressed) return compressed.error();
-  return inflate_exact(where, compressed.value(), expected, progress, 0.1, 0.5);
+  std::vector<unsigned char> out;
+  constexpr StreamWords kWords{"CompressedData", "zlib", "DimSize × element size"};
+  auto z = inflate_exact(where, kWords, compressed.value(), expected, out, progress, 0.1, 0.5);
+  if (!z) return z.error();
+  return out;
 }
 
-Result<Layout> parse_header(Header& header, const std::string& text, std::size_t& data_start, bool& found_data_line) {
+Result<Layout> parse_header(HeaderFields& header, const std::string& text, std::size_t& data_start, bool& found_data_line) {
   const std::string& path = header.path();
   std::size_t pos = 0;
   int line_no = 0;
@@ -302,7 +153,7 @@ Result<Layout> parse_header(Header& header, const std::string& text, std::size_t
     if (key.empty()) {
       return invalid(path + ":" + std::to_string(line_no) + ": expected a field name before '=', found " + shown(t));
     }
-    header.set(key, Field{std::string(value), line_no});
+    header.set(HeaderField{std::string(key), std::string(value), line_no});
     if (lower(key) == "elementdatafile") {
       found_data_line = true;
       data_start = pos;
@@ -310,11 +161,6 @@ Result<Layout> parse_header(Header& header, const std::string& text, std::size_t
     }
   }
   return Layout{};
-}
-
-std::string header_dir(const std::string& path) {
-  const std::filesystem::path p(path);
-  return p.has_parent_path() ? p.parent_path().string() : std::string(".");
 }
 
 Result<std::array<int, 3>> check_dims(const std::string& what, std::array<int, 3> dims) {
@@ -331,70 +177,45 @@ Result<std::array<int, 3>> check_dims(const std::string& what, std::array<int, 3
   return dims;
 }
 
-Result<MetaImage> load(const std::string& path, const Progress& progress) {
-  auto size_r = file_size(path);
-  if (!size_r) return size_r.error();
-  const std::uint64_t size = size_r.value();
-
-  auto header = read_header_text(path, size, kMaxHeaderBytes);
-  if (!header) return header.error();
-  std::string text = std::move(header).value();
-  Header h(path);
-  std::size_t data_start = 0;
-  bool found_data_line = false;
-  {
-    auto r = parse_header(h, text, data_start, found_data_line);
-    if (!r) return r.error();
-  }
-  if (!found_data_line) {
-    return invalid(path + ": ElementDataFile: expected a line 'ElementDataFile = LOCAL' or '= <file>' within the first " +
-                   std::to_string(kMaxHeaderBytes) + " bytes, found none");
-  }
-
-  if (const auto* f = h.find({"ObjectType"}); f && lower(trim(f->second.value)) != "image") {
-    return h.field_error(*f, "Image");
+// The element layout: dimensions, element type, byte order, compression, header size.
+Result<Layout> read_layout(const HeaderFields& h, std::uint64_t size) {
+  Layout layout;
+  if (const auto* f = h.find({"ObjectType"}); f && lower(trim(f->value)) != "image") {
+    return h.error(*f, "Image");
   }
   const auto* ndims_f = h.find({"NDims"});
-  if (!ndims_f) return invalid(path + ": NDims: expected a line 'NDims = 3', found none");
+  if (!ndims_f) return h.missing("NDims", "NDims = 3");
   {
     auto n = h.integer(*ndims_f, 1, 1000);
     if (!n) return n.error();
     if (n.value() != 3) {
-      return h.field_error(*ndims_f, "3 (only 3-D volumes are supported" +
+      return h.error(*ndims_f, "3 (only 3-D volumes are supported" +
                                          std::string(n.value() == 2 ? "; a 2-D image is not a volume)" : ")"));
     }
   }
   if (const auto* f = h.find({"ElementNumberOfChannels"})) {
     auto n = h.integer(*f, 1, std::numeric_limits<int>::max());
     if (!n) return n.error();
-    if (n.value() != 1) return h.field_error(*f, "1 (only single-channel scalar volumes are supported)");
+    if (n.value() != 1) return h.error(*f, "1 (only single-channel scalar volumes are supported)");
   }
   if (const auto* f = h.find({"BinaryData"})) {
     auto b = h.boolean(*f);
     if (!b) return b.error();
-    if (!b.value()) return h.field_error(*f, "True (ASCII voxel data is not supported)");
+    if (!b.value()) return h.error(*f, "True (ASCII voxel data is not supported)");
   }
 
-  Layout layout;
   const auto* dim_f = h.find({"DimSize"});
-  if (!dim_f) return invalid(path + ": DimSize: expected a line 'DimSize = nx ny nz', found none");
+  if (!dim_f) return h.missing("DimSize", "DimSize = nx ny nz");
   {
-    const auto words = split_words(dim_f->second.value);
-    const std::string expected = "3 integers in 1.." + std::to_string(std::numeric_limits<int>::max()) +
-                                 " with a product of at most " + std::to_string(kMaxVoxels);
-    if (words.size() != 3) return h.field_error(*dim_f, expected);
-    for (std::size_t a = 0; a < 3; ++a) {
-      const auto v = parse_int(words[a]);
-      if (!v || *v < 1 || *v > std::numeric_limits<int>::max()) return h.field_error(*dim_f, expected);
-      layout.dims[a] = static_cast<int>(*v);
-    }
-    if (voxel_count(layout.dims) > kMaxVoxels) return h.field_error(*dim_f, expected);
+    auto dims = h.sizes(*dim_f, kMaxVoxels);
+    if (!dims) return dims.error();
+    layout.dims = dims.value();
   }
 
   const auto* type_f = h.find({"ElementType"});
-  if (!type_f) return invalid(path + ": ElementType: expected a line 'ElementType = MET_...', found none");
+  if (!type_f) return h.missing("ElementType", "ElementType = MET_...");
   {
-    const std::string_view name = trim(type_f->second.value);
+    const std::string_view name = trim(type_f->value);
     bool known = false;
     for (const ElemInfo& e : kElems) {
       if (name == e.name) {
@@ -403,7 +224,7 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
       }
     }
     if (!known) {
-      return h.field_error(*type_f, "one of MET_UCHAR, MET_CHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, MET_FLOAT, MET_DOUBLE");
+      return h.error(*type_f, "one of MET_UCHAR, MET_CHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, MET_FLOAT, MET_DOUBLE");
     }
   }
 
@@ -414,7 +235,7 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
       auto b = h.boolean(*f);
       if (!b) return b.error();
       if (msb && *msb != b.value()) {
-        return h.field_error(*f, std::string(*msb ? "True" : "False") + " (the other byte-order field says so)");
+        return h.error(*f, std::string(*msb ? "True" : "False") + " (the other byte-order field says so)");
       }
       msb = b.value();
     }
@@ -430,7 +251,7 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
     auto n = h.integer(*f, 1, std::numeric_limits<std::int64_t>::max());
     if (!n) return n.error();
     if (static_cast<std::uint64_t>(n.value()) > size) {
-      return h.field_error(*f, "at most the file size (" + std::to_string(size) + " bytes)");
+      return h.error(*f, "at most the file size (" + std::to_string(size) + " bytes)");
     }
     layout.compressed_size = static_cast<std::uint64_t>(n.value());
   }
@@ -440,63 +261,93 @@ Result<MetaImage> load(const std::string& path, const Progress& progress) {
     layout.header_size = n.value();
   }
 
-  MetaImage out;
-  Volume& v = out.volume;
-  v.dims = layout.dims;
-  v.source_type = layout.elem.nearest;
-  v.value_unit = "raw";
+  return layout;
+}
 
-  // Geometry: mm in the file, metres in the Volume.
+// Spacing, origin, directions, orientation and modality (mm in the file, metres in the Volume).
+Result<bool> read_geometry(const HeaderFields& h, MetaImage& out) {
+  Volume& v = out.volume;
   constexpr double kMm = 1e-3;
   if (const auto* f = h.find({"ElementSpacing", "ElementSize"})) {
-    auto s = h.doubles(*f, 3, true);
+    auto s = h.numbers(*f, 3, true);
     if (!s) return s.error();
     v.spacing = Vec3{s.value()[0] * kMm, s.value()[1] * kMm, s.value()[2] * kMm};
   } else {
     v.spacing = Vec3{kMm, kMm, kMm};
   }
   if (const auto* f = h.find({"Offset", "Position", "Origin"})) {
-    auto o = h.doubles(*f, 3, false);
+    auto o = h.numbers(*f, 3, false);
     if (!o) return o.error();
     v.origin = Vec3{o.value()[0] * kMm, o.value()[1] * kMm, o.value()[2] * kMm};
   }
   if (const auto* f = h.find({"TransformMatrix", "Orientation", "Rotation"})) {
-    auto m = h.doubles(*f, 9, false);
+    auto m = h.numbers(*f, 9, false);
     if (!m) return m.error();
     const auto& t = m.value();
     // File group k (numbers 3k..3k+2) is axis k's world direction = column k of Volume::direction.
     for (int r = 0; r < 3; ++r) {
       for (int c = 0; c < 3; ++c) v.direction[static_cast<std::size_t>(r * 3 + c)] = t[static_cast<std::size_t>(c * 3 + r)];
     }
-    const auto& d = v.direction;
-    const double det = d[0] * (d[4] * d[8] - d[5] * d[7]) - d[1] * (d[3] * d[8] - d[5] * d[6]) +
-                       d[2] * (d[3] * d[7] - d[4] * d[6]);
-    if (!(std::abs(det) > 1e-6)) return h.field_error(*f, "an invertible 3×3 direction matrix");
+    if (!(std::abs(determinant3(v.direction)) > 1e-6)) return h.error(*f, "an invertible 3×3 direction matrix");
   }
-  if (const auto* f = h.find({"AnatomicalOrientation"})) out.anatomical_orientation = std::string(trim(f->second.value));
+  if (const auto* f = h.find({"AnatomicalOrientation"})) out.anatomical_orientation = std::string(trim(f->value));
   if (const auto* f = h.find({"Modality"})) {
     static constexpr std::pair<std::string_view, std::string_view> kModalities[] = {
         {"MET_MOD_CT", "CT"}, {"MET_MOD_MR", "MR"}, {"MET_MOD_NM", "NM"}, {"MET_MOD_US", "US"}, {"MET_MOD_OTHER", ""}, {"MET_MOD_UNKNOWN", ""}};
-    const std::string_view m = trim(f->second.value);
+    const std::string_view m = trim(f->value);
     const auto* it = std::find_if(std::begin(kModalities), std::end(kModalities), [&](const auto& e) { return e.first == m; });
     if (it == std::end(kModalities)) {
-      return h.field_error(*f, "one of MET_MOD_CT, MET_MOD_MR, MET_MOD_NM, MET_MOD_US, MET_MOD_OTHER, MET_MOD_UNKNOWN");
+      return h.error(*f, "one of MET_MOD_CT, MET_MOD_MR, MET_MOD_NM, MET_MOD_US, MET_MOD_OTHER, MET_MOD_UNKNOWN");
     }
     v.modality = std::string(it->second);
     if (v.modality == "CT") v.value_unit = "HU";
   }
 
+  return true;
+}
+
+Result<MetaImage> load(const std::string& path, const Progress& progress) {
+  auto size_r = file_size(path);
+  if (!size_r) return size_r.error();
+  const std::uint64_t size = size_r.value();
+
+  auto header = read_header_text(path, size, kMaxHeaderBytes);
+  if (!header) return header.error();
+  std::string text = std::move(header).value();
+  HeaderFields h(path);
+  std::size_t data_start = 0;
+  bool found_data_line = false;
+  {
+    auto r = parse_header(h, text, data_start, found_data_line);
+    if (!r) return r.error();
+  }
+  if (!found_data_line) {
+    return invalid(path + ": ElementDataFile: expected a line 'ElementDataFile = LOCAL' or '= <file>' within the first " +
+                   std::to_string(kMaxHeaderBytes) + " bytes, found none");
+  }
+
+  auto layout_r = read_layout(h, size);
+  if (!layout_r) return layout_r.error();
+  Layout layout = std::move(layout_r).value();
+
+  MetaImage out;
+  Volume& v = out.volume;
+  v.dims = layout.dims;
+  v.source_type = layout.elem.nearest;
+  v.value_unit = "raw";
+  if (auto g = read_geometry(h, out); !g) return g.error();
+
   // Where the data is.
   const auto* file_f = h.find({"ElementDataFile"});
-  const std::string data_file(trim(file_f->second.value));
+  const std::string data_file(trim(file_f->value));
   if (data_file == "LOCAL" || data_file == "local") {
     layout.data_path = path;
     layout.data_start = data_start;
     layout.attached = true;
   } else if (data_file.empty()) {
-    return h.field_error(*file_f, "LOCAL or a file name");
+    return h.error(*file_f, "LOCAL or a file name");
   } else if (lower(data_file).rfind("list", 0) == 0 || data_file.find('%') != std::string::npos) {
-    return h.field_error(*file_f, "LOCAL or a single data file (file lists and patterns are not supported)");
+    return h.error(*file_f, "LOCAL or a single data file (file lists and patterns are not supported)");
   } else {
     std::filesystem::path p(data_file);
     if (p.is_relative()) p = std::filesystem::path(header_dir(path)) / p;

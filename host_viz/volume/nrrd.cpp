@@ -1,7 +1,5 @@
 #include "volume/nrrd.hpp"
-#include "volume/detail/io.hpp"
-
-#include <zlib.h>
+#include "volume/detail/header_fields.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -12,7 +10,6 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <map>
 #include <optional>
 #include <string_view>
 #include <system_error>
@@ -26,8 +23,7 @@ namespace {
 
 using namespace detail;  // the helpers shared by the loaders
 
-// Text, file and conversion helpers are shared with metaimage.cpp (volume/detail/io.hpp). NRRD's
-// inflation appends to a buffer (several gzip files make one volume), unlike MetaImage's.
+// Text, header-field, file and inflation helpers are shared with metaimage.cpp (volume/detail/).
 
 constexpr std::size_t kMaxHeaderBytes = 1 << 20;
 constexpr double kMm = 1e-3;
@@ -70,23 +66,6 @@ constexpr std::string_view kIgnored[] = {
     "blocksize",
 };
 
-// Appends `count` bytes at `offset` of `path` to `out`; the caller has checked the file holds them.
-Result<bool> append_bytes(const std::string& path, std::uint64_t offset, std::uint64_t count,
-                          std::vector<unsigned char>& out) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open for reading"};
-  in.seekg(static_cast<std::streamoff>(offset));
-  if (!in) return invalid(path + ": cannot seek to byte " + std::to_string(offset));
-  const std::size_t at = out.size();
-  out.resize(at + static_cast<std::size_t>(count));
-  in.read(reinterpret_cast<char*>(out.data() + at), static_cast<std::streamsize>(count));
-  if (static_cast<std::uint64_t>(in.gcount()) != count) {
-    return invalid(path + ": truncated data: expected " + std::to_string(count) + " bytes from byte " +
-                   std::to_string(offset) + ", found " + std::to_string(in.gcount()));
-  }
-  return true;
-}
-
 // Offset just after the first `lines` newline characters of the file, or nullopt if it has fewer.
 std::optional<std::uint64_t> after_lines(const std::string& path, std::uint64_t start, std::int64_t lines) {
   if (lines == 0) return start;
@@ -107,109 +86,6 @@ std::optional<std::uint64_t> after_lines(const std::string& path, std::uint64_t 
   }
   return std::nullopt;
 }
-
-// Inflates a gzip (or zlib) stream into exactly `expected` bytes appended to `out`. The output
-// grows only as data really comes out, so a tiny file that claims a huge image allocates nothing big.
-Result<bool> inflate_exact(const std::string& where, const std::vector<unsigned char>& in, std::uint64_t expected,
-                           std::vector<unsigned char>& out) {
-  z_stream zs{};
-  if (inflateInit2(&zs, 15 + 32) != Z_OK) return Error{ErrorCode::kSystem, where + ": zlib inflateInit failed"};
-  constexpr std::size_t kMaxStep = 1u << 30;
-  const std::size_t base = out.size();
-  std::size_t in_pos = 0;
-  std::uint64_t produced = 0;
-  int rc = Z_OK;
-  auto feed = [&] {
-    if (zs.avail_in == 0 && in_pos < in.size()) {
-      const std::size_t n = std::min(kMaxStep, in.size() - in_pos);
-      zs.next_in = const_cast<Bytef*>(in.data() + in_pos);  // zlib's API is not const; it only reads
-      zs.avail_in = static_cast<uInt>(n);
-      in_pos += n;
-    }
-  };
-  while (produced < expected) {
-    if (base + produced == out.size()) {
-      const std::uint64_t grow = std::min<std::uint64_t>(expected - produced, std::max<std::uint64_t>(produced, kMinChunk));
-      out.resize(out.size() + static_cast<std::size_t>(grow));
-    }
-    feed();
-    const std::size_t room = std::min<std::size_t>(kMaxStep, out.size() - base - static_cast<std::size_t>(produced));
-    zs.next_out = out.data() + base + produced;
-    zs.avail_out = static_cast<uInt>(room);
-    rc = inflate(&zs, Z_NO_FLUSH);
-    produced += room - zs.avail_out;
-    if (rc == Z_STREAM_END) break;
-    if (rc == Z_BUF_ERROR && zs.avail_in == 0 && in_pos >= in.size()) break;
-    if (rc != Z_OK && rc != Z_BUF_ERROR) break;
-  }
-  bool more = false;
-  if (produced == expected && rc != Z_STREAM_END && rc != Z_DATA_ERROR) {
-    unsigned char extra = 0;
-    zs.next_out = &extra;
-    zs.avail_out = 1;
-    feed();
-    rc = inflate(&zs, Z_NO_FLUSH);
-    more = zs.avail_out == 0;
-  }
-  const std::string msg = zs.msg != nullptr ? zs.msg : "";
-  inflateEnd(&zs);
-  out.resize(base + static_cast<std::size_t>(produced));
-  if (rc == Z_DATA_ERROR || rc == Z_NEED_DICT || rc == Z_MEM_ERROR || rc == Z_STREAM_ERROR) {
-    return invalid(where + ": encoding: corrupt gzip stream after " + std::to_string(produced) + " of " +
-                   std::to_string(expected) + " expected bytes" + (msg.empty() ? "" : " (" + msg + ")"));
-  }
-  if (more) {
-    return invalid(where + ": encoding: the gzip stream holds more than the expected " + std::to_string(expected) +
-                   " bytes (sizes × element size + byte skip)");
-  }
-  if (produced != expected) {
-    return invalid(where + ": encoding: truncated gzip stream: expected " + std::to_string(expected) +
-                   " bytes (sizes × element size + byte skip), found " + std::to_string(produced));
-  }
-  return true;
-}
-
-// ---- header ---------------------------------------------------------------------------------
-
-struct Field {
-  std::string name;  // as written
-  std::string value;
-  int line = 0;
-};
-
-class Header {
- public:
-  explicit Header(std::string path) : path_(std::move(path)) {}
-  const std::string& path() const { return path_; }
-  std::map<std::string, Field>& fields() { return fields_; }
-
-  const Field* find(std::initializer_list<std::string_view> keys) const {
-    for (std::string_view k : keys) {
-      const auto it = fields_.find(std::string(k));
-      if (it != fields_.end()) return &it->second;
-    }
-    return nullptr;
-  }
-  Error error(const Field& f, const std::string& expected) const {
-    return invalid(path_ + ":" + std::to_string(f.line) + ": " + f.name + ": expected " + expected + ", found " +
-                   shown(f.value));
-  }
-  Error missing(const std::string& name, const std::string& example) const {
-    return invalid(path_ + ": " + name + ": expected a line '" + example + "', found none");
-  }
-  Result<std::int64_t> integer(const Field& f, std::int64_t lo, std::int64_t hi) const {
-    const auto words = split_words(f.value);
-    const std::string expected = "an integer in " + std::to_string(lo) + ".." + std::to_string(hi);
-    if (words.size() != 1) return error(f, expected);
-    const auto v = parse_int(words[0]);
-    if (!v || *v < lo || *v > hi) return error(f, expected);
-    return *v;
-  }
-
- private:
-  std::string path_;
-  std::map<std::string, Field> fields_;  // lower-case name → field
-};
 
 // Parses "(a,b,c) (d,e,f) ..." into `n` 3-vectors; nullopt on any deviation.
 std::optional<std::vector<std::array<double, 3>>> parse_vectors(std::string_view s, std::size_t n) {
@@ -287,11 +163,6 @@ std::optional<Pattern> parse_pattern(std::string_view s) {
   return p;
 }
 
-std::string header_dir(const std::string& path) {
-  const std::filesystem::path p(path);
-  return p.has_parent_path() ? p.parent_path().string() : std::string(".");
-}
-
 std::string resolve(const std::string& header, std::string_view name) {
   std::filesystem::path p{std::string(name)};
   if (p.is_relative()) p = std::filesystem::path(header_dir(header)) / p;
@@ -305,28 +176,62 @@ struct Source {
   int line = 0;             // header line naming it (0: attached)
 };
 
-Result<Volume> load(const std::string& path, const Progress& progress) {
-  auto size_r = file_size(path);
-  if (!size_r) return size_r.error();
-  const std::uint64_t size = size_r.value();
-  auto header = read_header_text(path, size, kMaxHeaderBytes);
-  if (!header) return header.error();
-  std::string text = std::move(header).value();
+// The header's lines up to the blank line that ends it (attached data follows) or the file's end.
+struct HeaderText {
+  explicit HeaderText(const std::string& path) : fields(path) {}
+  HeaderFields fields;
+  std::vector<std::pair<std::string, int>> list_files;  // the lines after `data file: LIST`
+  bool blank = false;                                    // a blank line ended it
+  std::size_t data_start = 0;                            // the byte after that blank line
+};
 
-  // Magic.
-  const std::size_t first_nl = text.find('\n');
-  const std::string_view magic = trim(std::string_view(text).substr(0, std::min(first_nl, text.size())));
+Result<bool> check_magic(const std::string& path, std::string_view first_line) {
+  const std::string_view magic = trim(first_line);
   if (magic.size() != 8 || magic.substr(0, 7) != "NRRD000" || magic[7] < '1' || magic[7] > '5') {
     return invalid(path + ":1: expected the magic line 'NRRD0001'..'NRRD0005', found " + shown(magic));
   }
+  return true;
+}
 
-  // Lines up to the first blank line (attached data follows it) or the end of the file.
-  Header h(path);
+// Takes one "field: value" line into `h`; `in_list` turns on after `data file: LIST`.
+Result<bool> take_field_line(HeaderText& h, std::string_view t, int line_no, bool& in_list) {
+  const std::string& path = h.fields.path();
+  const std::size_t colon = t.find(':');
+  if (colon == std::string_view::npos || colon == 0) {
+    return invalid(path + ":" + std::to_string(line_no) + ": expected a header line 'field: value' or 'key:=value', found " + shown(t));
+  }
+  if (colon + 1 < t.size() && t[colon + 1] == '=') return true;  // key/value pair: ignored
+  const std::string_view name = trim(t.substr(0, colon));
+  const std::string key = lower(name);
+  HeaderField f{std::string(name), std::string(trim(t.substr(colon + 1))), line_no};
+  if (std::find(std::begin(kIgnored), std::end(kIgnored), key) == std::end(kIgnored)) {
+    return invalid(path + ":" + std::to_string(line_no) + ": " + f.name +
+                   ": expected a known NRRD field (dimension, type, sizes, encoding, endian, spacings, space directions, ...), found " +
+                   shown(t));
+  }
+  if (const HeaderField* before = h.fields.find({key})) {
+    return invalid(path + ":" + std::to_string(line_no) + ": " + f.name + ": expected each field once (first on line " +
+                   std::to_string(before->line) + "), found " + shown(f.value));
+  }
+  if (key == "data file" || key == "datafile") {
+    const auto words = split_words(f.value);
+    in_list = !words.empty() && words[0] == "LIST";
+  }
+  h.fields.set(std::move(f));
+  return true;
+}
+
+Result<HeaderText> read_header(const std::string& path, std::uint64_t size) {
+  auto header = read_header_text(path, size, kMaxHeaderBytes);
+  if (!header) return header.error();
+  const std::string text = std::move(header).value();
+  const std::size_t first_nl = text.find('\n');
+  if (auto m = check_magic(path, std::string_view(text).substr(0, std::min(first_nl, text.size()))); !m) return m.error();
+
+  HeaderText h(path);
+  h.data_start = text.size();
   std::size_t pos = first_nl == std::string::npos ? text.size() : first_nl + 1;
   int line_no = 1;
-  bool blank = false;
-  std::size_t data_start = text.size();
-  std::vector<std::pair<std::string, int>> list_files;  // after `data file: LIST`
   bool in_list = false;
   while (pos < text.size()) {
     std::size_t end = text.find('\n', pos);
@@ -342,109 +247,73 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
     ++line_no;
     pos = last ? end : end + 1;
     if (t.empty()) {
-      blank = true;
-      data_start = pos;
+      h.blank = true;
+      h.data_start = pos;
       break;
     }
     if (in_list) {
-      list_files.emplace_back(std::string(t), line_no);
-      continue;
+      h.list_files.emplace_back(std::string(t), line_no);
+    } else if (t.front() != '#') {
+      if (auto r = take_field_line(h, t, line_no, in_list); !r) return r.error();
     }
-    if (t.front() == '#') continue;
-    const std::size_t colon = t.find(':');
-    if (colon == std::string_view::npos || colon == 0) {
-      return invalid(path + ":" + std::to_string(line_no) + ": expected a header line 'field: value' or 'key:=value', found " + shown(t));
-    }
-    if (colon + 1 < t.size() && t[colon + 1] == '=') continue;  // key/value pair: ignored
-    const std::string_view name = trim(t.substr(0, colon));
-    const std::string key = lower(name);
-    Field f{std::string(name), std::string(trim(t.substr(colon + 1))), line_no};
-    if (std::find(std::begin(kIgnored), std::end(kIgnored), key) == std::end(kIgnored)) {
-      return invalid(path + ":" + std::to_string(line_no) + ": " + f.name +
-                     ": expected a known NRRD field (dimension, type, sizes, encoding, endian, spacings, space directions, ...), found " +
-                     shown(t));
-    }
-    if (const auto it = h.fields().find(key); it != h.fields().end()) {
-      return invalid(path + ":" + std::to_string(line_no) + ": " + f.name + ": expected each field once (first on line " +
-                     std::to_string(it->second.line) + "), found " + shown(f.value));
-    }
-    if (key == "data file" || key == "datafile") {
-      const auto words = split_words(f.value);
-      in_list = !words.empty() && words[0] == "LIST";
-    }
-    h.fields()[key] = std::move(f);
   }
+  return h;
+}
 
-  // dimension, type, sizes, encoding, endian.
-  const Field* dim_f = h.find({"dimension"});
-  if (!dim_f) return h.missing("dimension", "dimension: 3");
-  {
-    auto n = h.integer(*dim_f, 1, 16);
-    if (!n) return n.error();
-    if (n.value() != 3) return h.error(*dim_f, "3 (only 3-D scalar volumes are supported)");
-  }
-  const Field* type_f = h.find({"type"});
-  if (!type_f) return h.missing("type", "type: short");
-  ElemInfo elem = kU8;
-  {
-    const auto words = split_words(type_f->value);
-    std::string joined;
-    for (auto w : words) joined += (joined.empty() ? "" : " ") + lower(w);
-    bool known = false;
-    for (const TypeName& tn : kTypes) {
-      if (joined == tn.spelling) {
-        elem = tn.info;
-        known = true;
-      }
-    }
-    if (!known) {
-      return h.error(*type_f, "one of uchar, signed char, short, ushort, int, uint, float, double (or a synonym such as int16)");
-    }
-  }
-  if (const Field* f = h.find({"block size", "blocksize"})) return h.error(*f, "no block size (type block is not supported)");
-  const Field* sizes_f = h.find({"sizes"});
-  if (!sizes_f) return h.missing("sizes", "sizes: nx ny nz");
+// How the elements are stored: dimension, type, sizes, encoding, endian.
+struct Format {
   std::array<int, 3> dims{};
-  {
-    const auto words = split_words(sizes_f->value);
-    const std::string expected = "3 integers in 1.." + std::to_string(std::numeric_limits<int>::max()) +
-                                 " with a product of at most " + std::to_string(kMaxVoxels);
-    if (words.size() != 3) return h.error(*sizes_f, expected);
-    for (std::size_t a = 0; a < 3; ++a) {
-      const auto v = parse_int(words[a]);
-      if (!v || *v < 1 || *v > std::numeric_limits<int>::max()) return h.error(*sizes_f, expected);
-      dims[a] = static_cast<int>(*v);
-    }
-    const std::uint64_t count = static_cast<std::uint64_t>(dims[0]) * static_cast<std::uint64_t>(dims[1]) *
-                                static_cast<std::uint64_t>(dims[2]);
-    if (count > kMaxVoxels) return h.error(*sizes_f, expected);
-  }
-  const Field* enc_f = h.find({"encoding"});
-  if (!enc_f) return h.missing("encoding", "encoding: raw");
+  ElemInfo elem = kU8;
   bool gzip = false;
-  {
-    const std::string e = lower(trim(enc_f->value));
-    if (e == "gzip" || e == "gz") gzip = true;
-    else if (e != "raw") return h.error(*enc_f, "raw, gzip or gz (ascii, hex and bzip2 are not supported)");
-  }
   bool big_endian = false;
-  if (const Field* f = h.find({"endian"})) {
-    const std::string e = lower(trim(f->value));
-    if (e == "big") big_endian = true;
-    else if (e != "little") return h.error(*f, "little or big");
-  } else if (elem.bytes > 1) {
+};
+
+Result<ElemInfo> read_type(const HeaderFields& h, const HeaderField& f) {
+  std::string joined;
+  for (auto w : split_words(f.value)) joined += (joined.empty() ? "" : " ") + lower(w);
+  for (const TypeName& tn : kTypes) {
+    if (joined == tn.spelling) return tn.info;
+  }
+  return h.error(f, "one of uchar, signed char, short, ushort, int, uint, float, double (or a synonym such as int16)");
+}
+
+Result<Format> read_format(const HeaderFields& h) {
+  Format out;
+  const HeaderField* dim_f = h.find({"dimension"});
+  if (!dim_f) return h.missing("dimension", "dimension: 3");
+  auto n = h.integer(*dim_f, 1, 16);
+  if (!n) return n.error();
+  if (n.value() != 3) return h.error(*dim_f, "3 (only 3-D scalar volumes are supported)");
+  const HeaderField* type_f = h.find({"type"});
+  if (!type_f) return h.missing("type", "type: short");
+  auto elem = read_type(h, *type_f);
+  if (!elem) return elem.error();
+  out.elem = elem.value();
+  if (const HeaderField* f = h.find({"block size", "blocksize"})) return h.error(*f, "no block size (type block is not supported)");
+  const HeaderField* sizes_f = h.find({"sizes"});
+  if (!sizes_f) return h.missing("sizes", "sizes: nx ny nz");
+  auto dims = h.sizes(*sizes_f, kMaxVoxels);
+  if (!dims) return dims.error();
+  out.dims = dims.value();
+  const HeaderField* enc_f = h.find({"encoding"});
+  if (!enc_f) return h.missing("encoding", "encoding: raw");
+  const std::string e = lower(trim(enc_f->value));
+  if (e == "gzip" || e == "gz") out.gzip = true;
+  else if (e != "raw") return h.error(*enc_f, "raw, gzip or gz (ascii, hex and bzip2 are not supported)");
+  if (const HeaderField* f = h.find({"endian"})) {
+    const std::string end = lower(trim(f->value));
+    if (end == "big") out.big_endian = true;
+    else if (end != "little") return h.error(*f, "little or big");
+  } else if (out.elem.bytes > 1) {
     return h.missing("endian", "endian: little");
   }
+  return out;
+}
 
-  Volume v;
-  v.dims = dims;
-  v.source_type = elem.nearest;
-  v.value_unit = "raw";
-  v.spacing = Vec3{kMm, kMm, kMm};
-
-  // Geometry.
-  const Field* space_f = h.find({"space"});
-  const Field* sdim_f = h.find({"space dimension"});
+// `space` and `space dimension`: a 3-D space when either is given. Returns whether one is.
+Result<bool> read_space(const HeaderFields& h) {
+  const HeaderField* space_f = h.find({"space"});
+  const HeaderField* sdim_f = h.find({"space dimension"});
   if (space_f && sdim_f) return h.error(*sdim_f, "no 'space dimension' when 'space' is given");
   if (space_f) {
     static constexpr std::string_view kSpaces3[] = {
@@ -461,8 +330,7 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
     if (!n) return n.error();
     if (n.value() != 3) return h.error(*sdim_f, "3");
   }
-  const bool has_space = space_f || sdim_f;
-  if (const Field* f = h.find({"space units", "spaceunits"})) {
+  if (const HeaderField* f = h.find({"space units", "spaceunits"})) {
     std::string u(f->value);
     std::replace(u.begin(), u.end(), '"', ' ');
     const auto words = split_words(u);
@@ -470,214 +338,282 @@ Result<Volume> load(const std::string& path, const Progress& progress) {
       return h.error(*f, "\"mm\" \"mm\" \"mm\" (other units are not supported)");
     }
   }
-  const Field* spacings_f = h.find({"spacings"});
-  const Field* dirs_f = h.find({"space directions"});
+  return space_f != nullptr || sdim_f != nullptr;
+}
+
+// `space directions`: the axes' directions (into v.direction) and lengths (into v.spacing).
+Result<bool> read_directions(const HeaderFields& h, const HeaderField& f, Volume& v) {
+  const auto vecs = parse_vectors(f.value, 3);
+  if (!vecs) return h.error(f, "3 vectors '(x,y,z)' of finite numbers");
+  std::array<double, 3> len{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    const auto& d = (*vecs)[a];
+    len[a] = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(len[a] > 0) || !std::isfinite(len[a])) return h.error(f, "3 non-zero vectors '(x,y,z)'");
+    for (std::size_t r = 0; r < 3; ++r) v.direction[r * 3 + a] = d[r] / len[a];
+  }
+  if (!(std::abs(determinant3(v.direction)) > 1e-6)) return h.error(f, "3 linearly independent vectors");
+  v.spacing = Vec3{len[0] * kMm, len[1] * kMm, len[2] * kMm};
+  return true;
+}
+
+// The volume's spacing, directions and origin (mm in the file, metres in the Volume).
+Result<bool> read_geometry(const HeaderFields& h, Volume& v) {
+  auto has_space = read_space(h);
+  if (!has_space) return has_space.error();
+  const HeaderField* spacings_f = h.find({"spacings"});
+  const HeaderField* dirs_f = h.find({"space directions"});
   if (spacings_f && dirs_f) return h.error(*spacings_f, "either spacings or space directions, not both");
   if (spacings_f) {
-    const auto words = split_words(spacings_f->value);
-    std::array<double, 3> s{};
-    if (words.size() != 3) return h.error(*spacings_f, "3 positive finite numbers");
-    for (std::size_t a = 0; a < 3; ++a) {
-      const auto d = parse_double(words[a]);
-      if (!d || !std::isfinite(*d) || !(*d > 0)) return h.error(*spacings_f, "3 positive finite numbers");
-      s[a] = *d;
-    }
-    v.spacing = Vec3{s[0] * kMm, s[1] * kMm, s[2] * kMm};
+    auto s = h.numbers(*spacings_f, 3, true);
+    if (!s) return h.error(*spacings_f, "3 positive finite numbers");
+    v.spacing = Vec3{s.value()[0] * kMm, s.value()[1] * kMm, s.value()[2] * kMm};
   }
   // pynrrd writes space directions (and origin) without a space or space dimension line; teem
   // refuses such a file, we take the space dimension from the vectors (3 numbers each) and say so.
-  const Field* inferred_from = nullptr;
+  const HeaderField* inferred_from = nullptr;
   if (dirs_f) {
-    const auto vecs = parse_vectors(dirs_f->value, 3);
-    if (!vecs) return h.error(*dirs_f, "3 vectors '(x,y,z)' of finite numbers");
-    if (!has_space) inferred_from = dirs_f;
-    std::array<double, 3> len{};
-    for (std::size_t a = 0; a < 3; ++a) {
-      const auto& d = (*vecs)[a];
-      len[a] = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      if (!(len[a] > 0) || !std::isfinite(len[a])) return h.error(*dirs_f, "3 non-zero vectors '(x,y,z)'");
-      for (std::size_t r = 0; r < 3; ++r) v.direction[r * 3 + a] = d[r] / len[a];
-    }
-    const auto& d = v.direction;
-    const double det = d[0] * (d[4] * d[8] - d[5] * d[7]) - d[1] * (d[3] * d[8] - d[5] * d[6]) +
-                       d[2] * (d[3] * d[7] - d[4] * d[6]);
-    if (!(std::abs(det) > 1e-6)) return h.error(*dirs_f, "3 linearly independent vectors");
-    v.spacing = Vec3{len[0] * kMm, len[1] * kMm, len[2] * kMm};
+    if (auto r = read_directions(h, *dirs_f, v); !r) return r.error();
+    if (!has_space.value()) inferred_from = dirs_f;
   }
-  if (const Field* f = h.find({"space origin"})) {
+  if (const HeaderField* f = h.find({"space origin"})) {
     const auto o = parse_vectors(f->value, 1);
     if (!o) return h.error(*f, "one vector '(x,y,z)' of finite numbers");
-    if (!has_space && inferred_from == nullptr) inferred_from = f;
+    if (!has_space.value() && inferred_from == nullptr) inferred_from = f;
     v.origin = Vec3{(*o)[0][0] * kMm, (*o)[0][1] * kMm, (*o)[0][2] * kMm};
   }
   if (inferred_from != nullptr) {
-    v.warnings.push_back(path + ":" + std::to_string(inferred_from->line) + ": " + inferred_from->name +
+    v.warnings.push_back(h.path() + ":" + std::to_string(inferred_from->line) + ": " + inferred_from->name +
                          ": no 'space:' or 'space dimension:' line (as pynrrd writes it; teem refuses such a file): "
                          "took 'space dimension: 3' from its vectors of 3 numbers");
   }
+  return true;
+}
 
-  // Skips.
-  std::int64_t byte_skip = 0, line_skip = 0;
-  if (const Field* f = h.find({"byte skip", "byteskip"})) {
+// `byte skip` (-1: the data is at the end of each file) and `line skip`.
+struct Skips {
+  std::int64_t bytes = 0;
+  std::int64_t lines = 0;
+};
+
+Result<Skips> read_skips(const HeaderFields& h, bool gzip) {
+  Skips out;
+  if (const HeaderField* f = h.find({"byte skip", "byteskip"})) {
     auto n = h.integer(*f, -1, std::numeric_limits<std::int64_t>::max() / 4);
     if (!n) return n.error();
     if (n.value() == -1 && gzip) return h.error(*f, ">= 0 with gzip encoding (-1 is only for raw)");
-    byte_skip = n.value();
+    out.bytes = n.value();
   }
-  if (const Field* f = h.find({"line skip", "lineskip"})) {
+  if (const HeaderField* f = h.find({"line skip", "lineskip"})) {
     auto n = h.integer(*f, 0, std::numeric_limits<std::int64_t>::max() / 4);
     if (!n) return n.error();
-    line_skip = n.value();
+    out.lines = n.value();
   }
+  return out;
+}
 
-  // Data files.
-  const std::uint64_t total = v.voxel_count();
-  std::vector<Source> sources;
+// The data files in order (one, a LIST, or a printf pattern), and how many elements each holds.
+struct DataFiles {
+  std::string header;             // the header's path; pattern names are resolved against it
+  std::vector<Source> listed;     // the attached data, one file or a LIST
   std::optional<Pattern> pattern;
-  std::int64_t pat_min = 0, pat_step = 1;
-  std::uint64_t file_count = 1;
+  std::int64_t pattern_min = 0, pattern_step = 1;
+  int pattern_line = 0;
+  std::uint64_t count = 1;
+  std::uint64_t elems_each = 0;
+
+  Source at(std::uint64_t i) const {
+    if (pattern) {
+      return Source{resolve(header, pattern->format(pattern_min + static_cast<std::int64_t>(i) * pattern_step)), 0,
+                    pattern_line};
+    }
+    return listed[static_cast<std::size_t>(i)];
+  }
+};
+
+// `data file: <printf pattern> min max step [subdim]` into `out`.
+Result<bool> read_pattern(const HeaderFields& h, const HeaderField& f, const std::vector<std::string_view>& words,
+                          DataFiles& out) {
+  out.pattern = parse_pattern(words[0]);
+  if (!out.pattern) return h.error(f, "a printf pattern with exactly one %d, %i or %u (e.g. slice.%03d)");
+  const auto mn = parse_int(words[1]), mx = parse_int(words[2]), st = parse_int(words[3]);
+  constexpr std::int64_t kLim = std::int64_t{1} << 40;
+  if (!mn || !mx || !st || *st == 0 || std::abs(*mn) > kLim || std::abs(*mx) > kLim || std::abs(*st) > kLim ||
+      (*mx - *mn) / *st < 0) {
+    return h.error(f, "integers min max step with step != 0 leading from min to max");
+  }
+  out.pattern_min = *mn;
+  out.pattern_step = *st;
+  out.pattern_line = f.line;
+  out.count = static_cast<std::uint64_t>((*mx - *mn) / *st) + 1;
+  return true;
+}
+
+Result<DataFiles> read_data_files(const HeaderText& t, const Format& format) {
+  const HeaderFields& h = t.fields;
+  const std::string& path = h.path();
+  DataFiles out;
+  out.header = path;
   std::int64_t subdim = 2;  // axes 0..subdim-1 are inside each file
-  const Field* file_f = h.find({"data file", "datafile"});
+  bool many = false;
+  const HeaderField* file_f = h.find({"data file", "datafile"});
   if (!file_f) {
-    if (!blank) {
+    if (!t.blank) {
       return invalid(path + ": data file: expected a line 'data file: <name>' or a blank line followed by the data, found neither");
     }
-    sources.push_back(Source{path, static_cast<std::uint64_t>(data_start), 0});
+    out.listed.push_back(Source{path, static_cast<std::uint64_t>(t.data_start), 0});
   } else {
     const auto words = split_words(file_f->value);
     const std::string expected_df = "a file name, 'LIST [subdim]' or '<printf pattern> min max step [subdim]'";
-    if (words.empty()) return h.error(*file_f, expected_df);
-    auto read_subdim = [&](std::string_view w) -> Result<bool> {
+    const auto read_subdim = [&](std::string_view w) -> Result<bool> {
       const auto n = parse_int(w);
       if (!n || *n < 1 || *n > 3) return h.error(*file_f, "a subdim in 1..3");
       subdim = *n;
       return true;
     };
+    if (words.empty()) return h.error(*file_f, expected_df);
     if (words[0] == "LIST") {
       if (words.size() > 2) return h.error(*file_f, expected_df);
       if (words.size() == 2) {
         if (auto r = read_subdim(words[1]); !r) return r.error();
-      } else {
-        subdim = 2;
       }
-      if (list_files.empty()) return h.error(*file_f, "one file name per line after 'data file: LIST', found none");
-      for (const auto& [name, line] : list_files) sources.push_back(Source{resolve(path, name), 0, line});
-      file_count = sources.size();
+      if (t.list_files.empty()) return h.error(*file_f, "one file name per line after 'data file: LIST', found none");
+      for (const auto& [name, line] : t.list_files) out.listed.push_back(Source{resolve(path, name), 0, line});
+      out.count = out.listed.size();
+      many = true;
     } else if (words.size() >= 4 && words[0].find('%') != std::string_view::npos) {
       if (words.size() > 5) return h.error(*file_f, expected_df);
-      pattern = parse_pattern(words[0]);
-      if (!pattern) return h.error(*file_f, "a printf pattern with exactly one %d, %i or %u (e.g. slice.%03d)");
-      const auto mn = parse_int(words[1]), mx = parse_int(words[2]), st = parse_int(words[3]);
-      constexpr std::int64_t kLim = std::int64_t{1} << 40;
-      if (!mn || !mx || !st || *st == 0 || std::abs(*mn) > kLim || std::abs(*mx) > kLim || std::abs(*st) > kLim ||
-          (*mx - *mn) / *st < 0) {
-        return h.error(*file_f, "integers min max step with step != 0 leading from min to max");
-      }
+      if (auto r = read_pattern(h, *file_f, words, out); !r) return r.error();
       if (words.size() == 5) {
         if (auto r = read_subdim(words[4]); !r) return r.error();
       }
-      pat_min = *mn;
-      pat_step = *st;
-      file_count = static_cast<std::uint64_t>((*mx - *mn) / *st) + 1;
+      many = true;
     } else if (words.size() == 1) {
-      sources.push_back(Source{resolve(path, words[0]), 0, file_f->line});
+      out.listed.push_back(Source{resolve(path, words[0]), 0, file_f->line});
     } else {
       return h.error(*file_f, expected_df);
     }
   }
   // Files hold axes 0..subdim-1; their count must be the product of the other sizes.
-  std::uint64_t per_file_elems = 1, outer = 1;
+  std::uint64_t per_file = 1, outer = 1;
   for (std::int64_t a = 0; a < 3; ++a) {
-    (a < subdim ? per_file_elems : outer) *= static_cast<std::uint64_t>(dims[static_cast<std::size_t>(a)]);
+    (a < subdim ? per_file : outer) *= static_cast<std::uint64_t>(format.dims[static_cast<std::size_t>(a)]);
   }
-  const bool many = pattern.has_value() || (file_f && split_words(file_f->value)[0] == "LIST");
-  if (many && file_count != outer) {
+  if (many && out.count != outer) {
     return h.error(*file_f, std::to_string(outer) + " data files (the product of the sizes beyond subdim " +
-                                std::to_string(subdim) + "), not " + std::to_string(file_count));
+                                std::to_string(subdim) + "), not " + std::to_string(out.count));
   }
-  if (!many) per_file_elems = total;
-  const std::uint64_t per_file = per_file_elems * elem.bytes;
-  const auto source_at = [&](std::uint64_t i) -> Source {
-    if (pattern) {
-      return Source{resolve(path, pattern->format(pat_min + static_cast<std::int64_t>(i) * pat_step)), 0, file_f->line};
-    }
-    return sources[static_cast<std::size_t>(i)];
-  };
+  out.elems_each = many ? per_file : per_file * outer;
+  return out;
+}
 
-  // Check every file against its real size before reading anything (raw), then read.
-  struct Span {
-    std::uint64_t offset, count;
-  };
-  std::vector<unsigned char> bytes;
-  const auto n_files = pattern ? file_count : static_cast<std::uint64_t>(sources.size());
-  std::vector<Span> spans;
-  for (std::uint64_t i = 0; i < n_files; ++i) {
-    const Source s = source_at(i);
-    const std::string where = s.line == 0 ? path + " (data after the header)" : s.path;
-    auto fs = file_size(s.path);
-    if (!fs) {
-      Error e = fs.error();
-      if (s.line != 0) e.message = path + ":" + std::to_string(s.line) + ": data file: " + e.message;
-      return e;
-    }
-    std::uint64_t start = s.start;
-    if (line_skip > 0) {
-      const auto after = after_lines(s.path, start, line_skip);
-      if (!after) {
-        return invalid(where + ": line skip: expected at least " + std::to_string(line_skip) +
-                       " lines before the data, found fewer");
-      }
-      start = *after;
-    }
-    const std::uint64_t left = fs.value() > start ? fs.value() - start : 0;
-    if (gzip) {
-      if (left == 0) return invalid(where + ": encoding: expected gzip data, found none");
-      spans.push_back(Span{start, left});
-      continue;
-    }
-    if (byte_skip == -1) {
-      if (left < per_file) {
-        return invalid(where + ": truncated data: expected " + std::to_string(per_file) +
-                       " bytes (sizes × element size) at the end of the file, found " + std::to_string(left));
-      }
-      spans.push_back(Span{fs.value() - per_file, per_file});
-      continue;
-    }
-    const auto skip = static_cast<std::uint64_t>(byte_skip);
-    if (skip > left) {
-      return invalid(where + ": byte skip: expected at most " + std::to_string(left) + " bytes to skip, found " +
-                     std::to_string(skip));
-    }
-    if (left - skip != per_file) {
-      return invalid(where + ": data size mismatch: expected " + std::to_string(per_file) + " bytes (sizes " +
-                     std::to_string(dims[0]) + "×" + std::to_string(dims[1]) + "×" + std::to_string(dims[2]) +
-                     (n_files > 1 ? " / " + std::to_string(n_files) + " files" : std::string()) + " × " +
-                     std::to_string(elem.bytes) + " bytes of " + elem.name + "), found " + std::to_string(left - skip));
-    }
-    spans.push_back(Span{start + skip, per_file});
+// Where each file's data lies: checked against every file's real size before anything is read.
+struct Span {
+  std::uint64_t offset, count;
+};
+
+std::string where_of(const std::string& path, const Source& s) {
+  return s.line == 0 ? path + " (data after the header)" : s.path;
+}
+
+Result<Span> data_span(const std::string& path, const Source& s, const Format& format, const Skips& skips,
+                       std::uint64_t per_file, std::uint64_t n_files) {
+  const std::string where = where_of(path, s);
+  auto fs = file_size(s.path);
+  if (!fs) {
+    Error e = fs.error();
+    if (s.line != 0) e.message = path + ":" + std::to_string(s.line) + ": data file: " + e.message;
+    return e;
   }
-  if (!gzip) bytes.reserve(static_cast<std::size_t>(total * elem.bytes));  // every file's size is checked
-  for (std::uint64_t i = 0; i < n_files; ++i) {
-    const Source s = source_at(i);
-    const std::string where = s.line == 0 ? path + " (data after the header)" : s.path;
+  std::uint64_t start = s.start;
+  if (skips.lines > 0) {
+    const auto after = after_lines(s.path, start, skips.lines);
+    if (!after) {
+      return invalid(where + ": line skip: expected at least " + std::to_string(skips.lines) + " lines before the data, found fewer");
+    }
+    start = *after;
+  }
+  const std::uint64_t left = fs.value() > start ? fs.value() - start : 0;
+  if (format.gzip) {
+    if (left == 0) return invalid(where + ": encoding: expected gzip data, found none");
+    return Span{start, left};
+  }
+  if (skips.bytes == -1) {
+    if (left < per_file) {
+      return invalid(where + ": truncated data: expected " + std::to_string(per_file) +
+                     " bytes (sizes × element size) at the end of the file, found " + std::to_string(left));
+    }
+    return Span{fs.value() - per_file, per_file};
+  }
+  const auto skip = static_cast<std::uint64_t>(skips.bytes);
+  if (skip > left) {
+    return invalid(where + ": byte skip: expected at most " + std::to_string(left) + " bytes to skip, found " + std::to_string(skip));
+  }
+  if (left - skip != per_file) {
+    const auto& d = format.dims;
+    return invalid(where + ": data size mismatch: expected " + std::to_string(per_file) + " bytes (sizes " +
+                   std::to_string(d[0]) + "×" + std::to_string(d[1]) + "×" + std::to_string(d[2]) +
+                   (n_files > 1 ? " / " + std::to_string(n_files) + " files" : std::string()) + " × " +
+                   std::to_string(format.elem.bytes) + " bytes of " + format.elem.name + "), found " +
+                   std::to_string(left - skip));
+  }
+  return Span{start + skip, per_file};
+}
+
+// Every file's elements, in order, raw or inflated.
+Result<std::vector<unsigned char>> read_data(const std::string& path, const DataFiles& files, const Format& format,
+                                             const Skips& skips, std::uint64_t total, const Progress& progress) {
+  const std::uint64_t per_file = files.elems_each * format.elem.bytes;
+  std::vector<Span> spans;
+  for (std::uint64_t i = 0; i < files.count; ++i) {
+    auto sp = data_span(path, files.at(i), format, skips, per_file, files.count);
+    if (!sp) return sp.error();
+    spans.push_back(sp.value());
+  }
+  std::vector<unsigned char> bytes;
+  if (!format.gzip) bytes.reserve(static_cast<std::size_t>(total * format.elem.bytes));  // every file's size is checked
+  constexpr StreamWords kWords{"encoding", "gzip", "sizes × element size + byte skip"};
+  for (std::uint64_t i = 0; i < files.count; ++i) {
+    const Source s = files.at(i);
     const Span& sp = spans[static_cast<std::size_t>(i)];
-    if (!gzip) {
-      auto r = append_bytes(s.path, sp.offset, sp.count, bytes);
-      if (!r) return r.error();
+    if (!format.gzip) {
+      if (auto r = append_file_bytes(s.path, sp.offset, sp.count, bytes, {}, 0.0, 0.0); !r) return r.error();
     } else {
       std::vector<unsigned char> packed;
-      auto r = append_bytes(s.path, sp.offset, sp.count, packed);
-      if (!r) return r.error();
+      if (auto r = append_file_bytes(s.path, sp.offset, sp.count, packed, {}, 0.0, 0.0); !r) return r.error();
       const std::size_t before = bytes.size();
-      const auto skip = static_cast<std::uint64_t>(byte_skip);
-      auto z = inflate_exact(where, packed, skip + per_file, bytes);
+      const auto skip = static_cast<std::uint64_t>(skips.bytes);
+      auto z = inflate_exact(where_of(path, s), kWords, packed, skip + per_file, bytes, {}, 0.0, 0.0);
       if (!z) return z.error();
       bytes.erase(bytes.begin() + static_cast<std::ptrdiff_t>(before),
                   bytes.begin() + static_cast<std::ptrdiff_t>(before + skip));
     }
-    report(progress, 0.5 * static_cast<double>(i + 1) / static_cast<double>(n_files));
+    report(progress, 0.5 * static_cast<double>(i + 1) / static_cast<double>(files.count));
   }
-  v.data = convert(bytes, elem, big_endian, v.voxel_count(), progress, 0.5, 1.0);
+  return bytes;
+}
+
+Result<Volume> load(const std::string& path, const Progress& progress) {
+  auto size = file_size(path);
+  if (!size) return size.error();
+  auto header = read_header(path, size.value());
+  if (!header) return header.error();
+  const HeaderFields& h = header.value().fields;
+  auto format = read_format(h);
+  if (!format) return format.error();
+  Volume v;
+  v.dims = format.value().dims;
+  v.source_type = format.value().elem.nearest;
+  v.value_unit = "raw";
+  v.spacing = Vec3{kMm, kMm, kMm};
+  if (auto g = read_geometry(h, v); !g) return g.error();
+  auto skips = read_skips(h, format.value().gzip);
+  if (!skips) return skips.error();
+  auto files = read_data_files(header.value(), format.value());
+  if (!files) return files.error();
+  auto bytes = read_data(path, files.value(), format.value(), skips.value(), v.voxel_count(), progress);
+  if (!bytes) return bytes.error();
+  v.data = convert(bytes.value(), format.value().elem, format.value().big_endian, v.voxel_count(), progress, 0.5, 1.0);
   return v;
 }
 
