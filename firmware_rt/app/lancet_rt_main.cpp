@@ -140,9 +140,9 @@ bool write_stats(const std::string& path, const StatsInput& in) {
   if (st.has_arm != 0) {
     const lancet::BusCounters& b = st.bus;
     j += "  \"arm\": {\"name\": " + str(in.arm_name) + ", \"state\": " +
-         str(lancet::device::to_string(static_cast<lancet::device::Lifecycle>(st.device_state))) + ", \"fault_cause\": " +
-         str(st.device_state == static_cast<std::uint32_t>(lancet::device::Lifecycle::kFault)
-                 ? lancet::device::to_string(static_cast<lancet::device::IoStatus>(st.device_fault_cause))
+         str(lancet::device::to_string(st.device_state)) + ", \"fault_cause\": " +
+         str(st.device_state == lancet::device::Lifecycle::kFault
+                 ? lancet::device::to_string(st.device_fault_cause)
                  : "") +
          ", \"fault\": " + str(st.fault_text) + ", \"fault_node\": " + std::to_string(st.fault_node) +
          ", \"fault_code\": " + std::to_string(st.fault_code) + ", \"last_error\": " + str(st.error_text) +

@@ -85,7 +85,7 @@ bool RtServo::supervise(std::int64_t now_ns) {
     // Decide from the servo's own published status: the device itself belongs to the servo now.
     RtStatus st{};
     if (d.own_status.try_read(st, 1000) != ReadStatus::kOk) return false;
-    const bool faulted = st.device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault);
+    const bool faulted = st.device_state == device::Lifecycle::kFault;
     DeviceJob job = DeviceJob::kNone;
     if (d.rearm_wanted.exchange(false, std::memory_order_acq_rel) && faulted) {
       job = DeviceJob::kRearm;
@@ -285,7 +285,7 @@ void RtServo::tick(const rt::TickContext& ctx) noexcept {
   // start of the tick.)
   d.last_write = device_owned ? device_->write(out.command) : device::IoStatus::kFault;
   ToolSample& s = out.sample;
-  s.write_status = static_cast<std::uint8_t>(d.last_write);
+  s.write_status = d.last_write;
   if (d.last_write != device::IoStatus::kOk) s.events |= event::kFault;
 
   bool reset = false;
@@ -312,7 +312,7 @@ void RtServo::publish_status(const rt::TickContext& ctx, bool device_owned) noex
   st.longest_stall_ns = ctx.live.longest_stall_ns;
   for (std::size_t i = 0; i < kWakeBins; ++i) st.wake_histogram[i] = ctx.live.wake_histogram[i];
   st.watchdog_tripped = ctx.watchdog.tripped() ? 1u : 0u;
-  st.watchdog_reason = static_cast<std::uint32_t>(ctx.watchdog.reason());
+  st.watchdog_reason = ctx.watchdog.reason();
   st.fifo = d.fifo ? 1u : 0u;
   st.force = d.servo.force;
   st.force_scale = d.out.fade_scale;
@@ -329,8 +329,8 @@ void RtServo::publish_status(const rt::TickContext& ctx, bool device_owned) noex
     const device::Device* const arm = device_;
     // The device is this thread's now: its state, counters and words are safe to copy.
     const device::FaultDetail& fd = arm->fault_detail();
-    st.device_state = static_cast<std::uint32_t>(arm->state());
-    st.device_fault_cause = static_cast<std::uint32_t>(arm->fault_cause());
+    st.device_state = arm->state();
+    st.device_fault_cause = arm->fault_cause();
     st.link_lost = arm->link_lost() ? 1u : 0u;
     st.fault_node = fd.node;
     st.fault_code = fd.code;

@@ -16,16 +16,16 @@ std::string fmt(const char* f, auto... args) {
   return buf;
 }
 
-bool faulted(const RtStatus& s) { return s.device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault); }
+bool faulted(const RtStatus& s) { return s.device_state == device::Lifecycle::kFault; }
 
 }  // namespace
 
 std::string describe_arm(const RtStatus& st) {
   if (st.has_arm == 0) return "built-in simulated stylus";
-  const auto state = static_cast<device::Lifecycle>(st.device_state);
+  const auto state = st.device_state;
   std::string s = device::to_string(state);
   if (state == device::Lifecycle::kFault) {
-    s += fmt(" (%s)", device::to_string(static_cast<device::IoStatus>(st.device_fault_cause)));
+    s += fmt(" (%s)", device::to_string(st.device_fault_cause));
     // The backends' words name the node and decode the code; the numbers alone only when there
     // are no words (they stay in the status and the stats for programs).
     if (st.fault_text[0] != '\0') {
@@ -105,7 +105,7 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
   }
   if (a.watchdog_tripped == 0 && b.watchdog_tripped != 0) {
     out.push_back(fmt("WATCHDOG TRIPPED (%s): force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
-                      rt::to_string(static_cast<rt::Watchdog::Reason>(b.watchdog_reason)), params_.shm_name.c_str()));
+                      rt::to_string(b.watchdog_reason), params_.shm_name.c_str()));
   }
   if (a.watchdog_tripped != 0 && b.watchdog_tripped == 0) out.push_back("watchdog re-armed");
   if (b.operator_requests > a.operator_requests) out.push_back("re-arm requested by an operator (lancetctl rearm)");

@@ -19,31 +19,6 @@ Result<void> wrong_state(const std::string& name, const char* step, Lifecycle s)
 
 }  // namespace
 
-const char* to_string(IoStatus s) noexcept {
-  switch (s) {
-    case IoStatus::kOk: return "ok";
-    case IoStatus::kTimeout: return "timeout";
-    case IoStatus::kCrcError: return "crc error";
-    case IoStatus::kProtocolError: return "protocol error";
-    case IoStatus::kDisconnected: return "disconnected";
-    case IoStatus::kDeviceFault: return "device fault";
-    case IoStatus::kNotActive: return "not active";
-    case IoStatus::kFault: return "fault";
-    case IoStatus::kImplausible: return "encoder glitch";
-  }
-  return "?";
-}
-
-const char* to_string(Lifecycle s) noexcept {
-  switch (s) {
-    case Lifecycle::kUnconfigured: return "unconfigured";
-    case Lifecycle::kInactive: return "inactive";
-    case Lifecycle::kActive: return "active";
-    case Lifecycle::kFault: return "fault";
-  }
-  return "?";
-}
-
 Result<void> Device::configure() {
   if (state_ != Lifecycle::kUnconfigured) return wrong_state(name_, "configure", state_);
   Result<void> o = on_configure();

@@ -33,6 +33,7 @@
 #include <optional>
 #include <string>
 
+#include "lancet/shared_model/device_codes.hpp"
 #include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
 
@@ -41,22 +42,11 @@ namespace lancet::device {
 /// Joints per arm: the one limit, shared with the wire (messages.hpp).
 using lancet::kMaxJoints;
 
-enum class Lifecycle : std::uint8_t { kUnconfigured, kInactive, kActive, kFault };
-
-enum class IoStatus : std::uint8_t {
-  kOk = 0,
-  kTimeout,        ///< no reply within the backend's timeout
-  kCrcError,       ///< a reply arrived corrupted
-  kProtocolError,  ///< a reply arrived but made no sense (exception code, wrong length, bad EMCY…)
-  kDisconnected,   ///< the bus or the device went away
-  kDeviceFault,    ///< the device reports a fault of its own (drive fault bit, EMCY)
-  kNotActive,      ///< read/write outside the active state
-  kFault,          ///< the device is in kFault: zero torque until rearm()
-  kImplausible,    ///< an encoder jumped further than the joint's maximum speed allows (a glitch)
-};
-
-[[nodiscard]] const char* to_string(IoStatus s) noexcept;
-[[nodiscard]] const char* to_string(Lifecycle s) noexcept;
+/// The lifecycle and I/O codes are the wire's (lancet/shared_model/device_codes.hpp): lancet-rt
+/// publishes them in RtStatus and ToolSample as they are.
+using Lifecycle = ::lancet::DeviceLifecycle;
+using IoStatus = ::lancet::IoStatus;
+using ::lancet::to_string;
 
 /// What the bus has done so far (real-time safe to update and to copy).
 struct IoCounters {

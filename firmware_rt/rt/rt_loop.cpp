@@ -2,15 +2,6 @@
 
 namespace lancet::rt {
 
-const char* to_string(Watchdog::Reason r) noexcept {
-  switch (r) {
-    case Watchdog::Reason::kNone: return "none";
-    case Watchdog::Reason::kConsecutiveMisses: return "consecutive missed deadlines";
-    case Watchdog::Reason::kTickOverBudget: return "tick over budget";
-  }
-  return "?";
-}
-
 RtLoop::RtLoop(const LoopParams& params) : params_(params), stats_(std::make_unique<LoopStats>()) {
   // Reserve and touch the time-series storage now, so recording into it later never faults.
   stats_->window_max_us.resize(params_.max_windows);

@@ -5,6 +5,8 @@
 
 #include <cstdint>
 
+#include "lancet/shared_model/device_codes.hpp"
+
 namespace lancet::rt {
 
 struct WatchdogParams {
@@ -14,7 +16,7 @@ struct WatchdogParams {
 
 class Watchdog {
  public:
-  enum class Reason : std::uint8_t { kNone = 0, kConsecutiveMisses = 1, kTickOverBudget = 2 };
+  using Reason = ::lancet::WatchdogReason;
 
   /// After each tick: was its deadline missed, and how long did it compute? Returns true when the
   /// watchdog trips on this call. Real-time safe.
@@ -47,6 +49,6 @@ class Watchdog {
   std::uint64_t trips_ = 0;
 };
 
-const char* to_string(Watchdog::Reason r) noexcept;
+using ::lancet::to_string;
 
 }  // namespace lancet::rt

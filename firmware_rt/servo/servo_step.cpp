@@ -39,7 +39,6 @@ void apply_commands(ServoData& d, const ServoInput& in, bool& rearm, std::uint8_
         reset(d);
         break;
       case CommandKind::kRearm: rearm = true; break;
-      case CommandKind::kSetMaterial:  // materials are the model's: a tick does not change them
       case CommandKind::kNone: break;
     }
   }
@@ -54,7 +53,7 @@ void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& ou
   s.woke_ns = in.woke_ns;
   s.mode = d.mode;
   s.stage = out.haptic.stage;
-  s.read_status = static_cast<std::uint8_t>(in.read_status);
+  s.read_status = in.read_status;
   const int n = std::clamp(in.reading.n, 0, kMaxJoints);
   s.n_joints = static_cast<std::uint32_t>(n);
   for (int j = 0; j < n; ++j) {
@@ -250,7 +249,7 @@ ServoInput input_from_sample(const ToolSample& s) noexcept {
     in.reading.q[uj] = s.q[uj], in.reading.qd[uj] = s.qd[uj];
   }
   in.reading.buttons = s.buttons;
-  in.read_status = static_cast<device::IoStatus>(s.read_status);
+  in.read_status = s.read_status;
   in.device_held = (s.inputs & input::kDeviceHeld) != 0;
   in.patch_version = s.patch_version;
   in.viz_alive = (s.inputs & input::kVizAlive) != 0;

@@ -250,9 +250,9 @@ void print_status_json(std::FILE* out, double t, int pid, const RtStatus& st) {
   j += ", \"contact\": " + std::string(st.contact ? "true" : "false") + ", \"tool_mm\": [" + num(st.tool.x * 1e3) + ", " + num(st.tool.y * 1e3) + ", " + num(st.tool.z * 1e3) + "]";
   j += ", \"viz_alive\": " + std::string(st.viz_alive ? "true" : "false") + ", \"patch_version\": " + u(st.patch_version);
   j += ", \"has_arm\": " + std::string(st.has_arm ? "true" : "false");
-  j += ", \"device_state\": " + json_string(device::to_string(static_cast<device::Lifecycle>(st.device_state)));
-  j += ", \"fault_cause\": " + json_string(st.device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault)
-                                                 ? device::to_string(static_cast<device::IoStatus>(st.device_fault_cause))
+  j += ", \"device_state\": " + json_string(device::to_string(st.device_state));
+  j += ", \"fault_cause\": " + json_string(st.device_state == device::Lifecycle::kFault
+                                                 ? device::to_string(st.device_fault_cause)
                                                  : "");
   j += ", \"fault_text\": " + json_string(st.fault_text) + ", \"link_lost\": " + std::string(st.link_lost ? "true" : "false");
   j += ", \"rearms\": " + u(st.rearms) + ", \"rearm_failures\": " + u(st.rearm_failures) +
@@ -353,14 +353,14 @@ int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::
     std::fprintf(out, "rearm: lancet-rt on %s: %s\n", shm.c_str(), why.c_str());
     return 1;
   }
-  const bool arm_faulted = st->has_arm != 0 && st->device_state == static_cast<std::uint32_t>(device::Lifecycle::kFault);
+  const bool arm_faulted = st->has_arm != 0 && st->device_state == device::Lifecycle::kFault;
   std::fprintf(out, "lancet-rt (pid %d) on %s, tick %llu\n  arm: %s\n", ch.value().segment().creator_pid(), shm.c_str(),
                static_cast<unsigned long long>(st->tick), app::describe_arm(*st).c_str());
   if (st->has_arm != 0) {
     std::fprintf(out, "  bus: %s\n", app::describe_bus(st->bus).c_str());
     if (st->error_text[0] != '\0') std::fprintf(out, "  last error: %s\n", st->error_text);
   }
-  std::fprintf(out, "  watchdog: %s\n", st->watchdog_tripped ? rt::to_string(static_cast<rt::Watchdog::Reason>(st->watchdog_reason)) : "armed");
+  std::fprintf(out, "  watchdog: %s\n", st->watchdog_tripped ? rt::to_string(st->watchdog_reason) : "armed");
   if (!arm_faulted && st->watchdog_tripped == 0) {
     std::fprintf(out, "rearm: nothing to re-arm: the arm and the watchdog are armed\n");
     return 0;
@@ -397,7 +397,7 @@ int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::
       std::fprintf(out, "rearm: failed: %s\n", now->rearm_text);
       return 1;
     }
-    const bool arm_ok = now->has_arm == 0 || now->device_state == static_cast<std::uint32_t>(device::Lifecycle::kActive);
+    const bool arm_ok = now->has_arm == 0 || now->device_state == device::Lifecycle::kActive;
     if (now->rearm_pending == 0 && arm_ok && now->watchdog_tripped == 0) {
       std::fprintf(out, "rearm: re-armed: arm %s, watchdog armed\n", app::describe_arm(*now).c_str());
       return 0;

@@ -159,7 +159,7 @@ std::vector<lancet::render::OverlayLine> status_lines(const lancet::viz::VizSess
                   static_cast<double>(st->wake_max_ns) / 1e3);
     lines.push_back({buf});
     if (st->watchdog_tripped) lines.push_back({"WATCHDOG TRIPPED: force held at zero; press W to re-arm", true});
-    if (st->has_arm != 0 && st->device_state == 3) {  // device::Lifecycle::kFault
+    if (st->has_arm != 0 && st->device_state == lancet::DeviceLifecycle::kFault) {
       std::snprintf(buf, sizeof buf, "ARM FAULT: %s; force held at zero; press W to re-arm%s", st->fault_text,
                     st->link_lost ? " (bus link lost: reconnecting)" : "");
       lines.push_back({buf, true});

@@ -420,6 +420,7 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
   bool ok = write_attr(root, "format_version", H5T_NATIVE_UINT32, kFormatVersion) &&
             write_string_attr(root, "lancet_version", meta.lancet_version) &&
             write_attr(root, "layout_hash", H5T_NATIVE_UINT64, meta.layout_hash) &&
+            write_attr(root, "recorded_layout_hash", H5T_NATIVE_UINT64, meta.recorded_layout_hash) &&
             write_attr(root, "protocol", H5T_NATIVE_UINT64, meta.protocol) && write_string_attr(root, "created", meta.created) &&
             write_string_attr(root, "scenario_name", meta.scenario_name) &&
             write_string_attr(root, "scenario_file", meta.scenario_file) &&
@@ -620,6 +621,7 @@ Result<Recording> read_recording(const std::string& path) {
   };
   need(read_string_attr(file, "lancet_version", r.lancet_version), "lancet_version");
   need(read_attr(file, "layout_hash", H5T_NATIVE_UINT64, r.layout_hash), "layout_hash");
+  if (!read_attr(file, "recorded_layout_hash", H5T_NATIVE_UINT64, r.recorded_layout_hash)) r.recorded_layout_hash = 0;
   need(read_attr(file, "protocol", H5T_NATIVE_UINT64, r.protocol), "protocol");
   need(read_string_attr(file, "created", r.created), "created");
   need(read_string_attr(file, "scenario_name", r.scenario_name), "scenario_name");

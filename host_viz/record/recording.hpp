@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "lancet/shared_model/messages.hpp"
+#include "lancet/shared_model/shared_state.hpp"
 
 namespace lancet::record {
 
@@ -80,7 +81,10 @@ struct Recording {
   // Provenance.
   std::uint32_t format_version = kFormatVersion;
   std::string lancet_version;      ///< the build that recorded it (git describe)
-  std::uint64_t layout_hash = 0;   ///< kSharedLayoutHash of that build: replay refuses another
+  std::uint64_t layout_hash = 0;   ///< kSharedLayoutHash of that build (informative)
+  /// kRecordedLayoutHash of that build: replay refuses another. 0 in files written before the
+  /// attribute existed (replay then goes by layout_hash; see Replay::create).
+  std::uint64_t recorded_layout_hash = kRecordedLayoutHash;
   std::uint64_t protocol = 0;      ///< kProtocolVersion of that build
   std::string created;             ///< ISO 8601 UTC time the recording started
   std::string scenario_name;       ///< "" without a scenario

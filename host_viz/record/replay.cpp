@@ -150,16 +150,36 @@ std::uint64_t SceneSim::hash() const {
 // ---------------------------------------------------------------------------------------------
 // Replay
 
+namespace {
+
+// Shared layouts of earlier protocols whose recorded messages (ToolSample, TissuePatch, the servo
+// model blob) are laid out as this build's: their recordings, made before files carried
+// recorded_layout_hash, still replay. Protocol 10 changed only what is not recorded.
+constexpr std::uint64_t kEarlierLayoutsRecordingAsThisOne[] = {
+    0xdfc3b587a1660cf6ull,  // protocol 9
+};
+
+bool replayable_layout(const Recording& rec) {
+  if (rec.recorded_layout_hash != 0) return rec.recorded_layout_hash == kRecordedLayoutHash;
+  if (rec.layout_hash == kSharedLayoutHash) return true;
+  for (const std::uint64_t h : kEarlierLayoutsRecordingAsThisOne)
+    if (rec.layout_hash == h) return true;
+  return false;
+}
+
+}  // namespace
+
 Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
   const auto hex = [](std::uint64_t v) {
     char b[24];
     std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
     return std::string(b);
   };
-  if (rec.layout_hash != kSharedLayoutHash)
-    return Error{ErrorCode::kMismatch, "the recording was made with shared layout " + hex(rec.layout_hash) + " (protocol " +
-                                           std::to_string(rec.protocol) + ", lancet " + rec.lancet_version +
-                                           "); this build's is " + hex(kSharedLayoutHash) + " (protocol " +
+  if (!replayable_layout(rec))
+    return Error{ErrorCode::kMismatch, "the recording was made with recorded-message layout " + hex(rec.recorded_layout_hash) +
+                                           " (shared layout " + hex(rec.layout_hash) + ", protocol " + std::to_string(rec.protocol) +
+                                           ", lancet " + rec.lancet_version + "); this build's is " + hex(kRecordedLayoutHash) +
+                                           " (shared layout " + hex(kSharedLayoutHash) + ", protocol " +
                                            std::to_string(kProtocolVersion) + "): replay it with the build that recorded it"};
   if (rec.samples.empty() || rec.frames.empty()) return Error{ErrorCode::kInvalid, "the recording has no ticks or no frames"};
   for (const ToolSample& s : rec.samples)
@@ -248,7 +268,7 @@ Result<bool> Replay::step_frame() {
     servo::servo_step(model_, data_, in, out_);
     ToolSample& o = out_.sample;
     o.write_status = s.write_status;
-    if (s.write_status != 0) o.events |= event::kFault;
+    if (s.write_status != IoStatus::kOk) o.events |= event::kFault;
     ++check_.ticks;
     const bool hash_ok = o.state_hash == s.state_hash, output_ok = same_output(o, s);
     if (s.state_hash != 0) ++check_.servo_hashes;

@@ -49,11 +49,6 @@ constexpr std::uint64_t avalanche(std::uint64_t z) {
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
   return z ^ (z >> 31);
 }
-std::uint64_t bits(double v) {
-  std::uint64_t b;
-  std::memcpy(&b, &v, sizeof b);
-  return b;
-}
 
 }  // namespace
 
@@ -62,11 +57,7 @@ std::uint32_t command_check(const Command& c) noexcept {
   h = mix(h, c.seq);
   h = mix(h, static_cast<std::uint64_t>(c.t_ns));
   h = mix(h, static_cast<std::uint64_t>(c.kind) | static_cast<std::uint64_t>(c.mode) << 8 |
-                 static_cast<std::uint64_t>(c.material_id) << 16);
-  const MaterialParams& m = c.material;
-  for (double v : {m.stiffness, m.damping, m.yield_force, m.friction_static, m.friction_dynamic, m.cut_drag_along,
-                   m.cut_drag_across, m.density})
-    h = mix(h, bits(v));
+                 static_cast<std::uint64_t>(c.reserved) << 16);
   return static_cast<std::uint32_t>(avalanche(h));
 }
 
@@ -87,14 +78,6 @@ const char* check(const Command& c) noexcept {
     case CommandKind::kSetToolMode:
       return static_cast<std::size_t>(c.mode) < kToolCount ? nullptr
                                                                                              : "command.mode: unknown tool";
-    case CommandKind::kSetMaterial: {
-      if (c.material_id > kMaxMaterialId) return "command.material_id: beyond the material table";
-      const MaterialParams& m = c.material;
-      const bool ok = in(m.stiffness, 0, 1e5) && in(m.damping, 0, 1e3) && in(m.yield_force, 0, 200) &&
-                      in(m.friction_static, 0, 10) && in(m.friction_dynamic, 0, 10) && in(m.cut_drag_along, 0, 1e4) &&
-                      in(m.cut_drag_across, 0, 1e4) && in(m.density, 0, 1e5);
-      return ok ? nullptr : "command.material: a parameter is not finite or out of its physical range";
-    }
   }
   return "command.kind: unknown";
 }
@@ -139,6 +122,8 @@ const char* check(const ToolSample& s) noexcept {
   if (static_cast<std::size_t>(s.mode) >= kToolCount) return "sample.mode: unknown tool";
   if (static_cast<std::uint8_t>(s.stage) > static_cast<std::uint8_t>(Stage::kDrilling)) return "sample.stage: unknown";
   if ((s.events & ~kKnownEvents) != 0) return "sample.events: unknown bits";
+  if (!known_code(s.read_status, kLastIoStatus) || !known_code(s.write_status, kLastIoStatus))
+    return "sample.read_status/write_status: unknown";
   if ((s.inputs & ~input::kKnown) != 0) return "sample.inputs: unknown bits";
   if (s.n_commands > kSampleCommands) return "sample.n_commands: above kSampleCommands";
   if (s.reset_mode != kNoReset && s.reset_mode >= kToolCount) return "sample.reset_mode: unknown tool";
@@ -168,9 +153,9 @@ const char* check(const RtStatus& s) noexcept {
   if (!flag_ok(s.watchdog_tripped) || !flag_ok(s.fifo) || !flag_ok(s.viz_alive) || !flag_ok(s.contact) ||
       !flag_ok(s.has_arm) || !flag_ok(s.link_lost) || !flag_ok(s.rearm_pending))
     return "rt_status: a flag is not 0 or 1";
-  if (s.device_state > 3) return "rt_status.device_state: unknown";
-  if (s.device_fault_cause > 8) return "rt_status.device_fault_cause: unknown";
-  if (s.watchdog_reason > 2) return "rt_status.watchdog_reason: unknown";
+  if (!known_code(s.device_state, kLastDeviceLifecycle)) return "rt_status.device_state: unknown";
+  if (!known_code(s.device_fault_cause, kLastIoStatus)) return "rt_status.device_fault_cause: unknown";
+  if (!known_code(s.watchdog_reason, kLastWatchdogReason)) return "rt_status.watchdog_reason: unknown";
   if (!text_ok(s.fault_text) || !text_ok(s.error_text) || !text_ok(s.rearm_text)) return "rt_status: a text is not terminated or not printable";
   return nullptr;
 }

@@ -126,8 +126,8 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   st.force = {0, 0, 1.5};
   st.force_scale = 1;
   st.contact = 1;
-  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
-  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kTimeout);
+  st.device_state = device::Lifecycle::kFault;
+  st.device_fault_cause = device::IoStatus::kTimeout;
   st.device_errors = 7;
   st.period_ns = 1'000'000;
   st.has_arm = 1;
@@ -179,14 +179,14 @@ TEST_F(Bringup, RearmShowsTheFaultAsksAndSendsASealedRequest) {
   st.period_ns = 1'000'000;
   st.force_scale = 1;
   st.has_arm = 1;
-  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kActive);
+  st.device_state = device::Lifecycle::kActive;
   shared.rt_status.write(st);
   auto [idle, idle_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, nullptr, f); });
   EXPECT_EQ(idle, 0);
   EXPECT_NE(idle_out.find("nothing to re-arm"), std::string::npos) << idle_out;
 
-  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
-  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kDeviceFault);
+  st.device_state = device::Lifecycle::kFault;
+  st.device_fault_cause = device::IoStatus::kDeviceFault;
   std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
   st.fault_node = 1;
   st.fault_code = 0x2310;

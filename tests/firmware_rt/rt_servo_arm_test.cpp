@@ -242,8 +242,8 @@ TEST(RtSupervisor, AnnouncesAFaultWithItsCauseAndTheReArmAndNoticesAStall) {
 TEST(RtSupervisor, DescribesAFaultByTheBackendsWordsAndByNumbersOnlyWithoutThem) {
   RtStatus st{};
   st.has_arm = 1;
-  st.device_state = static_cast<std::uint32_t>(device::Lifecycle::kFault);
-  st.device_fault_cause = static_cast<std::uint32_t>(device::IoStatus::kDeviceFault);
+  st.device_state = device::Lifecycle::kFault;
+  st.device_fault_cause = device::IoStatus::kDeviceFault;
   st.fault_node = 1;
   st.fault_code = 0x2310;
   std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");

@@ -262,7 +262,7 @@ TEST(RtServo, ATrippedWatchdogHoldsZeroForceUntilReArmed) {
   RtStatus st{};
   ASSERT_EQ(rig.shared->rt_status.try_read(st), ReadStatus::kOk);
   EXPECT_EQ(st.watchdog_tripped, 1u);
-  EXPECT_EQ(st.watchdog_reason, static_cast<std::uint32_t>(rt::Watchdog::Reason::kTickOverBudget));
+  EXPECT_EQ(st.watchdog_reason, rt::Watchdog::Reason::kTickOverBudget);
   // A command that is not sealed (garbage that looks like a re-arm) does nothing.
   Command forged{};
   forged.kind = CommandKind::kRearm;

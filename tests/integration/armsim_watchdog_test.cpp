@@ -49,7 +49,7 @@ constexpr std::uint16_t kFaultBit = 1u << 0, kEnabledBit = 1u << 1, kCommLostBit
 // lancet-rt's bus timeout and the drives' watchdog (at least four bus timeouts, as the config
 // loader demands): a reply or a tick held back by a loaded machine stays well inside both.
 constexpr double kTimeoutMs = 250, kWatchdogMs = 2000;
-constexpr std::uint32_t kActive = 2;  // device::Lifecycle
+constexpr DeviceLifecycle kActive = DeviceLifecycle::kActive;
 
 class ArmsimWatchdog : public test::ProcessTest {
  protected:

@@ -94,7 +94,7 @@ class FaultWorkflow : public test::ProcessTest {
   }
 };
 
-constexpr std::uint32_t kActive = 2, kFault = 3;  // device::Lifecycle
+constexpr DeviceLifecycle kActive = DeviceLifecycle::kActive, kFault = DeviceLifecycle::kFault;
 
 TEST_F(FaultWorkflow, EncoderGlitchesAreCountedAndAnnouncedAndRepeatedOnesFaultTheArm) {
   // A glitch of a hundred million counts (thousands of radians): no reading that late could make

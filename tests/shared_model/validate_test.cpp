@@ -57,7 +57,7 @@ TEST(WireCheck, ValidMessagesPass) {
   RtStatus st{};
   st.period_ns = 1'000'000;
   st.force_scale = 1;
-  st.device_state = 3;
+  st.device_state = DeviceLifecycle::kFault;
   std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
   EXPECT_EQ(check(st), nullptr);
   OperatorRequest r{};
@@ -81,16 +81,7 @@ TEST(WireCheck, CommandsMustBeSealedKnownAndPhysical) {
   seal(c);
   EXPECT_NE(check(c), nullptr);
   c = good_command();
-  c.kind = CommandKind::kSetMaterial;
-  c.material_id = 1;
-  c.material.stiffness = 800;
-  seal(c);
-  EXPECT_EQ(check(c), nullptr);
-  c.material.damping = kNan;
-  seal(c);
-  EXPECT_NE(check(c), nullptr);
-  c.material.damping = 1;
-  c.material_id = 200;
+  c.kind = static_cast<CommandKind>(2);  // a number no kind has
   seal(c);
   EXPECT_NE(check(c), nullptr);
 }
@@ -162,6 +153,15 @@ TEST(WireCheck, SampleAndStatusDamageIsCaughtBeforeAnythingIsPrinted) {
   s = ToolSample{};
   s.tool.orientation = {0, 0, 0, 0};
   EXPECT_NE(check(s), nullptr);
+  s = ToolSample{};
+  s.tool.orientation = s.proxy.orientation = Quat{};
+  s.read_status = IoStatus::kImplausible;
+  EXPECT_EQ(check(s), nullptr);
+  std::memset(&s.read_status, 200, 1);  // no status has this number
+  EXPECT_NE(check(s), nullptr);
+  s.read_status = IoStatus::kOk;
+  std::memset(&s.write_status, 9, 1);
+  EXPECT_NE(check(s), nullptr);
   // Events whose payload sets the viz's work: a drill removal of a 1 km burr would carve the
   // whole volume for every sample.
   s = ToolSample{};
@@ -192,9 +192,15 @@ TEST(WireCheck, SampleAndStatusDamageIsCaughtBeforeAnythingIsPrinted) {
   std::strcpy(st.fault_text, "\x1b[2Jgotcha");  // a terminal escape
   EXPECT_NE(check(st), nullptr);
   st.fault_text[0] = '\0';
-  st.device_state = 9;
+  std::memset(&st.device_state, 9, 1);  // a peer's garbage in the state's byte
   EXPECT_NE(check(st), nullptr);
-  st.device_state = 0;
+  st.device_state = DeviceLifecycle::kUnconfigured;
+  std::memset(&st.device_fault_cause, 0x7f, 1);
+  EXPECT_NE(check(st), nullptr);
+  st.device_fault_cause = IoStatus::kOk;
+  std::memset(&st.watchdog_reason, 3, 1);
+  EXPECT_NE(check(st), nullptr);
+  st.watchdog_reason = WatchdogReason::kNone;
   st.period_ns = 0;
   EXPECT_NE(check(st), nullptr);
 }

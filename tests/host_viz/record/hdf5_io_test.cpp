@@ -43,6 +43,7 @@ Recording sample_recording() {
   r.tissue = "phantom";
   r.patch_radius = 0.025;
   r.layout_hash = 0xfeedull;
+  r.recorded_layout_hash = 0xbeefull;
   r.protocol = 7;
   r.servo_hash_every = 100;
   r.scene_hash_every = 30;
@@ -90,6 +91,7 @@ TEST(Hdf5Io, ARecordingReadsBackBitIdentical) {
   EXPECT_EQ(b.tissue, "phantom");
   EXPECT_EQ(b.patch_radius, 0.025);
   EXPECT_EQ(b.layout_hash, r.layout_hash);
+  EXPECT_EQ(b.recorded_layout_hash, r.recorded_layout_hash);
   EXPECT_EQ(b.servo_hash_every, 100u);
   EXPECT_EQ(std::memcmp(&b.servo_model, &r.servo_model, sizeof r.servo_model), 0);
   ASSERT_EQ(b.first_patches.size(), 2u);

@@ -10,6 +10,7 @@
 #include <string_view>
 #include <type_traits>
 
+#include "lancet/shared_model/device_codes.hpp"
 #include "lancet/shared_model/geometry.hpp"
 
 namespace lancet {
@@ -104,8 +105,8 @@ struct ToolSample {
   std::uint32_t n_joints;         ///< valid entries in q, qd, tau
   ToolMode mode;                  ///< tool mode in force this tick
   Stage stage;                    ///< interaction stage
-  std::uint8_t read_status;       ///< the device read's device::IoStatus (0: ok)
-  std::uint8_t write_status;      ///< the device write's device::IoStatus (0: ok)
+  IoStatus read_status;           ///< what the device read came back with
+  IoStatus write_status;          ///< what the device write came back with
   double q[kMaxJoints];           ///< joint positions read (rad, or m for prismatic) (n_joints)
   double qd[kMaxJoints];          ///< joint velocities read (rad/s or m/s) (n_joints)
   double tau[kMaxJoints];         ///< commanded joint torques (N·m, or N) (n_joints)
@@ -128,7 +129,6 @@ struct ToolSample {
 enum class CommandKind : std::uint8_t {
   kNone = 0,
   kSetToolMode = 1,  ///< use Command::mode from now on
-  kSetMaterial = 2,  ///< replace material Command::material_id with Command::material
   kReset = 3,        ///< start afresh: the servo's state as a new servo's (stage, proxy, fade, counters); the tool stays
   kRearm = 4,        ///< re-arm a tripped watchdog (force stays zero until this arrives)
 };
@@ -151,9 +151,8 @@ struct Command {
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
   CommandKind kind;
   ToolMode mode;             ///< kSetToolMode
-  std::uint16_t material_id; ///< kSetMaterial
+  std::uint16_t reserved;
   std::uint32_t check;       ///< command_check(*this): garbage in the ring is never taken for a command
-  MaterialParams material;   ///< kSetMaterial
 };
 
 /// One triangle of the local tissue surface. Vertices counter-clockwise seen from outside, so
@@ -206,7 +205,7 @@ struct StylusTarget {
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
   Pose target;               ///< desired stylus pose
   std::uint32_t active;      ///< 1: follow this target; 0: lancet-rt uses its own script
-  std::uint32_t buttons;     ///< bit i = button i pressed
+  std::uint32_t reserved;
 };
 
 /// What the arm's bus has done so far, by kind (device::IoCounters on the wire).
@@ -265,8 +264,9 @@ struct RtStatus {
   std::int64_t viz_last_beat_ns;   ///< last viz heartbeat seen (ns; 0: never)
   std::int64_t force_zero_ns;      ///< first tick with zero force after the viz was lost (ns; 0: n/a)
   Vec3 tool;                       ///< tool position, tissue frame (m)
-  std::uint32_t device_state;      ///< the arm's lifecycle (device::Lifecycle; 0 with the built-in stylus)
-  std::uint32_t device_fault_cause;///< device::IoStatus that tripped its fault (0: none)
+  DeviceLifecycle device_state;    ///< the arm's lifecycle (kUnconfigured with the built-in stylus)
+  IoStatus device_fault_cause;     ///< what tripped the arm's fault (kOk: none)
+  std::uint8_t reserved_cause[3];
   std::uint64_t device_errors;     ///< ticks at zero force because the arm could not be read or written
   std::uint32_t has_arm;           ///< 1 when lancet-rt drives an arm from a config (0: built-in stylus)
   std::uint32_t link_lost;         ///< 1 while the arm's bus link is down (lancet-rt reconnects on its own)
@@ -275,7 +275,7 @@ struct RtStatus {
   char fault_text[kStatusTextSize];///< the fault in words ("" when none)
   char error_text[kStatusTextSize];///< the arm's last error of any kind, in words ("" when none)
   BusCounters bus;                 ///< the arm's bus counters
-  std::uint32_t watchdog_reason;   ///< rt::Watchdog::Reason of the trip (0: none)
+  WatchdogReason watchdog_reason;  ///< why the watchdog tripped (kNone: it has not)
   std::uint32_t rearm_pending;     ///< 1 while a requested re-arm is under way
   std::uint64_t rearms;            ///< re-arms done (watchdog and arm)
   std::uint64_t rearm_failures;    ///< re-arms of the arm that failed (rearm_text says why)

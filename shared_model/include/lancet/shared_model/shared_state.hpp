@@ -29,7 +29,9 @@ namespace lancet {
 ///    triangles, and only the triangles in use are copied.
 /// 9: the TissuePatch travels in a TripleBuffer (no reader is turned away by a busy writer);
 ///    SegmentHealth::patches_unreadable; a 16 s sample ring.
-inline constexpr std::uint64_t kProtocolVersion = 9;
+/// 10: the device, I/O and watchdog codes are typed (device_codes.hpp); Command carries no
+///    material and StylusTarget no buttons (neither was read).
+inline constexpr std::uint64_t kProtocolVersion = 10;
 /// 16384 ToolSamples = 16 s of ticks at 1 kHz (7 MB): the viz may stall that long without loss (a
 /// laptop swapping, a debugger's breakpoint). A longer stall loses ticks: a recording marks the gap
 /// and its replay checks the servo up to it (record/replay.hpp).
@@ -67,12 +69,13 @@ constexpr std::uint64_t fold(std::uint64_t h, V... v) {
 }
 }  // namespace detail
 
-/// Hash of everything that must agree between peers: protocol version, sizes, alignments and
-/// field offsets of every message, ring capacities and the SharedState member offsets.
-constexpr std::uint64_t shared_layout_hash() {
+/// Hash of the layout of what a recording holds: the ToolSample (every field), the TissuePatch
+/// with its triangles and brick, and the servo model's blob. A recording replays on any build whose
+/// hash is the one it was recorded with, whatever else of the protocol has changed since.
+constexpr std::uint64_t recorded_layout_hash() {
   using detail::fold;
   std::uint64_t h = 0xcbf29ce484222325ull;
-  h = fold(h, kProtocolVersion, kMaxJoints, kPatchCapacity, kBrickDim, kSampleRingCapacity, kCommandRingCapacity);
+  h = fold(h, kMaxJoints, kPatchCapacity, kBrickDim);
   h = fold(h, sizeof(ToolSample), alignof(ToolSample), offsetof(ToolSample, seq), offsetof(ToolSample, t_ns),
            offsetof(ToolSample, n_joints), offsetof(ToolSample, mode), offsetof(ToolSample, stage),
            offsetof(ToolSample, q), offsetof(ToolSample, qd), offsetof(ToolSample, tau), offsetof(ToolSample, tool),
@@ -81,12 +84,22 @@ constexpr std::uint64_t shared_layout_hash() {
            offsetof(ToolSample, read_status), offsetof(ToolSample, write_status), offsetof(ToolSample, inputs),
            offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, reset_mode), offsetof(ToolSample, commands),
            offsetof(ToolSample, state_hash), kSampleCommands);
-  h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, material_id),
-           offsetof(Command, material), sizeof(MaterialParams), offsetof(MaterialParams, yield_force),
-           offsetof(MaterialParams, density));
   h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, n_triangles),
            offsetof(TissuePatch, triangles), offsetof(TissuePatch, brick), sizeof(PatchTriangle),
            offsetof(PatchTriangle, material), offsetof(PatchTriangle, flags), offsetof(PatchTriangle, id), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
+  h = fold(h, sizeof(ServoModelBlob), kServoModelCapacity);
+  return h;
+}
+inline constexpr std::uint64_t kRecordedLayoutHash = recorded_layout_hash();
+
+/// Hash of everything that must agree between peers: protocol version, sizes, alignments and
+/// field offsets of every message, ring capacities and the SharedState member offsets.
+constexpr std::uint64_t shared_layout_hash() {
+  using detail::fold;
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  h = fold(h, kProtocolVersion, kRecordedLayoutHash, kSampleRingCapacity, kCommandRingCapacity);
+  h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, check),
+           sizeof(MaterialParams), offsetof(MaterialParams, yield_force), offsetof(MaterialParams, density));
   h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
   h = fold(h, sizeof(RtStatus), offsetof(RtStatus, missed), offsetof(RtStatus, wake_p99_ns),
            offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
