@@ -3,6 +3,10 @@
 // joint, driven through a SocketCAN raw socket with the PDO map of the arm's config
 // ([bus.canopen] in hw_configs/*.toml; schema and behaviour in hw_configs/README.md). The host is
 // the NMT master, the SYNC producer and, while active, a heartbeat producer the drives watch.
+// Every frame is built and read with the CANopen codec (device/canopen/codec.hpp), which the
+// emulated drives of lancet-armsim use too. The sources: create() and the PDO plan in
+// canopen_arm.cpp, the set-up in canopen_arm_setup.cpp, the real-time exchange in
+// canopen_arm_exchange.cpp.
 //
 //   configure()  observe only: open the socket on the interface; per node, by SDO upload, check the
 //                device type (0x1000: a CiA 402 drive), read the vendor id (0x1018:1) and the
@@ -152,11 +156,13 @@ class CanopenArm final : public Device {
   [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
 
  protected:
+  // The set-up (canopen_arm_setup.cpp): SDO configuration, PDO mapping, NMT, the CiA 402 states.
   Result<void> on_configure() override;
   Result<void> on_activate() override;
   Result<void> on_deactivate() override;
   Result<void> on_rearm() override;
   Result<void> on_reconnect() override;
+  // The exchange (canopen_arm_exchange.cpp): SYNC, PDOs, staleness and faults; real-time safe.
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
@@ -210,7 +216,7 @@ class CanopenArm final : public Device {
     std::uint32_t value = 0;  ///< the uploaded value (kOk), the abort code (kAbort)
   };
 
-  // Socket and frames (real-time safe).
+  // Socket, frames and the SYNC cycle (canopen_arm_exchange.cpp; real-time safe).
   [[nodiscard]] IoStatus send(const canopen::Frame& f) noexcept;
   [[nodiscard]] IoStatus send_sync() noexcept;
   void send_nmt(canopen::NmtCommand cmd, int node_id) noexcept;
@@ -241,6 +247,8 @@ class CanopenArm final : public Device {
   /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).
   [[nodiscard]] IoStatus send_rpdos(bool all = false) noexcept;
   void send_zero_torque() noexcept;
+  /// Heartbeat and TPDO staleness counted afresh from now (after a set-up step that paused them).
+  void restart_tracking(std::int64_t now) noexcept;
   /// Records the event (last_event()) without reporting it.
   void note(IoStatus s, CanopenEvent::What what, int node_index, std::uint32_t cob, int err_no, std::int64_t now) noexcept;
   /// note(), and describes it to the Device (note_error) as the error read() / write() returns.
@@ -248,7 +256,8 @@ class CanopenArm final : public Device {
   /// A failed exchange() or send: the socket (kDisconnected) or a full transmit queue (kTimeout).
   [[nodiscard]] IoStatus report_send_failure(IoStatus s) noexcept;
 
-  // Configure-time steps (may allocate); failures name the interface, the node and the object.
+  // Set-up steps (canopen_arm_setup.cpp; may allocate); failures name the interface, the node and
+  // the object.
   Result<void> open_socket();
   Result<void> fail(const std::string& what) const;
   Result<void> sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes);
@@ -277,7 +286,6 @@ class CanopenArm final : public Device {
   template <class NextCw, class Done>
   Result<void> drive_states(NextCw next_cw, Done done, const std::string& goal);
   Result<void> enable_drives(const char* goal);
-  void restart_tracking(std::int64_t now) noexcept;
 
   arm::ArmConfig config_;
   arm::CanopenBusConfig bus_;
