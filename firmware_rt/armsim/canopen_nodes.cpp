@@ -1,8 +1,5 @@
 #include "armsim/canopen_nodes.hpp"
 
-#include "device/canopen/codec.hpp"
-#include "device/canopen/socketcan.hpp"
-
 #include <errno.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>
@@ -19,6 +16,9 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+
+#include "device/canopen/codec.hpp"
+#include "device/canopen/socketcan.hpp"
 
 namespace lancet::armsim {
 

@@ -167,6 +167,8 @@ class CanopenArm final : public Device {
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
  private:
+  CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
+
   /// Where an object sits in a PDO's data.
   struct Slot {
     bool present = false;
@@ -202,7 +204,6 @@ class CanopenArm final : public Device {
     double q_prev = 0;
   };
 
-  CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
   /// Where the driver's objects sit in each PDO of one direction (the same on every node);
   /// `key` names the config table ("tpdo", "rpdo") in the error.
   [[nodiscard]] std::optional<Error> plan_pdos(const std::string& where, const std::vector<arm::PdoConfig>& pdos,

@@ -16,8 +16,8 @@
 
 #include "device/canopen/socketcan.hpp"
 #include "device/canopen_arm_text.hpp"
-#include "lancet/shared_model/units.hpp"
 #include "device/joint_signals.hpp"
+#include "lancet/shared_model/units.hpp"
 
 namespace lancet::device {
 
