@@ -2,7 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
-
+#include <memory>
+#include <utility>
 
 #include "device/canopen_arm.hpp"
 #include "device/modbus_arm.hpp"
@@ -25,36 +26,21 @@ device::Plausibility plausibility_of(const arm::ArmConfig& config) {
 
 namespace {
 
+// A backend's create() result as a MadeDevice (the error passed on as it is).
+template <class Backend>
+Result<MadeDevice> made(Result<std::unique_ptr<Backend>> created) {
+  if (!created.ok()) return created.error();
+  MadeDevice m;
+  m.device = std::move(created).value();
+  return m;
+}
+
 Result<MadeDevice> make_backend(const arm::ArmConfig& config) {
   switch (config.backend) {
-    case arm::Backend::kSim: {
-      auto sim = device::SimArm::create(config);
-      if (!sim.ok()) return sim.error();
-      MadeDevice m;
-      m.device = std::move(sim).value();
-      return m;
-    }
-    case arm::Backend::kModbus: {
-      auto mb = device::ModbusArm::create(config);
-      if (!mb.ok()) return mb.error();
-      MadeDevice m;
-      m.device = std::move(mb).value();
-      return m;
-    }
-    case arm::Backend::kCanopen: {
-      auto can = device::CanopenArm::create(config);
-      if (!can.ok()) return can.error();
-      MadeDevice m;
-      m.device = std::move(can).value();
-      return m;
-    }
-    case arm::Backend::kUsb: {
-      auto usb = device::UsbArm::create(config);
-      if (!usb.ok()) return usb.error();
-      MadeDevice m;
-      m.device = std::move(usb).value();
-      return m;
-    }
+    case arm::Backend::kSim: return made(device::SimArm::create(config));
+    case arm::Backend::kModbus: return made(device::ModbusArm::create(config));
+    case arm::Backend::kCanopen: return made(device::CanopenArm::create(config));
+    case arm::Backend::kUsb: return made(device::UsbArm::create(config));
   }
   return Error{ErrorCode::kInvalid, config.source + ": unknown backend"};
 }

@@ -25,6 +25,7 @@
 //                (1 fault, 2 disable voltage, 3 quick stop; 0 nothing): torque off
 //   EMCY         on an injected fault, on a heartbeat consumer timeout (and 0x0000 "error reset"
 //                after a fault reset)
+// Frames are read and written with the CANopen codec (device/canopen/codec.hpp) the driver uses.
 // All nodes share one receive thread and one socket; everything is guarded by one mutex.
 
 #include <array>
@@ -38,6 +39,11 @@
 
 #include "arm/arm_config.hpp"
 #include "device/arm_physics.hpp"
+#include "device/canopen/cia402.hpp"
+#include "device/canopen/frame.hpp"
+#include "device/canopen/nmt.hpp"
+#include "device/canopen/pdo.hpp"
+#include "device/canopen/sdo.hpp"
 #include "lancet/shared_model/result.hpp"
 
 namespace lancet::armsim {
@@ -146,12 +152,11 @@ class CanopenNodeSet {
     std::uint64_t answered_sync = 0;  ///< (TPDO) see PdoView
     std::int64_t sent_ns = 0;
   };
-  enum class Drive : std::uint8_t { kNotReady, kSwitchOnDisabled, kReady, kSwitchedOn, kEnabled, kQuickStop, kFault };
   struct Emu {
     int id = 0;
     int joint = 0;
-    std::uint8_t nmt = 0x7F;
-    Drive drive = Drive::kSwitchOnDisabled;
+    device::canopen::NmtState nmt = device::canopen::NmtState::kPreOperational;
+    device::canopen::Cia402State drive = device::canopen::Cia402State::kSwitchOnDisabled;
     std::uint16_t controlword = 0;
     std::int16_t target_torque = 0;
     std::int16_t torque_actual = 0;
@@ -194,29 +199,38 @@ class CanopenNodeSet {
     std::int64_t due_ns = 0;
     int node = 0, pdo = 0;  ///< nodes_[node].tpdo[pdo]
     std::uint64_t answered_sync = 0;
-    std::uint32_t cob = 0;
-    std::uint8_t len = 0;
-    std::array<std::uint8_t, 8> data{};
+    device::canopen::Frame frame{};
   };
 
   CanopenNodeSet(const arm::ArmConfig& config, Options options, std::unique_ptr<device::ArmPhysics> physics);
   void run();
   // All below run with mu_ held.
-  void handle(const void* frame, std::int64_t now);
-  void on_nmt(std::uint8_t cs, int target, std::int64_t now);
+  void handle(const device::canopen::Frame& f, std::int64_t now);
+  void on_nmt(const device::canopen::NmtRequest& rq, std::int64_t now);
+  /// Applies the synchronous RPDOs, steps the physics, then send_tpdos() for every node.
   void on_sync(std::int64_t now);
-  void on_sdo(Emu& e, const std::uint8_t* d, std::int64_t now);
-  void on_rpdo(Emu& e, int k, const std::uint8_t* d, int len);
+  /// The TPDOs of nodes_[j] due at this SYNC (or held back by its TPDO delay).
+  void send_tpdos(int j, std::int64_t now);
+  void on_sdo(Emu& e, const device::canopen::SdoRequest& rq, std::int64_t now);
+  void on_rpdo(Emu& e, int k, const device::canopen::Frame& f);
+  /// The CiA 402 transition for controlword cw; a fault reset clears the error register and sends EMCY 0x0000.
   void apply_controlword(Emu& e, std::uint16_t cw);
+  /// 0x6060 = m (a supported mode): entered at once unless the node refuses it (set_refused_mode).
+  static void request_mode(Emu& e, std::int8_t m);
   [[nodiscard]] std::uint16_t statusword(const Emu& e) const;
   /// Object value and size in bytes; 0 = the abort code when it cannot be read.
   [[nodiscard]] std::uint32_t read_object(Emu& e, std::uint16_t index, std::uint8_t sub, std::uint32_t& value, int& bytes);
   [[nodiscard]] std::uint32_t write_object(Emu& e, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes, std::int64_t now);
+  /// A PDO's communication or mapping parameter, with the CiA 301 rules for changing them.
+  [[nodiscard]] static std::uint32_t write_pdo_parameter(Emu& e, const device::canopen::PdoParameter& pp, std::uint8_t sub,
+                                                         std::uint32_t value, int bytes);
+  [[nodiscard]] static Pdo& pdo(Emu& e, const device::canopen::PdoParameter& pp);
+  [[nodiscard]] static const Pdo& pdo(const Emu& e, const device::canopen::PdoParameter& pp);
   [[nodiscard]] static int mappable_bits(std::uint16_t index, bool rpdo);
   void reset_communication(Emu& e);
   void reset_application(Emu& e);
   void boot(Emu& e, std::int64_t now);
-  void send(std::uint32_t cob, const std::uint8_t* data, int len);
+  void send(const device::canopen::Frame& f);
   void send_emcy(Emu& e, std::uint16_t code, std::uint8_t reg);
   /// A heartbeat from node `producer` (any 0x700 frame): the consumers watching it are (re)armed.
   void on_heartbeat(int producer, std::int64_t now);

@@ -3,6 +3,10 @@
 // joint, driven through a SocketCAN raw socket with the PDO map of the arm's config
 // ([bus.canopen] in hw_configs/*.toml; schema and behaviour in hw_configs/README.md). The host is
 // the NMT master, the SYNC producer and, while active, a heartbeat producer the drives watch.
+// Every frame is built and read with the CANopen codec (device/canopen/codec.hpp), which the
+// emulated drives of lancet-armsim use too. The sources: create() and the PDO plan in
+// canopen_arm.cpp, the set-up in canopen_arm_setup.cpp, the real-time exchange in
+// canopen_arm_exchange.cpp.
 //
 //   configure()  observe only: open the socket on the interface; per node, by SDO upload, check the
 //                device type (0x1000: a CiA 402 drive), read the vendor id (0x1018:1) and the
@@ -74,153 +78,15 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "arm/arm_config.hpp"
+#include "device/canopen/codec.hpp"
 #include "device/device.hpp"
 
 struct can_frame;  // <linux/can.h>, kept out of this header
 
 namespace lancet::device {
-
-// ---------------------------------------------------------------------------------------------
-// CANopen / CiA 402 codec (shared with the tests' emulated nodes). All real-time safe.
-
-namespace canopen {
-
-inline constexpr std::uint32_t kCobNmt = 0x000;
-inline constexpr std::uint32_t kCobSync = 0x080;
-inline constexpr std::uint32_t kCobEmcy = 0x080;       ///< + node id
-inline constexpr std::uint32_t kCobSdoTx = 0x580;      ///< server → client, + node id
-inline constexpr std::uint32_t kCobSdoRx = 0x600;      ///< client → server, + node id
-inline constexpr std::uint32_t kCobHeartbeat = 0x700;  ///< + node id
-
-/// TPDOn (node → host) and RPDOn (host → node) COB-IDs of the predefined connection set, n = 1..4.
-[[nodiscard]] constexpr std::uint32_t tpdo_cob_id(int number, int node_id) noexcept {
-  return static_cast<std::uint32_t>(0x080 + 0x100 * number + node_id);
-}
-[[nodiscard]] constexpr std::uint32_t rpdo_cob_id(int number, int node_id) noexcept {
-  return static_cast<std::uint32_t>(0x100 + 0x100 * number + node_id);
-}
-
-/// NMT command specifiers (byte 0 of an NMT frame; byte 1 is the node id, 0 for all).
-enum class NmtCommand : std::uint8_t {
-  kStart = 0x01,
-  kStop = 0x02,
-  kEnterPreOperational = 0x80,
-  kResetNode = 0x81,
-  kResetCommunication = 0x82,
-};
-
-/// NMT states as a heartbeat reports them (byte 0; boot-up is the one-off 0x00).
-enum class NmtState : std::uint8_t {
-  kBootUp = 0x00,
-  kStopped = 0x04,
-  kOperational = 0x05,
-  kPreOperational = 0x7F,
-  kUnknown = 0xFF,  ///< nothing heard yet
-};
-
-/// CiA 402 power drive states, from the statusword.
-enum class Cia402State : std::uint8_t {
-  kNotReadyToSwitchOn,
-  kSwitchOnDisabled,
-  kReadyToSwitchOn,
-  kSwitchedOn,
-  kOperationEnabled,
-  kQuickStopActive,
-  kFaultReactionActive,
-  kFault,
-  kUnknown,
-};
-
-// Statusword bits.
-inline constexpr std::uint16_t kSwReadyToSwitchOn = 1u << 0;
-inline constexpr std::uint16_t kSwSwitchedOn = 1u << 1;
-inline constexpr std::uint16_t kSwOperationEnabled = 1u << 2;
-inline constexpr std::uint16_t kSwFault = 1u << 3;
-inline constexpr std::uint16_t kSwVoltageEnabled = 1u << 4;
-inline constexpr std::uint16_t kSwQuickStop = 1u << 5;
-inline constexpr std::uint16_t kSwSwitchOnDisabled = 1u << 6;
-inline constexpr std::uint16_t kSwWarning = 1u << 7;
-// Controlword commands (CiA 402 device control).
-inline constexpr std::uint16_t kCwDisableVoltage = 0x0000;
-inline constexpr std::uint16_t kCwShutdown = 0x0006;
-inline constexpr std::uint16_t kCwSwitchOn = 0x0007;
-inline constexpr std::uint16_t kCwEnableOperation = 0x000F;
-inline constexpr std::uint16_t kCwFaultReset = 0x0080;  ///< acts on the rising edge of bit 7
-
-/// CiA 402 modes of operation (0x6060).
-inline constexpr std::int8_t kModeProfileTorque = 4;
-inline constexpr std::int8_t kModeCyclicSyncTorque = 10;
-/// The CiA 402 name of a mode of operation ("cyclic synchronous torque", "no mode" for 0…);
-/// "another mode" for codes not listed (manufacturer-specific, reserved).
-[[nodiscard]] const char* mode_name(std::int8_t mode) noexcept;
-
-/// Abort connection option code (0x6007) the driver writes: disable voltage. The drive's power
-/// stage goes off at once when it loses the master's heartbeat (see the header comment).
-inline constexpr std::int16_t kAbortConnectionDisableVoltage = 2;
-/// The EMCY error code of a heartbeat consumer timeout (CiA 301: life guard or heartbeat error).
-inline constexpr std::uint16_t kEmcyHeartbeat = 0x8130;
-
-/// 0x60C2, the interpolation time period: value · 10^index s.
-struct InterpolationPeriod {
-  std::uint8_t value = 0;  ///< 0x60C2:1, 1..255
-  std::int8_t index = 0;   ///< 0x60C2:2, the power of ten, −6..0
-};
-/// The period of `period_us` µs as 0x60C2 writes it, with the largest index that is exact
-/// (1000 → {1, −3}, 2500 → {25, −4}); nullopt when no value ≤ 255 is exact (333) or period_us ≤ 0.
-[[nodiscard]] std::optional<InterpolationPeriod> interpolation_period(std::int64_t period_us) noexcept;
-
-/// The drive state a statusword encodes.
-[[nodiscard]] Cia402State cia402_state(std::uint16_t statusword) noexcept;
-[[nodiscard]] const char* to_string(Cia402State s) noexcept;
-[[nodiscard]] const char* to_string(NmtState s) noexcept;
-
-/// The next controlword on the way to operation enabled, given the drive's statusword and the
-/// controlword sent last (for the fault reset's rising edge: a drive in fault gets 0x0000, then
-/// 0x0080). Holds 0x000F once enabled; waits (0x0000) through the transient states.
-[[nodiscard]] std::uint16_t controlword_toward_enabled(std::uint16_t statusword, std::uint16_t previous) noexcept;
-
-/// The rated torque written to 0x6076: the actuator's continuous torque in mN·m, rounded (CiA 402
-/// unit). 0 when it rounds below 1 mN·m (create() rejects that).
-[[nodiscard]] std::uint32_t rated_torque_mnm(const arm::ActuatorConfig& actuator) noexcept;
-
-/// Target torque (0x6071, per mille of `rated_mnm`) for the joint torque tau (N·m, N for
-/// prismatic) through the joint's gear, direction and lead; rounded, clamped to ± limit (and the
-/// int16 range); 0 for a non-finite tau.
-[[nodiscard]] std::int16_t torque_per_mille(const arm::JointConfig& joint, const arm::ActuatorConfig& actuator,
-                                            std::uint32_t rated_mnm, std::int16_t limit, double tau) noexcept;
-
-/// An emergency message (COB-ID 0x80 + node id): error code (CiA 301/402), error register
-/// (0x1001), five manufacturer-specific bytes. Code 0x0000 is "error reset / no error".
-struct Emcy {
-  int node_id = 0;
-  std::uint16_t error_code = 0;
-  std::uint8_t error_register = 0;
-  std::array<std::uint8_t, 5> vendor{};
-  std::int64_t t_ns = 0;  ///< CLOCK_MONOTONIC when received
-};
-
-/// A few words on an SDO abort code (CiA 301, 7.2.4.3.17); "unknown abort code" otherwise.
-[[nodiscard]] const char* sdo_abort_text(std::uint32_t code) noexcept;
-
-/// What an EMCY error code means (CiA 301 and the CiA 402 drive codes): `text` names the code
-/// itself when it is a common one (`specific`), else its class ("current, device output side" for
-/// 0x23xx, "monitoring: communication" for 0x81xx…). 0x0000 is "error reset or no error".
-struct EmcyMeaning {
-  const char* text = "";
-  bool specific = false;
-};
-[[nodiscard]] EmcyMeaning emcy_meaning(std::uint16_t code) noexcept;
-
-/// One line for an EMCY: "node 1: EMCY 0x2310 continuous over-current (output side), error register
-/// 0x03"; a code known by its class only: "node 1: EMCY 0x2399 (0x23xx current, device output
-/// side), error register 0x03". Truncated to `size` − 1 characters; returns `buf`. Real-time safe.
-const char* format_emcy(char* buf, std::size_t size, const Emcy& e) noexcept;
-
-}  // namespace canopen
-
-// ---------------------------------------------------------------------------------------------
 
 /// Waits and timeouts (defaults suit a real 1 Mbit/s bus).
 struct CanopenTiming {
@@ -290,15 +156,19 @@ class CanopenArm final : public Device {
   [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
 
  protected:
+  // The set-up (canopen_arm_setup.cpp): SDO configuration, PDO mapping, NMT, the CiA 402 states.
   Result<void> on_configure() override;
   Result<void> on_activate() override;
   Result<void> on_deactivate() override;
   Result<void> on_rearm() override;
   Result<void> on_reconnect() override;
+  // The exchange (canopen_arm_exchange.cpp): SYNC, PDOs, staleness and faults; real-time safe.
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
 
  private:
+  CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
+
   /// Where an object sits in a PDO's data.
   struct Slot {
     bool present = false;
@@ -329,12 +199,17 @@ class CanopenArm final : public Device {
     bool boot_seen = false;                    ///< a boot-up since the last (re)configuration
     // SDO client
     bool sdo_reply = false;
-    std::array<std::uint8_t, 8> sdo_data{};
+    canopen::Frame sdo_frame{};                ///< the last SDO server frame (8 bytes)
     // estimation
     double q_prev = 0;
   };
 
-  CanopenArm(const arm::ArmConfig& config, FaultPolicy policy, CanopenTiming timing);
+  /// Where the driver's objects sit in each PDO of one direction (the same on every node);
+  /// `key` names the config table ("tpdo", "rpdo") in the error.
+  [[nodiscard]] std::optional<Error> plan_pdos(const std::string& where, const std::vector<arm::PdoConfig>& pdos,
+                                               std::array<PdoPlan, 4>& out, int& count, const char* key) const;
+  /// Both directions planned, the objects the driver needs all mapped, the TPDOs due every SYNC known.
+  [[nodiscard]] std::optional<Error> plan_pdo_map(const std::string& where);
 
   /// The outcome of one expedited SDO request (no allocation).
   struct SdoReply {
@@ -342,11 +217,13 @@ class CanopenArm final : public Device {
     std::uint32_t value = 0;  ///< the uploaded value (kOk), the abort code (kAbort)
   };
 
-  // Socket and frames (real-time safe).
-  [[nodiscard]] IoStatus send(const ::can_frame& f) noexcept;
+  // Socket, frames and the SYNC cycle (canopen_arm_exchange.cpp; real-time safe).
+  [[nodiscard]] IoStatus send(const canopen::Frame& f) noexcept;
   [[nodiscard]] IoStatus send_sync() noexcept;
   void send_nmt(canopen::NmtCommand cmd, int node_id) noexcept;
   void handle(const ::can_frame& f, std::int64_t now) noexcept;
+  /// A TPDO (tpdos_[k]) of the right length from node nd: its statusword, inputs and position.
+  void take_tpdo(Node& nd, int k, const canopen::Frame& f) noexcept;
   /// Reads every frame waiting (at most a bounded number), first sending the master's heartbeat
   /// when it is due. false: the socket failed.
   bool drain(std::int64_t now) noexcept;
@@ -355,7 +232,7 @@ class CanopenArm final : public Device {
   /// ppoll() for a frame until `deadline`, or until the master's next heartbeat is due.
   void wait_frames(std::int64_t deadline) noexcept;
   /// One expedited SDO upload or download to joint i's node, waiting at most the SDO timeout.
-  SdoReply sdo_request(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload) noexcept;
+  SdoReply sdo_request(int i, const canopen::Frame& request, std::uint16_t index, std::uint8_t sub, bool upload) noexcept;
   /// read() while inactive: one SDO upload, any failure described (note_error) and returned.
   [[nodiscard]] IoStatus sdo_read(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t& value) noexcept;
   /// read() while inactive: the statusword, position and inputs by SDO (see the header comment).
@@ -371,6 +248,8 @@ class CanopenArm final : public Device {
   /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).
   [[nodiscard]] IoStatus send_rpdos(bool all = false) noexcept;
   void send_zero_torque() noexcept;
+  /// Heartbeat and TPDO staleness counted afresh from now (after a set-up step that paused them).
+  void restart_tracking(std::int64_t now) noexcept;
   /// Records the event (last_event()) without reporting it.
   void note(IoStatus s, CanopenEvent::What what, int node_index, std::uint32_t cob, int err_no, std::int64_t now) noexcept;
   /// note(), and describes it to the Device (note_error) as the error read() / write() returns.
@@ -378,17 +257,20 @@ class CanopenArm final : public Device {
   /// A failed exchange() or send: the socket (kDisconnected) or a full transmit queue (kTimeout).
   [[nodiscard]] IoStatus report_send_failure(IoStatus s) noexcept;
 
-  // Configure-time steps (may allocate); failures name the interface, the node and the object.
+  // Set-up steps (canopen_arm_setup.cpp; may allocate); failures name the interface, the node and
+  // the object.
   Result<void> open_socket();
   Result<void> fail(const std::string& what) const;
   Result<void> sdo_download(int i, std::uint16_t index, std::uint8_t sub, std::uint32_t value, int bytes);
   Result<std::uint32_t> sdo_upload(int i, std::uint16_t index, std::uint8_t sub);
-  Result<std::uint32_t> sdo_transfer(int i, const ::can_frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
+  Result<std::uint32_t> sdo_transfer(int i, const canopen::Frame& request, std::uint16_t index, std::uint8_t sub, bool upload,
                                      const std::string& what);
   void wait_boot_ups(double timeout_s, std::uint32_t node_mask);
   /// Device type (must be CiA 402) and vendor id, by SDO upload.
   Result<void> identify_node(int i);
   Result<void> configure_node(int i);
+  /// Joint i's node: every PDO's communication and mapping parameters from the config.
+  Result<void> configure_pdos(int i);
   /// 0x6060 = the config's mode, then 0x6061 until it shows it (mode_timeout).
   Result<void> set_mode(int i);
   void start_nodes(std::uint32_t node_mask);
@@ -405,7 +287,6 @@ class CanopenArm final : public Device {
   template <class NextCw, class Done>
   Result<void> drive_states(NextCw next_cw, Done done, const std::string& goal);
   Result<void> enable_drives(const char* goal);
-  void restart_tracking(std::int64_t now) noexcept;
 
   arm::ArmConfig config_;
   arm::CanopenBusConfig bus_;
