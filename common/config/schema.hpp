@@ -31,6 +31,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "config/describe.hpp"
@@ -204,6 +205,30 @@ class Section {
   const toml::table& table_;
   std::string path_;
   std::vector<std::string> known_;
+};
+
+/// The values one key takes across the entries of a list (the names of [[joints]], the bits of
+/// [[buttons]]): a value an earlier entry has is reported at this entry's key, once per earlier
+/// entry, as "expected a <what> not used by <list>[k]".
+template <class T>
+class UniqueValues {
+ public:
+  /// `list`: the list's field path ("joints"); `what`: the value's name in messages ("name").
+  UniqueValues(std::string list, std::string what) : list_(std::move(list)), what_(std::move(what)) {}
+
+  /// Checks the value of `key` in entry `index` of the list (read through `s`) and remembers it.
+  void check(Section& s, std::string_view key, const T& value, std::size_t index) {
+    for (const auto& [other, k] : seen_) {
+      if (other == value) {
+        s.sink().add(s.where(key), s.field(key), "a " + what_ + " not used by " + indexed(list_, k), describe(*s.get(key)));
+      }
+    }
+    seen_.emplace_back(value, index);
+  }
+
+ private:
+  std::string list_, what_;
+  std::vector<std::pair<T, std::size_t>> seen_;
 };
 
 }  // namespace lancet::config

@@ -232,7 +232,7 @@ void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source
   const std::string expected = "an array of 0.." + std::to_string(kMaxAvoid) + " tables [[avoid]]";
   const toml::array* a = top.array("avoid", kOpt, 0, kMaxAvoid, expected);
   if (a == nullptr) return;
-  std::vector<std::pair<std::string, std::size_t>> names;
+  config::UniqueValues<std::string> names("avoid", "name");
   for (std::size_t i = 0; i < a->size(); ++i) {
     const toml::node& e = *a->get(i);
     const std::string path = indexed("avoid", i);
@@ -245,12 +245,7 @@ void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source
     Structure st;
     if (auto v = s.text("name", kReq, 64)) {
       st.name = *v;
-      for (const auto& [other, k] : names) {
-        if (other == *v) {
-          s.sink().add(s.where("name"), s.field("name"), "a name not used by " + indexed("avoid", k), describe(*t->get("name")));
-        }
-      }
-      names.emplace_back(*v, i);
+      names.check(s, "name", *v, i);
     }
     const auto shape = s.choice<ShapeKind>(
         "shape", kReq, {{"label", ShapeKind::kLabel}, {"capsule", ShapeKind::kCapsule}, {"sphere", ShapeKind::kSphere}});

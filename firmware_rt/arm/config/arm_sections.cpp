@@ -66,7 +66,7 @@ void parse_joints(Section& top, std::vector<JointConfig>& out, const Context& ct
                    std::to_string(*ctx.n) + " [[joints]] entries (one per joint of the kinematic model)",
                    std::to_string(joints->size()));
   }
-  std::vector<std::pair<std::string, std::size_t>> names;
+  config::UniqueValues<std::string> names("joints", "name");
   for (std::size_t i = 0; i < joints->size(); ++i) {
     JointConfig j;
     const toml::table* t = (*joints)[i];
@@ -79,13 +79,7 @@ void parse_joints(Section& top, std::vector<JointConfig>& out, const Context& ct
     Section s(top.sink(), *t, indexed("joints", i));
     if (auto v = s.text("name", kReq, 64)) {
       j.name = *v;
-      for (const auto& [other, k] : names) {
-        if (other == *v) {
-          s.sink().add(s.where("name"), s.field("name"), "a name not used by joints[" + std::to_string(k) + "]",
-                       describe(*t->get("name")));
-        }
-      }
-      names.emplace_back(*v, i);
+      names.check(s, "name", *v, i);
     }
     j.counts_per_rev = s.integer("counts_per_rev", kReq, 1, std::int64_t{1} << 40).value_or(1);
     j.gear_ratio = s.number("gear_ratio", kReq, positive_up_to(1e6)).value_or(1);
@@ -207,31 +201,19 @@ void parse_buttons(Section& top, std::vector<ButtonConfig>& out, const Context& 
     top.sink().add(top.where("buttons"), "buttons", source + " for the buttons to come from", "none");
   }
   const std::int64_t max_bit = button_bits.value_or(32) - 1;
-  std::vector<std::pair<std::string, std::size_t>> names;
-  std::vector<std::pair<std::int64_t, std::size_t>> bits;
+  config::UniqueValues<std::string> names("buttons", "name");
+  config::UniqueValues<std::int64_t> bits("buttons", "bit");
   for (std::size_t i = 0; i < buttons->size(); ++i) {
     const toml::table* t = (*buttons)[i];
     if (t == nullptr) continue;
     Section s(top.sink(), *t, indexed("buttons", i));
     ButtonConfig b;
     if (auto v = s.text("name", kReq, 64)) {
-      for (const auto& [other, k] : names) {
-        if (other == *v) {
-          s.sink().add(s.where("name"), s.field("name"), "a name not used by buttons[" + std::to_string(k) + "]",
-                       describe(*t->get("name")));
-        }
-      }
-      names.emplace_back(*v, i);
+      names.check(s, "name", *v, i);
       b.name = *v;
     }
     if (auto v = s.integer("bit", kReq, 0, max_bit)) {
-      for (const auto& [other, k] : bits) {
-        if (other == *v) {
-          s.sink().add(s.where("bit"), s.field("bit"), "a bit not used by buttons[" + std::to_string(k) + "]",
-                       describe(*t->get("bit")));
-        }
-      }
-      bits.emplace_back(*v, i);
+      bits.check(s, "bit", *v, i);
       b.bit = static_cast<int>(*v);
     }
     b.action = s.choice<ButtonAction>("action", kOpt,

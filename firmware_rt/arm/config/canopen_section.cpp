@@ -30,7 +30,7 @@ PdoParse parse_pdos(Section& s, std::string_view key, std::string_view label) {
     out.complete = false;
     return out;
   }
-  std::vector<std::pair<std::int64_t, std::size_t>> numbers;
+  config::UniqueValues<std::int64_t> numbers(s.field(key), std::string(label) + " number");
   for (std::size_t i = 0; i < pdos->size(); ++i) {
     const toml::table* t = (*pdos)[i];
     if (t == nullptr) {
@@ -40,14 +40,7 @@ PdoParse parse_pdos(Section& s, std::string_view key, std::string_view label) {
     Section p(s.sink(), *t, indexed(s.field(key), i));
     PdoConfig pc;
     if (auto n = p.integer("number", kReq, 1, 4)) {
-      for (const auto& [other, k] : numbers) {
-        if (other == *n) {
-          p.sink().add(p.where("number"), p.field("number"),
-                       "a " + std::string(label) + " number not used by " + indexed(s.field(key), k),
-                       describe(*t->get("number")));
-        }
-      }
-      numbers.emplace_back(*n, i);
+      numbers.check(p, "number", *n, i);
       pc.number = static_cast<int>(*n);
     } else {
       out.complete = false;

@@ -302,6 +302,25 @@ TEST(ConfigSchema, WhereIsTheValueOrElseTheTable) {
   });
 }
 
+TEST(ConfigSchema, UniqueValuesReportsARepeatAtTheLaterEntryOncePerEarlierOne) {
+  const auto errors = read("[[item]]\nname = \"a\"\n[[item]]\nname = \"b\"\n[[item]]\nname = \"a\"\n[[item]]\nname = \"a\"\n",
+                           [&](Section& top) {
+                             const auto items = top.tables("item", kReq, 1, 8);
+                             ASSERT_TRUE(items);
+                             UniqueValues<std::string> names("item", "name");
+                             for (std::size_t i = 0; i < items->size(); ++i) {
+                               Section s(top.sink(), *(*items)[i], indexed("item", i));
+                               if (auto v = s.text("name", kReq)) names.check(s, "name", *v, i);
+                               s.finish();
+                             }
+                           });
+  ASSERT_EQ(errors.size(), 3u) << report(errors);
+  EXPECT_EQ(report(errors),
+            "t.toml:6:8: item[2].name: expected a name not used by item[0], found string \"a\"\n"
+            "t.toml:8:8: item[3].name: expected a name not used by item[0], found string \"a\"\n"
+            "t.toml:8:8: item[3].name: expected a name not used by item[2], found string \"a\"\n");
+}
+
 // --- describers ------------------------------------------------------------------------------
 
 TEST(ConfigDescribe, QuotedEscapesAndCuts) {
