@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "arm/kinematics.hpp"
+#include "config/error.hpp"
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/result.hpp"
 
@@ -289,17 +290,8 @@ struct ArmConfig {
 // ---------------------------------------------------------------------------------------------
 // Loading and validation
 
-/// One problem in a config file. line and column are 1-based; 0 when the problem is with the file
-/// as a whole (unreadable).
-struct ConfigError {
-  std::string file;
-  int line = 0;
-  int column = 0;
-  std::string field;     ///< dotted path, e.g. joints[1].gear_ratio; empty for syntax errors
-  std::string expected;  ///< what the schema wants (may be empty)
-  std::string found;     ///< what the file has (may be empty)
-  std::string message;   ///< the whole sentence, built from expected/found or a specific note
-};
+/// One problem in a config file (file, line, column, field path, expected vs found, message).
+using ConfigError = config::ConfigError;
 
 struct ConfigReport {
   std::string file;

@@ -1,409 +1,48 @@
-// The scenario loader and the task geometry. Everything that touches toml++ lives in this file.
-// Structure as in firmware_rt/arm/arm_config.cpp: a Sink collects errors; a Section reads one TOML
-// table, remembers which keys the schema asked for and reports the rest as unknown; one parse_*
-// function per schema section fills the plain Scenario; cross-section checks (the task's tool
-// among the tools, labels against the tissue source) come last. Every check records an error and
-// carries on, so one run reports everything.
-//
-// The value-describing helpers and Section repeat arm_config.cpp's (trimmed to what this schema
-// needs): neither library may depend on the other's process folder.
+// The scenario loader and the task geometry. Structure: the schema reader of
+// common/config/schema.hpp (a Sink collects errors; a Section reads one TOML table and reports
+// keys the schema did not ask for) with one parse_* function per schema section filling the plain
+// Scenario; cross-section checks (the task's tool among the tools, labels against the tissue
+// source) come last. Every check records an error and carries on, so one run reports everything.
 
 #include "scenarios/scenario.hpp"
 
-// toml++ 3.3 checks two parser preconditions with assert(), and malformed input can break them
-// ("[" followed by a newline, "[[ # x", "a = [}]"): builds without NDEBUG would abort instead of
-// throwing parse_error (upstream: marzer/tomlplusplus PR #301). With the check off the parser
-// reports those inputs as ordinary syntax errors, as release builds do (tests/fuzz/scenario_fuzz
-// covers it). Matters in header-only mode; the packaged shared library is built without these
-// asserts.
-#ifndef TOML_ASSERT
-#define TOML_ASSERT(expr) static_cast<void>(0)
-#endif
-#include <toml++/toml.h>
-
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
-#include <cstdio>
-#include <cstring>
 #include <filesystem>
 #include <initializer_list>
 #include <limits>
-#include <numbers>
 #include <utility>
+
+#include "config/schema.hpp"
+#include "config/text_file.hpp"
+#include "config/units.hpp"
 
 namespace lancet::scenario {
 
 namespace {
 
+using config::Choice;
+using config::describe;
+using config::indexed;
+using config::kAny;
+using config::kDeg;
+using config::kMm;
+using config::kOpt;
+using config::kReq;
+using config::Need;
+using config::num;
+using config::positive_up_to;
+using config::quote;
+using config::Range;
+using config::read_choice;
+using config::read_vec3;
+using config::Section;
+using config::Sink;
+
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr std::size_t kMaxFileBytes = 1u << 20;  // a scenario is a few kB; refuse anything absurd
 constexpr std::size_t kMaxLinePoints = 256;
 constexpr std::size_t kMaxAvoid = 64;
-
-// ---------------------------------------------------------------------------------------------
-// Describing values in messages
-
-std::string quote(std::string_view s) {
-  std::string out = "\"";
-  std::size_t shown = 0;
-  for (const char ch : s) {
-    if (++shown > 48) {
-      out += "...";
-      break;
-    }
-    const auto c = static_cast<unsigned char>(ch);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += ch;
-    } else if (c < 0x20 || c >= 0x7f) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\x%02X", static_cast<unsigned>(c));
-      out += buf;
-    } else {
-      out += ch;
-    }
-  }
-  return out + "\"";
-}
-
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
-std::string describe(const toml::node& n) {
-  switch (n.type()) {
-    case toml::node_type::string: return "string " + quote(n.as_string()->get());
-    case toml::node_type::integer: return "integer " + std::to_string(n.as_integer()->get());
-    case toml::node_type::floating_point: return "float " + num(n.as_floating_point()->get());
-    case toml::node_type::boolean: return n.as_boolean()->get() ? "boolean true" : "boolean false";
-    case toml::node_type::array: return "array of " + std::to_string(n.as_array()->size());
-    case toml::node_type::table: return "table";
-    case toml::node_type::date: return "date";
-    case toml::node_type::time: return "time";
-    case toml::node_type::date_time: return "date-time";
-    case toml::node_type::none: break;
-  }
-  return "nothing";
-}
-
-// Optimal string alignment distance: insertions, deletions, substitutions and swaps of two
-// neighbouring characters ("nmae" is one edit from "name").
-std::size_t edit_distance(std::string_view a, std::string_view b) {
-  std::vector<std::size_t> before(b.size() + 1), prev(b.size() + 1), row(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    row[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j) {
-      row[j] = std::min({prev[j] + 1, row[j - 1] + 1, prev[j - 1] + (a[i - 1] == b[j - 1] ? 0u : 1u)});
-      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) row[j] = std::min(row[j], before[j - 2] + 1);
-    }
-    std::swap(before, prev);
-    std::swap(prev, row);
-  }
-  return prev[b.size()];
-}
-
-/// The candidate closest to `word` when it is a plausible typo of it; empty otherwise.
-template <class Range>
-std::string_view nearest(std::string_view word, const Range& candidates) {
-  std::string_view best;
-  std::size_t best_d = 3;
-  for (const auto& c : candidates) {
-    const std::string_view cv(c);
-    const std::size_t d = edit_distance(word, cv);
-    if (d < best_d && d < std::max<std::size_t>(cv.size() / 2, 1)) {
-      best_d = d;
-      best = cv;
-    }
-  }
-  return best;
-}
-
-std::string indexed(const std::string& path, std::size_t i) { return path + "[" + std::to_string(i) + "]"; }
-
-// ---------------------------------------------------------------------------------------------
-// Errors
-
-struct Problem {
-  int line = 1, column = 1;
-  std::string field;    // dotted path; empty for a syntax error
-  std::string message;  // "expected ..., found ..." or a sentence
-};
-
-struct Sink {
-  std::string file;
-  std::vector<Problem> problems;
-
-  void add(const toml::source_region& at, std::string field, const std::string& expected, const std::string& found,
-           std::string message = {}) {
-    Problem p;
-    p.line = at.begin.line > 0 ? static_cast<int>(at.begin.line) : 1;
-    p.column = at.begin.column > 0 ? static_cast<int>(at.begin.column) : 1;
-    p.field = std::move(field);
-    p.message = message.empty() ? "expected " + expected + ", found " + found : std::move(message);
-    problems.push_back(std::move(p));
-  }
-
-  [[nodiscard]] std::string report() const {
-    std::string out;
-    for (const Problem& p : problems) {
-      out += file + ":" + std::to_string(p.line) + ":" + std::to_string(p.column) + ": ";
-      if (!p.field.empty()) out += p.field + ": ";
-      out += p.message;
-      out += '\n';
-    }
-    return out;
-  }
-};
-
-enum class Need { kRequired, kOptional };
-constexpr Need kReq = Need::kRequired;
-constexpr Need kOpt = Need::kOptional;
-
-/// Allowed interval of a number as the file writes it.
-struct Range {
-  double lo = -kInf, hi = kInf;
-  bool lo_open = false, hi_open = false;
-  [[nodiscard]] bool contains(double v) const {
-    return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
-  }
-  [[nodiscard]] std::string text() const {
-    const bool has_lo = std::isfinite(lo), has_hi = std::isfinite(hi);
-    if (has_lo && has_hi) return "a number in " + std::string(lo_open ? "(" : "[") + num(lo) + ", " + num(hi) + (hi_open ? ")" : "]");
-    if (has_lo) return std::string("a number ") + (lo_open ? "> " : ">= ") + num(lo);
-    if (has_hi) return std::string("a number ") + (hi_open ? "< " : "<= ") + num(hi);
-    return "a finite number";
-  }
-};
-constexpr Range kAny{};
-constexpr Range positive_up_to(double hi) { return Range{0, hi, true, false}; }
-
-template <class E>
-struct Choice {
-  std::string_view name;
-  E value;
-};
-
-template <class E>
-std::string choices_text(std::initializer_list<Choice<E>> options) {
-  std::string s = "one of ";
-  bool first = true;
-  for (const auto& o : options) {
-    if (!first) s += ", ";
-    s += quote(o.name);
-    first = false;
-  }
-  return s;
-}
-
-std::optional<double> read_number(Sink& s, const toml::node& n, const std::string& field, Range range) {
-  double v = 0;
-  if (const auto* i = n.as_integer()) {
-    v = static_cast<double>(i->get());
-  } else if (const auto* f = n.as_floating_point()) {
-    v = f->get();
-  } else {
-    s.add(n.source(), field, range.text(), describe(n));
-    return std::nullopt;
-  }
-  if (!range.contains(v)) {
-    s.add(n.source(), field, range.text(), describe(n));
-    return std::nullopt;
-  }
-  return v;
-}
-
-/// An array of exactly three finite numbers, scaled into SI.
-std::optional<Vec3> read_vec3(Sink& s, const toml::node& n, const std::string& field, double scale) {
-  const auto* a = n.as_array();
-  if (a == nullptr || a->size() != 3) {
-    s.add(n.source(), field, "an array of 3 numbers [x, y, z]", describe(n));
-    return std::nullopt;
-  }
-  std::array<double, 3> v{};
-  bool ok = true;
-  for (std::size_t i = 0; i < 3; ++i) {
-    const auto x = read_number(s, *a->get(i), indexed(field, i), kAny);
-    if (x) v[i] = *x * scale;
-    ok = ok && x.has_value();
-  }
-  if (!ok) return std::nullopt;
-  return Vec3{v[0], v[1], v[2]};
-}
-
-/// A string naming one of `options`; a near miss gets a did-you-mean.
-template <class E>
-std::optional<E> read_choice(Sink& s, const toml::node& n, const std::string& field,
-                             std::initializer_list<Choice<E>> options) {
-  const auto* v = n.as_string();
-  if (v != nullptr) {
-    for (const auto& o : options) {
-      if (o.name == v->get()) return o.value;
-    }
-  }
-  const std::string expected = choices_text(options);
-  std::string message = "expected " + expected + ", found " + describe(n);
-  if (v != nullptr) {
-    std::vector<std::string_view> names;
-    for (const auto& o : options) names.push_back(o.name);
-    const std::string_view best = nearest(v->get(), names);
-    if (!best.empty()) message += " (did you mean " + quote(best) + "?)";
-  }
-  s.add(n.source(), field, expected, describe(n), std::move(message));
-  return std::nullopt;
-}
-
-// ---------------------------------------------------------------------------------------------
-// Section: one TOML table read against the schema
-
-class Section {
- public:
-  Section(Sink& sink, const toml::table& table, std::string path) : sink_(sink), table_(table), path_(std::move(path)) {}
-  Section(const Section&) = delete;
-  Section& operator=(const Section&) = delete;
-
-  [[nodiscard]] std::string field(std::string_view key) const {
-    return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
-  }
-  /// Where a key's value is, or the table when the key is absent.
-  [[nodiscard]] const toml::source_region& where(std::string_view key) const {
-    const toml::node* n = table_.get(key);
-    return n != nullptr ? n->source() : table_.source();
-  }
-  [[nodiscard]] bool has(std::string_view key) const { return table_.get(key) != nullptr; }
-  Sink& sink() { return sink_; }
-
-  /// The key's node (nullptr when absent); marks the key as part of the schema here.
-  const toml::node* get(std::string_view key) {
-    if (std::find(known_.begin(), known_.end(), key) == known_.end()) known_.emplace_back(key);
-    return table_.get(key);
-  }
-  /// Marks keys as belonging here without reading them (a section whose variant is unknown).
-  void skip(std::initializer_list<std::string_view> keys) {
-    for (const auto k : keys) (void)get(k);
-  }
-  /// A key that must not appear in this variant of the section.
-  void forbid(std::string_view key, const std::string& only_for) {
-    if (const toml::node* n = get(key)) {
-      sink_.add(n->source(), field(key), "no " + std::string(key) + " (it is only for " + only_for + ")", describe(*n));
-    }
-  }
-  void missing(std::string_view key, const std::string& expected) {
-    sink_.add(table_.source(), field(key), expected, "nothing", "required key is missing; expected " + expected);
-  }
-
-  std::optional<std::int64_t> integer(std::string_view key, Need need, std::int64_t lo, std::int64_t hi) {
-    const toml::node* n = get(key);
-    const std::string expected = lo == hi ? "the integer " + std::to_string(lo)
-                                          : "an integer in " + std::to_string(lo) + ".." + std::to_string(hi);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, expected);
-      return std::nullopt;
-    }
-    const auto* v = n->as_integer();
-    if (v == nullptr || v->get() < lo || v->get() > hi) {
-      sink_.add(n->source(), field(key), expected, describe(*n));
-      return std::nullopt;
-    }
-    return v->get();
-  }
-
-  std::optional<double> number(std::string_view key, Need need, Range range) {
-    const toml::node* n = get(key);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, range.text());
-      return std::nullopt;
-    }
-    return read_number(sink_, *n, field(key), range);
-  }
-
-  std::optional<std::string> text(std::string_view key, Need need, std::size_t max_len) {
-    const toml::node* n = get(key);
-    const std::string expected = "a non-empty string of at most " + std::to_string(max_len) + " characters";
-    if (n == nullptr) {
-      if (need == kReq) missing(key, expected);
-      return std::nullopt;
-    }
-    const auto* v = n->as_string();
-    if (v == nullptr || v->get().empty() || v->get().size() > max_len) {
-      sink_.add(n->source(), field(key), expected, describe(*n));
-      return std::nullopt;
-    }
-    return v->get();
-  }
-
-  template <class E>
-  std::optional<E> choice(std::string_view key, Need need, std::initializer_list<Choice<E>> options) {
-    const toml::node* n = get(key);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, choices_text(options));
-      return std::nullopt;
-    }
-    return read_choice(sink_, *n, field(key), options);
-  }
-
-  std::optional<Vec3> vec3(std::string_view key, Need need, double scale) {
-    const toml::node* n = get(key);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, "an array of 3 numbers [x, y, z]");
-      return std::nullopt;
-    }
-    return read_vec3(sink_, *n, field(key), scale);
-  }
-
-  const toml::table* table(std::string_view key, Need need) {
-    const toml::node* n = get(key);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, "a table [" + field(key) + "]");
-      return nullptr;
-    }
-    if (const auto* t = n->as_table()) return t;
-    sink_.add(n->source(), field(key), "a table [" + field(key) + "]", describe(*n));
-    return nullptr;
-  }
-
-  /// An array with min..max elements (nullptr after reporting when it is not).
-  const toml::array* array(std::string_view key, Need need, std::size_t min, std::size_t max, const std::string& expected) {
-    const toml::node* n = get(key);
-    if (n == nullptr) {
-      if (need == kReq) missing(key, expected);
-      return nullptr;
-    }
-    const auto* a = n->as_array();
-    if (a == nullptr || a->size() < min || a->size() > max) {
-      sink_.add(n->source(), field(key), expected, describe(*n));
-      return nullptr;
-    }
-    return a;
-  }
-
-  /// Reports every key of the table the schema did not ask for.
-  void finish() {
-    for (auto&& [k, v] : table_) {
-      const std::string_view key = k.str();
-      if (std::find(known_.begin(), known_.end(), key) != known_.end()) continue;
-      std::string list;
-      for (const auto& kn : known_) list += (list.empty() ? "" : ", ") + kn;
-      const std::string_view best = nearest(key, known_);
-      std::string message = "unknown key " + quote(key);
-      if (!best.empty()) message += " (did you mean " + quote(best) + "?)";
-      message += list.empty() ? "; this table takes no keys" : "; known keys here: " + list;
-      sink_.add(k.source(), field(key), list.empty() ? "no keys" : "one of: " + list, "unknown key " + quote(key),
-                message);
-    }
-  }
-
- private:
-  Sink& sink_;
-  const toml::table& table_;
-  std::string path_;
-  std::vector<std::string> known_;
-};
 
 // ---------------------------------------------------------------------------------------------
 // Sections
@@ -593,7 +232,7 @@ void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source
   const std::string expected = "an array of 0.." + std::to_string(kMaxAvoid) + " tables [[avoid]]";
   const toml::array* a = top.array("avoid", kOpt, 0, kMaxAvoid, expected);
   if (a == nullptr) return;
-  std::vector<std::pair<std::string, std::size_t>> names;
+  config::UniqueValues<std::string> names("avoid", "name");
   for (std::size_t i = 0; i < a->size(); ++i) {
     const toml::node& e = *a->get(i);
     const std::string path = indexed("avoid", i);
@@ -606,12 +245,7 @@ void parse_avoid(Section& top, Scenario& out, std::optional<TissueSource> source
     Structure st;
     if (auto v = s.text("name", kReq, 64)) {
       st.name = *v;
-      for (const auto& [other, k] : names) {
-        if (other == *v) {
-          s.sink().add(s.where("name"), s.field("name"), "a name not used by " + indexed("avoid", k), describe(*t->get("name")));
-        }
-      }
-      names.emplace_back(*v, i);
+      names.check(s, "name", *v, i);
     }
     const auto shape = s.choice<ShapeKind>(
         "shape", kReq, {{"label", ShapeKind::kLabel}, {"capsule", ShapeKind::kCapsule}, {"sphere", ShapeKind::kSphere}});
@@ -702,9 +336,9 @@ Scenario parse_root(const toml::table& root, Sink& sink, const std::string& sour
   (void)top.integer("schema_version", kReq, kSchemaVersion, kSchemaVersion);
   sc.name = top.text("name", kReq, 64).value_or("");
   sc.description = top.text("description", kOpt, 1024).value_or("");
-  const std::size_t errors_before_tools = sink.problems.size();
+  const std::size_t errors_before_tools = sink.errors.size();
   parse_tools(top, sc);
-  const bool tools_ok = sink.problems.size() == errors_before_tools && !sc.tools.empty();
+  const bool tools_ok = sink.errors.size() == errors_before_tools && !sc.tools.empty();
   parse_start_tool(top, sc, tools_ok);
 
   std::optional<TissueSource> source;
@@ -742,34 +376,6 @@ Scenario parse_root(const toml::table& root, Sink& sink, const std::string& sour
   }
   top.finish();
   return sc;
-}
-
-// Reads a whole file; on failure returns the reason.
-std::optional<std::string> read_file(const std::string& path, std::string& text, ErrorCode& code) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (f == nullptr) {
-    code = errno == ENOENT ? ErrorCode::kNotFound : ErrorCode::kSystem;
-    return "cannot open: " + std::string(std::strerror(errno));
-  }
-  text.clear();
-  char buf[65536];
-  std::size_t got = 0;
-  while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) {
-    text.append(buf, got);
-    if (text.size() > kMaxFileBytes) {
-      std::fclose(f);
-      code = ErrorCode::kInvalid;
-      return "file is larger than " + std::to_string(kMaxFileBytes >> 20) + " MiB; not a scenario";
-    }
-  }
-  const bool failed = std::ferror(f) != 0;
-  const int err = errno;
-  std::fclose(f);
-  if (failed) {
-    code = ErrorCode::kSystem;
-    return "cannot read: " + std::string(std::strerror(err));
-  }
-  return std::nullopt;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -851,28 +457,19 @@ std::string_view shape_key(ShapeKind k) noexcept {
 }
 
 Result<Scenario> parse_scenario(std::string_view text, const std::string& source_name) {
-  Sink sink;
-  sink.file = source_name;
+  Sink sink{source_name, {}};
   std::optional<Scenario> sc;
-  try {
-    const toml::table root = toml::parse(text, std::string_view(source_name));
-    sc = parse_root(root, sink, source_name);
-  } catch (const toml::parse_error& e) {
-    sink.add(e.source(), "", "valid TOML", "a syntax error", "TOML syntax error: " + std::string(e.description()));
-  }
-  if (!sink.problems.empty()) {
-    std::stable_sort(sink.problems.begin(), sink.problems.end(), [](const Problem& a, const Problem& b) {
-      return std::pair(a.line, a.column) < std::pair(b.line, b.column);
-    });
-    return Error{ErrorCode::kInvalid, sink.report()};
+  if (const auto root = config::parse_toml(text, sink)) sc = parse_root(*root, sink, source_name);
+  if (!sink.errors.empty()) {
+    config::sort_errors(sink.errors);
+    return Error{ErrorCode::kInvalid, config::format_errors(sink.errors)};
   }
   return std::move(*sc);
 }
 
 Result<std::string> read_scenario_text(const std::string& path) {
-  std::string text;
-  ErrorCode code{};
-  if (auto why = read_file(path, text, code)) return Error{code, path + ": " + *why};
+  auto text = config::read_text_file(path, kMaxFileBytes, "a scenario");
+  if (!text.ok()) return Error{text.error().code, path + ": " + text.error().message};
   return text;
 }
 

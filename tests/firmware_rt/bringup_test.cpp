@@ -106,7 +106,7 @@ TEST_F(Bringup, CalibrationFilesAreChecked) {
   };
   bad("arm = \"other\"\n", "this calibration is for 'other'");
   bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"base_yaw\"\noffset_deg = 1\n", "expected 3 [[joints]]");
-  bad("arm = \"sim-3dof\"\nbogus = 1\n", ":2:9: bogus: unknown key");
+  bad("arm = \"sim-3dof\"\nbogus = 1\n", ":2:1: bogus: unknown key \"bogus\"; known keys here: arm, joints");
   bad("arm = \"sim-3dof\"\n[[joints]\n", ":2:");
   bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"base_yaw\"\noffset_deg = \"x\"\n[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n"
       "[[joints]]\nname = \"elbow\"\noffset_deg = 0\n",
@@ -114,6 +114,17 @@ TEST_F(Bringup, CalibrationFilesAreChecked) {
   bad("arm = \"sim-3dof\"\n[[joints]]\nname = \"wrong\"\noffset_deg = 1\n[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n"
       "[[joints]]\nname = \"elbow\"\noffset_deg = 0\n",
       "joints[0].name: expected 'base_yaw', found 'wrong'");
+  // Every problem at once, each at its line, in the config's form.
+  const std::string p = write("cal.toml", "arm = \"sim-3dof\"\n[[joints]]\nname = \"base_yaw\"\noffset_deg = 1\noffset_dg = 2\n"
+                                          "[[joints]]\nname = \"shoulder\"\noffset_deg = 0\n[[joints]]\nname = \"elbow\"\noffset_mm = 0\n");
+  auto c = cfg;
+  auto r = arm::apply_calibration_file(c, p);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().message,
+            p + ":5:1: joints[0].offset_dg: unknown key \"offset_dg\" (did you mean \"offset_deg\"?); known keys here: name, offset_deg\n" +
+            p + ":9:1: joints[2].offset_deg: required key is missing; expected a finite number\n" +
+            p + ":11:1: joints[2].offset_mm: unknown key \"offset_mm\"; known keys here: name, offset_deg");
+  EXPECT_EQ(c.joints[0].offset, cfg.joints[0].offset) << "nothing applied";
 }
 
 TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {

@@ -370,6 +370,9 @@ TEST_F(OneError, UnknownKeyEverywhere) {
   expect_one(check(t), line_of(t, "max_velocity"), "safety.max_velocity");
   t = replaced(sim_, "[kinematics]\n", "[kinematic]\nmodel = \"dh\"\n[kinematics]\n");
   expect_one(check(t), line_of(t, "[kinematic]"), "kinematic", "did you mean \"kinematics\"?");
+  // Two neighbouring letters swapped count as one edit.
+  t = replaced(sim_, "name = \"sim-3dof\"\n", "name = \"sim-3dof\"\nnmae = \"x\"\n");
+  expect_one(check(t), line_of(t, "nmae"), "nmae", "unknown key \"nmae\" (did you mean \"name\"?)");
 }
 
 TEST_F(OneError, MissingRequiredKey) {
@@ -391,6 +394,9 @@ TEST_F(OneError, WrongTypes) {
   t = replaced(sim_, "backend = \"sim\"", "backend = 1");
   // The backend is unknown now: only that is reported (the bus is not judged against it).
   expect_one(check(t), line_of(t, "backend = 1"), "backend", "one of \"sim\", \"usb\", \"modbus\", \"canopen\"");
+  t = replaced(sim_, "backend = \"sim\"", "backend = \"modbsu\"");
+  expect_one(check(t), line_of(t, "modbsu"), "backend",
+             "expected one of \"sim\", \"usb\", \"modbus\", \"canopen\", found string \"modbsu\" (did you mean \"modbus\"?)");
   t = replaced(sim_, "workspace_min_mm = [-100.0, -190.0, -135.0]", "workspace_min_mm = [-100.0, -190.0]");
   expect_one(check(t), line_of(t, "workspace_min_mm"), "safety.workspace_min_mm", "array of 2");
   t = replaced(sim_, "workspace_min_mm = [-100.0, -190.0, -135.0]", "workspace_min_mm = [-100.0, true, -135.0]");

@@ -226,7 +226,7 @@ TEST(ScenarioErrors, TomlSyntaxError) {
 }
 
 TEST(ScenarioErrors, MalformedTomlThatTrippedTomlPlusPlusAssertsIsASyntaxError) {
-  // toml++ 3.3 asserted on these in builds without NDEBUG (see scenario.cpp).
+  // toml++ 3.3 asserted on these in builds without NDEBUG (see common/config/schema.hpp).
   for (const std::string tail : {"[\n", "[[ # x\n", "a = [}]\n"}) {
     const auto r = parse_scenario(kBase + tail, "t.toml");
     ASSERT_FALSE(r.ok()) << tail;
