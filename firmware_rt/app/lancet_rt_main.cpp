@@ -33,6 +33,7 @@
 #include "app/rt_cli.hpp"
 #include "rt/rt_loop.hpp"
 #include "rt/rt_setup.hpp"
+#include "text/text.hpp"
 
 namespace {
 
@@ -67,23 +68,10 @@ void install_signal_handlers() {
 }
 
 /// A JSON number, or null for what JSON cannot hold.
-std::string num(double v, int decimals = 1) {
-  if (!std::isfinite(v)) return "null";
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
-  return buf;
-}
+std::string num(double v, int decimals = 1) { return lancet::text::json_number(v, decimals); }
 std::string num(std::uint64_t v) { return std::to_string(v); }
 std::string num(std::int64_t v) { return std::to_string(v); }
-/// A JSON string (our own texts are printable ASCII; quotes and backslashes escaped).
-std::string str(const std::string& v) {
-  std::string out = "\"";
-  for (char c : v) {
-    if (c == '"' || c == '\\') out += '\\';
-    out += (static_cast<unsigned char>(c) < 0x20) ? ' ' : c;
-  }
-  return out + "\"";
-}
+std::string str(const std::string& v) { return lancet::text::json_string(v); }
 
 struct StatsInput {
   const lancet::rt::LoopStats* loop = nullptr;  ///< null when the servo thread never came back

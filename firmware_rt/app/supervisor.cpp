@@ -5,16 +5,13 @@
 
 #include "device/device.hpp"
 #include "rt/watchdog.hpp"
+#include "text/text.hpp"
 
 namespace lancet::app {
 
 namespace {
 
-std::string fmt(const char* f, auto... args) {
-  char buf[512];
-  std::snprintf(buf, sizeof buf, f, args...);
-  return buf;
-}
+using text::format;
 
 bool faulted(const RtStatus& s) { return s.device_state == device::Lifecycle::kFault; }
 
@@ -25,14 +22,14 @@ std::string describe_arm(const RtStatus& st) {
   const auto state = st.device_state;
   std::string s = device::to_string(state);
   if (state == device::Lifecycle::kFault) {
-    s += fmt(" (%s)", device::to_string(st.device_fault_cause));
+    s += format(" (%s)", device::to_string(st.device_fault_cause));
     // The backends' words name the node and decode the code; the numbers alone only when there
     // are no words (they stay in the status and the stats for programs).
     if (st.fault_text[0] != '\0') {
       s += std::string(": ") + st.fault_text;
     } else {
-      if (st.fault_node >= 0) s += fmt(" [node %d]", st.fault_node);
-      if (st.fault_code != 0) s += fmt(" [code 0x%04" PRIX32 "]", st.fault_code);
+      if (st.fault_node >= 0) s += format(" [node %d]", st.fault_node);
+      if (st.fault_code != 0) s += format(" [code 0x%04" PRIX32 "]", st.fault_code);
     }
   }
   if (st.link_lost != 0) s += "; bus link lost (reconnecting)";
@@ -40,7 +37,7 @@ std::string describe_arm(const RtStatus& st) {
 }
 
 std::string describe_bus(const BusCounters& b) {
-  return fmt("%llu reads, %llu writes, %llu timeouts, %llu crc, %llu protocol, %llu disconnects, %llu drive faults, "
+  return format("%llu reads, %llu writes, %llu timeouts, %llu crc, %llu protocol, %llu disconnects, %llu drive faults, "
              "%llu glitches, %llu stale replies, %llu faults, %llu reconnects, slowest I/O %.0f us",
              static_cast<unsigned long long>(b.reads), static_cast<unsigned long long>(b.writes),
              static_cast<unsigned long long>(b.timeouts), static_cast<unsigned long long>(b.crc_errors),
@@ -73,7 +70,7 @@ std::vector<std::string> RtSupervisor::poll(std::int64_t now_ns) {
   const std::int64_t allowed = params_.stall_timeout_ns + (tick_seen_ == 0 ? params_.first_tick_grace_ns : 0);
   if (!stalled_ && now_ns - tick_seen_at_ns_ > allowed) {
     stalled_ = true;
-    out.push_back(fmt("SERVO STALLED: no tick for %.0f ms (last tick %llu): ending lancet-rt; the arm's own watchdog "
+    out.push_back(format("SERVO STALLED: no tick for %.0f ms (last tick %llu): ending lancet-rt; the arm's own watchdog "
                       "takes its torque off",
                       static_cast<double>(now_ns - tick_seen_at_ns_) / 1e6, static_cast<unsigned long long>(tick_seen_)));
   }
@@ -94,7 +91,7 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
       out.push_back(arm + ": bus link lost; reconnecting every second (the arm stays faulted until re-armed)");
     }
     if (b.bus.reconnects > a.bus.reconnects) {
-      out.push_back(fmt("%s: bus link back after %.1f s; re-arm to resume: lancetctl rearm --rt %s", arm.c_str(),
+      out.push_back(format("%s: bus link back after %.1f s; re-arm to resume: lancetctl rearm --rt %s", arm.c_str(),
                         static_cast<double>(now_ns - link_lost_at_ns_) / 1e9, params_.shm_name.c_str()));
     } else if (b.link_lost != 0 && std::string_view(b.rearm_text) != std::string_view(a.rearm_text) && b.rearm_text[0] != '\0') {
       // A reconnect attempt failed with a new reason: say it once, not every second.
@@ -104,7 +101,7 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
     if (b.rearm_failures > a.rearm_failures) out.push_back(arm + ": re-arm failed: " + b.rearm_text);
   }
   if (a.watchdog_tripped == 0 && b.watchdog_tripped != 0) {
-    out.push_back(fmt("WATCHDOG TRIPPED (%s): force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
+    out.push_back(format("WATCHDOG TRIPPED (%s): force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
                       rt::to_string(b.watchdog_reason), params_.shm_name.c_str()));
   }
   if (a.watchdog_tripped != 0 && b.watchdog_tripped == 0) out.push_back("watchdog re-armed");
@@ -123,7 +120,7 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
   bool said = false;
   if (rej + pat + tar + rr + sr + def + unr > 0) {
     const char* why = servo_.data().last_reject.load(std::memory_order_relaxed);
-    out.push_back(fmt("shared segment: rejected %llu commands, %llu patches, %llu stylus targets; %llu patch reads got no "
+    out.push_back(format("shared segment: rejected %llu commands, %llu patches, %llu stylus targets; %llu patch reads got no "
                       "whole copy; reset the command ring %llu and the sample ring %llu times; %llu ticks left commands "
                       "queued (last: %s)",
                       static_cast<unsigned long long>(rej), static_cast<unsigned long long>(pat),
@@ -134,7 +131,7 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
     said = true;
   }
   if (b.bus.glitches > glitches_reported_) {
-    out.push_back(fmt("%s: %llu encoder glitches (last: %s)", arm.c_str(),
+    out.push_back(format("%s: %llu encoder glitches (last: %s)", arm.c_str(),
                       static_cast<unsigned long long>(b.bus.glitches - glitches_reported_), b.error_text));
     glitches_reported_ = b.bus.glitches;
     said = true;

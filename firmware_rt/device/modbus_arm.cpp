@@ -22,6 +22,8 @@
 #include <limits>
 #include <thread>
 
+#include "text/text.hpp"
+
 namespace lancet::device {
 
 namespace modbus {
@@ -229,11 +231,7 @@ int total(const std::vector<RegisterBlock>& blocks) {
   return n;
 }
 
-std::string format_ms(double s) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g ms", s * 1e3);
-  return buf;
-}
+std::string format_ms(double s) { return text::format("%g ms", s * 1e3); }
 
 timespec to_timespec(std::int64_t ns) { return {static_cast<time_t>(ns / 1'000'000'000), static_cast<long>(ns % 1'000'000'000)}; }
 

@@ -7,7 +7,7 @@
 #include <string>
 #include <type_traits>
 
-#include "lancet/shared_model/text.hpp"
+#include "lancet/shared_model/word_hasher.hpp"
 
 namespace lancet::servo {
 

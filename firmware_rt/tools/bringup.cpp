@@ -1,6 +1,6 @@
 #include "tools/bringup.hpp"
 
-#include "lancet/shared_model/text.hpp"
+#include "text/text.hpp"
 
 #include <libusb.h>
 
@@ -233,28 +233,23 @@ std::optional<RtStatus> read_rt_status(const SharedState& shared, double wait_s,
 }  // namespace
 
 namespace {
-std::string fmt_num(const char* f, double v) {
-  char b[64];
-  std::snprintf(b, sizeof b, f, v);
-  return b;
-}
 // One status as a JSON object on one line (lancetctl monitor --rt --json): what a test rig or a
 // soak reads; every text was checked (wire::check) and is printed escaped.
 void print_status_json(std::FILE* out, double t, int pid, const RtStatus& st) {
-  const auto num = [](double v) { return std::isfinite(v) ? fmt_num("%.9g", v) : std::string("null"); };
+  const auto num = [](double v) { return std::isfinite(v) ? text::format("%.9g", v) : std::string("null"); };
   const auto u = [](std::uint64_t v) { return std::to_string(v); };
   const SegmentHealth& h = st.health;
-  std::string j = "{\"t_s\": " + fmt_num("%.3f", t) + ", \"pid\": " + std::to_string(pid) + ", \"alive\": true, \"tick\": " + u(st.tick);
+  std::string j = "{\"t_s\": " + text::format("%.3f", t) + ", \"pid\": " + std::to_string(pid) + ", \"alive\": true, \"tick\": " + u(st.tick);
   j += ", \"t_ns\": " + std::to_string(st.t_ns);
   j += ", \"force_n\": [" + num(st.force.x) + ", " + num(st.force.y) + ", " + num(st.force.z) + "], \"force_scale\": " + num(st.force_scale);
   j += ", \"contact\": " + std::string(st.contact ? "true" : "false") + ", \"tool_mm\": [" + num(st.tool.x * 1e3) + ", " + num(st.tool.y * 1e3) + ", " + num(st.tool.z * 1e3) + "]";
   j += ", \"viz_alive\": " + std::string(st.viz_alive ? "true" : "false") + ", \"patch_version\": " + u(st.patch_version);
   j += ", \"has_arm\": " + std::string(st.has_arm ? "true" : "false");
-  j += ", \"device_state\": " + json_string(device::to_string(st.device_state));
-  j += ", \"fault_cause\": " + json_string(st.device_state == device::Lifecycle::kFault
+  j += ", \"device_state\": " + text::json_string(device::to_string(st.device_state));
+  j += ", \"fault_cause\": " + text::json_string(st.device_state == device::Lifecycle::kFault
                                                  ? device::to_string(st.device_fault_cause)
                                                  : "");
-  j += ", \"fault_text\": " + json_string(st.fault_text) + ", \"link_lost\": " + std::string(st.link_lost ? "true" : "false");
+  j += ", \"fault_text\": " + text::json_string(st.fault_text) + ", \"link_lost\": " + std::string(st.link_lost ? "true" : "false");
   j += ", \"rearms\": " + u(st.rearms) + ", \"rearm_failures\": " + u(st.rearm_failures) +
        ", \"rearm_pending\": " + std::string(st.rearm_pending ? "true" : "false") +
        ", \"operator_requests\": " + u(st.operator_requests);
@@ -315,7 +310,7 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
       if (const char* bad = wire::check(st)) {
         ++rejected;
         if (json) {
-          std::fprintf(out, "{\"t_s\": %.3f, \"rejected\": %s, \"rejected_count\": %llu}\n", t, json_string(bad).c_str(),
+          std::fprintf(out, "{\"t_s\": %.3f, \"rejected\": %s, \"rejected_count\": %llu}\n", t, text::json_string(bad).c_str(),
                        static_cast<unsigned long long>(rejected));
         } else {
           std::fprintf(out, "%8.3f s  status rejected (%s); %llu so far\n", t, bad, static_cast<unsigned long long>(rejected));

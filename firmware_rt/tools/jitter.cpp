@@ -16,6 +16,7 @@
 #include "rt/rt_loop.hpp"
 #include "tools/cyclictest_runner.hpp"
 #include "record/hdf5_io.hpp"
+#include "text/text.hpp"
 
 namespace lancet::tools {
 namespace {
@@ -72,20 +73,6 @@ std::string fixed1(double v) {
   return b;
 }
 
-std::string json_escape(const std::string& s) {
-  std::string o;
-  for (char c : s) {
-    if (c == '"' || c == '\\') {
-      o += '\\';
-      o += c;
-    } else if (static_cast<unsigned char>(c) < 0x20) {
-      o += ' ';
-    } else {
-      o += c;
-    }
-  }
-  return o;
-}
 
 std::string percentile_name(double p) {
   std::ostringstream s;
@@ -347,10 +334,10 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
     << "},\n";
   s << "  \"setup\": {\"fifo\": " << boolean(r.setup.fifo) << ", \"memory_locked\": " << boolean(r.setup.memory_locked)
     << ", \"dma_latency_held\": " << boolean(r.setup.dma_latency_held) << ", \"preempt_rt\": " << boolean(r.setup.preempt_rt)
-    << ", \"cpu_isolated\": " << boolean(r.setup.cpu_isolated) << ", \"kernel\": \"" << json_escape(r.setup.kernel)
-    << "\", \"degraded\": [";
+    << ", \"cpu_isolated\": " << boolean(r.setup.cpu_isolated) << ", \"kernel\": " << text::json_string(r.setup.kernel)
+    << ", \"degraded\": [";
   for (std::size_t i = 0; i < r.setup.degraded.size(); ++i) {
-    s << (i ? ", " : "") << "\"" << json_escape(r.setup.degraded[i]) << "\"";
+    s << (i ? ", " : "") << text::json_string(r.setup.degraded[i]);
   }
   s << "]},\n  \"lancet\": {\"wake_latency\": ";
   json_distribution(s, ours);
@@ -374,7 +361,7 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
     s << "}";
   } else {
     s << "null";
-    if (!r.cyclictest_error.empty()) s << ",\n  \"cyclictest_error\": \"" << json_escape(r.cyclictest_error) << "\"";
+    if (!r.cyclictest_error.empty()) s << ",\n  \"cyclictest_error\": " << text::json_string(r.cyclictest_error);
   }
   if (r.recording_off && r.recording_on) {
     s << ",\n  \"recording\": {\"off\": ";
@@ -382,7 +369,7 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
     s << ", \"on\": ";
     json_distribution(s, rt::to_distribution(*r.recording_on, "on"));
     s << ", \"samples\": " << r.recorded_samples << ", \"lost\": " << r.recorded_lost << ", \"bytes\": " << r.record_bytes
-      << ", \"error\": \"" << json_escape(r.record_error) << "\"}";
+      << ", \"error\": " << text::json_string(r.record_error) << "}";
   }
   s << ",\n  \"bounds\": [";
   for (std::size_t i = 0; i < r.bounds.size(); ++i) {

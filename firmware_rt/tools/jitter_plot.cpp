@@ -12,22 +12,18 @@
 #include <sstream>
 #include <string_view>
 
+#include "text/text.hpp"
+
 namespace lancet::tools {
 namespace {
 
 // ---------------------------------------------------------------------------------------------
 // Text
 
-// Fixed-point number, locale-independent (coordinates must never come out as "12,5").
-std::string num(double v, int decimals = 1) {
-  if (!std::isfinite(v)) v = 0;
-  std::array<char, 64> buf{};
-  const auto [p, ec] = std::to_chars(buf.data(), buf.data() + buf.size(), v, std::chars_format::fixed, decimals);
-  if (ec != std::errc{}) return "0";
-  std::string s(buf.data(), p);
-  if (s == "-0" || s == "-0.0" || s == "-0.00") s.erase(0, 1);
-  return s;
-}
+// Fixed-point number, locale-independent (coordinates must never come out as "12,5"); 0 for
+// what is not finite.
+std::string num(double v, int decimals = 1) { return text::fixed(std::isfinite(v) ? v : 0.0, decimals); }
+using text::xml_escape;
 
 // A latency for people: "0.12 µs", "5.6 µs", "65 µs", "1.80 ms", "13.0 ms", "250 ms", "1.20 s".
 std::string fmt_us(double us) {
@@ -62,54 +58,6 @@ std::string group_digits(std::uint64_t n) {
   for (std::size_t i = 0; i < s.size(); ++i) {
     if (i != 0 && (s.size() - i) % 3 == 0) out += ' ';
     out += s[i];
-  }
-  return out;
-}
-
-// Text content or attribute value: XML-escaped; bytes that are not valid UTF-8 and control
-// characters (not allowed in XML 1.0 even as references) become '?'.
-std::string xml_escape(std::string_view s) {
-  std::string out;
-  out.reserve(s.size());
-  std::size_t i = 0;
-  while (i < s.size()) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    if (c < 0x80) {
-      switch (c) {
-        case '&': out += "&amp;"; break;
-        case '<': out += "&lt;"; break;
-        case '>': out += "&gt;"; break;
-        case '"': out += "&quot;"; break;
-        case '\'': out += "&apos;"; break;
-        default: out += (c < 0x20 || c == 0x7f) ? '?' : static_cast<char>(c);
-      }
-      ++i;
-      continue;
-    }
-    // A multi-byte sequence: check its length, continuation bytes and range (no overlongs, no
-    // surrogates, nothing above U+10FFFF; U+FFFE/U+FFFF are not XML characters either).
-    std::size_t len = 0;
-    std::uint32_t cp = 0;
-    if (c >= 0xc2 && c <= 0xdf) { len = 2; cp = c & 0x1fu; }
-    else if (c >= 0xe0 && c <= 0xef) { len = 3; cp = c & 0x0fu; }
-    else if (c >= 0xf0 && c <= 0xf4) { len = 4; cp = c & 0x07u; }
-    bool valid = len != 0 && i + len <= s.size();
-    for (std::size_t k = 1; valid && k < len; ++k) {
-      const auto cc = static_cast<unsigned char>(s[i + k]);
-      valid = (cc & 0xc0u) == 0x80u;
-      cp = (cp << 6) | (cc & 0x3fu);
-    }
-    if (valid) {
-      valid = !(len == 3 && cp < 0x800) && !(len == 4 && (cp < 0x10000 || cp > 0x10ffff)) &&
-              !(cp >= 0xd800 && cp <= 0xdfff) && cp != 0xfffe && cp != 0xffff && !(cp >= 0x80 && cp <= 0x9f);
-    }
-    if (valid) {
-      out.append(s.substr(i, len));
-      i += len;
-    } else {
-      out += '?';
-      ++i;
-    }
   }
   return out;
 }

@@ -23,7 +23,7 @@
 
 #include <unistd.h>
 
-#include "lancet/shared_model/text.hpp"
+#include "text/text.hpp"
 #include "volume/dicom.hpp"
 #include "volume/marching_cubes.hpp"
 #include "volume/mesh_tools.hpp"
@@ -32,7 +32,7 @@
 #include "volume/nrrd.hpp"
 #include "volume/phantom.hpp"
 
-using lancet::json_string;
+namespace text = lancet::text;
 
 namespace {
 
@@ -68,8 +68,8 @@ int fail(const std::string& message) {
 // writing nan or inf (which are not JSON).
 class JsonObject {
  public:
-  void add(const char* key, std::string_view value) { field(key, json_string(value)); }
-  void add(const char* key, const char* value) { field(key, json_string(value)); }
+  void add(const char* key, std::string_view value) { field(key, text::json_string(value)); }
+  void add(const char* key, const char* value) { field(key, text::json_string(value)); }
   void add(const char* key, bool value) { field(key, value ? "true" : "false"); }
   void add(const char* key, std::size_t value) { field(key, std::to_string(value)); }
   void add(const char* key, long long value) { field(key, std::to_string(value)); }
@@ -90,7 +90,7 @@ class JsonObject {
   }
 
  private:
-  void field(const char* key, const std::string& value) { body_ += (body_.empty() ? "" : ", ") + json_string(key) + ": " + value; }
+  void field(const char* key, const std::string& value) { body_ += (body_.empty() ? "" : ", ") + text::json_string(key) + ": " + value; }
   std::string body_;
   std::string bad_;
 };

@@ -13,17 +13,16 @@
 #include <numbers>
 #include <utility>
 
+#include "text/text.hpp"
+
 namespace lancet::record {
 
 namespace {
 
+std::string num_g(double v) { return text::format("%g", v); }
+
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
 
 double seconds(std::int64_t ns) { return static_cast<double>(ns) / 1e9; }
 
@@ -136,8 +135,8 @@ void add_motion(Metrics& out, const Recording& rec, const Window& w, const scena
     const double ideal_mm = incision ? xy_length(sc->incision.line) * 1e3 : 2 * sc->drill.depth * 1e3;
     add(out, "economy_of_motion_ratio", none || !(ideal_mm > 0) ? kNaN : path * 1e3 / ideal_mm, "ratio", Better::kLower,
         "path length / ideal path: " +
-            (incision ? "the task line's x-y length (" + num(ideal_mm) + " mm)"
-                      : "twice the window's depth, down and back (" + num(ideal_mm) + " mm)"));
+            (incision ? "the task line's x-y length (" + num_g(ideal_mm) + " mm)"
+                      : "twice the window's depth, down and back (" + num_g(ideal_mm) + " mm)"));
   }
 
   const Filtered f = filter_motion(s, score.movement_filter_hz);
@@ -147,8 +146,8 @@ void add_motion(Metrics& out, const Recording& rec, const Window& w, const scena
     if (f.speed[i - 1] < threshold && f.speed[i] >= threshold) ++movements;
   }
   add(out, "movement_count", none ? kNaN : movements, "count", Better::kLower,
-      "upward crossings of " + num(threshold * 1e3) + " mm/s by the tool-tip speed, low-passed at " +
-          num(score.movement_filter_hz) + " Hz (first order), in the task window");
+      "upward crossings of " + num_g(threshold * 1e3) + " mm/s by the tool-tip speed, low-passed at " +
+          num_g(score.movement_filter_hz) + " Hz (first order), in the task window");
 
   // Third differences of the filtered position over four consecutive ticks (no seq gap).
   double sum = 0;
@@ -164,7 +163,7 @@ void add_motion(Metrics& out, const Recording& rec, const Window& w, const scena
   }
   add(out, "jerk_rms_m_s3", n == 0 ? kNaN : std::sqrt(sum / static_cast<double>(n)), "m/s³", Better::kLower,
       "RMS of the third derivative of the tool-tip position (third differences of the 1 kHz ticks after the " +
-          num(score.movement_filter_hz) + " Hz low-pass), in the task window");
+          num_g(score.movement_filter_hz) + " Hz low-pass), in the task window");
 }
 
 // ---- force -------------------------------------------------------------------------------------
@@ -189,7 +188,7 @@ void add_force(Metrics& out, const Recording& rec) {
       "mean force magnitude on the hand over the interaction ticks");
   add(out, "force_peak_n", rec.samples.empty() ? kNaN : peak, "N", Better::kLower, "largest force magnitude on the hand");
   add(out, "time_above_force_limit_s", rec.samples.empty() ? kNaN : seconds(above * period_ns), "s", Better::kLower,
-      "ticks with a force above " + num(limit) + " N, times the servo period");
+      "ticks with a force above " + num_g(limit) + " N, times the servo period");
 }
 
 // ---- the incision ------------------------------------------------------------------------------
@@ -222,7 +221,7 @@ void add_incision(Metrics& out, const Recording& rec, const scenario::IncisionTa
   add(out, "incision_deviation_max_mm", points == 0 ? kNaN : max * 1e3, "mm", Better::kLower, "largest " + per);
   const scenario::IncisionProgress progress = scenario::incision_progress(task, cuts);
   add(out, "incision_coverage_pct", 100 * progress.covered, "%", Better::kHigher,
-      "share of the incision line within " + num(task.tolerance * 1e3) + " mm of a cut (cuts from the cut progress points, a new cut at each rupture)");
+      "share of the incision line within " + num_g(task.tolerance * 1e3) + " mm of a cut (cuts from the cut progress points, a new cut at each rupture)");
 }
 
 // ---- the frames' figures -----------------------------------------------------------------------

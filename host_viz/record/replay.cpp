@@ -6,7 +6,7 @@
 #include <cstring>
 
 #include "lancet/shared_model/shared_state.hpp"
-#include "lancet/shared_model/text.hpp"
+#include "lancet/shared_model/word_hasher.hpp"
 
 namespace lancet::record {
 

@@ -11,7 +11,7 @@
 #include <set>
 #include <string_view>
 
-#include "lancet/shared_model/text.hpp"
+#include "text/text.hpp"
 
 namespace lancet::record {
 
@@ -21,33 +21,13 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---- text --------------------------------------------------------------------------------------
 
-std::string html(std::string_view s) {
-  std::string out;
-  out.reserve(s.size());
-  for (const char c : s) {
-    switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&#39;"; break;
-      default: out += c;
-    }
-  }
-  return out;
-}
 
-std::string fmt(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, format, v);
-  return buf;
-}
 
 // A value for people: 3 significant digits, whole numbers from 1000 up; "—" when not measured.
 std::string shown(double v, std::string_view unit = {}) {
   if (!std::isfinite(v)) return "\u2014";
-  if (unit == "count") return fmt("%.0f", v);
-  return std::abs(v) >= 1000 ? fmt("%.0f", v) : fmt("%.3g", v);
+  if (unit == "count") return text::format("%.0f", v);
+  return std::abs(v) >= 1000 ? text::format("%.0f", v) : text::format("%.3g", v);
 }
 
 std::string band_text(const Metric& m) {
@@ -132,8 +112,8 @@ struct Plot {
   }
 
   [[nodiscard]] std::string open(const std::string& label) const {
-    return "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + fmt("%.0f", w) + "\" height=\"" + fmt("%.0f", h) +
-           "\" viewBox=\"0 0 " + fmt("%.0f", w) + " " + fmt("%.0f", h) + "\" role=\"img\" aria-label=\"" + html(label) + "\">\n";
+    return "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + text::format("%.0f", w) + "\" height=\"" + text::format("%.0f", h) +
+           "\" viewBox=\"0 0 " + text::format("%.0f", w) + " " + text::format("%.0f", h) + "\" role=\"img\" aria-label=\"" + text::xml_escape(label) + "\">\n";
   }
 
   // Frame, grid, tick labels and axis titles.
@@ -142,34 +122,34 @@ struct Plot {
     const double sx = tick_step(x1 - x0, 7), sy = tick_step(y1 - y0, 6);
     for (double t = std::ceil(x0 / sx) * sx; t <= x1 + 1e-9 * sx; t += sx) {
       const double x = px(t);
-      s += "<line class=\"grid\" x1=\"" + fmt("%.1f", x) + "\" y1=\"" + fmt("%.1f", top) + "\" x2=\"" + fmt("%.1f", x) +
-           "\" y2=\"" + fmt("%.1f", h - bottom) + "\"/>";
-      s += "<text class=\"tick\" x=\"" + fmt("%.1f", x) + "\" y=\"" + fmt("%.1f", h - bottom + 14) +
-           "\" text-anchor=\"middle\">" + fmt("%g", std::abs(t) < 1e-9 * sx ? 0.0 : t) + "</text>\n";
+      s += "<line class=\"grid\" x1=\"" + text::format("%.1f", x) + "\" y1=\"" + text::format("%.1f", top) + "\" x2=\"" + text::format("%.1f", x) +
+           "\" y2=\"" + text::format("%.1f", h - bottom) + "\"/>";
+      s += "<text class=\"tick\" x=\"" + text::format("%.1f", x) + "\" y=\"" + text::format("%.1f", h - bottom + 14) +
+           "\" text-anchor=\"middle\">" + text::format("%g", std::abs(t) < 1e-9 * sx ? 0.0 : t) + "</text>\n";
     }
     for (double t = std::ceil(y0 / sy) * sy; t <= y1 + 1e-9 * sy; t += sy) {
       const double y = py(t);
-      s += "<line class=\"grid\" x1=\"" + fmt("%.1f", left) + "\" y1=\"" + fmt("%.1f", y) + "\" x2=\"" + fmt("%.1f", w - right) +
-           "\" y2=\"" + fmt("%.1f", y) + "\"/>";
-      s += "<text class=\"tick\" x=\"" + fmt("%.1f", left - 5) + "\" y=\"" + fmt("%.1f", y + 4) + "\" text-anchor=\"end\">" +
-           fmt("%g", std::abs(t) < 1e-9 * sy ? 0.0 : t) + "</text>\n";
+      s += "<line class=\"grid\" x1=\"" + text::format("%.1f", left) + "\" y1=\"" + text::format("%.1f", y) + "\" x2=\"" + text::format("%.1f", w - right) +
+           "\" y2=\"" + text::format("%.1f", y) + "\"/>";
+      s += "<text class=\"tick\" x=\"" + text::format("%.1f", left - 5) + "\" y=\"" + text::format("%.1f", y + 4) + "\" text-anchor=\"end\">" +
+           text::format("%g", std::abs(t) < 1e-9 * sy ? 0.0 : t) + "</text>\n";
     }
-    s += "<rect class=\"frame\" x=\"" + fmt("%.1f", left) + "\" y=\"" + fmt("%.1f", top) + "\" width=\"" +
-         fmt("%.1f", w - left - right) + "\" height=\"" + fmt("%.1f", h - top - bottom) + "\"/>\n";
-    s += "<text class=\"title\" x=\"" + fmt("%.1f", 0.5 * (left + w - right)) + "\" y=\"" + fmt("%.1f", h - 8) +
-         "\" text-anchor=\"middle\">" + html(x_title) + "</text>\n";
-    s += "<text class=\"title\" transform=\"translate(14 " + fmt("%.1f", 0.5 * (top + h - bottom)) +
-         ") rotate(-90)\" text-anchor=\"middle\">" + html(y_title) + "</text>\n";
+    s += "<rect class=\"frame\" x=\"" + text::format("%.1f", left) + "\" y=\"" + text::format("%.1f", top) + "\" width=\"" +
+         text::format("%.1f", w - left - right) + "\" height=\"" + text::format("%.1f", h - top - bottom) + "\"/>\n";
+    s += "<text class=\"title\" x=\"" + text::format("%.1f", 0.5 * (left + w - right)) + "\" y=\"" + text::format("%.1f", h - 8) +
+         "\" text-anchor=\"middle\">" + text::xml_escape(x_title) + "</text>\n";
+    s += "<text class=\"title\" transform=\"translate(14 " + text::format("%.1f", 0.5 * (top + h - bottom)) +
+         ") rotate(-90)\" text-anchor=\"middle\">" + text::xml_escape(y_title) + "</text>\n";
     return s;
   }
 
   // A clip rectangle for the data area, named `id`.
   [[nodiscard]] std::string clip(const std::string& id) const {
-    return "<defs><clipPath id=\"" + id + "\"><rect x=\"" + fmt("%.1f", left) + "\" y=\"" + fmt("%.1f", top) + "\" width=\"" +
-           fmt("%.1f", w - left - right) + "\" height=\"" + fmt("%.1f", h - top - bottom) + "\"/></clipPath></defs>\n";
+    return "<defs><clipPath id=\"" + id + "\"><rect x=\"" + text::format("%.1f", left) + "\" y=\"" + text::format("%.1f", top) + "\" width=\"" +
+           text::format("%.1f", w - left - right) + "\" height=\"" + text::format("%.1f", h - top - bottom) + "\"/></clipPath></defs>\n";
   }
 
-  [[nodiscard]] std::string point(double x, double y) const { return fmt("%.1f", px(x)) + "," + fmt("%.1f", py(y)) + " "; }
+  [[nodiscard]] std::string point(double x, double y) const { return text::format("%.1f", px(x)) + "," + text::format("%.1f", py(y)) + " "; }
 };
 
 struct PathPoint {
@@ -241,14 +221,14 @@ std::string path_svg(const ReportInput& in, const std::string& id) {
     std::string line;
     for (const Vec3& p : m.incision.line) line += plot.point(p.x * 1e3, p.y * 1e3);
     s += "<polyline class=\"tolerance\" points=\"" + line + "\" stroke-width=\"" +
-         fmt("%.1f", 2 * m.incision.tolerance * 1e3 * plot.scale_x()) + "\"/>\n";
+         text::format("%.1f", 2 * m.incision.tolerance * 1e3 * plot.scale_x()) + "\"/>\n";
     s += "<polyline class=\"task\" points=\"" + line + "\"/>\n";
   } else if (m.has_task && m.task == scenario::TaskKind::kDrill) {
     const double cx = plot.px(m.drill.centre.x * 1e3), cy = plot.py(m.drill.centre.y * 1e3);
-    s += "<circle class=\"task\" cx=\"" + fmt("%.1f", cx) + "\" cy=\"" + fmt("%.1f", cy) + "\" r=\"" +
-         fmt("%.1f", m.drill.radius * 1e3 * plot.scale_x()) + "\"/>\n";
-    s += "<path class=\"task\" d=\"M" + fmt("%.1f", cx - 5) + " " + fmt("%.1f", cy) + "h10M" + fmt("%.1f", cx) + " " +
-         fmt("%.1f", cy - 5) + "v10\"/>\n";
+    s += "<circle class=\"task\" cx=\"" + text::format("%.1f", cx) + "\" cy=\"" + text::format("%.1f", cy) + "\" r=\"" +
+         text::format("%.1f", m.drill.radius * 1e3 * plot.scale_x()) + "\"/>\n";
+    s += "<path class=\"task\" d=\"M" + text::format("%.1f", cx - 5) + " " + text::format("%.1f", cy) + "h10M" + text::format("%.1f", cx) + " " +
+         text::format("%.1f", cy - 5) + "v10\"/>\n";
   }
   // The path, one polyline per run of the same stage, each starting where the last ended.
   for (std::size_t i = 0; i < pts.size();) {
@@ -286,9 +266,9 @@ std::string force_svg(const ReportInput& in, const std::string& id) {
   std::string s = plot.open("force magnitude over time");
   s += plot.clip(id);
   if (std::isfinite(m.window_begin_s) && std::isfinite(m.window_end_s)) {
-    s += "<rect class=\"window\" x=\"" + fmt("%.1f", plot.px(m.window_begin_s)) + "\" y=\"" + fmt("%.1f", plot.top) +
-         "\" width=\"" + fmt("%.1f", std::max(1.0, plot.px(m.window_end_s) - plot.px(m.window_begin_s))) + "\" height=\"" +
-         fmt("%.1f", plot.h - plot.top - plot.bottom) + "\"/>\n";
+    s += "<rect class=\"window\" x=\"" + text::format("%.1f", plot.px(m.window_begin_s)) + "\" y=\"" + text::format("%.1f", plot.top) +
+         "\" width=\"" + text::format("%.1f", std::max(1.0, plot.px(m.window_end_s) - plot.px(m.window_begin_s))) + "\" height=\"" +
+         text::format("%.1f", plot.h - plot.top - plot.bottom) + "\"/>\n";
   }
   s += plot.axes("time (s)", "force (N)");
   s += "<g clip-path=\"url(#" + id + ")\">\n";
@@ -324,10 +304,10 @@ std::string force_svg(const ReportInput& in, const std::string& id) {
   s += "<polyline class=\"force\" points=\"" + line + "\"/>\n";
   s += "</g>\n";
   const double ly = plot.py(limit);
-  s += "<line class=\"limit\" x1=\"" + fmt("%.1f", plot.left) + "\" y1=\"" + fmt("%.1f", ly) + "\" x2=\"" +
-       fmt("%.1f", plot.w - plot.right) + "\" y2=\"" + fmt("%.1f", ly) + "\"/>\n";
-  s += "<text class=\"limit-label\" x=\"" + fmt("%.1f", plot.w - plot.right - 4) + "\" y=\"" + fmt("%.1f", ly - 4) +
-       "\" text-anchor=\"end\">limit " + html(shown(limit)) + " N</text>\n";
+  s += "<line class=\"limit\" x1=\"" + text::format("%.1f", plot.left) + "\" y1=\"" + text::format("%.1f", ly) + "\" x2=\"" +
+       text::format("%.1f", plot.w - plot.right) + "\" y2=\"" + text::format("%.1f", ly) + "\"/>\n";
+  s += "<text class=\"limit-label\" x=\"" + text::format("%.1f", plot.w - plot.right - 4) + "\" y=\"" + text::format("%.1f", ly - 4) +
+       "\" text-anchor=\"end\">limit " + text::xml_escape(shown(limit)) + " N</text>\n";
   s += "</svg>\n";
   return s;
 }
@@ -378,7 +358,7 @@ std::string verdict_html(const Metrics& m) {
         if (x.band && !x.pass) failed += (failed.empty() ? "" : ", ") + x.name;
       }
       return "<div class=\"verdict fail\">Not yet proficient: " + std::to_string(m.banded - m.passed) + " of " +
-             std::to_string(m.banded) + " banded metrics outside their bands (" + html(failed) + ")</div>";
+             std::to_string(m.banded) + " banded metrics outside their bands (" + text::xml_escape(failed) + ")</div>";
     }
     case Verdict::kNotAssessed: break;
   }
@@ -394,9 +374,9 @@ std::string metrics_table(const Metrics& m) {
   std::string s = "<table class=\"metrics\">\n<tr><th>Metric</th><th>Value</th><th>Unit</th><th>Band</th><th>Result</th>"
                   "<th>Better</th><th>How it is measured</th></tr>\n";
   for (const Metric& x : m.metrics) {
-    s += "<tr><td><code>" + html(x.name) + "</code></td><td class=\"num\">" + html(shown(x.value, x.unit)) + "</td><td>" +
-         html(x.unit) + "</td><td class=\"num\">" + html(band_text(x)) + "</td>" + result_cell(x) + "<td>" +
-         (x.better == Better::kLower ? "lower" : "higher") + "</td><td class=\"desc\">" + html(x.description) + "</td></tr>\n";
+    s += "<tr><td><code>" + text::xml_escape(x.name) + "</code></td><td class=\"num\">" + text::xml_escape(shown(x.value, x.unit)) + "</td><td>" +
+         text::xml_escape(x.unit) + "</td><td class=\"num\">" + text::xml_escape(band_text(x)) + "</td>" + result_cell(x) + "<td>" +
+         (x.better == Better::kLower ? "lower" : "higher") + "</td><td class=\"desc\">" + text::xml_escape(x.description) + "</td></tr>\n";
   }
   return s + "</table>\n";
 }
@@ -404,7 +384,7 @@ std::string metrics_table(const Metrics& m) {
 std::string comparison_table(const std::vector<ReportInput>& attempts) {
   std::string s = "<h2>Comparison</h2>\n<table class=\"compare\">\n<tr><th>Metric</th><th>Band</th>";
   for (std::size_t i = 0; i < attempts.size(); ++i) {
-    s += "<th>" + std::to_string(i + 1) + ": " + html(attempts[i].file) + "</th>";
+    s += "<th>" + std::to_string(i + 1) + ": " + text::xml_escape(attempts[i].file) + "</th>";
   }
   s += "</tr>\n<tr><th>verdict</th><td></td>";
   for (const ReportInput& a : attempts) {
@@ -424,8 +404,8 @@ std::string comparison_table(const std::vector<ReportInput>& attempts) {
     for (const ReportInput& a : attempts) {
       if (const Metric* x = find_metric(a.metrics, info.name)) bands.insert(band_text(*x));
     }
-    s += "<tr><td><code>" + html(info.name) + "</code> (" + html(first->unit) + ")</td><td class=\"num\">" +
-         html(bands.size() == 1 ? *bands.begin() : "varies") + "</td>";
+    s += "<tr><td><code>" + text::xml_escape(info.name) + "</code> (" + text::xml_escape(first->unit) + ")</td><td class=\"num\">" +
+         text::xml_escape(bands.size() == 1 ? *bands.begin() : "varies") + "</td>";
     for (const ReportInput& a : attempts) {
       const Metric* x = find_metric(a.metrics, info.name);
       if (x == nullptr) {
@@ -433,7 +413,7 @@ std::string comparison_table(const std::vector<ReportInput>& attempts) {
         continue;
       }
       const char* cls = !x->band ? "na num" : x->pass ? "pass num" : "fail num";
-      s += std::string("<td class=\"") + cls + "\">" + html(shown(x->value, x->unit)) + "</td>";
+      s += std::string("<td class=\"") + cls + "\">" + text::xml_escape(shown(x->value, x->unit)) + "</td>";
     }
     s += "</tr>\n";
   }
@@ -461,22 +441,22 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
   const Metrics& m = in.metrics;
   const std::string id = "a" + std::to_string(index);
   std::string s = "<section class=\"attempt\">\n<h2>" +
-                  (several ? "Attempt " + std::to_string(index + 1) + ": " : std::string("Attempt: ")) + html(in.file) + "</h2>\n";
+                  (several ? "Attempt " + std::to_string(index + 1) + ": " : std::string("Attempt: ")) + text::xml_escape(in.file) + "</h2>\n";
   s += verdict_html(m) + "\n";
   const double duration = rec.samples.size() > 1 ? static_cast<double>(rec.samples.back().t_ns - rec.samples.front().t_ns) / 1e9 : 0;
-  s += "<p class=\"meta\">Scenario " + html(rec.scenario_name.empty() ? "(none)" : rec.scenario_name) + " \u00b7 recorded " +
-       html(rec.created.empty() ? "(unknown)" : rec.created) + " \u00b7 " + html(shown(duration)) + " s, " +
+  s += "<p class=\"meta\">Scenario " + text::xml_escape(rec.scenario_name.empty() ? "(none)" : rec.scenario_name) + " \u00b7 recorded " +
+       text::xml_escape(rec.created.empty() ? "(unknown)" : rec.created) + " \u00b7 " + text::xml_escape(shown(duration)) + " s, " +
        std::to_string(rec.samples.size()) + " ticks, " + std::to_string(rec.frames.size()) + " frames \u00b7 lancet " +
-       html(rec.lancet_version.empty() ? "(unknown)" : rec.lancet_version) + "</p>\n";
+       text::xml_escape(rec.lancet_version.empty() ? "(unknown)" : rec.lancet_version) + "</p>\n";
   s += "<p class=\"meta\">Task window " +
-       (std::isfinite(m.window_begin_s) ? html(shown(m.window_begin_s)) + "\u2013" + html(shown(m.window_end_s)) + " s"
+       (std::isfinite(m.window_begin_s) ? text::xml_escape(shown(m.window_begin_s)) + "\u2013" + text::xml_escape(shown(m.window_end_s)) + " s"
                                         : std::string("none (no interaction)")) +
-       " \u00b7 force limit " + html(shown(m.score.force_limit)) + " N \u00b7 movements: speed above " +
-       html(shown(m.score.movement_speed * 1e3)) + " mm/s after a first-order low-pass at " + html(shown(m.score.movement_filter_hz)) +
-       " Hz \u00b7 bands: mean \u00b1 " + html(shown(m.score.sd_multiple)) + " sd, one-sided by direction";
+       " \u00b7 force limit " + text::xml_escape(shown(m.score.force_limit)) + " N \u00b7 movements: speed above " +
+       text::xml_escape(shown(m.score.movement_speed * 1e3)) + " mm/s after a first-order low-pass at " + text::xml_escape(shown(m.score.movement_filter_hz)) +
+       " Hz \u00b7 bands: mean \u00b1 " + text::xml_escape(shown(m.score.sd_multiple)) + " sd, one-sided by direction";
   if (!m.damaged.empty()) {
     std::string names;
-    for (const auto& n : m.damaged) names += (names.empty() ? "" : ", ") + html(n);
+    for (const auto& n : m.damaged) names += (names.empty() ? "" : ", ") + text::xml_escape(n);
     s += " \u00b7 <strong>damaged: " + names + "</strong>";
   }
   s += "</p>\n";
@@ -486,14 +466,14 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
   } else if (m.has_task) {
     task_caption = "dashed: the drill window (" + shown(2 * m.drill.radius * 1e3) + " mm across)";
   }
-  s += "<div class=\"plots\">\n<figure>" + path_svg(in, id + "-path") + "<figcaption>" + legend(rec.samples) + ". " + html(task_caption) +
+  s += "<div class=\"plots\">\n<figure>" + path_svg(in, id + "-path") + "<figcaption>" + legend(rec.samples) + ". " + text::xml_escape(task_caption) +
        ". Axes in mm (world frame, x along the limb).</figcaption></figure>\n";
   s += "<figure>" + force_svg(in, id + "-force") +
        "<figcaption>Force magnitude on the hand; dashed red: the force limit; grey: the task window.</figcaption></figure>\n</div>\n";
   s += metrics_table(m);
   if (!m.notes.empty()) {
     s += "<ul class=\"notes\">\n";
-    for (const auto& n : m.notes) s += "<li>" + html(n) + "</li>\n";
+    for (const auto& n : m.notes) s += "<li>" + text::xml_escape(n) + "</li>\n";
     s += "</ul>\n";
   }
   return s + "</section>\n";
@@ -502,49 +482,48 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
 // ---- JSON --------------------------------------------------------------------------------------
 
 
-std::string json_number(double v) { return std::isfinite(v) ? fmt("%.12g", v) : "null"; }
 
 std::string json_attempt(const ReportInput& in) {
   const Recording& rec = *in.recording;
   const Metrics& m = in.metrics;
   const double duration = rec.samples.size() > 1 ? static_cast<double>(rec.samples.back().t_ns - rec.samples.front().t_ns) / 1e9 : 0;
   std::string s = "    {\n";
-  s += "      \"file\": " + json_string(in.file) + ",\n";
-  s += "      \"scenario\": " + json_string(rec.scenario_name) + ",\n";
-  s += "      \"created\": " + json_string(rec.created) + ",\n";
-  s += "      \"lancet_version\": " + json_string(rec.lancet_version) + ",\n";
-  s += "      \"task\": " + (m.has_task ? json_string(scenario::task_key(m.task)) : std::string("null")) + ",\n";
-  s += "      \"duration_s\": " + json_number(duration) + ",\n";
+  s += "      \"file\": " + text::json_string(in.file) + ",\n";
+  s += "      \"scenario\": " + text::json_string(rec.scenario_name) + ",\n";
+  s += "      \"created\": " + text::json_string(rec.created) + ",\n";
+  s += "      \"lancet_version\": " + text::json_string(rec.lancet_version) + ",\n";
+  s += "      \"task\": " + (m.has_task ? text::json_string(scenario::task_key(m.task)) : std::string("null")) + ",\n";
+  s += "      \"duration_s\": " + text::json_number(duration) + ",\n";
   s += "      \"samples\": " + std::to_string(rec.samples.size()) + ",\n";
   s += "      \"frames\": " + std::to_string(rec.frames.size()) + ",\n";
   s += "      \"samples_lost\": " + std::to_string(rec.samples_lost) + ",\n";
   s += std::string("      \"cut_short\": ") + (rec.cut_short ? "true" : "false") + ",\n";
-  s += "      \"window_s\": [" + json_number(m.window_begin_s) + ", " + json_number(m.window_end_s) + "],\n";
-  s += "      \"settings\": {\"force_limit_n\": " + json_number(m.score.force_limit) +
-       ", \"movement_speed_mm_s\": " + json_number(m.score.movement_speed * 1e3) +
-       ", \"movement_filter_hz\": " + json_number(m.score.movement_filter_hz) +
-       ", \"sd_multiple\": " + json_number(m.score.sd_multiple) + "},\n";
-  s += "      \"verdict\": " + json_string(verdict_key(m.verdict)) + ",\n";
+  s += "      \"window_s\": [" + text::json_number(m.window_begin_s) + ", " + text::json_number(m.window_end_s) + "],\n";
+  s += "      \"settings\": {\"force_limit_n\": " + text::json_number(m.score.force_limit) +
+       ", \"movement_speed_mm_s\": " + text::json_number(m.score.movement_speed * 1e3) +
+       ", \"movement_filter_hz\": " + text::json_number(m.score.movement_filter_hz) +
+       ", \"sd_multiple\": " + text::json_number(m.score.sd_multiple) + "},\n";
+  s += "      \"verdict\": " + text::json_string(verdict_key(m.verdict)) + ",\n";
   s += "      \"proficient\": " + std::string(m.verdict == Verdict::kProficient ? "true" : "false") + ",\n";
   s += "      \"banded\": " + std::to_string(m.banded) + ",\n";
   s += "      \"passed\": " + std::to_string(m.passed) + ",\n";
   s += "      \"damaged\": [";
-  for (std::size_t i = 0; i < m.damaged.size(); ++i) s += (i ? ", " : "") + json_string(m.damaged[i]);
+  for (std::size_t i = 0; i < m.damaged.size(); ++i) s += (i ? ", " : "") + text::json_string(m.damaged[i]);
   s += "],\n      \"notes\": [";
-  for (std::size_t i = 0; i < m.notes.size(); ++i) s += (i ? ", " : "") + json_string(m.notes[i]);
+  for (std::size_t i = 0; i < m.notes.size(); ++i) s += (i ? ", " : "") + text::json_string(m.notes[i]);
   s += "],\n      \"metrics\": {";
   for (std::size_t i = 0; i < m.metrics.size(); ++i) {
     const Metric& x = m.metrics[i];
-    s += std::string(i ? "," : "") + "\n        " + json_string(x.name) + ": {\"value\": " + json_number(x.value) +
-         ", \"unit\": " + json_string(x.unit) + ", \"better\": " + (x.better == Better::kLower ? "\"lower\"" : "\"higher\"") +
+    s += std::string(i ? "," : "") + "\n        " + text::json_string(x.name) + ": {\"value\": " + text::json_number(x.value) +
+         ", \"unit\": " + text::json_string(x.unit) + ", \"better\": " + (x.better == Better::kLower ? "\"lower\"" : "\"higher\"") +
          ", \"band\": ";
     if (x.band) {
-      s += "{\"mean\": " + json_number(x.band->mean) + ", \"sd\": " + json_number(x.band->sd) + ", \"k\": " +
-           json_number(x.band->k) + ", \"limit\": " + json_number(x.band->limit) + "}, \"pass\": " + (x.pass ? "true" : "false");
+      s += "{\"mean\": " + text::json_number(x.band->mean) + ", \"sd\": " + text::json_number(x.band->sd) + ", \"k\": " +
+           text::json_number(x.band->k) + ", \"limit\": " + text::json_number(x.band->limit) + "}, \"pass\": " + (x.pass ? "true" : "false");
     } else {
       s += "null, \"pass\": null";
     }
-    s += ", \"description\": " + json_string(x.description) + "}";
+    s += ", \"description\": " + text::json_string(x.description) + "}";
   }
   s += "\n      }\n    }";
   return s;
@@ -566,9 +545,9 @@ std::string report_html(const std::vector<ReportInput>& attempts) {
   const std::string date = created.size() >= 10 ? created.substr(0, 10) : created;
   const std::string title = "Lancet report: " + scenarios + (date.empty() ? "" : ", " + date);
 
-  std::string s = "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>" + html(title) +
+  std::string s = "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>" + text::xml_escape(title) +
                   "</title>\n<style>" + kStyle + "</style>\n</head>\n<body>\n";
-  s += "<h1>" + html(title) + "</h1>\n";
+  s += "<h1>" + text::xml_escape(title) + "</h1>\n";
   s += "<p class=\"sub\">" + std::to_string(attempts.size()) + (attempts.size() == 1 ? " attempt" : " attempts") +
        ". A metric passes when it is on the good side of mean \u00b1 k\u00b7sd of its experts' band (the scenario's "
        "[score.bands]; see the scenario file for where its bands come from); proficient means every banded metric passes.</p>\n";

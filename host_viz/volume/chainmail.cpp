@@ -9,6 +9,8 @@
 #include <string>
 #include <utility>
 
+#include "text/text.hpp"
+
 namespace lancet::volume {
 namespace {
 
@@ -43,11 +45,7 @@ double& comp(Vec3& v, int a) noexcept { return a == 0 ? v.x : (a == 1 ? v.y : v.
 
 const char* axis_name(int a) noexcept { return a == 0 ? "x" : (a == 1 ? "y" : "z"); }
 
-std::string num(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.9g", v);
-  return buf;
-}
+std::string num(double v) { return text::format("%.9g", v); }
 
 std::string index_text(const ChainMail::Index& e) {
   return "(" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + ", " + std::to_string(e[2]) + ")";

@@ -321,12 +321,12 @@ TEST_F(RecordReplay, BrokenAndForeignRecordingsAreRefused) {
   auto rec = record::read_recording(file);
   ASSERT_TRUE(rec.ok()) << rec.error().message;
   record::Recording old = rec.value();
-  old.layout_hash ^= 0x5a5a;
+  old.recorded_layout_hash ^= 0x5a5a;  // a ToolSample or TissuePatch laid out otherwise
   old.protocol = 3;
   auto rp = record::Replay::create(old);
   ASSERT_FALSE(rp.ok());
   char mine[24];
-  std::snprintf(mine, sizeof mine, "%016llx", static_cast<unsigned long long>(kSharedLayoutHash));
+  std::snprintf(mine, sizeof mine, "%016llx", static_cast<unsigned long long>(kRecordedLayoutHash));
   EXPECT_NE(rp.error().message.find(mine), std::string::npos) << rp.error().message;
   EXPECT_NE(rp.error().message.find("protocol 3"), std::string::npos) << rp.error().message;
   // The checks catch a difference: one reading moved by a micrometre, or one frame's blood step.
