@@ -1,5 +1,6 @@
 // The drill: volume haptics on the patch's voxel brick (volume_haptics.hpp); pressing harder than
-// drill_min_force removes a burr sphere at a rate drill_rate·(|f| − min)·(2000 / density).
+// drill_min_force removes burr spheres at drill_rate·(|f| − min)·(2000 / ρ) per second, ρ = HU + 1000
+// (haptic_step.hpp says why).
 #include <algorithm>
 
 #include "haptics/tool_steps.hpp"

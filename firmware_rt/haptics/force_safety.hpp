@@ -10,6 +10,7 @@
 #include <cstdint>
 
 #include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/word_hasher.hpp"
 
 namespace lancet::haptics {
 
@@ -30,6 +31,11 @@ struct SafetyData {
   bool has_position = false;
   double energy = 0;            ///< J, energy delivered to the hand so far (observer)
   std::uint64_t nan_guards = 0, clamps = 0, slew_limits = 0, passivity_actions = 0;
+
+  void hash(WordHasher& w) const noexcept {
+    w.v(last), w.v(last_position), w.b(has_position), w.f(energy);
+    w.word(nan_guards), w.word(clamps), w.word(slew_limits), w.word(passivity_actions);
+  }
 };
 
 /// Applies the layer to `force` (N, on the hand) for a tick of dt seconds, the device at

@@ -16,7 +16,9 @@
 // report the displacement, clamped there) with a spring pulling back; pulled much further, the
 // grip slips and the tissue is released.
 // Drill: volume haptics on the patch's voxel brick (volume_haptics.hpp); pressing harder than
-// drill_min_force removes a burr sphere at a rate drill_rate·(|f| − min)·(1000 HU / density).
+// drill_min_force removes burr spheres at drill_rate·(|f| − min)·(2000 / ρ) per second, where
+// ρ = HU + 1000 (about kg/m³, at least 100) is the density in front of the burr: drill_rate itself
+// at 1000 HU (cortical bone), twice as fast through water.
 
 #include <array>
 #include <cstdint>
@@ -70,6 +72,8 @@ struct ScalpelData {
   std::uint32_t material = 1;
   Vec3 last_event{};           ///< where the last kCutProgress was sent
   std::uint64_t ruptures = 0;
+
+  void hash(WordHasher& w) const noexcept { w.v(normal), w.v(entry), w.word(material), w.v(last_event), w.word(ruptures); }
 };
 
 /// The retractor's grip.
@@ -78,6 +82,8 @@ struct RetractorData {
   Vec3 control{};              ///< where it grabbed (m)
   std::uint32_t material = 1;
   Vec3 last_pull_event{};
+
+  void hash(WordHasher& w) const noexcept { w.b(grabbed), w.v(control), w.word(material), w.v(last_pull_event); }
 };
 
 /// The drill's own copy of the bone and what it has removed.
@@ -97,6 +103,16 @@ struct DrillData {
   std::uint64_t reapplied = 0;                 ///< removals carved again into a newer brick
   double progress = 0;         ///< accumulated removal (1 = remove one burr sphere)
   std::uint64_t removals = 0;
+
+  /// Its state without the brick (the patch's, hashed where it comes from): the counters and the
+  /// removals it remembers, oldest first.
+  void hash(WordHasher& w) const noexcept {
+    w.word(brick_seq), w.f(progress), w.word(removals), w.word(reapplied), w.word(n_carves), w.word(carve_head);
+    for (std::size_t i = 0; i < n_carves; ++i) {
+      const Carve& c = carves[(carve_head + kCarveMemory - n_carves + i) % kCarveMemory];
+      w.v(c.centre), w.f(c.radius), w.word(c.tick);
+    }
+  }
 };
 
 struct HapticData {
@@ -113,6 +129,19 @@ struct HapticData {
   RetractorData retractor{};
   DrillData drill{};
   SafetyData safety{};
+
+  /// Its state without the search tree (built from the patch) or the scratch. The probe's fields
+  /// stand around patch_version: the order recordings were hashed in, kept so they still replay.
+  void hash(WordHasher& w) const noexcept {
+    w.word(static_cast<std::uint64_t>(stage)), w.v(proxy), w.b(initialised), w.b(contact);
+    w.b(probe.sliding), w.word(patch_version);
+    probe.anchor.hash(w);
+    w.word(probe.carried), w.word(probe.carry_lost);
+    scalpel.hash(w);
+    retractor.hash(w);
+    drill.hash(w);
+    safety.hash(w);
+  }
 };
 
 struct HapticInput {

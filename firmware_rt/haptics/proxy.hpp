@@ -20,6 +20,7 @@
 #include "haptics/patch_bvh.hpp"
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/messages.hpp"
+#include "lancet/shared_model/word_hasher.hpp"
 
 namespace lancet::haptics {
 
@@ -96,6 +97,8 @@ struct ProxyAnchor {
   bool valid = false;
   std::uint32_t id = 0;        ///< the triangle's surface id
   double s = 0, t = 0, h = 0;  ///< the proxy in its frame
+
+  void hash(WordHasher& w) const noexcept { w.b(valid), w.word(id), w.f(s), w.f(t), w.f(h); }
 };
 
 /// The anchor of a proxy at `proxy` on triangle `i` of the patch (invalid for a degenerate one).

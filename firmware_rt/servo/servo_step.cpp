@@ -80,23 +80,7 @@ void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& ou
 std::uint64_t state_hash(const ServoData& d) noexcept {
   WordHasher h;
   h.word(d.tick), h.word(static_cast<std::uint64_t>(d.mode));
-  const haptics::HapticData& hd = d.haptic;
-  h.word(static_cast<std::uint64_t>(hd.stage)), h.v(hd.proxy), h.b(hd.initialised), h.b(hd.contact);
-  h.b(hd.probe.sliding);
-  h.word(hd.patch_version), h.b(hd.probe.anchor.valid), h.word(hd.probe.anchor.id), h.f(hd.probe.anchor.s),
-      h.f(hd.probe.anchor.t), h.f(hd.probe.anchor.h), h.word(hd.probe.carried), h.word(hd.probe.carry_lost);
-  h.v(hd.scalpel.normal), h.v(hd.scalpel.entry), h.word(hd.scalpel.material), h.v(hd.scalpel.last_event),
-      h.word(hd.scalpel.ruptures);
-  h.b(hd.retractor.grabbed), h.v(hd.retractor.control), h.word(hd.retractor.material), h.v(hd.retractor.last_pull_event);
-  const haptics::DrillData& dr = hd.drill;
-  h.word(dr.brick_seq), h.f(dr.progress), h.word(dr.removals), h.word(dr.reapplied), h.word(dr.n_carves), h.word(dr.carve_head);
-  for (std::size_t i = 0; i < dr.n_carves; ++i) {
-    const auto& c = dr.carves[(dr.carve_head + haptics::DrillData::kCarveMemory - dr.n_carves + i) % haptics::DrillData::kCarveMemory];
-    h.v(c.centre), h.f(c.radius), h.word(c.tick);
-  }
-  const haptics::SafetyData& s = hd.safety;
-  h.v(s.last), h.v(s.last_position), h.b(s.has_position), h.f(s.energy);
-  h.word(s.nan_guards), h.word(s.clamps), h.word(s.slew_limits), h.word(s.passivity_actions);
+  d.haptic.hash(h);
   h.f(d.fade.scale()), h.word(static_cast<std::uint64_t>(d.last_deadline_ns));
   h.v(d.tool), h.v(d.tool_velocity);
   h.word(static_cast<std::uint64_t>(d.jacobian.n));
