@@ -77,15 +77,9 @@
 // material lookup. Plus the heap (16 B per queued entry, the capacity of the largest step so far)
 // and the hash.
 //
-// Speed (lancet-bench-chainmail, RelWithDebInfo -O2, on the 2-core development VM, 2026-11-26):
-// on a warm step an 8 mm groove settles 1.1e7 to 1.2e7 coordinates per second, a 667 k-element
-// push 1.4e7/s: 1.5 and 1.7 times the version before, 15–19 times the thesis's 7.3e5/s, but 3.5
-// to 4.5 times short of the 5e7/s target and at 0.28x (groove) and 0.34x (push) of the same run's
-// yardstick, a bare FIFO flood over a dense array with no priority (4.1e7/s to 4.5e7/s there).
-// A settled coordinate costs about 600 instructions (callgrind, a small push: 6 neighbours read,
-// their intervals intersected, the others checked and queued, the heap's share), about 55 ns when
-// the region fits the cache and 70 ns when it does not: the step is bound by its work, not by
-// memory (prefetching the queue's next entries gained nothing).
+// Speed: a settled coordinate is bound by its work (its 6 neighbours read, their intervals
+// intersected, the others checked and queued), not by memory; the figures, against a bare flood
+// fill in the same run, are in docs/PERFORMANCE.md (lancet-bench-chainmail).
 //
 // Threads and allocation: one thread (the viz thread); not real-time safe. A step allocates when
 // the deformed region grows (new bricks) or its queue outgrows the heap's buckets of earlier steps;
