@@ -31,6 +31,7 @@
 #include "app/supervisor.hpp"
 #include "app/rt_servo.hpp"
 #include "app/rt_cli.hpp"
+#include "config/text_file.hpp"
 #include "rt/rt_loop.hpp"
 #include "rt/rt_setup.hpp"
 #include "text/text.hpp"
@@ -51,14 +52,6 @@ extern "C" void on_signal(int sig) {
 
 /// SIGINT, SIGTERM and SIGHUP end lancet-rt: without SA_RESTART, so a blocking call in the main
 /// thread returns at once.
-// A whole file's text ("" when it cannot be read).
-std::string read_text_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return in ? text.str() : std::string();
-}
-
 void install_signal_handlers() {
   struct sigaction sa {};
   sa.sa_handler = on_signal;
@@ -177,155 +170,270 @@ std::string await_first_read(lancet::device::Device& arm, double timeout_s) {
   return std::string(lancet::device::to_string(last)) + (e.status != lancet::device::IoStatus::kOk ? std::string(": ") + e.c_str() : "");
 }
 
+/// Everything lancet-rt's command line sets.
+struct Args {
+  std::string shm = lancet::kDefaultShmName;
+  double duration = 0;
+  bool quiet = false;
+  lancet::app::RtCliOptions rt;
+  std::string stats_path;
+  lancet::app::RtModel model;
+  double stiffness = 0;
+  double timeout_ms = 150, fade_ms = 100, stale_patch_ms = 100;
+  bool script_waits = false;
+  double stall_timeout_ms = 1000, first_read_timeout_ms = 2000, shutdown_grace_ms = 2000;
+  double inject_stall_s = 0;
+  std::string config_path, trajectory_path;
+};
+
+void add_options(CLI::App& cli, Args& a) {
+  cli.add_option("--shm", a.shm, "shared-memory segment name")->capture_default_str();
+  cli.add_option("--duration", a.duration, "seconds to run; 0 runs until SIGINT/SIGTERM")->check(CLI::NonNegativeNumber);
+  lancet::app::add_rt_options(cli, a.rt);
+  cli.add_flag("-q,--quiet", a.quiet, "no once-a-second status line");
+  cli.add_option("--stiffness", a.stiffness, "contact stiffness of every material (N/m); default: per material")
+      ->check(CLI::Range(1.0, 5000.0));
+  cli.add_option("--max-force", a.model.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
+  cli.add_option("--viz-timeout-ms", a.timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
+  cli.add_option("--fade-ms", a.fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
+  cli.add_option("--stale-patch-ms", a.stale_patch_ms, "tissue patch age after which the force fades (the viz stopped publishing)")
+      ->check(CLI::Range(1.0, 10000.0))->capture_default_str();
+  cli.add_flag("--script-waits-for-tissue", a.script_waits,
+               "the scripted hand (or --trajectory) holds its starting point until the first tissue patch arrives, so a "
+               "viz that takes long to build its tissue misses none of the script");
+  cli.add_option("--depth-mm", a.model.script_depth, "how deep below the surface the script presses (mm)")
+      ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
+  cli.add_option("--stats", a.stats_path, "write a JSON summary here on exit (also after a signal or a stall)");
+  cli.add_option("--stall-timeout-ms", a.stall_timeout_ms,
+                 "end lancet-rt when the servo tick has not advanced for this long (the arm's own watchdog then takes its "
+                 "torque off)")
+      ->check(CLI::Range(50.0, 60000.0))->capture_default_str();
+  cli.add_option("--first-read-timeout-ms", a.first_read_timeout_ms,
+                 "with --config: wait this long for the arm's first good read before enabling it")
+      ->check(CLI::Range(1.0, 60000.0))->capture_default_str();
+  cli.add_option("--shutdown-grace-ms", a.shutdown_grace_ms,
+                 "after a signal, a stall or --duration, wait this long for the servo thread to stop before leaving "
+                 "without it")
+      ->check(CLI::Range(10.0, 60000.0))->capture_default_str();
+  cli.add_option("--inject-stall-s", a.inject_stall_s,
+                 "testing: block the servo thread for good this many seconds after start (exercises the stall path)")
+      ->check(CLI::PositiveNumber)->group("Testing");
+  cli.add_option("--trajectory", a.trajectory_path,
+                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm[, tool]) instead of the built-in script; the "
+                 "optional tool cell (probe, scalpel, retractor, drill) picks the tool from that time on");
+  cli.add_option("--config", a.config_path,
+                 "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
+                 "built-in stylus");
+}
+
+/// The configured arm: its config, kinematics and device, configured and answering.
+struct Arm {
+  std::optional<lancet::arm::ArmConfig> config;
+  std::optional<lancet::arm::Kinematics> kinematics;
+  std::unique_ptr<lancet::device::Device> device;
+};
+
+/// Prints why and returns false.
+bool fail(const std::string& message) {
+  std::fprintf(stderr, "lancet-rt: %s\n", message.c_str());
+  return false;
+}
+
+/// Loads the arm of --config, builds its kinematics and device, configures it and waits for a good
+/// read (activate comes just before the loop starts); fits the servo model to it.
+bool open_arm(Args& a, Arm& arm) {
+  auto cfg = lancet::arm::load_arm_config(a.config_path);
+  if (!cfg.ok()) return fail(cfg.error().message);
+  arm.config = std::move(cfg).value();
+  if (arm.config->canopen) {
+    // The drives were told the cycle (0x1006, 0x60C2) from the config; a servo on another period
+    // would send SYNC at a rate they do not expect.
+    const auto sync_ns = static_cast<std::int64_t>(std::llround(arm.config->canopen->sync_period * 1e9));
+    if (std::llabs(sync_ns - a.rt.loop().period_ns) > 500) {
+      const double period_us = static_cast<double>(a.rt.loop().period_ns) * 1e-3, sync_us = static_cast<double>(sync_ns) * 1e-3;
+      return fail(lancet::text::format("--period-us %.0f differs from sync_period_us %.0f in [bus.canopen] of %s: the drives "
+                                       "expect a SYNC every %.0f us (0x1006); give lancet-rt --period-us %.0f or change the config",
+                                       period_us, sync_us, a.config_path.c_str(), sync_us, sync_us));
+    }
+  }
+  const std::string cal_path = lancet::arm::calibration_path(a.config_path);
+  auto cal = lancet::arm::apply_calibration_file(*arm.config, cal_path);
+  if (!cal.ok()) return fail(cal.error().message);
+  if (cal.value()) std::fprintf(stderr, "lancet-rt: calibration %s applied\n", cal_path.c_str());
+  auto kin = lancet::arm::make_kinematics(*arm.config);
+  if (!kin.ok()) return fail(kin.error().message);
+  arm.kinematics = kin.value();
+  auto dev = lancet::app::make_device(*arm.config);
+  if (!dev.ok()) return fail(dev.error().message);
+  arm.device = std::move(dev.value().device);
+  install_signal_handlers();
+  if (const lancet::Result<void> o = arm.device->configure(); !o.ok()) return fail(o.error().message);
+  // No fault before the first good read: wait for it with the arm still disabled (errors while
+  // inactive never trip the fault policy).
+  if (const std::string why = await_first_read(*arm.device, a.first_read_timeout_ms * 1e-3); !why.empty()) {
+    return fail(lancet::text::format("%s did not answer within %.0f ms of configuration (--first-read-timeout-ms): %s",
+                                     arm.device->name().c_str(), a.first_read_timeout_ms, why.c_str()));
+  }
+  lancet::servo::ServoModel& m = a.model.servo;
+  m.kinematics = *arm.kinematics;
+  const auto& ws = arm.config->safety;
+  m.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
+  for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < m.max_joint_torque.size(); ++j)
+    m.max_joint_torque[j] = ws.max_joint_torque[j];
+  m.haptic.safety.max_force = std::min(m.haptic.safety.max_force, ws.max_force);
+  return true;
+}
+
+/// The options that shape the servo model and the loop.
+lancet::rt::LoopParams apply_model_options(Args& a) {
+  lancet::rt::LoopParams loop_params = a.rt.loop();
+  loop_params.duration_ns = lancet::seconds_to_ns(a.duration);
+  lancet::servo::ServoModel& m = a.model.servo;
+  m.period_ns = loop_params.period_ns;
+  if (a.stiffness > 0) {
+    for (auto& mat : m.haptic.materials) mat.stiffness = a.stiffness;
+  }
+  m.fade.timeout_ns = static_cast<std::int64_t>(a.timeout_ms * 1e6);
+  m.fade.fade_ns = static_cast<std::int64_t>(a.fade_ms * 1e6);
+  m.fade.stale_after_ns = static_cast<std::int64_t>(a.stale_patch_ms * 1e6);
+  a.model.script_waits_for_tissue = a.script_waits;
+  return loop_params;
+}
+
+/// The arm's files as they were read (config, then calibration), for whoever records the session.
+void publish_arm_config(lancet::SharedState& shared, const std::string& config_path) {
+  constexpr std::size_t kMaxFile = 1 << 20;
+  const auto read = [](const std::string& path) {
+    auto r = lancet::config::read_text_file(path, kMaxFile, "an arm config");
+    return r.ok() ? r.value() : std::string();
+  };
+  std::string text = read(config_path);
+  const std::string cal = lancet::arm::calibration_path(config_path);
+  if (std::filesystem::exists(cal)) text += "\n# --- calibration: " + cal + " ---\n" + read(cal);
+  auto blob = std::make_unique<lancet::ArmConfigText>();
+  blob->truncated = text.size() > lancet::kArmConfigCapacity ? 1u : 0u;
+  blob->size = static_cast<std::uint32_t>(std::min<std::size_t>(text.size(), lancet::kArmConfigCapacity));
+  std::memcpy(blob->text, text.data(), blob->size);
+  shared.arm_config.write(*blob);
+}
+
+void print_status_line(const lancet::RtStatus& st) {
+  std::fprintf(stderr,
+               "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
+               "missed %llu  dropped %llu%s%s%s\n",
+               static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
+               st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
+               static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
+               static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
+               st.has_arm ? "  arm " : "", st.has_arm ? lancet::app::describe_arm(st).c_str() : "",
+               st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
+}
+
+/// How the supervised run ended.
+struct Ending {
+  std::string by = "duration";  ///< duration, SIGTERM, SIGINT, SIGHUP, stall
+  bool stalled = false;
+};
+
+/// The main thread while the servo runs: device re-arms and reconnects, what changed (said the
+/// moment it is seen), a servo tick that stops advancing, signals, and the status line once a
+/// second. It reads only the servo's private status, never the segment. Returns when the loop is
+/// done, or when a stop was asked and the grace time has passed without it.
+Ending supervise(const Args& a, lancet::app::RtServo& servo, const std::string& arm_name, const lancet::rt::LoopParams& loop_params,
+                 const std::atomic<bool>& loop_done) {
+  lancet::app::SupervisorParams sp;
+  sp.shm_name = a.shm;
+  sp.arm_name = arm_name;
+  sp.stall_timeout_ns = static_cast<std::int64_t>(a.stall_timeout_ms * 1e6);
+  const std::int64_t started_ns = lancet::monotonic_ns();
+  lancet::app::RtSupervisor supervisor(servo, sp, started_ns);
+  Ending end;
+  std::int64_t next_line_ns = started_ns + 1'000'000'000;
+  std::int64_t stop_asked_ns = 0;
+  for (;;) {
+    const std::int64_t now = lancet::monotonic_ns();
+    for (const auto& line : supervisor.poll(now)) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
+    if (loop_done.load(std::memory_order_acquire)) break;
+    if (supervisor.stalled() && !end.stalled) {
+      end.stalled = true;
+      end.by = "stall";
+      g_stop.store(true);
+    }
+    if (g_stop.load(std::memory_order_relaxed) && stop_asked_ns == 0) stop_asked_ns = now;
+    // --duration is the loop's own end; should the loop not get there, it is enforced here too.
+    if (a.duration > 0 && stop_asked_ns == 0 && now - started_ns > lancet::seconds_to_ns(a.duration) + loop_params.period_ns * 100) {
+      stop_asked_ns = now;
+      g_stop.store(true);
+    }
+    if (stop_asked_ns != 0 && now - stop_asked_ns > static_cast<std::int64_t>(a.shutdown_grace_ms * 1e6)) break;
+    if (!a.quiet && now >= next_line_ns && supervisor.has_status()) {
+      next_line_ns += 1'000'000'000;
+      print_status_line(supervisor.last());
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  if (const int sig = g_signal.load(std::memory_order_relaxed); sig != 0 && !end.stalled) end.by = signal_name(sig);
+  return end;
+}
+
+/// The servo thread is stuck (in a tick, in the device): leave without it. The segment goes, the
+/// stats come from its last published status, and the arm's own watchdog (drive side) takes the
+/// torque off, since nobody writes to it any more.
+[[noreturn]] void leave_without_servo(const Args& a, lancet::app::RtServo& servo, StatsInput& stats, lancet::SharedChannel& channel) {
+  std::fprintf(stderr, "lancet-rt: the servo thread did not stop within %.0f ms: leaving without it (exit 4)\n",
+               a.shutdown_grace_ms);
+  stats.clean = false;
+  stats.has_status = servo.read_status(stats.status) == lancet::ReadStatus::kOk;
+  if (!a.stats_path.empty() && !write_stats(a.stats_path, stats))
+    std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", a.stats_path.c_str());
+  channel.segment().unlink_name();
+  std::fflush(stderr);
+  std::_Exit(4);
+}
+
+void print_stop_line(const std::string& ended_by, const lancet::rt::LoopStats& ls, const lancet::SharedState& shared,
+                     const lancet::app::RtServo& servo) {
+  std::fprintf(stderr,
+               "lancet-rt: stopped (%s) after %llu ticks: %llu missed deadlines, wake-up p50 %.1f us p99 %.1f us max %.1f us, "
+               "%llu samples dropped, max force %.2f N\n",
+               ended_by.c_str(), static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.missed),
+               static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
+               static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
+               static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
+               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().servo.max_force_seen);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App cli{"lancet-rt: 1 kHz haptic servo process (built-in simulated stylus, or an arm from hw_configs)"};
-  std::string shm = lancet::kDefaultShmName;
-  double duration = 0;
-  bool quiet = false;
-  lancet::app::RtCliOptions rt_opts;
-  std::string stats_path;
-  lancet::app::RtModel model;
-  double timeout_ms = 150, fade_ms = 100;
-  cli.add_option("--shm", shm, "shared-memory segment name")->capture_default_str();
-  cli.add_option("--duration", duration, "seconds to run; 0 runs until SIGINT/SIGTERM")->check(CLI::NonNegativeNumber);
-  lancet::app::add_rt_options(cli, rt_opts);
-  cli.add_flag("-q,--quiet", quiet, "no once-a-second status line");
-  double stiffness = 0;
-  cli.add_option("--stiffness", stiffness, "contact stiffness of every material (N/m); default: per material")
-      ->check(CLI::Range(1.0, 5000.0));
-  cli.add_option("--max-force", model.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
-  cli.add_option("--viz-timeout-ms", timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
-  cli.add_option("--fade-ms", fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
-  double stale_patch_ms = 100;
-  cli.add_option("--stale-patch-ms", stale_patch_ms, "tissue patch age after which the force fades (the viz stopped publishing)")
-      ->check(CLI::Range(1.0, 10000.0))->capture_default_str();
-  bool script_waits = false;
-  cli.add_flag("--script-waits-for-tissue", script_waits,
-               "the scripted hand (or --trajectory) holds its starting point until the first tissue patch arrives, so a "
-               "viz that takes long to build its tissue misses none of the script");
-  cli.add_option("--depth-mm", model.script_depth, "how deep below the surface the script presses (mm)")
-      ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
-  cli.add_option("--stats", stats_path, "write a JSON summary here on exit (also after a signal or a stall)");
-  double stall_timeout_ms = 1000, first_read_timeout_ms = 2000, shutdown_grace_ms = 2000;
-  cli.add_option("--stall-timeout-ms", stall_timeout_ms,
-                 "end lancet-rt when the servo tick has not advanced for this long (the arm's own watchdog then takes its "
-                 "torque off)")
-      ->check(CLI::Range(50.0, 60000.0))->capture_default_str();
-  cli.add_option("--first-read-timeout-ms", first_read_timeout_ms,
-                 "with --config: wait this long for the arm's first good read before enabling it")
-      ->check(CLI::Range(1.0, 60000.0))->capture_default_str();
-  cli.add_option("--shutdown-grace-ms", shutdown_grace_ms,
-                 "after a signal, a stall or --duration, wait this long for the servo thread to stop before leaving "
-                 "without it")
-      ->check(CLI::Range(10.0, 60000.0))->capture_default_str();
-  double inject_stall_s = 0;
-  cli.add_option("--inject-stall-s", inject_stall_s,
-                 "testing: block the servo thread for good this many seconds after start (exercises the stall path)")
-      ->check(CLI::PositiveNumber)->group("Testing");
-  std::string config_path, trajectory_path;
-  cli.add_option("--trajectory", trajectory_path,
-                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm[, tool]) instead of the built-in script; the "
-                 "optional tool cell (probe, scalpel, retractor, drill) picks the tool from that time on");
-  cli.add_option("--config", config_path,
-                 "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
-                 "built-in stylus");
+  Args a;
+  add_options(cli, a);
   CLI11_PARSE(cli, argc, argv);
   // At once: a signal during start-up (loading the arm, waiting for its first read) ends the run,
   // also when lancet-rt was started in the background, where the shell left SIGINT ignored.
   install_signal_handlers();
 
   std::optional<lancet::device::Trajectory> trajectory;
-  if (!trajectory_path.empty()) {
-    auto tr = lancet::device::load_trajectory_csv(trajectory_path);
+  if (!a.trajectory_path.empty()) {
+    auto tr = lancet::device::load_trajectory_csv(a.trajectory_path);
     if (!tr.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", tr.error().message.c_str());
+      fail(tr.error().message);
       return 2;
     }
     trajectory = std::move(tr).value();
-    model.trajectory = &*trajectory;
+    a.model.trajectory = &*trajectory;
     std::fprintf(stderr, "lancet-rt: replaying %zu trajectory points over %.2f s\n", trajectory->t.size(), trajectory->duration());
   }
-  // The arm, when one is configured: load, build its kinematics and device, configure, wait for a
-  // good read (activate comes just before the loop starts).
-  std::optional<lancet::arm::ArmConfig> arm_config;
-  std::optional<lancet::arm::Kinematics> kinematics;
-  std::unique_ptr<lancet::device::Device> arm;
-  if (!config_path.empty()) {
-    auto cfg = lancet::arm::load_arm_config(config_path);
-    if (!cfg.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", cfg.error().message.c_str());
-      return 2;
-    }
-    arm_config = std::move(cfg).value();
-    if (arm_config->canopen) {
-      // The drives were told the cycle (0x1006, 0x60C2) from the config; a servo on another period
-      // would send SYNC at a rate they do not expect.
-      const auto sync_ns = static_cast<std::int64_t>(std::llround(arm_config->canopen->sync_period * 1e9));
-      if (std::llabs(sync_ns - rt_opts.loop().period_ns) > 500) {
-        std::fprintf(stderr,
-                     "lancet-rt: --period-us %.0f differs from sync_period_us %.0f in [bus.canopen] of %s: the drives expect "
-                     "a SYNC every %.0f us (0x1006); give lancet-rt --period-us %.0f or change the config\n",
-                     static_cast<double>(rt_opts.loop().period_ns) * 1e-3, static_cast<double>(sync_ns) * 1e-3,
-                     config_path.c_str(), static_cast<double>(sync_ns) * 1e-3, static_cast<double>(sync_ns) * 1e-3);
-        return 2;
-      }
-    }
-    auto cal = lancet::arm::apply_calibration_file(*arm_config, lancet::arm::calibration_path(config_path));
-    if (!cal.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", cal.error().message.c_str());
-      return 2;
-    }
-    if (cal.value()) std::fprintf(stderr, "lancet-rt: calibration %s applied\n", lancet::arm::calibration_path(config_path).c_str());
-    auto kin = lancet::arm::make_kinematics(*arm_config);
-    if (!kin.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", kin.error().message.c_str());
-      return 2;
-    }
-    kinematics = kin.value();
-    auto dev = lancet::app::make_device(*arm_config);
-    if (!dev.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", dev.error().message.c_str());
-      return 2;
-    }
-    arm = std::move(dev.value().device);
-    install_signal_handlers();
-    if (const lancet::Result<void> o = arm->configure(); !o.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", o.error().message.c_str());
-      return 2;
-    }
-    // No fault before the first good read: wait for it with the arm still disabled (errors while
-    // inactive never trip the fault policy).
-    if (const std::string why = await_first_read(*arm, first_read_timeout_ms * 1e-3); !why.empty()) {
-      std::fprintf(stderr, "lancet-rt: %s did not answer within %.0f ms of configuration (--first-read-timeout-ms): %s\n",
-                   arm->name().c_str(), first_read_timeout_ms, why.c_str());
-      return 2;
-    }
-    model.servo.kinematics = *kinematics;
-    const auto& ws = arm_config->safety;
-    model.servo.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
-    for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < model.servo.max_joint_torque.size(); ++j)
-      model.servo.max_joint_torque[j] = ws.max_joint_torque[j];
-    model.servo.haptic.safety.max_force = std::min(model.servo.haptic.safety.max_force, ws.max_force);
-  }
-
-  lancet::rt::LoopParams loop_params = rt_opts.loop();
-  loop_params.duration_ns = lancet::seconds_to_ns(duration);
-  model.servo.period_ns = loop_params.period_ns;
-  if (stiffness > 0) {
-    for (auto& mat : model.servo.haptic.materials) mat.stiffness = stiffness;
-  }
-  model.servo.fade.timeout_ns = static_cast<std::int64_t>(timeout_ms * 1e6);
-  model.servo.fade.fade_ns = static_cast<std::int64_t>(fade_ms * 1e6);
-  model.servo.fade.stale_after_ns = static_cast<std::int64_t>(stale_patch_ms * 1e6);
-  model.script_waits_for_tissue = script_waits;
+  Arm arm;
+  if (!a.config_path.empty() && !open_arm(a, arm)) return 2;
+  const lancet::rt::LoopParams loop_params = apply_model_options(a);
 
   lancet::ShmSegment::CreateOptions seg_opts;
   seg_opts.creator_name = "lancet-rt";
-  auto channel = lancet::SharedChannel::create(shm, seg_opts);
+  auto channel = lancet::SharedChannel::create(a.shm, seg_opts);
   if (!channel) {
-    std::fprintf(stderr, "lancet-rt: %s\n", channel.error().message.c_str());
+    fail(channel.error().message);
     return 2;
   }
   for (const auto& note : channel.value().segment().notes()) std::fprintf(stderr, "lancet-rt: %s\n", note.c_str());
@@ -334,31 +442,21 @@ int main(int argc, char** argv) {
   install_signal_handlers();
 
   // Real time: process-wide setup first, then the loop on its own SCHED_FIFO thread.
-  const lancet::rt::RtSetupOptions setup_opts = rt_opts.setup();
+  const lancet::rt::RtSetupOptions setup_opts = a.rt.setup();
   lancet::rt::RtSetupReport setup;
   lancet::rt::RtEnvironment environment(setup_opts, setup);
   // Enable the arm as late as possible: a drive-side watchdog counts from the end of activate(),
   // so the servo's first tick follows within a period or two.
-  if (arm) {
-    if (const lancet::Result<void> o = arm->activate(); !o.ok()) {
-      std::fprintf(stderr, "lancet-rt: %s\n", o.error().message.c_str());
+  if (arm.device) {
+    if (const lancet::Result<void> o = arm.device->activate(); !o.ok()) {
+      fail(o.error().message);
       return 2;
     }
-    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm_config->name.c_str(), arm->name().c_str(),
-                 arm->joint_count(), lancet::device::to_string(arm->state()));
+    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm.config->name.c_str(), arm.device->name().c_str(),
+                 arm.device->joint_count(), lancet::device::to_string(arm.device->state()));
   }
-  lancet::app::RtServo servo(model, shared, lancet::monotonic_ns(), arm.get());  // after mlockall: locked too
-  if (!config_path.empty()) {
-    // The arm's files as they were read, for whoever records the session.
-    std::string text = read_text_file(config_path);
-    const std::string cal = lancet::arm::calibration_path(config_path);
-    if (std::filesystem::exists(cal)) text += "\n# --- calibration: " + cal + " ---\n" + read_text_file(cal);
-    auto blob = std::make_unique<lancet::ArmConfigText>();
-    blob->truncated = text.size() > lancet::kArmConfigCapacity ? 1u : 0u;
-    blob->size = static_cast<std::uint32_t>(std::min<std::size_t>(text.size(), lancet::kArmConfigCapacity));
-    std::memcpy(blob->text, text.data(), blob->size);
-    shared.arm_config.write(*blob);
-  }
+  lancet::app::RtServo servo(a.model, shared, lancet::monotonic_ns(), arm.device.get());  // after mlockall: locked too
+  if (!a.config_path.empty()) publish_arm_config(shared, a.config_path);
   // New patches are copied, checked and get their tree on a helper thread, below the servo's
   // priority and off its CPU, so no tick pays for one.
   const std::string intake_line = servo.start_patch_intake(setup_opts.enable, std::max(1, setup_opts.priority - 10), setup_opts.cpu);
@@ -366,7 +464,7 @@ int main(int argc, char** argv) {
   std::atomic<bool> loop_done{false};
   lancet::rt::RtThread thread = lancet::rt::start_rt_thread(setup_opts, setup, [&] {
     servo.set_fifo(lancet::rt::current_thread_is_fifo());
-    const std::int64_t stall_at = inject_stall_s > 0 ? lancet::monotonic_ns() + lancet::seconds_to_ns(inject_stall_s) : 0;
+    const std::int64_t stall_at = a.inject_stall_s > 0 ? lancet::monotonic_ns() + lancet::seconds_to_ns(a.inject_stall_s) : 0;
     loop.run(
         [&servo, stall_at](const lancet::rt::TickContext& ctx) {
           if (stall_at != 0 && ctx.woke_ns >= stall_at) {
@@ -381,96 +479,30 @@ int main(int argc, char** argv) {
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
   std::fprintf(stderr, "lancet-rt: %s\n", intake_line.c_str());
   std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
-               1e9 / static_cast<double>(model.servo.period_ns), shm.c_str(), static_cast<int>(getpid()), rt_opts.strategy.c_str());
+               1e9 / static_cast<double>(a.model.servo.period_ns), a.shm.c_str(), static_cast<int>(getpid()), a.rt.strategy.c_str());
 
-  // This thread supervises: device re-arms and reconnects, what changed (said the moment it is
-  // seen), a servo tick that stops advancing, signals, and the status line once a second. It
-  // reads only the servo's private status, never the segment.
-  lancet::app::SupervisorParams sp;
-  sp.shm_name = shm;
-  sp.arm_name = arm ? arm->name() : "";
-  sp.stall_timeout_ns = static_cast<std::int64_t>(stall_timeout_ms * 1e6);
-  const std::int64_t started_ns = lancet::monotonic_ns();
-  lancet::app::RtSupervisor supervisor(servo, sp, started_ns);
-  std::string ended_by = "duration";
-  std::int64_t next_line_ns = started_ns + 1'000'000'000;
-  std::int64_t stop_asked_ns = 0;
-  bool stalled = false;
-  for (;;) {
-    const std::int64_t now = lancet::monotonic_ns();
-    for (const auto& line : supervisor.poll(now)) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
-    if (loop_done.load(std::memory_order_acquire)) break;
-    if (supervisor.stalled() && !stalled) {
-      stalled = true;
-      ended_by = "stall";
-      g_stop.store(true);
-    }
-    if (g_stop.load(std::memory_order_relaxed) && stop_asked_ns == 0) stop_asked_ns = now;
-    // --duration is the loop's own end; should the loop not get there, it is enforced here too.
-    if (duration > 0 && stop_asked_ns == 0 && now - started_ns > lancet::seconds_to_ns(duration) + loop_params.period_ns * 100) {
-      stop_asked_ns = now;
-      g_stop.store(true);
-    }
-    if (stop_asked_ns != 0 && now - stop_asked_ns > static_cast<std::int64_t>(shutdown_grace_ms * 1e6)) break;
-    if (!quiet && now >= next_line_ns && supervisor.has_status()) {
-      next_line_ns += 1'000'000'000;
-      const lancet::RtStatus& st = supervisor.last();
-      std::fprintf(stderr,
-                   "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
-                   "missed %llu  dropped %llu%s%s%s\n",
-                   static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
-                   st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
-                   static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
-                   static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
-                   st.has_arm ? "  arm " : "", st.has_arm ? lancet::app::describe_arm(st).c_str() : "",
-                   st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  }
-
-  if (const int sig = g_signal.load(std::memory_order_relaxed); sig != 0 && !stalled) ended_by = signal_name(sig);
+  const std::string arm_name = arm.device ? arm.device->name() : "";
+  const Ending end = supervise(a, servo, arm_name, loop_params, loop_done);
   StatsInput stats;
-  stats.arm_name = arm ? arm->name() : "";
-  stats.ended_by = ended_by;
-  if (!loop_done.load(std::memory_order_acquire)) {
-    // The servo thread is stuck (in a tick, in the device): leave without it. The segment goes,
-    // the stats come from its last published status, and the arm's own watchdog (drive side)
-    // takes the torque off, since nobody writes to it any more.
-    std::fprintf(stderr, "lancet-rt: the servo thread did not stop within %.0f ms: leaving without it (exit 4)\n",
-                 shutdown_grace_ms);
-    stats.clean = false;
-    stats.has_status = servo.read_status(stats.status) == lancet::ReadStatus::kOk;
-    if (!stats_path.empty() && !write_stats(stats_path, stats))
-      std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", stats_path.c_str());
-    channel.value().segment().unlink_name();
-    std::fflush(stderr);
-    std::_Exit(4);
-  }
+  stats.arm_name = arm_name;
+  stats.ended_by = end.by;
+  if (!loop_done.load(std::memory_order_acquire)) leave_without_servo(a, servo, stats, channel.value());
   thread.join();
   g_stop.store(true);
-  if (arm) {
-    std::fprintf(stderr, "lancet-rt: %s: %s\n", arm->name().c_str(),
-                 lancet::app::describe_bus(servo.data().status.bus).c_str());
-    (void)arm->deactivate();
+  if (arm.device) {
+    std::fprintf(stderr, "lancet-rt: %s: %s\n", arm_name.c_str(), lancet::app::describe_bus(servo.data().status.bus).c_str());
+    (void)arm.device->deactivate();
   }
   shared.rt_heartbeat.stop();
 
-  const auto& ls = loop.stats();
-  std::fprintf(stderr,
-               "lancet-rt: stopped (%s) after %llu ticks: %llu missed deadlines, wake-up p50 %.1f us p99 %.1f us max %.1f us, "
-               "%llu samples dropped, max force %.2f N\n",
-               ended_by.c_str(), static_cast<unsigned long long>(ls.ticks), static_cast<unsigned long long>(ls.missed),
-               static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
-               static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
-               static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
-               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().servo.max_force_seen);
-  stats.loop = &ls;
+  print_stop_line(end.by, loop.stats(), shared, servo);
+  stats.loop = &loop.stats();
   stats.watchdog_trips = loop.watchdog().trips();
   stats.data = &servo.data();
   stats.has_status = servo.read_status(stats.status) == lancet::ReadStatus::kOk;
-  if (!stats_path.empty() && !write_stats(stats_path, stats)) {
-    std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", stats_path.c_str());
+  if (!a.stats_path.empty() && !write_stats(a.stats_path, stats)) {
+    std::fprintf(stderr, "lancet-rt: cannot write stats to %s\n", a.stats_path.c_str());
     return 1;
   }
-  return stalled ? 3 : 0;
+  return end.stalled ? 3 : 0;
 }
