@@ -87,6 +87,46 @@ void json_distribution(std::ostringstream& o, const rt::Distribution& d) {
   o << ", \"overflows\": " << d.overflows << "}";
 }
 
+// A round's loop figures, added to the whole run's.
+void add_round(JitterResult& r, const rt::RtLoop& loop) {
+  const rt::LoopStats& s = loop.stats();
+  r.wake.merge(s.wake_latency);
+  r.compute.merge(s.compute);
+  r.period_error.merge(s.period_error);
+  r.ticks += s.ticks;
+  r.overruns += s.overruns;
+  r.missed += s.missed;
+  r.watchdog_trips += loop.watchdog().trips();
+  r.longest_stall_ns = std::max(r.longest_stall_ns, s.longest_stall_ns);
+  r.minor_faults += s.minor_faults;
+  r.major_faults += s.major_faults;
+  r.window_max_us.insert(r.window_max_us.end(), s.window_max_us.begin(), s.window_max_us.end());
+}
+
+// An "on" round's recording, finished: its counts and size into the result; removed when it was
+// only made to be measured.
+void finish_recording(JitterResult& r, std::unique_ptr<record::Recorder> recorder, const std::string& path, bool remove) {
+  r.recorded_samples += recorder->samples();
+  r.recorded_lost += recorder->samples_lost();
+  if (const auto done = recorder->finish(); !done.ok() && r.record_error.empty()) r.record_error = done.error().message;
+  std::error_code ec;
+  r.record_bytes += std::filesystem::file_size(path, ec);
+  recorder.reset();
+  if (remove) std::filesystem::remove(path, ec);
+}
+
+// The bounds asked for (--max-p99-us, --max-us, --max-missed), each with its verdict.
+void add_bounds(JitterResult& r, const JitterOptions& o) {
+  const double p99 = static_cast<double>(r.wake.percentile_ns(99)) / 1e3;
+  const double mx = static_cast<double>(r.wake.max_ns()) / 1e3;
+  if (o.max_p99_us) r.bounds.push_back({"wake-up p99 (us)", *o.max_p99_us, p99, p99 <= *o.max_p99_us});
+  if (o.max_us) r.bounds.push_back({"wake-up max (us)", *o.max_us, mx, mx <= *o.max_us});
+  if (o.max_missed) {
+    r.bounds.push_back({"missed deadlines", static_cast<double>(*o.max_missed), static_cast<double>(r.missed),
+                        r.missed <= *o.max_missed});
+  }
+}
+
 }  // namespace
 
 bool JitterResult::pass() const {
@@ -199,28 +239,9 @@ JitterResult run_jitter(const JitterOptions& o) {
         if (recorder) recorder->add_samples(std::span<const ToolSample>(rest.data(), n));
       }
     }
-    if (recorder) {
-      r.recorded_samples += recorder->samples();
-      r.recorded_lost += recorder->samples_lost();
-      if (const auto done = recorder->finish(); !done.ok() && r.record_error.empty()) r.record_error = done.error().message;
-      std::error_code ec;
-      r.record_bytes += std::filesystem::file_size(record_path, ec);
-      recorder.reset();
-      if (o.record_path.empty()) std::filesystem::remove(record_path, ec);
-    }
-    const rt::LoopStats& s = loop.stats();
-    if (o.compare_recording) (recording ? *r.recording_on : *r.recording_off).merge(s.wake_latency);
-    r.wake.merge(s.wake_latency);
-    r.compute.merge(s.compute);
-    r.period_error.merge(s.period_error);
-    r.ticks += s.ticks;
-    r.overruns += s.overruns;
-    r.missed += s.missed;
-    r.watchdog_trips += loop.watchdog().trips();
-    r.longest_stall_ns = std::max(r.longest_stall_ns, s.longest_stall_ns);
-    r.minor_faults += s.minor_faults;
-    r.major_faults += s.major_faults;
-    r.window_max_us.insert(r.window_max_us.end(), s.window_max_us.begin(), s.window_max_us.end());
+    if (recorder) finish_recording(r, std::move(recorder), record_path, o.record_path.empty());
+    if (o.compare_recording) (recording ? *r.recording_on : *r.recording_off).merge(loop.stats().wake_latency);
+    add_round(r, loop);
 
     if (cyc_ok) {
       CyclictestOptions co;
@@ -240,14 +261,7 @@ JitterResult run_jitter(const JitterOptions& o) {
   }
   if (cyc_ok) r.cyclictest = std::move(cyc);
 
-  const double p99 = static_cast<double>(r.wake.percentile_ns(99)) / 1e3;
-  const double mx = static_cast<double>(r.wake.max_ns()) / 1e3;
-  if (o.max_p99_us) r.bounds.push_back({"wake-up p99 (us)", *o.max_p99_us, p99, p99 <= *o.max_p99_us});
-  if (o.max_us) r.bounds.push_back({"wake-up max (us)", *o.max_us, mx, mx <= *o.max_us});
-  if (o.max_missed) {
-    r.bounds.push_back({"missed deadlines", static_cast<double>(*o.max_missed), static_cast<double>(r.missed),
-                        r.missed <= *o.max_missed});
-  }
+  add_bounds(r, o);
   return r;
 }
 
