@@ -766,7 +766,15 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
 // ---------------------------------------------------------------------------------------------
 // Cut and groove
 
-ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
+namespace {
+
+// One straight piece of a cut's polyline, in the lattice's xy plane.
+struct CutSegment {
+  double x0, y0, tx, ty, len, arc0;  ///< start, direction × length, length, arc length at the start
+};
+
+// The polyline's non-empty segments and its length; throws on a polyline or depth that cannot cut.
+std::vector<CutSegment> cut_segments(std::span<const Vec3> polyline, double depth, double& length) {
   if (polyline.size() < 2)
     fail("ChainMail::cut: polyline has " + std::to_string(polyline.size()) + " point(s), at least 2 are needed");
   for (std::size_t p = 0; p < polyline.size(); ++p)
@@ -775,11 +783,8 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
            ") m is not finite");
   if (!(std::isfinite(depth) && depth > 0)) fail("ChainMail::cut: depth = " + num(depth) + " m, must be finite and > 0");
 
-  struct Segment {
-    double x0, y0, tx, ty, len, arc0;
-  };
-  std::vector<Segment> segments;
-  double length = 0;
+  std::vector<CutSegment> segments;
+  length = 0;
   for (std::size_t p = 0; p + 1 < polyline.size(); ++p) {
     const double tx = polyline[p + 1].x - polyline[p].x, ty = polyline[p + 1].y - polyline[p].y;
     const double len = std::hypot(tx, ty);
@@ -788,6 +793,67 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
     length += len;
   }
   if (segments.empty()) fail("ChainMail::cut: polyline has zero length (all " + std::to_string(polyline.size()) + " points coincide)");
+  return segments;
+}
+
+// Away direction along the polyline: the segment's left normal, blended near each interior
+// vertex toward the miter of the two normals (reached at the vertex, over half the shorter
+// adjacent segment). A blend of n and the miter m keeps dot(·, n) = 1 (m·n = 1), so the opening
+// across every removed link, measured along its own segment's normal, is exactly the width, and
+// the sponsors' displacements change smoothly around the corner instead of jumping.
+std::pair<double, double> away_direction(const std::vector<CutSegment>& segments, std::size_t i, double arc) {
+  const auto miter = [](double ax, double ay, double bx, double by) {
+    const double c = std::max(1.0 + ax * bx + ay * by, 0.5);  // a turn over 120° is not exact
+    return std::pair<double, double>{(ax + bx) / c, (ay + by) / c};
+  };
+  const auto left_normal = [&](std::size_t k) {
+    return std::pair<double, double>{-segments[k].ty / segments[k].len, segments[k].tx / segments[k].len};
+  };
+  auto [ax, ay] = left_normal(i);
+  const CutSegment& g = segments[i];
+  if (i > 0) {
+    const double t = 0.5 * std::min(segments[i - 1].len, g.len);
+    const double into = arc - g.arc0;
+    if (into < t) {
+      const auto [px, py] = left_normal(i - 1);
+      const auto [mx, my] = miter(px, py, ax, ay);
+      const double w = std::clamp(into / t, 0.0, 1.0);
+      return {mx + (ax - mx) * w, my + (ay - my) * w};
+    }
+  }
+  if (i + 1 < segments.size()) {
+    const double t = 0.5 * std::min(segments[i + 1].len, g.len);
+    const double left_over = g.arc0 + g.len - arc;
+    if (left_over < t) {
+      const auto [qx, qy] = left_normal(i + 1);
+      const auto [mx, my] = miter(ax, ay, qx, qy);
+      const double w = std::clamp(left_over / t, 0.0, 1.0);
+      return {mx + (ax - mx) * w, my + (ay - my) * w};
+    }
+  }
+  return {ax, ay};
+}
+
+// Each face's depth below the top face of its column (same i, j).
+void set_face_depths(std::vector<ChainMailCutFace>& faces, std::uint64_t nx, double dz) {
+  std::vector<std::pair<std::uint64_t, int>> columns;  // (j · nx + i, top k)
+  columns.reserve(faces.size());
+  for (const ChainMailCutFace& f : faces)
+    columns.emplace_back(static_cast<std::uint64_t>(f.element[1]) * nx + static_cast<std::uint64_t>(f.element[0]), f.element[2]);
+  std::sort(columns.begin(), columns.end(), [](const auto& a, const auto& b) { return a.first != b.first ? a.first < b.first : a.second > b.second; });
+  for (ChainMailCutFace& f : faces) {
+    const std::uint64_t col = static_cast<std::uint64_t>(f.element[1]) * nx + static_cast<std::uint64_t>(f.element[0]);
+    const auto it = std::lower_bound(columns.begin(), columns.end(), col, [](const auto& a, std::uint64_t c) { return a.first < c; });
+    f.depth = (it->second - f.element[2]) * dz;
+  }
+}
+
+}  // namespace
+
+
+ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
+  double length = 0;
+  const std::vector<CutSegment> segments = cut_segments(polyline, depth, length);
 
   const auto& dims = lattice_.dims;
   const Vec3& sp = lattice_.spacing;
@@ -810,7 +876,7 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
   };
 
   for (std::size_t si = 0; si < segments.size(); ++si) {
-    const Segment& g = segments[si];
+    const CutSegment& g = segments[si];
     const bool last = si + 1 == segments.size();
     const double x1 = g.x0 + g.tx, y1 = g.y0 + g.ty;
     // Index range of the segment's bounding box, one element wider, clamped before the cast.
@@ -849,44 +915,6 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
           }
   }
 
-  // Away direction along the polyline: the segment's left normal, blended near each interior
-  // vertex toward the miter of the two normals (reached at the vertex, over half the shorter
-  // adjacent segment). A blend of n and the miter m keeps dot(·, n) = 1 (m·n = 1), so the opening
-  // across every removed link, measured along its own segment's normal, is exactly the width, and
-  // the sponsors' displacements change smoothly around the corner instead of jumping.
-  const auto miter = [](double ax, double ay, double bx, double by) {
-    const double c = std::max(1.0 + ax * bx + ay * by, 0.5);  // a turn over 120° is not exact
-    return std::pair<double, double>{(ax + bx) / c, (ay + by) / c};
-  };
-  const auto left_normal = [&](std::size_t i) {
-    return std::pair<double, double>{-segments[i].ty / segments[i].len, segments[i].tx / segments[i].len};
-  };
-  const auto away_at = [&](std::size_t i, double arc) {
-    auto [ax, ay] = left_normal(i);
-    const Segment& g = segments[i];
-    if (i > 0) {
-      const double t = 0.5 * std::min(segments[i - 1].len, g.len);
-      const double into = arc - g.arc0;
-      if (into < t) {
-        const auto [px, py] = left_normal(i - 1);
-        const auto [mx, my] = miter(px, py, ax, ay);
-        const double w = std::clamp(into / t, 0.0, 1.0);
-        return std::pair<double, double>{mx + (ax - mx) * w, my + (ay - my) * w};
-      }
-    }
-    if (i + 1 < segments.size()) {
-      const double t = 0.5 * std::min(segments[i + 1].len, g.len);
-      const double left_over = g.arc0 + g.len - arc;
-      if (left_over < t) {
-        const auto [qx, qy] = left_normal(i + 1);
-        const auto [mx, my] = miter(ax, ay, qx, qy);
-        const double w = std::clamp(left_over / t, 0.0, 1.0);
-        return std::pair<double, double>{mx + (ax - mx) * w, my + (ay - my) * w};
-      }
-    }
-    return std::pair<double, double>{ax, ay};
-  };
-
   // One face per element: the side and segment of its first removed link, the mean arc length of
   // its removed links.
   std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) {
@@ -902,23 +930,13 @@ ChainMailCut ChainMail::cut(std::span<const Vec3> polyline, double depth) {
     f.element = {static_cast<int>(lin % nx), static_cast<int>((lin / nx) % ny), static_cast<int>(lin / (nx * ny))};
     f.side = hits[h].side;
     f.arc = arc / static_cast<double>(end - h);
-    const auto [ax, ay] = away_at(hits[h].segment, f.arc);
+    const auto [ax, ay] = away_direction(segments, hits[h].segment, f.arc);
     f.away = {f.side * ax, f.side * ay, 0};
     out.faces.push_back(f);
     h = end;
   }
 
-  // Depth of each face below the top face of its column (same i, j).
-  std::vector<std::pair<std::uint64_t, int>> columns;  // (j · nx + i, top k)
-  columns.reserve(out.faces.size());
-  for (const ChainMailCutFace& f : out.faces)
-    columns.emplace_back(static_cast<std::uint64_t>(f.element[1]) * nx + static_cast<std::uint64_t>(f.element[0]), f.element[2]);
-  std::sort(columns.begin(), columns.end(), [](const auto& a, const auto& b) { return a.first != b.first ? a.first < b.first : a.second > b.second; });
-  for (ChainMailCutFace& f : out.faces) {
-    const std::uint64_t col = static_cast<std::uint64_t>(f.element[1]) * nx + static_cast<std::uint64_t>(f.element[0]);
-    const auto it = std::lower_bound(columns.begin(), columns.end(), col, [](const auto& a, std::uint64_t c) { return a.first < c; });
-    f.depth = (it->second - f.element[2]) * sp.z;
-  }
+  set_face_depths(out.faces, nx, sp.z);
   return out;
 }
 
