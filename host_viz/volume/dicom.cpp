@@ -535,6 +535,69 @@ std::string describe(const std::string& directory, const Gap& g, const std::vect
 
 // ---- the volume -----------------------------------------------------------------------------------
 
+// The steps (mm) along the slice normal between consecutive slices, sorted along it; a duplicate
+// slice, or (unless kept sheared) a step not along the normal, is an error naming both slices.
+Result<std::vector<double>> normal_steps(const std::string& directory, const std::vector<Slice>& slices,
+                                         const DicomOptions& options) {
+  const Slice& first = slices.front();
+  const double tol = options.spacing_tolerance;
+  std::vector<double> steps;  // mm along the normal between consecutive slices
+  for (std::size_t i = 1; i < slices.size(); ++i) {
+    const Vec3 step = slices[i].position - slices[i - 1].position;
+    const double along = slices[i].along_normal - slices[i - 1].along_normal;
+    if (along <= 1e-3) {
+      return invalid(directory + ": " + slices[i - 1].name + " and " + slices[i].name + " have the same " + tag_name(kPosition) +
+                     " along the slice normal: duplicate slices are not supported");
+    }
+    const double length = norm(step);
+    const double sine = std::sqrt(std::max(0.0, 1.0 - (along / length) * (along / length)));
+    if (sine > tol && !options.shear_tilted) {
+      const double degrees = std::asin(std::min(1.0, sine)) * 180.0 / std::numbers::pi;
+      std::ostringstream msg;
+      msg.setf(std::ios::fixed);
+      msg.precision(1);
+      msg << directory << ": gantry tilt of " << degrees << " degrees: the step in " << tag_name(kPosition) << " from "
+          << slices[i - 1].name << " to " << slices[i].name << " is not parallel to the slice normal (row x column of "
+          << tag_name(kOrientation) << " = " << join6(first.orientation) << "); use " << options.names.shear_tilted
+          << " to keep the tilt as a sheared slice axis";
+      return invalid(msg.str());
+    }
+    steps.push_back(along);
+  }
+  return steps;
+}
+
+// Resamples the slices along the normal to the smallest step, linearly between the two nearest,
+// into v (whose dims and spacing follow).
+Result<bool> resample_to_smallest_step(const std::string& directory, const std::vector<Slice>& slices,
+                                       const std::vector<double>& steps, double stretch, Volume& v) {
+  const std::size_t plane = slices.front().values.size();
+  const double step = *std::min_element(steps.begin(), steps.end());
+  const double total = slices.back().along_normal - slices.front().along_normal;
+  const double nz_real = std::floor(total / step + 1e-6) + 1;
+  if (!(nz_real * static_cast<double>(plane) <= static_cast<double>(kMaxVoxels))) {
+    return invalid(directory + ": too large after resampling to " + mm(step) + ": " + std::to_string(static_cast<std::uint64_t>(nz_real)) +
+                   " slices of " + std::to_string(plane) + " voxels, at most " + std::to_string(kMaxVoxels) + " voxels");
+  }
+  const auto nz = static_cast<std::size_t>(nz_real);
+  v.dims[2] = static_cast<int>(nz);
+  v.spacing.z = step * stretch * 1e-3;
+  v.data.resize(plane * nz);
+  std::size_t seg = 0;
+  for (std::size_t k = 0; k < nz; ++k) {
+    const double t = slices.front().along_normal + static_cast<double>(k) * step;
+    while (seg + 2 < slices.size() && slices[seg + 1].along_normal < t) ++seg;
+    const Slice& a = slices[seg];
+    const Slice& b = slices[seg + 1];
+    const double w = std::clamp((t - a.along_normal) / (b.along_normal - a.along_normal), 0.0, 1.0);
+    float* out = v.data.data() + k * plane;
+    const auto wf = static_cast<float>(w);
+    for (std::size_t i = 0; i < plane; ++i) out[i] = a.values[i] + wf * (b.values[i] - a.values[i]);
+  }
+  return true;
+}
+
+
 Result<Volume> load(const std::string& directory, const DicomOptions& options, const Progress& progress) {
   auto listing = list_directory(directory);
   if (!listing) return listing.error();
@@ -578,29 +641,9 @@ Result<Volume> load(const std::string& directory, const DicomOptions& options, c
   std::stable_sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along_normal < b.along_normal; });
 
   const double tol = options.spacing_tolerance;
-  std::vector<double> steps;  // mm along the normal between consecutive slices
-  for (std::size_t i = 1; i < slices.size(); ++i) {
-    const Vec3 step = slices[i].position - slices[i - 1].position;
-    const double along = slices[i].along_normal - slices[i - 1].along_normal;
-    if (along <= 1e-3) {
-      return invalid(directory + ": " + slices[i - 1].name + " and " + slices[i].name + " have the same " + tag_name(kPosition) +
-                     " along the slice normal: duplicate slices are not supported");
-    }
-    const double length = norm(step);
-    const double sine = std::sqrt(std::max(0.0, 1.0 - (along / length) * (along / length)));
-    if (sine > tol && !options.shear_tilted) {
-      const double degrees = std::asin(std::min(1.0, sine)) * 180.0 / std::numbers::pi;
-      std::ostringstream msg;
-      msg.setf(std::ios::fixed);
-      msg.precision(1);
-      msg << directory << ": gantry tilt of " << degrees << " degrees: the step in " << tag_name(kPosition) << " from "
-          << slices[i - 1].name << " to " << slices[i].name << " is not parallel to the slice normal (row x column of "
-          << tag_name(kOrientation) << " = " << join6(first.orientation) << "); use " << options.names.shear_tilted
-          << " to keep the tilt as a sheared slice axis";
-      return invalid(msg.str());
-    }
-    steps.push_back(along);
-  }
+  auto steps_r = normal_steps(directory, slices, options);
+  if (!steps_r) return steps_r.error();
+  const std::vector<double>& steps = steps_r.value();
 
   // The slice axis: the normal, or for a tilted series kept sheared, the direction the slices
   // step along (every slice must lie on that one line through the first; spacings along it are
@@ -681,29 +724,7 @@ Result<Volume> load(const std::string& directory, const DicomOptions& options, c
     return v;
   }
 
-  // Resample along the normal to the smallest spacing, linear between the two nearest slices.
-  const double step = *std::min_element(steps.begin(), steps.end());
-  const double total = slices.back().along_normal - slices.front().along_normal;
-  const double nz_real = std::floor(total / step + 1e-6) + 1;
-  if (!(nz_real * static_cast<double>(plane) <= static_cast<double>(kMaxVoxels))) {
-    return invalid(directory + ": too large after resampling to " + mm(step) + ": " + std::to_string(static_cast<std::uint64_t>(nz_real)) +
-                   " slices of " + std::to_string(plane) + " voxels, at most " + std::to_string(kMaxVoxels) + " voxels");
-  }
-  const auto nz = static_cast<std::size_t>(nz_real);
-  v.dims[2] = static_cast<int>(nz);
-  v.spacing.z = step * stretch * 1e-3;
-  v.data.resize(plane * nz);
-  std::size_t seg = 0;
-  for (std::size_t k = 0; k < nz; ++k) {
-    const double t = slices.front().along_normal + static_cast<double>(k) * step;
-    while (seg + 2 < slices.size() && slices[seg + 1].along_normal < t) ++seg;
-    const Slice& a = slices[seg];
-    const Slice& b = slices[seg + 1];
-    const double w = std::clamp((t - a.along_normal) / (b.along_normal - a.along_normal), 0.0, 1.0);
-    float* out = v.data.data() + k * plane;
-    const auto wf = static_cast<float>(w);
-    for (std::size_t i = 0; i < plane; ++i) out[i] = a.values[i] + wf * (b.values[i] - a.values[i]);
-  }
+  if (auto r = resample_to_smallest_step(directory, slices, steps, stretch, v); !r) return r.error();
   detail::report(progress, 1.0);
   return v;
 }
