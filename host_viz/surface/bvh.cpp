@@ -267,6 +267,72 @@ SegmentHit make_segment_hit(std::uint32_t face, double t, double u, double v, Ve
   return {face, static_cast<float>(t), to_vec3f(q), static_cast<float>(u), static_cast<float>(v)};
 }
 
+// A face of the mesh while the tree is built: its box and centroid, carried along as faces are
+// sorted.
+struct BuildRef {
+  Box box;
+  Vec3f centroid;
+  std::uint32_t face;
+};
+
+struct Bin {
+  Box box;
+  std::uint32_t count = 0;
+};
+
+// The binned SAH split of [first, last) (centroids within cbox) over all three axes: partitions
+// the range at the cheapest bin boundary and returns the split point; `last` when no axis
+// separates the centroids.
+std::vector<BuildRef>::iterator sah_partition(std::vector<BuildRef>::iterator first, std::vector<BuildRef>::iterator last,
+                                              const Box& cbox) {
+  int best_axis = -1;
+  double lo[3], scale[3];
+  bool live[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = at(cbox.lo, a);
+    const double extent = double{at(cbox.hi, a)} - lo[a];
+    live[a] = extent > 0;
+    scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
+  }
+  const auto bin_of = [&](const BuildRef& r, int a) {
+    return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
+  };
+  Bin bins[3][kBins];
+  for (auto it = first; it != last; ++it)
+    for (int a = 0; a < 3; ++a) {
+      Bin& b = bins[a][bin_of(*it, a)];
+      b.box.grow(it->box);
+      ++b.count;
+    }
+  double best_cost = std::numeric_limits<double>::infinity();
+  int best_bin = 0;
+  for (int a = 0; a < 3; ++a) {
+    if (!live[a]) continue;
+    // Sweep: right-hand areas and counts, then left to right.
+    double right_area[kBins];
+    std::uint32_t right_count[kBins];
+    Box acc;
+    std::uint32_t cnt = 0;
+    for (int i = kBins - 1; i > 0; --i) {
+      acc.grow(bins[a][i].box);
+      cnt += bins[a][i].count;
+      right_area[i] = acc.half_area();
+      right_count[i] = cnt;
+    }
+    acc = Box{};
+    cnt = 0;
+    for (int i = 0; i < kBins - 1; ++i) {
+      acc.grow(bins[a][i].box);
+      cnt += bins[a][i].count;
+      if (cnt == 0 || right_count[i + 1] == 0) continue;
+      const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
+      if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
+    }
+  }
+  if (best_axis < 0) return last;
+  return std::partition(first, last, [&](const BuildRef& r) { return bin_of(r, best_axis) <= best_bin; });
+}
+
 }  // namespace
 
 // =============================================================================================
@@ -300,12 +366,7 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
 
   // Faces are sorted in place as references carrying their box and centroid, so that every pass
   // of the build reads memory in order; order_ is read off the leaves.
-  struct Ref {
-    Box box;
-    Vec3f centroid;
-    std::uint32_t face;
-  };
-  std::vector<Ref> refs(n);
+  std::vector<BuildRef> refs(n);
   for (std::uint32_t f = 0; f < n; ++f) {
     const Box b = face_box(m, f);
     refs[f] = {b, {0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)}, f};
@@ -320,10 +381,6 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   nodes_.push_back({});
   parent_.push_back(0);
 
-  struct Bin {
-    Box box;
-    std::uint32_t count = 0;
-  };
   // Splits the tasks' nodes until every range is a leaf, depth first (the left child first), each
   // node's children appended to `nodes` side by side.
   // (max_tasks > 0: stops once the stack holds that many, for the caller to share them out.)
@@ -355,64 +412,19 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
       // Choose the split: the binned SAH over all three axes, or the median deep in the tree or
       // when every centroid coincides.
       std::uint32_t mid = task.begin + count / 2;
-      int best_axis = -1;
+      bool split_by_sah = false;
       if (task.depth < kMedianDepth) {
-        double lo[3], scale[3];
-        bool live[3];
-        for (int a = 0; a < 3; ++a) {
-          lo[a] = at(cbox.lo, a);
-          const double extent = double{at(cbox.hi, a)} - lo[a];
-          live[a] = extent > 0;
-          scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
-        }
-        const auto bin_of = [&](const Ref& r, int a) {
-          return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
-        };
-        Bin bins[3][kBins];
-        for (auto it = first; it != last; ++it)
-          for (int a = 0; a < 3; ++a) {
-            Bin& b = bins[a][bin_of(*it, a)];
-            b.box.grow(it->box);
-            ++b.count;
-          }
-        double best_cost = std::numeric_limits<double>::infinity();
-        int best_bin = 0;
-        for (int a = 0; a < 3; ++a) {
-          if (!live[a]) continue;
-          // Sweep: right-hand areas and counts, then left to right.
-          double right_area[kBins];
-          std::uint32_t right_count[kBins];
-          Box acc;
-          std::uint32_t cnt = 0;
-          for (int i = kBins - 1; i > 0; --i) {
-            acc.grow(bins[a][i].box);
-            cnt += bins[a][i].count;
-            right_area[i] = acc.half_area();
-            right_count[i] = cnt;
-          }
-          acc = Box{};
-          cnt = 0;
-          for (int i = 0; i < kBins - 1; ++i) {
-            acc.grow(bins[a][i].box);
-            cnt += bins[a][i].count;
-            if (cnt == 0 || right_count[i + 1] == 0) continue;
-            const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
-            if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
-          }
-        }
-        if (best_axis >= 0) {
-          const auto split = std::partition(first, last, [&](const Ref& r) { return bin_of(r, best_axis) <= best_bin; });
-          mid = static_cast<std::uint32_t>(split - refs.begin());
-          if (mid == task.begin || mid == task.end) best_axis = -1, mid = task.begin + count / 2;  // cannot happen
-        }
+        const auto split = sah_partition(first, last, cbox);
+        split_by_sah = split != first && split != last;
+        if (split_by_sah) mid = static_cast<std::uint32_t>(split - refs.begin());
       }
-      if (best_axis < 0) {
+      if (!split_by_sah) {
         // Median along the widest centroid axis (any order when all centroids coincide).
         const double ex = double{cbox.hi.x} - cbox.lo.x, ey = double{cbox.hi.y} - cbox.lo.y,
                      ez = double{cbox.hi.z} - cbox.lo.z;
         const int axis = ex >= ey ? (ex >= ez ? 0 : 2) : (ey >= ez ? 1 : 2);
         std::nth_element(first, refs.begin() + mid, last,
-                         [&](const Ref& a, const Ref& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
+                         [&](const BuildRef& a, const BuildRef& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
       }
 
       const auto child = static_cast<std::uint32_t>(nodes.size());
