@@ -158,7 +158,7 @@ void Replay::publish(const TissuePatch* patch) {
 Result<bool> Replay::step_frame() {
   if (done()) return false;
   const FrameRecord& f = rec_->frames[next_frame_];
-  // The visualizer's frame, as the live viz ran it: the ticks, the scene, the blood, the patch.
+  // The visualizer's frame, as the live viz ran it: the ticks, the scene, the patch, the blood.
   auto stepped = sim::run_frame(*sim_, *this);
   if (!stepped.ok()) return stepped.error();
   timing_.scene += stepped.value().scene_s;

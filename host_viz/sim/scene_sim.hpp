@@ -1,8 +1,8 @@
 #pragma once
 // SceneSim: what lancet-viz simulates — the tissue scene, its blood and the task's monitor — built
 // the same way live and in a replay, and stepped the same way by the one frame function
-// (sim/viz_frame.hpp): the frame's samples (apply), the blood advanced by the frame's time
-// (advance_blood), the patch around the newest tool position (export_patch). Its hash() covers the
+// (sim/viz_frame.hpp): the frame's samples (apply), the patch around the newest tool position
+// (export_patch), the blood advanced by the frame's time (advance_blood). Its hash() covers the
 // drawn surface, the blood on it and the task's figures, so a replay can check it frame by frame.
 // No OpenGL: tested headless.
 

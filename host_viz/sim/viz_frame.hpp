@@ -1,7 +1,9 @@
 #pragma once
 // The visualizer's frame, one function for live and replay:
-//   drain the frame's ToolSamples → apply them to the scene → advance the blood → export the patch
-//   around the newest tool position (its header set here, and only here) → publish it.
+//   drain the frame's ToolSamples → apply them to the scene → export the patch around the newest
+//   tool position (its header set here, and only here) → publish it → advance the blood.
+// The blood comes last: it changes nothing a patch holds, and the servo gets the new patch without
+// waiting for it.
 // Where the samples come from and where the patch goes belongs to a FrameIo: the shared-memory
 // link live (app/live_frame.hpp: drained from lancet-rt's ring, published to its seqlock), the
 // recording in a replay (record/replay.hpp: re-stepped through the servo, kept for the ticks that
@@ -39,7 +41,7 @@ struct FrameResult {
   double blood_dt = 0;         ///< s of blood simulated
   bool patch = false;          ///< a patch was exported and handed to publish()
   std::size_t triangles = 0;   ///< its triangle count
-  double scene_s = 0, blood_s = 0, patch_s = 0;  ///< s spent applying, on the blood, exporting and publishing
+  double scene_s = 0, patch_s = 0, blood_s = 0;  ///< s spent applying, exporting and publishing, on the blood
 };
 
 /// The two ends of a frame: where its samples come from, where its patch goes.
@@ -50,12 +52,12 @@ class FrameIo {
   /// changes (a replay whose recording lacks a patch a tick used).
   [[nodiscard]] virtual Result<FrameBatch> drain() = 0;
   /// The frame's end: the patch exported into FrameBatch::patch with its header set, or null when
-  /// the batch asked for none. Called once a frame, after the scene and the blood have stepped.
+  /// the batch asked for none. Called once a frame, after the scene has stepped, before the blood.
   virtual void publish(const TissuePatch* patch) = 0;
 };
 
-/// One visualizer frame: io.drain(), sim.apply(samples), sim.advance_blood(blood_dt), the patch
-/// (cleared, exported around patch_centre, its header set), io.publish(). Not real-time; it
+/// One visualizer frame: io.drain(), sim.apply(samples), the patch (cleared, exported around
+/// patch_centre, its header set), io.publish(), sim.advance_blood(blood_dt). Not real-time; it
 /// allocates only as the scene does. Returns drain()'s error, if any, with nothing stepped.
 [[nodiscard]] Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io);
 

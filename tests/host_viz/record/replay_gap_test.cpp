@@ -93,7 +93,7 @@ Live run_live(int gap_from, int hold_from = -1) {
       if (gap_from >= 0 && frame >= gap_from + 3 && live.gap_seq == 0) live.gap_seq = out->sample.seq;
       (holding ? held : batch).push_back(out->sample);
     }
-    // The viz's frame: the batch, the blood, then the patch around the newest tool.
+    // The viz's frame: the batch, the patch around the newest tool, then the blood.
     rec.samples.insert(rec.samples.end(), batch.begin(), batch.end());
     if (!batch.empty()) latest = batch.back().tool.position;
     FrameRecord f;
