@@ -133,6 +133,23 @@ bool write(const surface::SurfaceModel& model, const std::string& path) {
   return OpenMesh::IO::write_mesh(copy, path, opt);
 }
 
+// The result on stdout, one JSON line: the cuts, the mesh's health, the grooves, the drilling.
+void print_summary(const hybrid::TissueScene& scene, std::size_t steps, const std::string& after) {
+  const surface::SurfaceModel& model = scene.surface();
+  const auto st = model.stats();
+  std::size_t pairs = 0;
+  for (const auto& c : model.cuts()) pairs += c.pairs.size();
+  const auto cuts = scene.cut_figures();
+  const auto grooves = scene.grooves();
+  std::printf("{\"cuts\": %zu, \"steps\": %zu, \"split_vertices\": %zu, \"longest_cut_mm\": %.2f, \"opening_mm\": %.2f, "
+              "\"faces\": %zu, \"vertices\": %zu, \"boundary_edges\": %zu, \"non_manifold_vertices\": %zu, \"flipped_faces\": %zu, "
+              "\"grooves\": %zu, \"groove_width_mm\": %.2f, \"groove_depth_mm\": %.2f, \"voxels_drilled\": %llu, \"after\": \"%s\"}\n",
+              model.cuts().size(), steps, pairs, cuts.longest * 1e3, cuts.opening * 1e3, st.faces, st.vertices, st.boundary_edges,
+              st.non_manifold_vertices, st.flipped_faces, grooves.size(), grooves.empty() ? 0.0 : grooves.back().top_gap * 1e3,
+              grooves.empty() ? 0.0 : grooves.back().depth * 1e3, static_cast<unsigned long long>(scene.events().voxels_drilled),
+              after.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -274,17 +291,6 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "lancet-cut-replay: cannot write %s\n", after.c_str());
     return 2;
   }
-  const auto st = model.stats();
-  std::size_t pairs = 0;
-  for (const auto& c : model.cuts()) pairs += c.pairs.size();
-  const auto cuts = scene->cut_figures();
-  const auto grooves = scene->grooves();
-  std::printf("{\"cuts\": %zu, \"steps\": %zu, \"split_vertices\": %zu, \"longest_cut_mm\": %.2f, \"opening_mm\": %.2f, "
-              "\"faces\": %zu, \"vertices\": %zu, \"boundary_edges\": %zu, \"non_manifold_vertices\": %zu, \"flipped_faces\": %zu, "
-              "\"grooves\": %zu, \"groove_width_mm\": %.2f, \"groove_depth_mm\": %.2f, \"voxels_drilled\": %llu, \"after\": \"%s\"}\n",
-              model.cuts().size(), steps, pairs, cuts.longest * 1e3, cuts.opening * 1e3, st.faces, st.vertices, st.boundary_edges,
-              st.non_manifold_vertices, st.flipped_faces, grooves.size(), grooves.empty() ? 0.0 : grooves.back().top_gap * 1e3,
-              grooves.empty() ? 0.0 : grooves.back().depth * 1e3, static_cast<unsigned long long>(scene->events().voxels_drilled),
-              after.c_str());
+  print_summary(*scene, steps, after);
   return 0;
 }

@@ -3,6 +3,7 @@
 #include "lancet/shared_model/validate.hpp"
 
 #include <algorithm>
+#include <cassert>
 
 #include <unistd.h>
 
@@ -49,10 +50,11 @@ void VizSession::detach(const std::string& why) {
   message_ = why;
 }
 
-void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, const PatchSource& fill_patch) {
+std::span<const ToolSample> VizSession::drain(std::int64_t now_ns) {
   ++frame_;
+  drained_.clear();
   if (!channel_) try_attach(now_ns);
-  if (!channel_) return;
+  if (!channel_) return {};
   SharedState& s = channel_->state();
 
   // Is lancet-rt still there? A clean exit stops its heartbeat at once; a crash leaves it stale.
@@ -62,7 +64,7 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
     if (!alive || (s.rt_heartbeat.last_ns() == 0 && s.rt_heartbeat.count() > 0)) {
       detach("lancet-rt is not running (pid " + std::to_string(channel_->segment().creator_pid()) +
              " exited): haptics stopped, waiting for it to restart");
-      return;
+      return {};
     }
     if (s.rt_heartbeat.count() > 0) {
       message_ = "lancet-rt (pid " + std::to_string(channel_->segment().creator_pid()) +
@@ -74,7 +76,7 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
 
   // Drain the ToolSamples since the last frame: at most one ring's worth, whatever the ring's
   // indices say, and only samples that pass the checks.
-  for (std::size_t drained = 0; drained < kSampleRingCapacity;) {
+  for (std::size_t popped = 0; popped < kSampleRingCapacity;) {
     bool reset = false;
     const std::size_t n = s.samples.try_pop_n(batch_.data(), batch_.size(), &reset);
     if (reset) {
@@ -82,7 +84,7 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
       stats_.last_reject = "samples ring: indices impossible, reset";
     }
     if (n == 0) break;
-    drained += n;
+    popped += n;
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
       const char* why = wire::check(batch_[i]);
@@ -105,7 +107,7 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
     if (kept > 0) {
       stats_.ingest(batch_.data(), kept);
       latest_ = batch_[kept - 1];
-      if (on_samples) on_samples(std::span<const ToolSample>(batch_.data(), kept));
+      drained_.insert(drained_.end(), batch_.begin(), batch_.begin() + static_cast<std::ptrdiff_t>(kept));
     }
     if (n < batch_.size()) break;
   }
@@ -119,17 +121,15 @@ void VizSession::frame(std::int64_t now_ns, const SampleHandler& on_samples, con
       rt_status_ = st;
     }
   }
+  return drained_;
+}
 
-  // Publish the tissue near the newest tool position.
-  if (has_sample()) {
-    TissuePatch& p = *patch_;
-    p.n_triangles = 0;
-    p.brick.valid = 0;
-    if (fill_patch) fill_patch(latest_.tool.position, p);
-    p.seq = frame_;
-    p.t_ns = now_ns;
-    p.samples_applied = samples_applied_;
-    s.patch.publish_prefix(p, tissue_patch_bytes(p));
+void VizSession::publish(const TissuePatch* patch, std::int64_t now_ns) {
+  if (!channel_) return;
+  SharedState& s = channel_->state();
+  if (patch != nullptr) {
+    assert(patch == patch_.get() && "VizSession::publish: the patch is the one filled in patch_buffer()");
+    s.patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
     patch_version_ = s.patch.version();
     ++patches_published_;
   }

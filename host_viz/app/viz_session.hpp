@@ -1,12 +1,12 @@
 #pragma once
 // VizSession: lancet-viz's side of the shared-memory link, with no OpenGL in it (tested headless).
-// Each frame: attach to lancet-rt's segment if not attached (retrying twice a second), notice when
-// lancet-rt goes away (and keep running), drain every ToolSample since the last frame (checked,
-// handed on in order), publish the TissuePatch the caller fills around the newest tool position,
-// beat the viz heartbeat. It knows nothing of the tissue: the scene (hybrid::TissueScene) does.
+// Each frame begins with drain(): attach to lancet-rt's segment if not attached (retrying twice a
+// second), notice when lancet-rt goes away (and keep running), return every ToolSample since the
+// last frame (checked, in order); and ends with publish(): the TissuePatch filled in patch_buffer()
+// around the newest tool position, and the viz heartbeat. It knows nothing of the tissue: the frame
+// function (sim/viz_frame.hpp) applies the samples to the scene and fills the patch in between.
 
 #include <cstdint>
-#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
@@ -34,16 +34,22 @@ class VizSession {
  public:
   explicit VizSession(VizSessionParams params);
 
-  /// Called with the samples drained this frame (checked, in order; several calls a frame when
-  /// more than a batch arrived).
-  using SampleHandler = std::function<void(std::span<const ToolSample> samples)>;
-  /// Fills the patch's triangles and brick around the newest tool position (m); the session sets
-  /// seq, t_ns and samples_applied.
-  using PatchSource = std::function<void(Vec3 tool, TissuePatch& patch)>;
-
-  /// One frame's worth of link work at now_ns (CLOCK_MONOTONIC). Not real-time; allocates only
-  /// while its scratch buffers grow. Publishes a patch once a sample has been received.
-  void frame(std::int64_t now_ns, const SampleHandler& on_samples, const PatchSource& fill_patch);
+  /// The frame's start at now_ns (CLOCK_MONOTONIC): attaches or notices lancet-rt leaving, then
+  /// returns the samples since the last frame, checked and in order (at most a ring's worth; empty
+  /// when not attached). Valid until the next drain(). Not real-time; allocates only while its
+  /// buffers grow.
+  [[nodiscard]] std::span<const ToolSample> drain(std::int64_t now_ns);
+  /// The frame's end: publishes `patch` (patch_buffer(), filled, with its header; null: none this
+  /// frame) and beats the viz heartbeat. Nothing when not attached.
+  void publish(const TissuePatch* patch, std::int64_t now_ns);
+  /// Where the frame's patch is filled before publish().
+  [[nodiscard]] TissuePatch& patch_buffer() noexcept { return *patch_; }
+  /// Attached to a lancet-rt segment (drain() found it, and it has not gone away).
+  [[nodiscard]] bool attached() const noexcept { return channel_.has_value(); }
+  /// Frames drained so far (what a patch's seq names).
+  [[nodiscard]] std::uint64_t frames() const noexcept { return frame_; }
+  /// seq of the newest sample drain() returned since attaching (a patch's samples_applied).
+  [[nodiscard]] std::uint64_t samples_applied() const noexcept { return samples_applied_; }
 
   /// Sets (active=true) or releases the stylus target sent to the simulated arm.
   void set_stylus_target(bool active, Vec3 position, std::int64_t now_ns);
@@ -85,7 +91,8 @@ class VizSession {
   SampleStats stats_{};
   std::uint64_t total_received_ = 0;
   ToolSample latest_{};
-  std::vector<ToolSample> batch_;
+  std::vector<ToolSample> batch_;    ///< one pop from the ring
+  std::vector<ToolSample> drained_;  ///< the frame's checked samples (what drain() returns)
   std::unique_ptr<TissuePatch> patch_;
   std::uint64_t patches_published_ = 0;
   std::uint64_t patch_version_ = 0;
@@ -95,7 +102,7 @@ class VizSession {
   std::uint64_t target_seq_ = 0;
   std::uint32_t connections_ = 0;
   std::uint32_t rt_losses_ = 0;
-  std::uint64_t samples_applied_ = 0;  ///< seq of the newest sample handed on since attaching
+  std::uint64_t samples_applied_ = 0;  ///< seq of the newest sample returned since attaching
 };
 
 }  // namespace lancet::viz

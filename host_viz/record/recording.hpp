@@ -30,6 +30,9 @@ namespace lancet::record {
 /// delimited by last_seq) are still read.
 inline constexpr std::uint32_t kFormatVersion = 2;
 
+/// The scene hash (FrameRecord::scene_hash) is taken every this many frames.
+inline constexpr std::uint32_t kSceneHashEvery = 30;
+
 /// One visualizer frame of the session.
 struct FrameRecord {
   std::uint64_t frame = 0;         ///< 0, 1, 2, ... from the start of the recording

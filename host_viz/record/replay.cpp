@@ -6,12 +6,10 @@
 #include <cstring>
 
 #include "lancet/shared_model/shared_state.hpp"
-#include "lancet/shared_model/word_hasher.hpp"
 
 namespace lancet::record {
 
 namespace {
-
 
 bool same_output(const ToolSample& a, const ToolSample& b) {
   return a.seq == b.seq && a.force == b.force && a.proxy == b.proxy && a.tool == b.tool && a.stage == b.stage &&
@@ -21,134 +19,6 @@ bool same_output(const ToolSample& a, const ToolSample& b) {
 }
 
 }  // namespace
-
-// ---------------------------------------------------------------------------------------------
-// SceneSim
-
-namespace {
-// mm³ of one voxel of the scene's volume.
-double voxel_mm3(const hybrid::TissueScene& scene) {
-  const Vec3 sp = scene.volume().spacing;
-  return sp.x * sp.y * sp.z * 1e9;
-}
-}  // namespace
-
-Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
-  std::unique_ptr<SceneSim> sim(new SceneSim());
-  sim->setup_ = setup;
-  hybrid::SceneDescription desc;
-  if (!setup.scenario_toml.empty()) {
-    auto parsed = scenario::parse_scenario(setup.scenario_toml, setup.scenario_file);
-    if (!parsed.ok()) return parsed.error();
-    sim->scenario_ = std::move(parsed).value();
-    auto d = hybrid::scene_description(*sim->scenario_, setup.volume_path);
-    if (!d.ok()) return d.error();
-    desc = std::move(d).value();
-  } else if (setup.tissue == "block" || setup.tissue == "phantom") {
-    desc.source = setup.tissue == "block" ? hybrid::SceneSource::kBlock : hybrid::SceneSource::kPhantom;
-  } else {
-    return Error{ErrorCode::kInvalid, "tissue: expected block or phantom, found \"" + setup.tissue + "\""};
-  }
-  desc.patch.radius = setup.patch_radius;
-  auto made = hybrid::TissueScene::create(std::move(desc));
-  if (!made.ok()) return made.error();
-  sim->scene_ = std::move(made).value();
-  if (sim->scene_->description().surface == hybrid::SceneSurface::kSkin)
-    sim->bleeding_ = std::make_unique<hybrid::Bleeding>(*sim->scene_);
-  if (sim->scenario_) sim->task_.emplace(*sim->scenario_, *sim->scene_);
-  return sim;
-}
-
-void SceneSim::apply(std::span<const ToolSample> samples) {
-  if (samples.empty()) return;
-  for (const ToolSample& t : samples)
-    if ((t.events & event::kDrillRemove) != 0) last_removal_ = t.payload.position;
-  (void)scene_->apply(samples);
-  if (task_) (void)task_->update(*scene_, samples);
-  if (bleeding_) bleeding_->observe(samples);
-}
-
-std::size_t SceneSim::export_patch(Vec3 at, TissuePatch& patch) { return scene_->export_patch(at, patch); }
-
-void SceneSim::advance_blood(double dt) {
-  if (bleeding_) bleeding_->advance(*scene_, dt);
-}
-
-void SceneSim::figures(FrameRecord& f) const {
-  if (task_) {
-    const hybrid::TaskStatus& t = task_->status();
-    f.task_progress = t.progress;
-    f.max_deviation = t.max_deviation;
-    f.outside = t.outside;
-    f.damaged = 0;
-    for (std::size_t i = 0; i < t.damaged_flags.size() && i < 32; ++i)
-      if (t.damaged_flags[i]) f.damaged |= 1u << i;
-    f.drilled_mm3 = static_cast<double>(scene_->events().voxels_drilled) * voxel_mm3(*scene_);
-    f.drilled_outside_mm3 = std::max(0.0, f.drilled_mm3 - t.window_removed * 1e9);
-  }
-  if (bleeding_) {
-    const hybrid::BloodFigures b = bleeding_->figures();
-    f.blood_lost_ml = b.lost_ml;
-    f.blood_on_tissue_ml = b.on_tissue_ml;
-    f.blood_swabbed_ml = b.swabbed_ml;
-  }
-}
-
-void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<SceneEvent>& out) {
-  const auto make = [&](std::uint32_t kind, std::uint32_t index, Vec3 at, double value, const std::string& name) {
-    SceneEvent e;
-    e.frame = frame, e.t_ns = t_ns, e.kind = kind, e.index = index, e.position = at, e.value = value;
-    std::snprintf(e.name, sizeof e.name, "%s", name.c_str());
-    out.push_back(e);
-  };
-  if (bleeding_) {
-    const auto& sources = bleeding_->sources();
-    for (std::size_t i = sources_seen_; i < sources.size(); ++i)
-      make(SceneEvent::kBloodSource, static_cast<std::uint32_t>(i), sources[i].position, sources[i].rate_ml_s, sources[i].name);
-    sources_seen_ = std::max(sources_seen_, sources.size());
-    stopped_seen_.resize(sources.size(), false);
-    for (std::size_t i = 0; i < sources.size(); ++i) {
-      if (sources[i].stopped && !stopped_seen_[i]) make(SceneEvent::kBleedingStopped, static_cast<std::uint32_t>(i), sources[i].position, 0, sources[i].name);
-      stopped_seen_[i] = sources[i].stopped;
-    }
-  }
-  if (task_ && scenario_) {
-    const std::vector<bool>& d = task_->status().damaged_flags;
-    damaged_seen_.resize(d.size(), false);
-    for (std::size_t i = 0; i < d.size(); ++i) {
-      if (d[i] && !damaged_seen_[i]) make(SceneEvent::kStructureReached, static_cast<std::uint32_t>(i), {}, 0, scenario_->avoid[i].name);
-      damaged_seen_[i] = d[i];
-    }
-  }
-  const std::uint64_t voxels = scene_->events().voxels_drilled;
-  if (voxels > voxels_seen_) {
-    make(SceneEvent::kBoneDrilled, 0, last_removal_, static_cast<double>(voxels - voxels_seen_) * voxel_mm3(*scene_), "bone");
-    voxels_seen_ = voxels;
-  }
-}
-
-std::uint64_t SceneSim::hash() const {
-  WordHasher h(0x243f6a8885a308d3ull);
-  surface::TriangleMesh mesh;
-  scene_->draw_mesh(mesh);
-  h.word(mesh.vertices.size()), h.word(mesh.triangles.size());
-  for (const Vec3f& v : mesh.vertices) h.f(v.x), h.f(v.y), h.f(v.z);
-  for (const auto& t : mesh.triangles) h.word(static_cast<std::uint64_t>(t[0]) << 32 | t[1]), h.word(t[2]);
-  if (bleeding_) {
-    std::vector<float> depth, age;
-    bleeding_->vertex_blood(mesh, depth, age);
-    for (const float d : depth) h.f(d);
-    const hybrid::BloodFigures b = bleeding_->figures();
-    h.f(b.lost_ml), h.f(b.on_tissue_ml), h.f(b.swabbed_ml);
-  }
-  const hybrid::SceneEvents& e = scene_->events();
-  h.word(e.samples), h.word(e.ruptures), h.word(e.cut_steps), h.word(e.grabs), h.word(e.voxels_drilled);
-  if (task_) h.f(task_->status().progress), h.f(task_->status().max_deviation);
-  return h.value();
-}
-
-// ---------------------------------------------------------------------------------------------
-// Replay
 
 namespace {
 
@@ -191,13 +61,13 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
   std::unique_ptr<Replay> r(new Replay());
   r->rec_ = &rec;
   r->model_ = model.value();
-  SceneSetup setup;
+  sim::SceneSetup setup;
   setup.tissue = rec.tissue;
   setup.scenario_toml = rec.scenario_toml;
   setup.scenario_file = rec.scenario_file;
   setup.volume_path = rec.volume_path;
   setup.patch_radius = rec.patch_radius;
-  auto sim = SceneSim::create(setup);
+  auto sim = sim::SceneSim::create(setup);
   if (!sim.ok()) return Error{sim.error().code, "the recording's scene: " + sim.error().message};
   r->sim_ = std::move(sim).value();
   // The session began with the servo's reset: a fresh state, with the tool it kept, at the tick
@@ -230,12 +100,10 @@ double Replay::duration_s() const noexcept {
   return static_cast<double>(rec_->samples.back().t_ns - rec_->samples.front().t_ns) * 1e-9;
 }
 
-Result<bool> Replay::step_frame() {
-  if (done()) return false;
+Result<sim::FrameBatch> Replay::drain() {
   const FrameRecord& f = rec_->frames[next_frame_];
   using Clock = std::chrono::steady_clock;
-  const auto since = [](Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); };
-  auto t0 = Clock::now();
+  const auto t0 = Clock::now();
   // The servo ticks the frame had applied, through the same step with the recorded inputs.
   batch_.clear();
   // The frame's ticks: as many as it applied (format 2), or (format 1) those up to its last_seq.
@@ -280,35 +148,44 @@ Result<bool> Replay::step_frame() {
     latest_ = s;
     has_latest_ = true;
   }
-  timing_.servo += since(t0);
-  // The visualizer's frame: the batch, then the patch around the newest tool, then the blood.
-  t0 = Clock::now();
-  sim_->apply(batch_);
-  timing_.scene += since(t0);
-  t0 = Clock::now();
   if (!batch_.empty()) {
     latest_ = batch_.back();
     has_latest_ = true;
   }
+  timing_.servo += std::chrono::duration<double>(Clock::now() - t0).count();
+  // The frame as recorded: its ticks, its blood time, and the patch it published (if it did),
+  // around the newest tool, with the recorded header.
+  sim::FrameBatch b;
+  b.samples = batch_;
+  b.blood_dt = f.blood_dt;
   if (f.patch_version != 0) {
-    auto p = std::make_unique<TissuePatch>();
-    p->n_triangles = 0;
-    p->brick.valid = 0;
-    (void)sim_->export_patch(has_latest_ ? latest_.tool.position : Vec3{}, *p);
-    p->seq = f.patch_seq;
-    p->t_ns = f.patch_t_ns;
-    p->samples_applied = f.patch_samples_applied;
-    patches_.emplace_back(f.patch_version, std::move(p));
+    filling_ = std::make_unique<TissuePatch>();
+    b.patch = filling_.get();
+    b.patch_centre = has_latest_ ? latest_.tool.position : Vec3{};
+    b.header = {f.patch_seq, f.patch_t_ns, f.patch_samples_applied};
   }
+  return b;
+}
+
+void Replay::publish(const TissuePatch* patch) {
+  if (patch != nullptr) patches_.emplace_back(rec_->frames[next_frame_].patch_version, std::move(filling_));
   // The patches a later tick may still use: the servo takes newer versions only, so none older
   // than the next recorded tick's (however many frames a stalled servo let pass meanwhile).
   const std::uint64_t needed = next_sample_ < rec_->samples.size() ? rec_->samples[next_sample_].patch_version : ~std::uint64_t{0};
   while (patches_.size() > 1 && patches_.front().first < needed) patches_.pop_front();
-  timing_.patch += since(t0);
-  t0 = Clock::now();
-  sim_->advance_blood(f.blood_dt);
-  timing_.blood += since(t0);
-  t0 = Clock::now();
+}
+
+Result<bool> Replay::step_frame() {
+  if (done()) return false;
+  const FrameRecord& f = rec_->frames[next_frame_];
+  // The visualizer's frame, as the live viz ran it: the ticks, the scene, the patch, the blood.
+  auto stepped = sim::run_frame(*sim_, *this);
+  if (!stepped.ok()) return stepped.error();
+  timing_.scene += stepped.value().scene_s;
+  timing_.blood += stepped.value().blood_s;
+  timing_.patch += stepped.value().patch_s;
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
   if (f.scene_hash != 0) {
     ++check_.scene_hashes;
     if (sim_->hash() != f.scene_hash) {
@@ -316,7 +193,7 @@ Result<bool> Replay::step_frame() {
       if (check_.first_bad_frame == 0) check_.first_bad_frame = f.frame + 1;
     }
   }
-  timing_.hash += since(t0);
+  timing_.hash += std::chrono::duration<double>(Clock::now() - t0).count();
   ++check_.frames;
   ++next_frame_;
   return true;

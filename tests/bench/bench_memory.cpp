@@ -3,7 +3,7 @@
 // goes through, and after each stage the process's resident set (VmRSS), its peak so far (VmHWM)
 // and the heap in use (glibc's mallinfo2: bytes handed out, arenas and mmapped blocks) are read:
 //   start     nothing built yet (the libraries are loaded)
-//   scene     SceneSim::create: the tissue scene (volume, labels, surface, ChainMail ids), its
+//   scene     sim::SceneSim::create: the tissue scene (volume, labels, surface, ChainMail ids), its
 //             blood, the task's monitor, as lancet-viz builds them
 //   worked    a scripted hand, as lancet-rt's samples would drive it, 16 samples a frame: an
 //             incision (press, the cut along the task's line, the retractor's pull) or drilling
@@ -84,21 +84,31 @@ std::string read_file(const std::string& path) {
   return s.str();
 }
 
-// One frame of the viz's simulation: the batch applied, the patch exported around the newest
-// tool position, the blood advanced, the drawn mesh remade when it changed.
-struct Driver {
-  explicit Driver(record::SceneSim& s) : sim(s) {}
-  record::SceneSim& sim;
+// One frame of the viz's simulation: the frame function (the batch applied, the blood advanced,
+// the patch exported around the newest proxy position), the drawn mesh remade when it changed.
+struct Driver final : sim::FrameIo {
+  explicit Driver(sim::SceneSim& s) : sim(s) {}
+  sim::SceneSim& sim;
   std::unique_ptr<TissuePatch> patch = std::make_unique<TissuePatch>();
   surface::TriangleMesh mesh;
   std::uint64_t shown = ~std::uint64_t{0};
   std::uint64_t seq = 0;
   std::int64_t now = 1'000'000'000;
 
+  const std::vector<ToolSample>* batch_ = nullptr;
+
+  Result<sim::FrameBatch> drain() override {
+    sim::FrameBatch b;
+    b.samples = *batch_;
+    b.blood_dt = 1e-3 * kSamplesPerFrame;
+    if (!batch_->empty()) b.patch = patch.get(), b.patch_centre = batch_->back().proxy.position;
+    return b;
+  }
+  void publish(const TissuePatch*) override {}
+
   void frame(std::vector<ToolSample>& batch) {
-    sim.apply(batch);
-    if (!batch.empty()) (void)sim.export_patch(batch.back().proxy.position, *patch);
-    sim.advance_blood(1e-3 * kSamplesPerFrame);
+    batch_ = &batch;
+    (void)sim::run_frame(sim, *this);
     if (sim.scene().revision() != shown) {
       shown = sim.scene().revision();
       sim.scene().draw_mesh(mesh);
@@ -228,16 +238,16 @@ void draw(Driver& d, const scenario::Scenario& s, int frames, Stages& stages) {
 int run(const std::string& name, const std::string& volume_path, bool quick) {
   Stages stages;
   stages.mark("start");
-  record::SceneSetup setup;
+  sim::SceneSetup setup;
   setup.scenario_file = std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/" + name + ".toml";
   setup.scenario_toml = read_file(setup.scenario_file);
   setup.volume_path = volume_path;
-  auto made = record::SceneSim::create(setup);
+  auto made = sim::SceneSim::create(setup);
   if (!made) {
     std::fprintf(stderr, "lancet-bench-memory: %s: %s\n", name.c_str(), made.error().message.c_str());
     return 1;
   }
-  record::SceneSim& sim = *made.value();
+  sim::SceneSim& sim = *made.value();
   const scenario::Scenario& s = *sim.scenario();
   stages.mark("scene");
   Driver d(sim);

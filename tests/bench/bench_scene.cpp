@@ -114,9 +114,23 @@ int main(int argc, char** argv) {
       patch_sum += patch.n_triangles;
       patch_max = std::max<std::uint64_t>(patch_max, patch.n_triangles);
     };
+    // One frame of the link around the scene, as the live viz runs it (without the blood): the
+    // samples drained and applied, the patch filled around the newest tool position, published.
+    const auto link_frame = [&](std::int64_t t) {
+      apply(session.drain(t));
+      TissuePatch* p = nullptr;
+      if (session.attached() && session.has_sample()) {
+        p = &session.patch_buffer();
+        p->n_triangles = 0;
+        p->brick.valid = 0;
+        fill(session.latest().tool.position, *p);
+        p->seq = session.frames(), p->t_ns = t, p->samples_applied = session.samples_applied();
+      }
+      session.publish(p, t);
+    };
     std::int64_t now = monotonic_ns();
     s.rt_heartbeat.beat(now, getpid());
-    session.frame(now, apply, fill);  // attach
+    link_frame(now);  // attach
     const auto surface_z = [&](double x, double y) { return tissue.height(x, y); };
     std::uint64_t seq = 0;
     std::vector<double> press_us, cut_us, pull_us, draw_us;
@@ -166,7 +180,7 @@ int main(int argc, char** argv) {
       }
       s.rt_heartbeat.beat(now, getpid());
       const auto t0 = Clock::now();
-      session.frame(now, apply, fill);
+      link_frame(now);
       const double us = us_since(t0);
       (f < press_frames ? press_us : f < press_frames + cut_frames ? cut_us : pull_us).push_back(us);
       if (scene.revision() != shown) {

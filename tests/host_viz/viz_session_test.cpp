@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -26,8 +27,30 @@ ToolSample sample(std::uint64_t seq, Vec3 p) {
   return s;
 }
 
+using SampleSink = std::function<void(std::span<const ToolSample> samples)>;
+using PatchFill = std::function<void(Vec3 tool, TissuePatch& patch)>;
+
+// One frame of the link as the live viz runs it (app/live_frame, sim::run_frame): the samples
+// drained, handed on, the patch filled around the newest tool position once attached with a sample
+// (its header: the frame, its time, the newest tick drained), published with the heartbeat.
+void link_frame(VizSession& s, std::int64_t now, const SampleSink& sink, const PatchFill& fill) {
+  const std::span<const ToolSample> batch = s.drain(now);
+  if (sink && !batch.empty()) sink(batch);
+  TissuePatch* p = nullptr;
+  if (s.attached() && s.has_sample()) {
+    p = &s.patch_buffer();
+    p->n_triangles = 0;
+    p->brick.valid = 0;
+    fill(s.latest().tool.position, *p);
+    p->seq = s.frames();
+    p->t_ns = now;
+    p->samples_applied = s.samples_applied();
+  }
+  s.publish(p, now);
+}
+
 // The patch source of a plain mesh (no volume: no brick).
-VizSession::PatchSource mesh_patch(const surface::TriangleMesh& mesh) {
+PatchFill mesh_patch(const surface::TriangleMesh& mesh) {
   auto scratch = std::make_shared<hybrid::PatchExportScratch>();
   return [&mesh, scratch](Vec3 tool, TissuePatch& p) { (void)hybrid::export_patch(mesh, tool, {}, *scratch, p); };
 }
@@ -49,7 +72,7 @@ TEST(VizSession, WaitsWithoutAPeerAndSaysSo) {
   p.shm_name = unique_name("absent");
   VizSession s(p);
   const auto mesh = surface::make_tissue_block({});
-  s.frame(1'000'000'000, {}, mesh_patch(mesh));
+  link_frame(s, 1'000'000'000, {}, mesh_patch(mesh));
   EXPECT_EQ(s.link(), Link::kWaiting);
   EXPECT_NE(s.link_message().find("does not exist"), std::string::npos) << s.link_message();
 }
@@ -72,7 +95,7 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   const auto apply = [&](std::span<const ToolSample> batch) { changed |= scene->apply(batch); };
   const auto fill = [&](Vec3 tool, TissuePatch& patch) { (void)scene->export_patch(tool, patch); };
   const surface::SurfaceModel* model = &scene->surface();
-  session.frame(now, apply, fill);  // attach
+  link_frame(session, now, apply, fill);  // attach
   ASSERT_EQ(session.link(), Link::kConnected) << session.link_message();
   const auto on_surface = [](double x, double y) { return Vec3{x, y, surface::tissue_block_height({}, x, y)}; };
   std::uint64_t seq = 0;
@@ -92,7 +115,7 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
     push(Stage::kCutting, on_surface(-0.02 + 0.0001 * i, 0.0011), i % 5 == 0 ? event::kCutProgress : 0u);
   now += 400'000'000;
   shared.rt_heartbeat.beat(now, getpid());
-  session.frame(now, apply, fill);
+  link_frame(session, now, apply, fill);
   EXPECT_TRUE(changed);
   ASSERT_EQ(model->cuts().size(), 1u);
   EXPECT_TRUE(model->cutting());
@@ -103,7 +126,7 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   push(Stage::kFree, on_surface(0.01, 0.0011), 0);
   now += 20'000'000;
   shared.rt_heartbeat.beat(now, getpid());
-  session.frame(now, apply, fill);
+  link_frame(session, now, apply, fill);
   EXPECT_FALSE(model->cutting());
   EXPECT_EQ(model->cuts().size(), 1u);
   std::size_t on_cut = 0;
@@ -128,7 +151,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   p.shm_name = name;
   VizSession s(p);
   const auto mesh = surface::make_tissue_block({});
-  s.frame(now, {}, mesh_patch(mesh));
+  link_frame(s, now, {}, mesh_patch(mesh));
   ASSERT_EQ(s.link(), Link::kConnected) << s.link_message();
   EXPECT_EQ(s.stats().discarded, 10u);
   EXPECT_EQ(s.stats().received, 0u);
@@ -136,7 +159,10 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   for (std::uint64_t i = 11; i <= 600; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.0, 0.0, -0.001})));
   now = monotonic_ns();
   shared.rt_heartbeat.beat(now, getpid());
-  s.frame(now, {}, mesh_patch(mesh));
+  std::size_t drained = 0, batches = 0;
+  link_frame(s, now, [&](std::span<const ToolSample> b) { drained += b.size(), ++batches; }, mesh_patch(mesh));
+  EXPECT_EQ(drained, 590u);
+  EXPECT_EQ(batches, 1u) << "the frame's samples come as one batch, however many pops it took";
   EXPECT_EQ(s.stats().received, 590u);
   EXPECT_EQ(s.stats().lost, 0u);
   EXPECT_EQ(s.latest().seq, 600u);
@@ -152,8 +178,8 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   EXPECT_EQ(patch->samples_applied, 600u) << "the newest sample whose events it reflects";
   EXPECT_EQ(patch->brick.valid, 0u) << "no volume, no brick";
 
-  // The handler sees each sample (checked) before the patch source fills the patch around the
-  // newest tool position (here with a brick).
+  // Each sample (checked) is drained before the patch is filled around the newest tool position
+  // (here with a brick).
   std::uint64_t sunk = 0, newest_sunk = 0;
   const auto sink = [&](std::span<const ToolSample> batch) {
     sunk += batch.size();
@@ -172,7 +198,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   for (std::uint64_t i = 601; i <= 620; ++i) ASSERT_TRUE(shared.samples.try_push(sample(i, {0.001, 0.0, -0.002})));
   now = monotonic_ns();
   shared.rt_heartbeat.beat(now, getpid());
-  s.frame(now, sink, with_brick);
+  link_frame(s, now, sink, with_brick);
   EXPECT_EQ(sunk, 20u);
   EXPECT_EQ(newest_sunk, 620u);
   ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
@@ -191,7 +217,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
     ASSERT_TRUE(shared.samples.try_push(sample(seq, {0.001, 0.0, -0.002})));
   now = monotonic_ns();
   shared.rt_heartbeat.beat(now, getpid());
-  s.frame(now, record_seqs, with_brick);
+  link_frame(s, now, record_seqs, with_brick);
   EXPECT_EQ(handed, (std::vector<std::uint64_t>{621, 622, 623, 624}));
   EXPECT_EQ(s.stats().rejected, rejected_before + 2);
   EXPECT_EQ(s.stats().lost, 0u);
@@ -215,7 +241,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   // lancet-rt exits cleanly: the viz notices at its next frame and keeps running.
   shared.rt_heartbeat.stop();
   rt.reset();
-  s.frame(monotonic_ns(), {}, mesh_patch(mesh));
+  link_frame(s, monotonic_ns(), {}, mesh_patch(mesh));
   EXPECT_EQ(s.link(), Link::kLost);
   EXPECT_NE(s.link_message().find("lancet-rt is not running"), std::string::npos) << s.link_message();
   EXPECT_EQ(s.rt_losses(), 1u);
@@ -223,7 +249,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   // A new lancet-rt appears under the same name: the viz attaches again.
   rt.emplace(SharedChannel::create(name, {}).value());
   rt->state().rt_heartbeat.beat(monotonic_ns(), getpid());
-  s.frame(monotonic_ns() + 2'000'000'000, {}, mesh_patch(mesh));  // past the retry interval
+  link_frame(s, monotonic_ns() + 2'000'000'000, {}, mesh_patch(mesh));  // past the retry interval
   EXPECT_EQ(s.link(), Link::kConnected) << s.link_message();
   EXPECT_EQ(s.connections(), 2u);
 }

@@ -1,7 +1,7 @@
 // Replay of a session whose ticks have a gap (the viz stalled longer than the sample ring holds):
 // the servo is re-stepped and checked up to the gap, the scene is driven by the recorded ticks
 // after it and still matches the live scene's hashes. The live session is emulated in process,
-// exactly as lancet-rt and lancet-viz step it (servo_step a tick, SceneSim a frame, the patch
+// exactly as lancet-rt and lancet-viz step it (servo_step a tick, sim::run_frame a frame, the patch
 // published at the end of each frame), with the ticks of three frames never reaching the viz.
 
 #include <gtest/gtest.h>
@@ -13,12 +13,20 @@
 #include "lancet/shared_model/shared_state.hpp"
 #include "record/replay.hpp"
 #include "servo/servo_step.hpp"
+#include "sim/viz_frame.hpp"
 
 namespace lancet::record {
 namespace {
 
 constexpr std::int64_t kT0 = 5'000'000'000;
 constexpr int kTicksPerFrame = 16;
+
+// The live viz's ends of a frame, scripted: the ticks delivered, the patch in use refilled in place.
+struct ScriptedFrame final : sim::FrameIo {
+  sim::FrameBatch next;
+  Result<sim::FrameBatch> drain() override { return next; }
+  void publish(const TissuePatch*) override {}
+};
 
 struct Live {
   Recording rec;
@@ -33,9 +41,9 @@ struct Live {
 Live run_live(int gap_from, int hold_from = -1) {
   Live live;
   Recording& rec = live.rec;
-  SceneSetup setup;
+  sim::SceneSetup setup;
   setup.tissue = "block";
-  auto made = SceneSim::create(setup);
+  auto made = sim::SceneSim::create(setup);
   EXPECT_TRUE(made.ok());
   auto sim = std::move(made).value();
   rec.tissue = "block";
@@ -85,8 +93,7 @@ Live run_live(int gap_from, int hold_from = -1) {
       if (gap_from >= 0 && frame >= gap_from + 3 && live.gap_seq == 0) live.gap_seq = out->sample.seq;
       (holding ? held : batch).push_back(out->sample);
     }
-    // The viz's frame: the batch, then the patch around the newest tool, then the blood.
-    sim->apply(batch);
+    // The viz's frame: the batch, the patch around the newest tool, then the blood.
     rec.samples.insert(rec.samples.end(), batch.begin(), batch.end());
     if (!batch.empty()) latest = batch.back().tool.position;
     FrameRecord f;
@@ -94,14 +101,12 @@ Live run_live(int gap_from, int hold_from = -1) {
     f.t_ns = kT0 + static_cast<std::int64_t>(frame) * 16'000'000;
     f.last_seq = rec.samples.back().seq;
     f.ticks = batch.size();
-    patch->n_triangles = 0;
-    patch->brick.valid = 0;
-    (void)sim->export_patch(latest, *patch);
-    patch->seq = static_cast<std::uint64_t>(frame) + 1, patch->t_ns = f.t_ns, patch->samples_applied = f.last_seq;
+    f.blood_dt = 0.016;
+    ScriptedFrame io;
+    io.next = {batch, f.blood_dt, patch.get(), latest, {static_cast<std::uint64_t>(frame) + 1, f.t_ns, f.last_seq}};
+    EXPECT_TRUE(sim::run_frame(*sim, io).ok());
     ++version;
     f.patch_version = version, f.patch_seq = patch->seq, f.patch_t_ns = patch->t_ns, f.patch_samples_applied = f.last_seq;
-    f.blood_dt = 0.016;
-    sim->advance_blood(f.blood_dt);
     sim->figures(f);
     f.scene_hash = sim->hash();
     rec.frames.push_back(f);

@@ -1,0 +1,77 @@
+#pragma once
+// SceneSim: what lancet-viz simulates — the tissue scene, its blood and the task's monitor — built
+// the same way live and in a replay, and stepped the same way by the one frame function
+// (sim/viz_frame.hpp): the frame's samples (apply), the patch around the newest tool position
+// (export_patch), the blood advanced by the frame's time (advance_blood). Its hash() covers the
+// drawn surface, the blood on it and the task's figures, so a replay can check it frame by frame.
+// No OpenGL: tested headless.
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "hybrid/bleeding.hpp"
+#include "hybrid/scenario_scene.hpp"
+#include "hybrid/tissue_scene.hpp"
+#include "lancet/shared_model/result.hpp"
+#include "record/recording.hpp"
+
+namespace lancet::sim {
+
+/// How the visualizer's simulation is set up (lancet-viz's command line; a recording keeps it).
+struct SceneSetup {
+  std::string tissue = "block";   ///< without a scenario: "block" or "phantom"
+  std::string scenario_toml;      ///< with a scenario: its text ...
+  std::string scenario_file;      ///< ... and where it came from (relative tissue paths resolve against it)
+  std::string volume_path;        ///< --volume ("" when none)
+  double patch_radius = 0.03;     ///< m
+};
+
+class SceneSim {
+ public:
+  /// Builds the scene (loading the CT a file scenario names). Errors say what the scenario or the
+  /// volume got wrong.
+  [[nodiscard]] static Result<std::unique_ptr<SceneSim>> create(const SceneSetup& setup);
+
+  /// One frame's samples, in order (one batch a frame: the batch's end matters to the scene).
+  void apply(std::span<const ToolSample> samples);
+  /// The patch around `at` (m); returns its triangle count. Leaves the header (seq, t_ns,
+  /// samples_applied) to the caller.
+  std::size_t export_patch(Vec3 at, TissuePatch& patch);
+  /// Simulates the blood for dt seconds (nothing without blood).
+  void advance_blood(double dt);
+  /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
+  void figures(record::FrameRecord& f) const;
+  /// The tissue's events since the last call, appended to `out` (blood sources that began, vessels
+  /// that stopped, structures reached, bone drilled), stamped with `frame` and `t_ns`.
+  void take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<record::SceneEvent>& out);
+  /// A hash of the drawn surface, the blood on it and the task's figures (never 0).
+  [[nodiscard]] std::uint64_t hash() const;
+
+  [[nodiscard]] hybrid::TissueScene& scene() noexcept { return *scene_; }
+  [[nodiscard]] const hybrid::TissueScene& scene() const noexcept { return *scene_; }
+  [[nodiscard]] hybrid::Bleeding* bleeding() noexcept { return bleeding_.get(); }
+  [[nodiscard]] const hybrid::Bleeding* bleeding() const noexcept { return bleeding_.get(); }
+  [[nodiscard]] hybrid::TaskMonitor* task() noexcept { return task_ ? &*task_ : nullptr; }
+  [[nodiscard]] const hybrid::TaskMonitor* task() const noexcept { return task_ ? &*task_ : nullptr; }
+  [[nodiscard]] const scenario::Scenario* scenario() const noexcept { return scenario_ ? &*scenario_ : nullptr; }
+  [[nodiscard]] const SceneSetup& setup() const noexcept { return setup_; }
+
+ private:
+  SceneSim() = default;
+  SceneSetup setup_;
+  std::optional<scenario::Scenario> scenario_;
+  std::unique_ptr<hybrid::TissueScene> scene_;
+  std::unique_ptr<hybrid::Bleeding> bleeding_;
+  std::optional<hybrid::TaskMonitor> task_;
+  // What take_events has reported.
+  std::size_t sources_seen_ = 0;
+  std::vector<bool> stopped_seen_, damaged_seen_;
+  std::uint64_t voxels_seen_ = 0;
+  Vec3 last_removal_{};
+};
+
+}  // namespace lancet::sim

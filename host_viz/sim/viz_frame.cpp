@@ -1,0 +1,44 @@
+#include "sim/viz_frame.hpp"
+
+#include <chrono>
+
+namespace lancet::sim {
+
+Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
+  using Clock = std::chrono::steady_clock;
+  const auto since = [](Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); };
+  auto drained = io.drain();
+  if (!drained.ok()) return drained.error();
+  const FrameBatch& b = drained.value();
+  FrameResult r;
+  r.samples = b.samples.size();
+  r.blood_dt = b.blood_dt;
+
+  auto t0 = Clock::now();
+  sim.apply(b.samples);
+  r.scene_s = since(t0);
+
+  // The patch around the newest tool position, from an empty one (no triangles, no brick), and
+  // the header that says which frame and tick it reflects; published before the blood steps, so
+  // the servo never waits for the blood (the blood changes nothing a patch holds).
+  t0 = Clock::now();
+  if (b.patch != nullptr) {
+    TissuePatch& p = *b.patch;
+    p.n_triangles = 0;
+    p.brick.valid = 0;
+    r.triangles = sim.export_patch(b.patch_centre, p);
+    p.seq = b.header.seq;
+    p.t_ns = b.header.t_ns;
+    p.samples_applied = b.header.samples_applied;
+    r.patch = true;
+  }
+  io.publish(b.patch);
+  r.patch_s = since(t0);
+
+  t0 = Clock::now();
+  sim.advance_blood(b.blood_dt);
+  r.blood_s = since(t0);
+  return r;
+}
+
+}  // namespace lancet::sim

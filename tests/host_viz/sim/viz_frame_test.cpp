@@ -1,0 +1,230 @@
+// The one frame function (sim::run_frame): its sequence, and that live and replay both go through
+// it — a session driven live through the shared-memory link (VizSession, LiveFrame, the recording)
+// replays, through Replay's side of the same function, to the same scene hash every frame and at
+// the end.
+
+#include "sim/viz_frame.hpp"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "app/live_frame.hpp"
+#include "app/recorder_control.hpp"
+#include "app/viz_session.hpp"
+#include "lancet/shared_model/shared_state.hpp"
+#include "record/hdf5_io.hpp"
+#include "record/replay.hpp"
+#include "servo/servo_step.hpp"
+
+namespace lancet::sim {
+namespace {
+
+std::unique_ptr<SceneSim> block_sim() {
+  SceneSetup setup;
+  setup.tissue = "block";
+  auto made = SceneSim::create(setup);
+  EXPECT_TRUE(made.ok()) << made.error().message;
+  return std::move(made).value();
+}
+
+// A frame's ends, scripted: the batch given, and what the frame did in which order.
+struct ScriptedFrame final : FrameIo {
+  FrameBatch next;
+  std::vector<std::string> calls;
+  const TissuePatch* published = nullptr;
+  bool fail = false;
+  Result<FrameBatch> drain() override {
+    calls.push_back("drain");
+    if (fail) return Error{ErrorCode::kInvalid, "no such patch"};
+    return next;
+  }
+  void publish(const TissuePatch* patch) override {
+    calls.push_back("publish");
+    published = patch;
+  }
+};
+
+ToolSample pressing(std::uint64_t seq, Vec3 at) {
+  ToolSample s{};
+  s.seq = seq;
+  s.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
+  s.stage = Stage::kDeform;
+  s.tool.position = at;
+  s.proxy.position = at + Vec3{0, 0, 0.001};
+  return s;
+}
+
+TEST(VizFrame, DrainsAppliesExportsWithTheHeaderAndPublishes) {
+  auto sim = block_sim();
+  const std::uint64_t before = sim->hash();
+  std::vector<ToolSample> batch;
+  for (std::uint64_t i = 1; i <= 5; ++i) batch.push_back(pressing(i, {0.0, 0.0, -0.001}));
+  auto patch = std::make_unique<TissuePatch>();
+  patch->n_triangles = 12345;  // whatever the buffer held: the frame starts the patch afresh
+  ScriptedFrame io;
+  io.next.samples = batch;
+  io.next.blood_dt = 0.016;
+  io.next.patch = patch.get();
+  io.next.patch_centre = {0.0, 0.0, -0.001};
+  io.next.header = {7, 123'000'000, 5};
+  auto r = run_frame(*sim, io);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(io.calls, (std::vector<std::string>{"drain", "publish"}));
+  EXPECT_EQ(io.published, patch.get());
+  EXPECT_EQ(r.value().samples, 5u);
+  EXPECT_EQ(r.value().blood_dt, 0.016);
+  EXPECT_TRUE(r.value().patch);
+  EXPECT_EQ(sim->scene().events().samples, 5u) << "the batch was applied to the scene";
+  EXPECT_NE(sim->hash(), before);
+  EXPECT_GT(patch->n_triangles, 0u);
+  EXPECT_NE(patch->n_triangles, 12345u);
+  EXPECT_EQ(r.value().triangles, patch->n_triangles);
+  EXPECT_EQ(patch->seq, 7u);
+  EXPECT_EQ(patch->t_ns, 123'000'000);
+  EXPECT_EQ(patch->samples_applied, 5u);
+
+  // No patch asked for: the scene still steps, publish() is told there is none.
+  io.calls.clear();
+  io.next.samples = {};
+  io.next.patch = nullptr;
+  r = run_frame(*sim, io);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(io.calls, (std::vector<std::string>{"drain", "publish"}));
+  EXPECT_EQ(io.published, nullptr);
+  EXPECT_FALSE(r.value().patch);
+}
+
+TEST(VizFrame, ADrainErrorStopsTheFrameBeforeTheScene) {
+  auto sim = block_sim();
+  const std::uint64_t before = sim->hash();
+  const ToolSample s = pressing(1, {0.0, 0.0, -0.001});
+  ScriptedFrame io;
+  io.next.samples = {&s, 1};
+  io.fail = true;
+  auto r = run_frame(*sim, io);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().message, "no such patch");
+  EXPECT_EQ(io.calls, (std::vector<std::string>{"drain"}));
+  EXPECT_EQ(sim->hash(), before);
+}
+
+// The same batches through two SceneSims, one frame at a time: the frame function is all there is
+// to a frame, so the scenes stay identical.
+TEST(VizFrame, TheSameBatchesGiveTheSameScene) {
+  auto a = block_sim(), b = block_sim();
+  auto pa = std::make_unique<TissuePatch>(), pb = std::make_unique<TissuePatch>();
+  std::uint64_t seq = 0;
+  for (int frame = 0; frame < 20; ++frame) {
+    std::vector<ToolSample> batch;
+    for (int k = 0; k < 16; ++k, ++seq) batch.push_back(pressing(seq + 1, {0.0005 * frame, 0.0, -0.0002 * frame}));
+    ScriptedFrame ia, ib;
+    ia.next = {batch, 0.016, pa.get(), batch.back().tool.position, {static_cast<std::uint64_t>(frame), 0, seq}};
+    ib.next = ia.next;
+    ib.next.patch = pb.get();
+    ASSERT_TRUE(run_frame(*a, ia).ok());
+    ASSERT_TRUE(run_frame(*b, ib).ok());
+    ASSERT_EQ(a->hash(), b->hash()) << "frame " << frame;
+    ASSERT_EQ(pa->n_triangles, pb->n_triangles);
+    ASSERT_EQ(std::memcmp(pa.get(), pb.get(), tissue_patch_bytes(*pa)), 0) << "frame " << frame;
+  }
+}
+
+// lancet-rt, in process: each tick pops its commands, takes the newest patch the viz published,
+// steps the servo and pushes its sample, as lancet-rt's loop does around servo_step.
+class InProcessRt {
+ public:
+  explicit InProcessRt(const std::string& name) : ch_(SharedChannel::create(name, {}).value()) {
+    ch_.state().servo_model.write(servo::to_blob(model_));
+  }
+  void tick(std::int64_t now) {
+    SharedState& s = ch_.state();
+    std::uint8_t commands[kSampleCommands];
+    std::size_t n = 0;
+    Command c{};
+    while (n < kSampleCommands && s.commands.try_pop(c)) commands[n++] = servo::pack_command(c.kind, c.mode);
+    std::uint64_t seen = version_;
+    if (s.patch.try_read_if_newer(*scratch_, seen) == ReadStatus::kOk) {
+      *patch_ = *scratch_;
+      version_ = seen;
+    }
+    const double t = static_cast<double>(ticks_++) * 1e-3;
+    servo::ServoInput in;
+    in.deadline_ns = now;
+    in.woke_ns = now + 10'000;
+    in.commands = {commands, n};
+    in.reading.n = 3;
+    in.reading.q = {-0.01 + 0.02 * t, 0.0, 0.004 - 0.008 * t};  // down into the block, then along x
+    in.patch = version_ != 0 ? patch_.get() : nullptr;
+    in.patch_version = version_;
+    in.viz_alive = true;
+    servo::servo_step(model_, *data_, in, *out_);
+    ASSERT_TRUE(s.samples.try_push(out_->sample));
+    s.rt_heartbeat.beat(now, getpid());
+  }
+
+ private:
+  SharedChannel ch_;
+  servo::ServoModel model_{};
+  std::unique_ptr<servo::ServoData> data_ = std::make_unique<servo::ServoData>();
+  std::unique_ptr<servo::ServoOutput> out_ = std::make_unique<servo::ServoOutput>();
+  std::unique_ptr<TissuePatch> patch_ = std::make_unique<TissuePatch>(), scratch_ = std::make_unique<TissuePatch>();
+  std::uint64_t version_ = 0;
+  std::uint64_t ticks_ = 0;
+};
+
+TEST(VizFrame, ALiveSessionThroughTheLinkReplaysThroughTheSameFrameToTheSameScene) {
+  const std::string name = "/lancet-frame-" + std::to_string(getpid());
+  const std::filesystem::path file = std::filesystem::temp_directory_path() / ("lancet-frame-" + std::to_string(getpid()) + ".h5");
+  InProcessRt rt(name);
+  viz::VizSessionParams p;
+  p.shm_name = name;
+  viz::VizSession session(p);
+  auto live_sim = block_sim();
+  // As `lancet-viz --record FILE`: armed on the fresh scene, the servo's reset sent once it uses a
+  // patch of this viz, recorded from the tick that applied it.
+  viz::RecorderControl recorder(file.string(), live_sim->setup(), "", "test");
+  viz::LiveFrame live(session, recorder, nullptr);
+  std::int64_t now = monotonic_ns();
+  std::uint64_t last_hash = 0;
+  for (int frame = 0; frame < 60; ++frame) {
+    if (frame > 0) {
+      for (int k = 0; k < 16; ++k) rt.tick(now + k * 1'000'000);
+    }
+    now += 16'000'000;
+    live.begin(now, 0.016);
+    auto r = run_frame(*live_sim, live);
+    ASSERT_TRUE(r.ok());
+    recorder.after_frame(session, *live_sim, r.value(), now);
+    if (frame == 0) {
+      ASSERT_EQ(session.link(), viz::Link::kConnected) << session.link_message();
+    }
+    if (recorder.state() == viz::RecorderControl::State::kOn) last_hash = live_sim->hash();
+  }
+  ASSERT_EQ(recorder.state(), viz::RecorderControl::State::kOn) << recorder.panel_line();
+  recorder.stop();
+
+  auto rec = record::read_recording(file.string());
+  ASSERT_TRUE(rec.ok()) << rec.error().message;
+  std::filesystem::remove(file);
+  EXPECT_GT(rec.value().frames.size(), 50u);
+  EXPECT_EQ(rec.value().samples_lost, 0u);
+  auto replay = record::Replay::create(rec.value());
+  ASSERT_TRUE(replay.ok()) << replay.error().message;
+  auto ck = replay.value()->run();
+  ASSERT_TRUE(ck.ok()) << ck.error().message;
+  EXPECT_TRUE(ck.value().exact()) << "first bad tick " << ck.value().first_bad_seq << ", frame " << ck.value().first_bad_frame;
+  EXPECT_EQ(ck.value().frames, rec.value().frames.size());
+  EXPECT_EQ(ck.value().ticks, rec.value().samples.size());
+  EXPECT_GE(ck.value().scene_hashes, 2u);
+  EXPECT_EQ(ck.value().scene_hash_mismatches, 0u);
+  EXPECT_GT(live_sim->scene().events().samples, 0u) << "the live scene was driven";
+  EXPECT_EQ(replay.value()->sim().hash(), last_hash) << "the replayed scene ends where the live one did";
+}
+
+}  // namespace
+}  // namespace lancet::sim
