@@ -15,7 +15,7 @@
 #include "app/rt_servo.hpp"
 #include "rt/rt_loop.hpp"
 #include "tools/cyclictest_runner.hpp"
-#include "record/hdf5_io.hpp"
+#include "recording/hdf5_io.hpp"
 #include "text/text.hpp"
 
 namespace lancet::tools {

@@ -17,15 +17,16 @@
 #include <string>
 #include <vector>
 
-#include "record/hdf5_io.hpp"
-#include "record/metrics.hpp"
-#include "record/report.hpp"
+#include "recording/hdf5_io.hpp"
+#include "score/metrics.hpp"
+#include "score/report.hpp"
 #include "scenarios/scenario.hpp"
 
 namespace {
 
 using namespace lancet;
 using namespace lancet::record;
+using namespace lancet::score;
 
 int fail(const std::string& message) {
   std::fprintf(stderr, "lancet-report: %s\n", message.c_str());

@@ -18,7 +18,7 @@
 #include "app/sample_trace.hpp"
 #include "app/viz_app.hpp"
 #include "app/viz_cli.hpp"
-#include "record/hdf5_io.hpp"
+#include "recording/hdf5_io.hpp"
 #include "record/replay.hpp"
 #include "render/window.hpp"
 #include "sim/scene_sim.hpp"

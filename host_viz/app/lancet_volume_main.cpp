@@ -100,7 +100,7 @@ class JsonObject {
 Result<Volume> load(const Source& src, std::vector<std::uint8_t>* labels, std::string& format) {
   if (src.path == "phantom") {
     format = "built-in phantom";
-    Phantom ph = make_phantom(PhantomParams{});
+    LabelledVolume ph = make_phantom(PhantomParams{});
     if (labels != nullptr) *labels = std::move(ph.material);
     return std::move(ph.volume);
   }

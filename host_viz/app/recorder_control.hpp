@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
-#include "record/hdf5_io.hpp"
+#include "recording/hdf5_io.hpp"
 #include "sim/scene_sim.hpp"
 #include "sim/viz_frame.hpp"
 

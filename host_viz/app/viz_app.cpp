@@ -176,7 +176,7 @@ void VizApp::upload_mesh_and_blood() {
   }
   // The blood onto the mesh, with the pools in the grooves (they change every frame: the mesh
   // with them is sent every frame, only the blocks that differ).
-  hybrid::Bleeding* blood = sim().bleeding();
+  blood::Bleeding* blood = sim().bleeding();
   using Clock = std::chrono::steady_clock;
   const auto ms_since = [](Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); };
   if (blood != nullptr) {

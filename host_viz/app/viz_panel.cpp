@@ -8,8 +8,8 @@
 namespace lancet::viz {
 
 std::vector<render::OverlayLine> status_lines(const VizSession& s, const Interaction& ui, bool headless,
-                                              const hybrid::SceneEvents& events, const scenario::Scenario* scenario,
-                                              const hybrid::TaskStatus* task, const std::string& keys) {
+                                              const tissue::SceneEvents& events, const scenario::Scenario* scenario,
+                                              const score::TaskStatus* task, const std::string& keys) {
   using render::OverlayLine;
   std::vector<OverlayLine> lines;
   if (scenario != nullptr) {
@@ -90,14 +90,14 @@ std::string tool_keys(const std::vector<ToolMode>& offered) {
   return keys;
 }
 
-std::vector<render::OverlayLine> blood_lines(const hybrid::Bleeding& blood) {
+std::vector<render::OverlayLine> blood_lines(const blood::Bleeding& blood) {
   std::vector<render::OverlayLine> lines;
-  const hybrid::BloodFigures bf = blood.figures();
+  const blood::BloodFigures bf = blood.figures();
   char buf[160];
   std::snprintf(buf, sizeof buf, "blood lost %.2f mL (on the tissue %.2f, swabbed %.2f)", bf.lost_ml, bf.on_tissue_ml, bf.swabbed_ml);
   lines.push_back({buf, false});
   for (const auto& src : blood.sources()) {
-    if (src.kind != hybrid::BloodSource::Kind::kVessel) continue;
+    if (src.kind != blood::BloodSource::Kind::kVessel) continue;
     std::snprintf(buf, sizeof buf, "%s: %s", src.name.c_str(),
                   src.stopped ? "stopped" : src.pressed_s > 0 ? "pressed..." : "BLEEDING: press it 3 s with the probe");
     lines.push_back({buf, !src.stopped});

@@ -13,8 +13,8 @@
 
 #include "app/viz_input.hpp"
 #include "app/viz_session.hpp"
-#include "hybrid/bleeding.hpp"
-#include "hybrid/scenario_scene.hpp"
+#include "blood/bleeding.hpp"
+#include "tissue/scenario_scene.hpp"
 #include "record/replay.hpp"
 #include "render/overlay.hpp"
 
@@ -23,8 +23,8 @@ namespace lancet::viz {
 /// The lines over the scene: the scenario and its task, the link, lancet-rt's servo and faults,
 /// the tool, the tissue's last event, the samples; in a window, the keys (`keys`: the tools').
 [[nodiscard]] std::vector<render::OverlayLine> status_lines(const VizSession& s, const Interaction& ui, bool headless,
-                                                            const hybrid::SceneEvents& events, const scenario::Scenario* scenario,
-                                                            const hybrid::TaskStatus* task, const std::string& keys);
+                                                            const tissue::SceneEvents& events, const scenario::Scenario* scenario,
+                                                            const score::TaskStatus* task, const std::string& keys);
 /// A replay has no link: its line replaces the link's and the samples' ones.
 void replace_link_lines(std::vector<render::OverlayLine>& lines, const VizSession& s, const record::Replay& replay,
                         const std::string& path, double speed, bool paused);
@@ -33,7 +33,7 @@ void replace_link_lines(std::vector<render::OverlayLine>& lines, const VizSessio
 /// "1: probe / 2: scalpel / ...": the keys of the offered tools.
 [[nodiscard]] std::string tool_keys(const std::vector<ToolMode>& offered);
 /// The panel's blood lines: the loss, and each vessel (bleeding ones as alerts).
-[[nodiscard]] std::vector<render::OverlayLine> blood_lines(const hybrid::Bleeding& blood);
+[[nodiscard]] std::vector<render::OverlayLine> blood_lines(const blood::Bleeding& blood);
 /// The replay's line and timeline on the panel.
 void replay_panel(const record::Replay& replay, double speed, bool paused, render::PanelState& panel);
 

@@ -8,15 +8,15 @@ namespace lancet::viz {
 bool write_stats(const std::string& path, const VizSession& s, const sim::SceneSim& sim, const RunFigures& run) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return false;
-  const hybrid::TissueScene& scene = sim.scene();
-  const hybrid::TaskStatus* task = sim.task() != nullptr ? &sim.task()->status() : nullptr;
+  const tissue::TissueScene& scene = sim.scene();
+  const score::TaskStatus* task = sim.task() != nullptr ? &sim.task()->status() : nullptr;
   const std::string scenario_name = sim.scenario() != nullptr ? sim.scenario()->name : "";
   const auto& st = s.stats();
   const auto& ev = scene.events();
   const auto cuts = scene.cut_figures();
   const auto grooves = scene.grooves();
-  const hybrid::BloodFigures bf = sim.bleeding() != nullptr ? sim.bleeding()->figures() : hybrid::BloodFigures{};
-  hybrid::GrooveFigures groove{};  // the widest
+  const blood::BloodFigures bf = sim.bleeding() != nullptr ? sim.bleeding()->figures() : blood::BloodFigures{};
+  tissue::GrooveFigures groove{};  // the widest
   for (const auto& g : grooves)
     if (g.top_gap >= groove.top_gap) groove = g;
   using ull = unsigned long long;

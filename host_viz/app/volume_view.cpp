@@ -2,7 +2,7 @@
 
 namespace lancet::viz {
 
-void VolumeView::prepare(const Interaction& ui, hybrid::TissueScene& scene, const volume::VoxelBox& changed,
+void VolumeView::prepare(const Interaction& ui, tissue::TissueScene& scene, const volume::VoxelBox& changed,
                          render::SceneInput& in) {
   if (ui.view == 0) {
     if (raycaster_ && !changed.empty()) raycaster_->update_region(scene.render_volume(), changed);

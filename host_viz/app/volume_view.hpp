@@ -7,7 +7,7 @@
 #include <memory>
 
 #include "app/viz_input.hpp"
-#include "hybrid/tissue_scene.hpp"
+#include "tissue/tissue_scene.hpp"
 #include "render/scene_renderer.hpp"
 #include "render/volume_raycaster.hpp"
 #include "volume/tf_editor.hpp"
@@ -19,7 +19,7 @@ class VolumeView {
   /// The frame's volume: the voxels changed since the last frame (`changed`, taken from the scene
   /// every frame) are sent; when ui shows the volume, `in` gets it (transfer function, clip plane,
   /// whether the surfaces are drawn too).
-  void prepare(const Interaction& ui, hybrid::TissueScene& scene, const volume::VoxelBox& changed, render::SceneInput& in);
+  void prepare(const Interaction& ui, tissue::TissueScene& scene, const volume::VoxelBox& changed, render::SceneInput& in);
   /// Forgets the volume (a fresh scene: it is made again when next shown).
   void reset() noexcept { raycaster_.reset(); }
   /// The panel's editor changed the table: upload it at the next prepare().

@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "lancet/shared_model/result.hpp"
-#include "record/recording.hpp"
+#include "recording/recording.hpp"
 #include "servo/servo_step.hpp"
 #include "sim/scene_sim.hpp"
 #include "sim/viz_frame.hpp"

@@ -12,7 +12,7 @@
 #include "render/gl_objects.hpp"
 #include "render/image.hpp"
 #include "render/volume_raycaster.hpp"
-#include "surface/placeholder_mesh.hpp"
+#include "surface/triangle_mesh.hpp"
 
 namespace lancet::render {
 
@@ -45,7 +45,7 @@ class SceneRenderer {
   /// only the blocks of vertices, indices and face materials that differ from the last mesh
   /// are sent (a dent or a cut's opening moves a few hundred vertices of a million).
   void set_mesh(const surface::TriangleMesh& mesh);
-  /// The blood on the surface mesh's vertices (hybrid::Bleeding::vertex_blood): depth (m) and
+  /// The blood on the surface mesh's vertices (blood::Bleeding::vertex_blood): depth (m) and
   /// mean age (s) per vertex of the last set_mesh; other sizes: dry. Only changed blocks are sent.
   void set_blood(std::span<const float> depth, std::span<const float> age);
   /// Bytes set_mesh sent to the GPU last time, and what sending everything would have been.

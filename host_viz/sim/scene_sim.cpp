@@ -9,7 +9,7 @@ namespace lancet::sim {
 
 namespace {
 // mm³ of one voxel of the scene's volume.
-double voxel_mm3(const hybrid::TissueScene& scene) {
+double voxel_mm3(const tissue::TissueScene& scene) {
   const Vec3 sp = scene.volume().spacing;
   return sp.x * sp.y * sp.z * 1e9;
 }
@@ -18,25 +18,25 @@ double voxel_mm3(const hybrid::TissueScene& scene) {
 Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
   std::unique_ptr<SceneSim> sim(new SceneSim());
   sim->setup_ = setup;
-  hybrid::SceneDescription desc;
+  tissue::SceneDescription desc;
   if (!setup.scenario_toml.empty()) {
     auto parsed = scenario::parse_scenario(setup.scenario_toml, setup.scenario_file);
     if (!parsed.ok()) return parsed.error();
     sim->scenario_ = std::move(parsed).value();
-    auto d = hybrid::scene_description(*sim->scenario_, setup.volume_path);
+    auto d = tissue::scene_description(*sim->scenario_, setup.volume_path);
     if (!d.ok()) return d.error();
     desc = std::move(d).value();
   } else if (setup.tissue == "block" || setup.tissue == "phantom") {
-    desc.source = setup.tissue == "block" ? hybrid::SceneSource::kBlock : hybrid::SceneSource::kPhantom;
+    desc.source = setup.tissue == "block" ? tissue::SceneSource::kBlock : tissue::SceneSource::kPhantom;
   } else {
     return Error{ErrorCode::kInvalid, "tissue: expected block or phantom, found \"" + setup.tissue + "\""};
   }
   desc.patch.radius = setup.patch_radius;
-  auto made = hybrid::TissueScene::create(std::move(desc));
+  auto made = tissue::TissueScene::create(std::move(desc));
   if (!made.ok()) return made.error();
   sim->scene_ = std::move(made).value();
-  if (sim->scene_->description().surface == hybrid::SceneSurface::kSkin)
-    sim->bleeding_ = std::make_unique<hybrid::Bleeding>(*sim->scene_);
+  if (sim->scene_->description().surface == tissue::SceneSurface::kSkin)
+    sim->bleeding_ = std::make_unique<blood::Bleeding>(*sim->scene_);
   if (sim->scenario_) sim->task_.emplace(*sim->scenario_, *sim->scene_);
   return sim;
 }
@@ -58,7 +58,7 @@ void SceneSim::advance_blood(double dt) {
 
 void SceneSim::figures(record::FrameRecord& f) const {
   if (task_) {
-    const hybrid::TaskStatus& t = task_->status();
+    const score::TaskStatus& t = task_->status();
     f.task_progress = t.progress;
     f.max_deviation = t.max_deviation;
     f.outside = t.outside;
@@ -69,7 +69,7 @@ void SceneSim::figures(record::FrameRecord& f) const {
     f.drilled_outside_mm3 = std::max(0.0, f.drilled_mm3 - t.window_removed * 1e9);
   }
   if (bleeding_) {
-    const hybrid::BloodFigures b = bleeding_->figures();
+    const blood::BloodFigures b = bleeding_->figures();
     f.blood_lost_ml = b.lost_ml;
     f.blood_on_tissue_ml = b.on_tissue_ml;
     f.blood_swabbed_ml = b.swabbed_ml;
@@ -120,10 +120,10 @@ std::uint64_t SceneSim::hash() const {
     std::vector<float> depth, age;
     bleeding_->vertex_blood(mesh, depth, age);
     for (const float d : depth) h.f(d);
-    const hybrid::BloodFigures b = bleeding_->figures();
+    const blood::BloodFigures b = bleeding_->figures();
     h.f(b.lost_ml), h.f(b.on_tissue_ml), h.f(b.swabbed_ml);
   }
-  const hybrid::SceneEvents& e = scene_->events();
+  const tissue::SceneEvents& e = scene_->events();
   h.word(e.samples), h.word(e.ruptures), h.word(e.cut_steps), h.word(e.grabs), h.word(e.voxels_drilled);
   if (task_) h.f(task_->status().progress), h.f(task_->status().max_deviation);
   return h.value();

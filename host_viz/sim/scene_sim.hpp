@@ -13,11 +13,12 @@
 #include <string>
 #include <vector>
 
-#include "hybrid/bleeding.hpp"
-#include "hybrid/scenario_scene.hpp"
-#include "hybrid/tissue_scene.hpp"
+#include "blood/bleeding.hpp"
+#include "score/task_monitor.hpp"
+#include "tissue/scenario_scene.hpp"
+#include "tissue/tissue_scene.hpp"
 #include "lancet/shared_model/result.hpp"
-#include "record/recording.hpp"
+#include "recording/recording.hpp"
 
 namespace lancet::sim {
 
@@ -51,12 +52,12 @@ class SceneSim {
   /// A hash of the drawn surface, the blood on it and the task's figures (never 0).
   [[nodiscard]] std::uint64_t hash() const;
 
-  [[nodiscard]] hybrid::TissueScene& scene() noexcept { return *scene_; }
-  [[nodiscard]] const hybrid::TissueScene& scene() const noexcept { return *scene_; }
-  [[nodiscard]] hybrid::Bleeding* bleeding() noexcept { return bleeding_.get(); }
-  [[nodiscard]] const hybrid::Bleeding* bleeding() const noexcept { return bleeding_.get(); }
-  [[nodiscard]] hybrid::TaskMonitor* task() noexcept { return task_ ? &*task_ : nullptr; }
-  [[nodiscard]] const hybrid::TaskMonitor* task() const noexcept { return task_ ? &*task_ : nullptr; }
+  [[nodiscard]] tissue::TissueScene& scene() noexcept { return *scene_; }
+  [[nodiscard]] const tissue::TissueScene& scene() const noexcept { return *scene_; }
+  [[nodiscard]] blood::Bleeding* bleeding() noexcept { return bleeding_.get(); }
+  [[nodiscard]] const blood::Bleeding* bleeding() const noexcept { return bleeding_.get(); }
+  [[nodiscard]] score::TaskMonitor* task() noexcept { return task_ ? &*task_ : nullptr; }
+  [[nodiscard]] const score::TaskMonitor* task() const noexcept { return task_ ? &*task_ : nullptr; }
   [[nodiscard]] const scenario::Scenario* scenario() const noexcept { return scenario_ ? &*scenario_ : nullptr; }
   [[nodiscard]] const SceneSetup& setup() const noexcept { return setup_; }
 
@@ -64,9 +65,9 @@ class SceneSim {
   SceneSim() = default;
   SceneSetup setup_;
   std::optional<scenario::Scenario> scenario_;
-  std::unique_ptr<hybrid::TissueScene> scene_;
-  std::unique_ptr<hybrid::Bleeding> bleeding_;
-  std::optional<hybrid::TaskMonitor> task_;
+  std::unique_ptr<tissue::TissueScene> scene_;
+  std::unique_ptr<blood::Bleeding> bleeding_;
+  std::optional<score::TaskMonitor> task_;
   // What take_events has reported.
   std::size_t sources_seen_ = 0;
   std::vector<bool> stopped_seen_, damaged_seen_;

@@ -32,7 +32,7 @@
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/result.hpp"
 #include "surface/bvh.hpp"
-#include "surface/placeholder_mesh.hpp"
+#include "surface/triangle_mesh.hpp"
 
 namespace lancet::surface {
 

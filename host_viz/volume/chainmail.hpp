@@ -251,6 +251,8 @@ class ChainMail {
   [[nodiscard]] std::int32_t find_brick(std::int64_t bx, std::int64_t by, std::int64_t bz) const noexcept;
   std::int32_t materialise_brick(std::int64_t bx, std::int64_t by, std::int64_t bz);
   std::uint32_t materialise_element(const Index& e);
+  /// Removes the link between e and its neighbour n = e + 1 along axis (both sides of it).
+  void unlink(const Index& e, const Index& n, int axis);
   void check_element(const Index& e, const char* what) const;
   struct Hot;
   void push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties);

@@ -43,8 +43,8 @@ float phantom_hu(PhantomMaterial m) noexcept {
   return -1000.0f;
 }
 
-Phantom make_phantom(const PhantomParams& p) {
-  Phantom ph;
+LabelledVolume make_phantom(const PhantomParams& p) {
+  LabelledVolume ph;
   Volume& v = ph.volume;
   v.dims = p.dims;
   v.spacing = {p.spacing, p.spacing, p.spacing};

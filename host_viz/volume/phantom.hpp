@@ -47,11 +47,7 @@ float phantom_hu(PhantomMaterial m) noexcept;
 /// moves it more.
 double partial_volume_fraction(double d, double spacing) noexcept;
 
-struct Phantom {
-  Volume volume;                      ///< HU, origin so that the volume is centred on (0, 0, 0)
-  std::vector<std::uint8_t> material; ///< PhantomMaterial per voxel, same layout as volume.data
-};
-
-Phantom make_phantom(const PhantomParams& params);
+/// The built-in phantom: HU centred on (0, 0, 0), each voxel labelled with its PhantomMaterial.
+LabelledVolume make_phantom(const PhantomParams& params);
 
 }  // namespace lancet::volume

@@ -49,4 +49,11 @@ struct Volume {
 /// Progress of a long load, 0..1; may be empty.
 using Progress = std::function<void(double fraction)>;
 
+/// A volume with a material label per voxel (the tissue scene's: the built-in phantom's
+/// PhantomMaterial, or the labels a scenario or a CT's thresholds give).
+struct LabelledVolume {
+  Volume volume;
+  std::vector<std::uint8_t> material;  ///< a label per voxel, same layout as volume.data
+};
+
 }  // namespace lancet::volume

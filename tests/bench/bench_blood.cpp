@@ -1,4 +1,4 @@
-// lancet-bench-blood: the bleeding automaton's GPU twin (render::BloodCompute, GL compute shaders,
+// lancet-bench-blood: the bleeding automaton's GPU twin (blood::BloodCompute, GL compute shaders,
 // headless through EGL: DISPLAY unset) on square grids fully wet (1 mm of blood on every cell,
 // so every tile is worked on every step): cell-steps per second, N steps timed between two
 // glFinish; and the CPU reference (blood::Automaton) on the same grid, 1 thread and all, for
@@ -30,7 +30,7 @@
 
 #include "../host_viz/blood/blood_support.hpp"
 #include "blood/automaton.hpp"
-#include "render/blood_compute.hpp"
+#include "blood/blood_compute.hpp"
 #include "render/window.hpp"
 
 namespace {
@@ -113,7 +113,7 @@ int main(int argc, char** argv) {
     // Batches of about 1e7 cell-steps between two glFinish (the GPU queue stays full within one).
     const int batch = std::max(1, static_cast<int>(1e7 / cells));
 
-    render::BloodCompute gpu(net, blood::Params{});
+    blood::BloodCompute gpu(net, blood::Params{});
     gpu.upload_state(cpu.state());
     const double gpu_rate = steps_per_second(seconds, batch, [&] { gpu.step(); }, [] { glFinish(); });
     const std::vector<std::uint8_t> active = gpu.tile_active();

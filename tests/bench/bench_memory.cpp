@@ -132,7 +132,7 @@ struct Driver final : sim::FrameIo {
 // Press, cut along the task's line at 20 mm/s (a progress event every 0.5 mm), then pull the
 // incision open to 8 mm with the retractor.
 void incise(Driver& d, const scenario::IncisionTask& task, int pull_frames) {
-  const hybrid::TissueScene& scene = d.sim.scene();
+  const tissue::TissueScene& scene = d.sim.scene();
   const Vec3 a = task.line.front(), b = task.line.back();
   const auto on_surface = [&](double x, double y) {
     const auto p = scene.surface_below(x, y);

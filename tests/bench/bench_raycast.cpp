@@ -25,7 +25,7 @@
 #include "render/image.hpp"
 #include "render/volume_raycaster.hpp"
 #include "render/window.hpp"
-#include "hybrid/scenario_scene.hpp"
+#include "tissue/scenario_scene.hpp"
 #include "volume/phantom.hpp"
 
 namespace {
@@ -154,7 +154,7 @@ int main(int argc, char** argv) {
     v = volume::make_phantom({}).volume;
     volume_name = "phantom";
   } else {
-    auto loaded = hybrid::load_ct(volume_path);
+    auto loaded = tissue::load_ct(volume_path);
     if (!loaded) {
       std::fprintf(stderr, "lancet-bench-raycast: %s\n", loaded.error().message.c_str());
       return 1;

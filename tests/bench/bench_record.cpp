@@ -25,10 +25,10 @@
 #include <unistd.h>
 
 #include "lancet/shared_model/spsc_ring.hpp"
-#include "record/hdf5_io.hpp"
-#include "record/metrics.hpp"
+#include "recording/hdf5_io.hpp"
+#include "score/metrics.hpp"
 #include "record/replay.hpp"
-#include "record/report.hpp"
+#include "score/report.hpp"
 #include "servo/servo_step.hpp"
 #include "patch_sheet.hpp"  // tests/support
 
@@ -188,8 +188,8 @@ int main(int argc, char** argv) {
     }
     t0 = Clock::now();
     auto sc = scenario::parse_scenario(r.scenario_toml, r.scenario_file);
-    const record::Metrics m = record::compute_metrics(r, sc.ok() ? &sc.value() : nullptr);
-    const std::string html = record::report_html({{recording_path, &r, m}});
+    const score::Metrics m = score::compute_metrics(r, sc.ok() ? &sc.value() : nullptr);
+    const std::string html = score::report_html({{recording_path, &r, m}});
     const double report_s = seconds_since(t0);
     std::printf(",\n  \"recording\": {\"file\": \"%s\", \"seconds\": %.2f, \"ticks\": %zu, \"frames\": %zu, \"mb_per_minute\": %.2f,\n",
                 recording_path.c_str(), duration, r.samples.size(), r.frames.size(),

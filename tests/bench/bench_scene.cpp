@@ -4,7 +4,7 @@
 // leaves, the retractor's pull opening the incision and its ChainMail groove), the TissuePatch
 // exported around the tool with the voxel brick and written to the segment; then, apart, the
 // mesh for drawing (surface and groove walls) that follows a change of shape. On the phantom's skin and on a
-// 1M-triangle sheet. The target: p99 < 4 ms for the update. Prints one JSON object.
+// 1M-triangle sheet. The target: p99 < 4 ms for the update (docs/PERFORMANCE.md). Prints one JSON object.
 //   lancet-bench-scene [--quick]
 
 #include <unistd.h>
@@ -21,7 +21,7 @@
 #include <vector>
 
 #include "app/viz_session.hpp"
-#include "hybrid/tissue_scene.hpp"
+#include "tissue/tissue_scene.hpp"
 
 namespace {
 
@@ -42,14 +42,14 @@ Pct percentiles(std::vector<double> v) {
 
 struct Tissue {
   std::string name;
-  std::unique_ptr<hybrid::TissueScene> scene;
+  std::unique_ptr<tissue::TissueScene> scene;
   std::function<double(double, double)> height;  ///< surface height at (x, y), m
 };
 
 Tissue phantom_tissue() {
   Tissue t;
   t.name = "phantom skin";
-  t.scene = std::move(hybrid::TissueScene::create({}).value());
+  t.scene = std::move(tissue::TissueScene::create({}).value());
   surface::TriangleMesh mesh;
   t.scene->surface().to_triangle_mesh(mesh);
   // The skin's top along x near y = 0 (where the tool works): the highest vertex in each 1 mm
@@ -70,12 +70,12 @@ Tissue phantom_tissue() {
 Tissue sheet_tissue() {
   Tissue t;
   t.name = "sheet 1M triangles";
-  hybrid::SceneDescription d;
-  d.source = hybrid::SceneSource::kBlock;
+  tissue::SceneDescription d;
+  d.source = tissue::SceneSource::kBlock;
   d.block.cells = 707;  // 2 · 707² ≈ 1.0M triangles of 1 mm cells, 0.71 m across
   d.block.half_extent = 0.0005 * d.block.cells;
   const surface::TissueBlockParams p = d.block;
-  t.scene = std::move(hybrid::TissueScene::create(std::move(d)).value());
+  t.scene = std::move(tissue::TissueScene::create(std::move(d)).value());
   t.height = [p](double x, double y) { return surface::tissue_block_height(p, x, y); };
   return t;
 }
@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
   Tissue tissues[2] = {phantom_tissue(), sheet_tissue()};
   for (int n = 0; n < 2; ++n) {
     Tissue& tissue = tissues[n];
-    hybrid::TissueScene& scene = *tissue.scene;
+    tissue::TissueScene& scene = *tissue.scene;
     const std::string shm = "/lancet-bench-scene-" + std::to_string(getpid());
     auto channel = SharedChannel::create(shm, {});
     if (!channel) {
@@ -207,7 +207,7 @@ int main(int argc, char** argv) {
                 grooves.empty() ? 0.0 : grooves[0].top_gap * 1e3, grooves.empty() ? 0.0 : grooves[0].depth * 1e3,
                 grooves.empty() ? 0ull : static_cast<unsigned long long>(grooves[0].conflicts), al.p50,
                 al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(),
-                hybrid::PatchExportParams{}.radius * 1e3, export_us.empty() ? 0.0 : static_cast<double>(patch_sum) / static_cast<double>(export_us.size()),
+                tissue::PatchExportParams{}.radius * 1e3, export_us.empty() ? 0.0 : static_cast<double>(patch_sum) / static_cast<double>(export_us.size()),
                 static_cast<unsigned long long>(patch_max), ex.p50, ex.p99, n == 0 ? "," : "");
   }
   std::printf("  ]\n}\n");

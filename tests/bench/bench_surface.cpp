@@ -12,8 +12,8 @@
 #include <memory>
 #include <vector>
 
-#include "hybrid/patch_export.hpp"
-#include "surface/placeholder_mesh.hpp"
+#include "tissue/patch_export.hpp"
+#include "surface/triangle_mesh.hpp"
 #include "surface/surface_model.hpp"
 
 namespace {
@@ -55,8 +55,8 @@ int main(int argc, char** argv) {
     std::vector<double> cut_us, export_us, deform_us;
     std::size_t crossings = 0;
     auto patch = std::make_unique<TissuePatch>();
-    hybrid::PatchExportScratch scratch;
-    hybrid::PatchExportParams params;
+    tissue::PatchExportScratch scratch;
+    tissue::PatchExportParams params;
     params.radius = 0.01;
     // A wavy cut through the middle, starting 3 cm left of centre.
     double x = -0.03, y = 0.0003;
@@ -69,7 +69,7 @@ int main(int argc, char** argv) {
       crossings += model->cut_to(tool).crossings;
       cut_us.push_back(us_since(t0));
       t0 = Clock::now();
-      (void)hybrid::export_patch(*model, tool, params, scratch, *patch);
+      (void)tissue::export_patch(*model, tool, params, scratch, *patch);
       export_us.push_back(us_since(t0));
       // A dent beside the cut (the other hand's probe), then its return.
       t0 = Clock::now();

@@ -11,7 +11,7 @@
 #include <string>
 
 #include "process.hpp"
-#include "record/hdf5_io.hpp"
+#include "recording/hdf5_io.hpp"
 
 namespace lancet {
 namespace {

@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
-#include "hybrid/patch_export.hpp"
-#include "hybrid/tissue_scene.hpp"
+#include "tissue/patch_export.hpp"
+#include "tissue/tissue_scene.hpp"
 
 namespace lancet::viz {
 namespace {
@@ -51,8 +51,8 @@ void link_frame(VizSession& s, std::int64_t now, const SampleSink& sink, const P
 
 // The patch source of a plain mesh (no volume: no brick).
 PatchFill mesh_patch(const surface::TriangleMesh& mesh) {
-  auto scratch = std::make_shared<hybrid::PatchExportScratch>();
-  return [&mesh, scratch](Vec3 tool, TissuePatch& p) { (void)hybrid::export_patch(mesh, tool, {}, *scratch, p); };
+  auto scratch = std::make_shared<tissue::PatchExportScratch>();
+  return [&mesh, scratch](Vec3 tool, TissuePatch& p) { (void)tissue::export_patch(mesh, tool, {}, *scratch, p); };
 }
 
 TEST(SampleStats, CountsLossAndDisorder) {
@@ -88,9 +88,9 @@ TEST(VizSession, ToolSamplesCutTheSurfaceModel) {
   VizSessionParams p;
   p.shm_name = name;
   VizSession session(p);
-  hybrid::SceneDescription d;
-  d.source = hybrid::SceneSource::kBlock;
-  auto scene = std::move(hybrid::TissueScene::create(std::move(d)).value());
+  tissue::SceneDescription d;
+  d.source = tissue::SceneSource::kBlock;
+  auto scene = std::move(tissue::TissueScene::create(std::move(d)).value());
   bool changed = false;
   const auto apply = [&](std::span<const ToolSample> batch) { changed |= scene->apply(batch); };
   const auto fill = [&](Vec3 tool, TissuePatch& patch) { (void)scene->export_patch(tool, patch); };

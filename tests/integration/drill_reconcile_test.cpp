@@ -12,8 +12,8 @@
 #include <vector>
 
 #include "haptics/haptic_step.hpp"
-#include "hybrid/block_volume.hpp"
-#include "hybrid/volume_brick.hpp"
+#include "tissue/block_volume.hpp"
+#include "tissue/volume_brick.hpp"
 #include "volume/drill.hpp"
 
 namespace lancet {
@@ -21,8 +21,8 @@ namespace {
 
 TEST(DrillReconcile, RemovedBoneNeverComesBackUnderTheBurr) {
   const surface::TissueBlockParams block{};
-  volume::Phantom tissue = hybrid::make_block_volume(block);
-  const hybrid::VolumePlacement placement{};
+  volume::LabelledVolume tissue = tissue::make_block_volume(block);
+  const tissue::VolumePlacement placement{};
   haptics::HapticModel m = haptics::HapticModel::defaults();
   auto d = std::make_unique<haptics::HapticData>();
   auto patch = std::make_unique<TissuePatch>(), next = std::make_unique<TissuePatch>();
@@ -62,7 +62,7 @@ TEST(DrillReconcile, RemovedBoneNeverComesBackUnderTheBurr) {
       applied = tick - 1;  // every sample up to the last tick was drained
       next->seq = ++frame;
       next->samples_applied = applied;
-      hybrid::fill_brick(tissue.volume, placement, in.device, next->brick);
+      tissue::fill_brick(tissue.volume, placement, in.device, next->brick);
     }
     if (tick % 16 == 7) std::swap(patch, next);  // the patch arrives
     in.patch = patch.get();

@@ -16,10 +16,10 @@
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "process_test.hpp"  // tests/support
-#include "record/hdf5_io.hpp"
-#include "record/metrics.hpp"
+#include "recording/hdf5_io.hpp"
+#include "score/metrics.hpp"
 #include "record/replay.hpp"
-#include "record/report.hpp"
+#include "score/report.hpp"
 #include "shared_data.hpp"  // tests/support
 #include "wait.hpp"         // tests/support
 
@@ -127,9 +127,9 @@ class RecordReplay : public test::ProcessTest {
     ASSERT_TRUE(parsed.ok()) << parsed.error().message;
     record::Recording replayed = r;
     replayed.samples = rp.value()->replayed();
-    const record::Metrics live = record::compute_metrics(r, &parsed.value());
-    const record::Metrics again = record::compute_metrics(replayed, &parsed.value());
-    EXPECT_EQ(record::report_json({{file, &r, live}}), record::report_json({{file, &replayed, again}}));
+    const score::Metrics live = score::compute_metrics(r, &parsed.value());
+    const score::Metrics again = score::compute_metrics(replayed, &parsed.value());
+    EXPECT_EQ(score::report_json({{file, &r, live}}), score::report_json({{file, &replayed, again}}));
   }
 };
 

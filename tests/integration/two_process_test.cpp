@@ -243,7 +243,7 @@ void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
   fx.stop_rt(*rt);
 
   // How deep the proxy sphere (radius 1 mm, HapticParams::proxy_radius) centred on the tool point
-  // reaches into the tissue block's rest surface (surface/placeholder_mesh: a·sin(x/L)·cos(y/L),
+  // reaches into the tissue block's rest surface (surface/triangle_mesh: a·sin(x/L)·cos(y/L),
   // a = 3 mm, L = 30 mm), along its normal: k times this is the force to feel.
   const auto depth_m = [](double x, double y, double z) {
     constexpr double a = 0.003, L = 0.03, kProxyRadius = 0.001;

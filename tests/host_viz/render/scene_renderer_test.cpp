@@ -12,7 +12,7 @@
 #include <string>
 
 #include "headless_gl.hpp"
-#include "surface/placeholder_mesh.hpp"
+#include "surface/triangle_mesh.hpp"
 
 namespace lancet::render {
 namespace {

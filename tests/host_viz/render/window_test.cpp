@@ -10,7 +10,7 @@
 #include "headless_gl.hpp"
 #include "render/gl_objects.hpp"
 #include "render/scene_renderer.hpp"
-#include "surface/placeholder_mesh.hpp"
+#include "surface/triangle_mesh.hpp"
 
 namespace lancet::render {
 namespace {

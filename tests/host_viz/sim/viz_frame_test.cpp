@@ -17,7 +17,7 @@
 #include "app/recorder_control.hpp"
 #include "app/viz_session.hpp"
 #include "lancet/shared_model/shared_state.hpp"
-#include "record/hdf5_io.hpp"
+#include "recording/hdf5_io.hpp"
 #include "record/replay.hpp"
 #include "servo/servo_step.hpp"
 

@@ -9,7 +9,7 @@
 #include <random>
 #include <set>
 
-#include "surface/placeholder_mesh.hpp"
+#include "surface/triangle_mesh.hpp"
 #include "volume/marching_cubes.hpp"
 
 namespace lancet::surface {

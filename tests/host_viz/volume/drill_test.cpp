@@ -88,7 +88,7 @@ TEST(Drill, RemovesTheSphereAndAccountsItsVolume) {
 TEST(Drill, SplitsTheRemovedVolumeByMaterialAndClearsLabels) {
   PhantomParams pp;
   pp.dims = {96, 96, 20};
-  Phantom ph = make_phantom(pp);
+  LabelledVolume ph = make_phantom(pp);
   // At the skin on the +x side: skin, fat and air all inside the burr.
   const Vec3 at{pp.limb_radius, 0, 0};
   auto d = drill_sphere(ph.volume, burr(at, 0.004), ph.material);
@@ -146,7 +146,7 @@ std::vector<std::array<std::array<float, 3>, 3>> face_set(const IsoMesh& m) {
 TEST(LiveIsosurface, LocalReextractionEqualsAFreshExtractionAndStaysClosed) {
   PhantomParams pp;
   pp.dims = {72, 72, 40};
-  Phantom ph = make_phantom(pp);
+  LabelledVolume ph = make_phantom(pp);
   const IsoOptions o = opts(300, true);  // bone
   auto live = LiveIsosurface::create(ph.volume, o, ph.material);
   ASSERT_TRUE(live.ok()) << live.error().message;

@@ -101,7 +101,7 @@ std::vector<Tri> triangles_of(const IsoSurface& s) { return {s.triangles.begin()
 IsoSurface phantom_skin(bool pad) {
   PhantomParams params;
   params.dims = {80, 80, 40};
-  const Phantom ph = make_phantom(params);
+  const LabelledVolume ph = make_phantom(params);
   IsoOptions o;
   o.iso = -300;
   o.pad_border = pad;

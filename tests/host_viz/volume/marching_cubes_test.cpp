@@ -205,7 +205,7 @@ TEST(MarchingCubes, PaddingClosesASurfaceThatTouchesTheVolumeEdge) {
 }
 
 TEST(MarchingCubes, MaterialsComeFromLabelsOrThresholdsOnTheInside) {
-  const Phantom ph = make_phantom(small_phantom(64, 64, 24));
+  const LabelledVolume ph = make_phantom(small_phantom(64, 64, 24));
   const IsoSurface skin = extract(ph.volume, opt(-300, true, -1000.0f), ph.material);
   std::set<int> seen(skin.material.begin(), skin.material.end());
   EXPECT_TRUE(seen.count(kSkin)) << "the skin surface should be labelled skin";
@@ -216,7 +216,7 @@ TEST(MarchingCubes, MaterialsComeFromLabelsOrThresholdsOnTheInside) {
 }
 
 TEST(MarchingCubes, PhantomSkinIsClosedWithPadding) {
-  const Phantom ph = make_phantom(small_phantom(80, 80, 40));
+  const LabelledVolume ph = make_phantom(small_phantom(80, 80, 40));
   const MeshStats st = checked_stats(extract(ph.volume, opt(-300, true)));
   EXPECT_TRUE(st.closed());
   EXPECT_EQ(st.degenerate_faces, 0u);

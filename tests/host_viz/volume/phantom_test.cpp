@@ -19,8 +19,8 @@ PhantomParams small() {
   return p;
 }
 
-TEST(Phantom, GeometryAndUnits) {
-  const Phantom ph = make_phantom(small());
+TEST(LabelledVolume, GeometryAndUnits) {
+  const LabelledVolume ph = make_phantom(small());
   const Volume& v = ph.volume;
   EXPECT_EQ(v.dims, (std::array<int, 3>{100, 100, 40}));
   EXPECT_EQ(v.value_unit, "HU");
@@ -32,20 +32,20 @@ TEST(Phantom, GeometryAndUnits) {
   EXPECT_NEAR(norm(mid), 0, 1e-12);
 }
 
-TEST(Phantom, DeterministicFromTheSeed) {
+TEST(LabelledVolume, DeterministicFromTheSeed) {
   PhantomParams p = small();
-  const Phantom a = make_phantom(p), b = make_phantom(p);
+  const LabelledVolume a = make_phantom(p), b = make_phantom(p);
   EXPECT_EQ(a.volume.data, b.volume.data);
   p.seed = 2;
-  const Phantom c = make_phantom(p);
+  const LabelledVolume c = make_phantom(p);
   EXPECT_NE(a.volume.data, c.volume.data);
   EXPECT_EQ(a.material, c.material);  // only the noise depends on the seed
 }
 
-TEST(Phantom, LayersHaveTheirHounsfieldUnitsAndTheNoiseItsSpread) {
+TEST(LabelledVolume, LayersHaveTheirHounsfieldUnitsAndTheNoiseItsSpread) {
   PhantomParams p = small();
   p.partial_volume = false;  // every voxel its material's value, so the means are exact
-  const Phantom ph = make_phantom(p);
+  const LabelledVolume ph = make_phantom(p);
   double sum[7] = {}, sum2[7] = {};
   std::size_t n[7] = {};
   for (std::size_t i = 0; i < ph.material.size(); ++i) {
@@ -64,9 +64,9 @@ TEST(Phantom, LayersHaveTheirHounsfieldUnitsAndTheNoiseItsSpread) {
   }
 }
 
-TEST(Phantom, LayersAreOrderedFromTheOutside) {
+TEST(LabelledVolume, LayersAreOrderedFromTheOutside) {
   // Along +x from outside to the centre line at mid length: air, skin, fat, muscle, then bone.
-  const Phantom ph = make_phantom(small());
+  const LabelledVolume ph = make_phantom(small());
   const Volume& v = ph.volume;
   const int j = 50, k = 20;
   std::vector<std::uint8_t> seen;
@@ -82,13 +82,13 @@ TEST(Phantom, LayersAreOrderedFromTheOutside) {
   EXPECT_EQ(seen[4], kCorticalBone);
 }
 
-TEST(Phantom, PartialVolumeBlendsOnlyTheVoxelsABoundaryPassesNear) {
+TEST(LabelledVolume, PartialVolumeBlendsOnlyTheVoxelsABoundaryPassesNear) {
   // A voxel more than a voxel from every boundary (every voxel within two of it on each axis
   // shares its material: a thin vessel passing diagonally can miss the axis neighbours alone)
   // keeps its material's value exactly; closer, it is blended.
   PhantomParams p = small();
   p.noise_hu = 0;
-  const Phantom ph = make_phantom(p);
+  const LabelledVolume ph = make_phantom(p);
   const Volume& v = ph.volume;
   std::size_t blended = 0, interior = 0;
   for (int k = 2; k + 2 < v.dims[2]; ++k)
@@ -121,7 +121,7 @@ NormalError skin_normal_error(bool partial_volume, double noise = 12) {
   p.dims = {100, 100, 60};
   p.partial_volume = partial_volume;
   p.noise_hu = noise;
-  const Phantom ph = make_phantom(p);
+  const LabelledVolume ph = make_phantom(p);
   IsoOptions o;
   o.iso = -300;
   o.pad_border = true;
@@ -160,7 +160,7 @@ NormalError skin_normal_error(bool partial_volume, double noise = 12) {
   return e;
 }
 
-TEST(Phantom, TheSkinSurfaceIsSmoothNotTerraced) {
+TEST(LabelledVolume, TheSkinSurfaceIsSmoothNotTerraced) {
   const NormalError smooth = skin_normal_error(true), hard = skin_normal_error(false);
   const NormalError quiet = skin_normal_error(true, 0);
   std::printf("[ info     ] skin face normals against the analytic limb (area-weighted): partial volume mean %.2f° "

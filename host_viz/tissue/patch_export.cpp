@@ -1,0 +1,103 @@
+#include "patch_export.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "surface/bvh.hpp"
+
+namespace lancet::tissue {
+namespace {
+
+// Keeps the nearest kPatchCapacity candidates (all when they fit) in the order they came — the
+// order of the BVH's walk or of the mesh, which keeps neighbours together for lancet-rt's search
+// tree (haptics/patch_bvh.hpp) — with ties at the cut-off going to the earlier ones.
+void keep_nearest_in_order(std::vector<std::pair<double, std::uint32_t>>& cand, std::vector<double>& scratch) {
+  if (cand.size() <= kPatchCapacity) return;
+  scratch.clear();
+  for (const auto& c : cand) scratch.push_back(c.first);
+  const auto nth = scratch.begin() + static_cast<std::ptrdiff_t>(kPatchCapacity - 1);
+  std::nth_element(scratch.begin(), nth, scratch.end());
+  const double limit = *nth;
+  std::size_t below = 0;
+  for (const auto& c : cand) below += c.first < limit ? 1 : 0;
+  std::size_t ties = kPatchCapacity - below, kept = 0;
+  for (const auto& c : cand) {
+    if (c.first < limit || (c.first == limit && ties > 0)) {
+      if (c.first == limit) --ties;
+      cand[kept++] = c;
+    }
+  }
+  cand.resize(kept);
+}
+
+}  // namespace
+
+std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const PatchExportParams& params,
+                         PatchExportScratch& scratch, TissuePatch& out) {
+  auto& cand = scratch.candidates;
+  cand.clear();
+  for (std::uint32_t f = 0; f < mesh.triangles.size(); ++f) {
+    const auto& t = mesh.triangles[f];
+    const Vec3 a = to_vec3(mesh.vertices[t[0]]), b = to_vec3(mesh.vertices[t[1]]), c = to_vec3(mesh.vertices[t[2]]);
+    const Vec3 centroid = (1.0 / 3.0) * (a + b + c);
+    const double r = std::max({norm(a - centroid), norm(b - centroid), norm(c - centroid)});
+    const double d = norm(centre - centroid);
+    if (d - r <= params.radius) cand.emplace_back(d * d, f);
+  }
+  const std::size_t found = cand.size();
+  keep_nearest_in_order(cand, scratch.distances);
+  const std::size_t keep = cand.size();
+  for (std::size_t i = 0; i < keep; ++i) {
+    const auto& t = mesh.triangles[cand[i].second];
+    PatchTriangle& pt = out.triangles[i];
+    pt.v[0] = mesh.vertices[t[0]];
+    pt.v[1] = mesh.vertices[t[1]];
+    pt.v[2] = mesh.vertices[t[2]];
+    pt.material = mesh.material[cand[i].second];
+    pt.flags = 0;
+    pt.id = cand[i].second;
+  }
+  out.n_triangles = static_cast<std::uint32_t>(keep);
+  return found;
+}
+
+std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,
+                         PatchExportScratch& scratch, TissuePatch& out, const BrickSource& brick) {
+  const surface::MeshView view = model.view();
+  const auto& mesh = model.mesh();
+  auto& near = scratch.faces;
+  // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
+  // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
+  // exact distance to the haptic triangles.
+  const double reach = params.radius + model.params().deform_max_depth;
+  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(reach), near, /*tree_order=*/true);
+  auto& cand = scratch.candidates;
+  cand.clear();
+  const auto corner = [&](std::uint32_t v) { return to_vec3f(model.haptic_position(v)); };
+  const double r2 = params.radius * params.radius;
+  for (std::uint32_t f : near) {
+    const auto& t = view.faces[f];
+    const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
+    if (d2 <= r2) cand.emplace_back(d2, f);
+  }
+  const std::size_t found = cand.size();
+  keep_nearest_in_order(cand, scratch.distances);
+  const std::size_t keep = cand.size();
+  for (std::size_t i = 0; i < keep; ++i) {
+    const std::uint32_t f = cand[i].second;
+    const auto& t = view.faces[f];
+    PatchTriangle& pt = out.triangles[i];
+    for (int k = 0; k < 3; ++k) pt.v[k] = corner(t[static_cast<std::size_t>(k)]);
+    pt.material = model.face_material(f);
+    pt.flags = 0;
+    pt.id = f;
+    for (auto h : mesh.fh_range(model.face_handle(f)))
+      if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
+  }
+  out.n_triangles = static_cast<std::uint32_t>(keep);
+  out.brick.valid = 0;
+  if (brick) brick(centre, out.brick);
+  return found;
+}
+
+}  // namespace lancet::tissue
