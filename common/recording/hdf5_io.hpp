@@ -1,5 +1,5 @@
 #pragma once
-// A recorded session (record/recording.hpp) as one HDF5 file, through Debian's libhdf5, readable
+// A recorded session (recording/recording.hpp) as one HDF5 file, through Debian's libhdf5, readable
 // by h5py, MATLAB (h5read) and HDFView. Layout (docs/RECORDING.md):
 //
 //   /                 attributes: format_version, lancet_version, layout_hash, protocol, created,

@@ -1,6 +1,6 @@
 #pragma once
 // Recording: one recorded training session in memory, as lancet-viz records it and as
-// lancet-report, the metrics and the replay read it back (record/hdf5_io.hpp reads and writes the
+// lancet-report, the metrics and the replay read it back (recording/hdf5_io.hpp reads and writes the
 // HDF5 file; docs/RECORDING.md describes the file for h5py and MATLAB users).
 //
 // What a session is: from the tick at which lancet-rt applied the recording's reset (a fresh

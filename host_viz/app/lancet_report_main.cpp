@@ -1,6 +1,6 @@
 // lancet-report: the skill metrics of recorded sessions as a self-contained HTML page and JSON.
 //   lancet-report FILE.h5 [FILE2.h5 ...] -o report.html [--json out.json|-]
-// Each FILE is a recording written by lancet-viz (record/hdf5_io.hpp); its metrics are scored
+// Each FILE is a recording written by lancet-viz (recording/hdf5_io.hpp); its metrics are scored
 // against the [score] section of the scenario it was recorded with (the text stored in the file),
 // or of the scenario file given with --scenario (bands recalibrated since).
 // Several files give one page with a comparison table. A one-line verdict per file goes to stdout

@@ -28,7 +28,7 @@
 // Work is done in tiles of kTile consecutive cells: a tile is stepped only while some cell in
 // it holds mobile blood, has a source or sink, or still sends a flux, and volumes are updated
 // only in tiles that such a tile sends to; skipping the others is exact (their fluxes are zero
-// and stay zero). The GPU twin (render/blood_compute) runs the same float operations in the same
+// and stay zero). The GPU twin (blood/blood_compute) runs the same float operations in the same
 // order. No OpenGL here.
 
 #include <cstddef>

@@ -81,7 +81,7 @@ struct Structure {
   double radius = 0;       ///< kCapsule/kSphere (m)
 };
 
-/// A metric a [score.bands] table may name: what record/metrics.hpp computes, its unit in its
+/// A metric a [score.bands] table may name: what score/metrics.hpp computes, its unit in its
 /// name's suffix, and the tasks it applies to.
 struct ScoreMetricInfo {
   std::string_view name;
@@ -119,7 +119,7 @@ struct ScoreBand {
 
 /// How a recorded attempt is scored (key [score]); these defaults when the section is absent.
 /// With k = sd_multiple a lower-is-better metric passes at value <= mean + k·sd, a
-/// higher-is-better one at value >= mean - k·sd (record/metrics.hpp).
+/// higher-is-better one at value >= mean - k·sd (score/metrics.hpp).
 struct Score {
   double force_limit = 3.0;        ///< N (key force_limit_n, > 0): the time above it is counted
   double movement_speed = 0.020;   ///< m/s (key movement_speed_mm_s, > 0): a movement is an upward crossing of it
