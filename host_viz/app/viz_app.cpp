@@ -56,6 +56,7 @@ VizApp::VizApp(const VizOptions& o, render::Window& win, VizSources sources, std
   if (scenario != nullptr && scenario->task == scenario::TaskKind::kIncision) guide_ = sim().scene().drape(scenario->incision.line);
   for (auto p : volume::kTfPresets) preset_names_.emplace_back(volume::tf_preset_name(p));
   ui_.view = o.view;
+  ui_.show_patch = o.show_patch;
   ui_.preset = o.preset;
   if (std::isfinite(o.clip_mm)) ui_.clip = true, ui_.clip_mm = o.clip_mm;
   if (scenario != nullptr) {
@@ -236,7 +237,7 @@ void VizApp::draw(std::int64_t now) {
     in.proxy = latest->proxy.position;
     in.force = latest->force;
   }
-  in.patch = replay_ ? replay_->patch() : session_.patches_published() > 0 ? &session_.patch() : nullptr;
+  if (ui_.show_patch) in.patch = replay_ ? replay_->patch() : session_.patches_published() > 0 ? &session_.patch() : nullptr;
   in.camera_yaw = ui_.yaw, in.camera_pitch = ui_.pitch, in.camera_distance = ui_.distance;
   if (scenario != nullptr) in.camera_target = scenario->camera.target;
   in.guide = guide_.empty() ? nullptr : &guide_;
@@ -285,6 +286,7 @@ render::PanelState VizApp::panel_state(std::int64_t now, const ToolSample* lates
   panel.preset = ui_.preset;
   panel.level = ui_.level, panel.width = ui_.width;
   panel.clip = ui_.clip, panel.clip_mm = ui_.clip_mm;
+  panel.show_patch = ui_.show_patch;
   if (volume_.shown()) panel.tf_editor = volume_.editor(), panel.histogram = volume_.histogram();
   if (sim().bleeding() != nullptr) panel.blood = blood_lines(*sim().bleeding());
   return panel;
@@ -306,6 +308,7 @@ void VizApp::do_panel_actions(const render::PanelActions& act, std::int64_t now)
   if (act.preset >= 0) ui_.preset = act.preset, ui_.level = 0, ui_.width = 1;
   if (act.window_changed) ui_.level = act.level, ui_.width = act.width;
   if (act.clip_changed) ui_.clip = act.clip, ui_.clip_mm = act.clip_mm;
+  if (act.patch_toggled) ui_.show_patch = !ui_.show_patch;
   if (act.tf_edited) volume_.mark_edited();
   if (act.screenshot) want_snapshot_ = true;
   if (act.replay_pause) clock_.toggle_pause();

@@ -55,6 +55,8 @@ std::optional<int> parse_viz_cli(int argc, char** argv, VizOptions& o) {
                  "draw the last frame (the screenshot's, with --duration) in this view instead: e.g. composite, to show the "
                  "volume beneath an opened incision while the run itself stays fast")
       ->check(CLI::IsMember({"mesh", "composite", "volume"}));
+  cli.add_flag("--show-patch", o.show_patch,
+               "draw the tissue patch sent to lancet-rt as a cyan wireframe (a developer's view; T toggles it in the window)");
   cli.add_option("--clip-mm", o.clip_mm, "cut the volume away above this height (world z, mm; the skin's top is at 0)");
   std::vector<std::string> preset_names;
   for (auto p : volume::kTfPresets) preset_names.emplace_back(volume::tf_preset_name(p));

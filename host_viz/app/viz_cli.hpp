@@ -26,6 +26,7 @@ struct VizOptions {
   std::string tissue = "block";       ///< without a scenario: block or phantom
   std::string tool;                   ///< --tool ("" not given; "none": leave it to lancet-rt)
   int view = 0;                       ///< 0 mesh, 1 composite, 2 volume
+  bool show_patch = false;            ///< draw the patch sent to lancet-rt (wireframe), as T does
   int screenshot_view = -1;           ///< the last frame's view (-1: as the run's)
   float clip_mm = std::numeric_limits<float>::quiet_NaN();  ///< volume clipped above (world z); NaN: not
   int preset = 1;                     ///< index into volume::kTfPresets

@@ -2,7 +2,8 @@
 // The interactive window's keyboard and mouse: what the user is looking at (Interaction: camera,
 // view, volume window/level and clip) and what they asked for this frame (InputActions). Keys act
 // on the press, not while held: M mouse drives the stylus, 1-5 pick a tool, R reset, W re-arm the
-// watchdog, V next view, P next preset, F9 record, F12 screenshot, space pause a replay, Esc quit.
+// watchdog, V next view, P next preset, T the patch's wireframe on or off, F9 record, F12
+// screenshot, space pause a replay, Esc quit.
 // Left drag rotates, right drag sets window/level, the wheel zooms (or sets the stylus depth).
 
 #include <vector>
@@ -24,6 +25,7 @@ struct Interaction {
   float level = 0, width = 1;  ///< window/level: HU shift and width scale of the preset
   bool clip = false;           ///< the volume cut away above clip_mm (world z)
   float clip_mm = -10;
+  bool show_patch = false;     ///< the TissuePatch sent to lancet-rt drawn as a wireframe (a developer's view)
   float yaw = 0.6f, pitch = 0.55f, distance = 0.26f;  ///< camera: rad, rad, m
 };
 
@@ -54,7 +56,7 @@ class InputPoller {
 
  private:
   GLFWwindow* window_;
-  bool key_down_[13] = {};
+  bool key_down_[14] = {};
 };
 
 }  // namespace lancet::viz

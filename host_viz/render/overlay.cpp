@@ -239,6 +239,9 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
     ImGui::SameLine();
     ImGui::RadioButton("volume", &view, 2);
     if (view != p.view) act.view = view;
+    ImGui::SameLine();
+    bool show_patch = p.show_patch;
+    if (ImGui::Checkbox("patch (T)", &show_patch)) act.patch_toggled = true;
     if (p.view != 0 && !p.presets.empty()) {
       int preset = p.preset;
       ImGui::SetNextItemWidth(200);

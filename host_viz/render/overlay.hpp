@@ -41,6 +41,7 @@ struct PanelState {
   float level = 0, width = 1;
   bool clip = false;                    ///< the volume is cut away above clip_mm (world z)
   float clip_mm = 0;
+  bool show_patch = false;              ///< the patch sent to lancet-rt is drawn (wireframe)
   /// The volume's table, edited in place by the panel's editor (nullptr: no editor), drawn over
   /// the volume's histogram (same range as the editor; may be nullptr).
   /// The bleeding: blood loss and each bleeding vessel (alert: red); empty: no blood simulated.
@@ -68,6 +69,7 @@ struct PanelActions {
   float level = 0, width = 1;
   bool clip_changed = false, clip = false;
   float clip_mm = 0;
+  bool patch_toggled = false;              ///< the "patch (T)" box was clicked
   bool tf_edited = false;                  ///< the editor changed the table: upload editor->table()
   std::array<float, 4> tf_canvas{};        ///< the editor's canvas on screen: x, y (top left), w, h in pixels
 };

@@ -10,6 +10,7 @@
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <stb/stb_image.h>
 #include <sys/mman.h>
 
 #include <algorithm>
@@ -66,7 +67,8 @@ class TwoProcess : public test::ProcessTest {
     return rt;
   }
   std::unique_ptr<Child> start_viz(const std::vector<std::string>& extra) {
-    std::vector<std::string> argv{kViz, "--headless", "--shm", shm_, "--width", "640", "--height", "400"};
+    std::vector<std::string> argv{kViz, "--headless", "--shm", shm_};
+    if (std::find(extra.begin(), extra.end(), "--width") == extra.end()) argv.insert(argv.end(), {"--width", "640", "--height", "400"});
     argv.insert(argv.end(), extra.begin(), extra.end());
     // Mesa's GL driver leaks a little at context teardown and is unloaded before LeakSanitizer
     // reports, so the report cannot be suppressed by name: leak checking is off for lancet-viz in
@@ -158,6 +160,38 @@ TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
   EXPECT_GT(json_number(r, "max_force_n").value_or(0), 0.2) << r;
   EXPECT_EQ(json_number(r, "nan_guards").value_or(-1), 0) << r;
   EXPECT_FALSE(std::filesystem::exists("/dev/shm" + shm_)) << "lancet-rt did not unlink its segment";
+}
+
+// The patch sent to lancet-rt is a developer's view: drawn (cyan wireframe) only with
+// --show-patch (or T in the window), never in the default picture.
+TEST_F(TwoProcess, ThePatchWireframeIsDrawnOnlyWhenAsked) {
+  auto rt = start_rt();
+  ASSERT_TRUE(rt->running());
+  std::size_t cyan[2] = {0, 0};
+  for (const bool show : {false, true}) {
+    const std::string png = path(show ? "with_patch.png" : "default.png");
+    // Large enough that the panel leaves the tissue in view.
+    std::vector<std::string> args{"--duration", "600", "--screenshot", png, "--width", "1280", "--height", "720"};
+    if (show) args.push_back("--show-patch");
+    auto viz = start_viz(args);
+    // Patches published and in use (the picture's last frame has one to draw, or not).
+    const std::uint64_t from = status().tick;
+    ASSERT_TRUE(test::eventually([&] { return viz_applied() > from + 500; })) << read_file(path("viz.log"));
+    stop_viz(*viz);
+    int w = 0, h = 0, n = 0;
+    unsigned char* px = stbi_load(png.c_str(), &w, &h, &n, 3);
+    ASSERT_NE(px, nullptr) << png;
+    for (int i = 0; i < w * h; ++i) {
+      const unsigned char r = px[3 * i], g = px[3 * i + 1], b = px[3 * i + 2];
+      if (r < 100 && g > 180 && b > 200 && std::abs(int{g} - int{b}) < 60) ++cyan[show ? 1 : 0];  // the wireframe's (0.2, 0.85, 0.95)
+    }
+    stbi_image_free(px);
+  }
+  RecordProperty("cyan_pixels_default", static_cast<int>(cyan[0]));
+  RecordProperty("cyan_pixels_with_patch", static_cast<int>(cyan[1]));
+  EXPECT_EQ(cyan[0], 0u) << "the default picture shows the patch's wireframe";
+  EXPECT_GT(cyan[1], 500u) << "--show-patch draws no wireframe";
+  stop_rt(*rt);
 }
 
 // The CT phantom's marching-cubes skin as the tissue: the stylus touches it and feels it.
