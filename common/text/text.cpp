@@ -7,6 +7,29 @@
 #include <system_error>
 
 namespace lancet::text {
+namespace {
+
+// The length of the well-formed UTF-8 sequence of two or more bytes at s[i], and its code point;
+// 0 when there is none there (a stray or missing continuation byte, an overlong form, a
+// surrogate, or anything above U+10FFFF).
+std::size_t utf8_sequence(std::string_view s, std::size_t i, std::uint32_t& cp) {
+  const auto c = static_cast<unsigned char>(s[i]);
+  std::size_t len = 0;
+  if (c >= 0xc2 && c <= 0xdf) len = 2, cp = c & 0x1fu;
+  else if (c >= 0xe0 && c <= 0xef) len = 3, cp = c & 0x0fu;
+  else if (c >= 0xf0 && c <= 0xf4) len = 4, cp = c & 0x07u;
+  if (len == 0 || i + len > s.size()) return 0;
+  for (std::size_t k = 1; k < len; ++k) {
+    const auto cc = static_cast<unsigned char>(s[i + k]);
+    if ((cc & 0xc0u) != 0x80u) return 0;
+    cp = (cp << 6) | (cc & 0x3fu);
+  }
+  const bool overlong = (len == 3 && cp < 0x800) || (len == 4 && cp < 0x10000);
+  if (overlong || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff)) return 0;
+  return len;
+}
+
+}  // namespace
 
 std::string json_string(std::string_view s) {
   std::string out = "\"";
@@ -26,10 +49,9 @@ std::string json_string(std::string_view s) {
       ++i;
     } else {
       // A well-formed UTF-8 sequence is copied; anything else is replaced.
-      const std::size_t n = c >= 0xF0 && c <= 0xF4 ? 4 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xC2 && c <= 0xDF ? 2 : 0;
-      bool ok = n != 0 && i + n <= s.size();
-      for (std::size_t k = 1; ok && k < n; ++k) ok = (static_cast<unsigned char>(s[i + k]) & 0xC0) == 0x80;
-      if (ok) {
+      std::uint32_t cp = 0;
+      const std::size_t n = utf8_sequence(s, i, cp);
+      if (n != 0) {
         out.append(s.substr(i, n));
         i += n;
       } else {
@@ -66,23 +88,10 @@ std::string xml_escape(std::string_view s) {
       ++i;
       continue;
     }
-    // A multi-byte sequence: check its length, continuation bytes and range (no overlongs, no
-    // surrogates, nothing above U+10FFFF; U+FFFE/U+FFFF are not XML characters either).
-    std::size_t len = 0;
+    // U+FFFE/U+FFFF and the C1 controls are not XML characters, even well-formed.
     std::uint32_t cp = 0;
-    if (c >= 0xc2 && c <= 0xdf) { len = 2; cp = c & 0x1fu; }
-    else if (c >= 0xe0 && c <= 0xef) { len = 3; cp = c & 0x0fu; }
-    else if (c >= 0xf0 && c <= 0xf4) { len = 4; cp = c & 0x07u; }
-    bool valid = len != 0 && i + len <= s.size();
-    for (std::size_t k = 1; valid && k < len; ++k) {
-      const auto cc = static_cast<unsigned char>(s[i + k]);
-      valid = (cc & 0xc0u) == 0x80u;
-      cp = (cp << 6) | (cc & 0x3fu);
-    }
-    if (valid) {
-      valid = !(len == 3 && cp < 0x800) && !(len == 4 && (cp < 0x10000 || cp > 0x10ffff)) &&
-              !(cp >= 0xd800 && cp <= 0xdfff) && cp != 0xfffe && cp != 0xffff && !(cp >= 0x80 && cp <= 0x9f);
-    }
+    const std::size_t len = utf8_sequence(s, i, cp);
+    const bool valid = len != 0 && cp != 0xfffe && cp != 0xffff && !(cp >= 0x80 && cp <= 0x9f);
     if (valid) {
       out.append(s.substr(i, len));
       i += len;

@@ -38,6 +38,7 @@
 #include "render/scene_renderer.hpp"
 #include "render/volume_raycaster.hpp"
 #include "render/window.hpp"
+#include "tissue/scripted_sample.hpp"
 #include "volume/raycast.hpp"
 
 #ifndef LANCET_SOURCE_DIR
@@ -116,14 +117,8 @@ struct Driver final : sim::FrameIo {
     batch.clear();
   }
   ToolSample sample(ToolMode mode, Stage stage, Vec3 tool, Vec3 proxy) {
-    ToolSample t{};
-    t.seq = ++seq;
     now += 1'000'000;
-    t.t_ns = now;
-    t.mode = mode;
-    t.stage = stage;
-    t.tool.position = tool;
-    t.proxy.position = proxy;
+    ToolSample t = tissue::scripted_sample(++seq, now, mode, stage, proxy, tool, 0);
     t.reset_mode = kNoReset;
     return t;
   }

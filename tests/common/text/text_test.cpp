@@ -25,6 +25,9 @@ TEST(JsonString, KeepsWellFormedUtf8AndReplacesTheRest) {
   EXPECT_EQ(json_string("µs \xE2\x86\x92"), "\"µs \xE2\x86\x92\"");
   EXPECT_EQ(json_string("a\xFF" "b"), "\"a\\ufffdb\"");
   EXPECT_EQ(json_string("\xE2\x86"), "\"\\ufffd\\ufffd\"");  // cut short
+  EXPECT_EQ(json_string("\xE0\x80\xAF"), "\"\\ufffd\\ufffd\\ufffd\"");  // an overlong '/'
+  EXPECT_EQ(json_string("\xED\xA0\x80"), "\"\\ufffd\\ufffd\\ufffd\"");  // a surrogate
+  EXPECT_EQ(json_string("\xC2\x85"), "\"\xC2\x85\"");  // a C1 control is well-formed UTF-8 (XML refuses it)
 }
 
 TEST(JsonNumber, NullForWhatJsonCannotHold) {
