@@ -226,10 +226,9 @@ void add_options(CLI::App& cli, Args& a) {
                  "built-in stylus");
 }
 
-/// The configured arm: its config, kinematics and device, configured and answering.
+/// The configured arm: its config and device, configured and answering.
 struct Arm {
   std::optional<lancet::arm::ArmConfig> config;
-  std::optional<lancet::arm::Kinematics> kinematics;
   std::unique_ptr<lancet::device::Device> device;
 };
 
@@ -239,8 +238,9 @@ bool fail(const std::string& message) {
   return false;
 }
 
-/// Loads the arm of --config, builds its kinematics and device, configures it and waits for a good
-/// read (activate comes just before the loop starts); fits the servo model to it.
+/// Loads the arm of --config, builds its kinematics (into the servo model) and device, configures it
+/// and waits for a good read (activate comes just before the loop starts); fits the servo model to
+/// it.
 bool open_arm(Args& a, Arm& arm) {
   auto cfg = lancet::arm::load_arm_config(a.config_path);
   if (!cfg.ok()) return fail(cfg.error().message);
@@ -262,7 +262,8 @@ bool open_arm(Args& a, Arm& arm) {
   if (cal.value()) std::fprintf(stderr, "lancet-rt: calibration %s applied\n", cal_path.c_str());
   auto kin = lancet::arm::make_kinematics(*arm.config);
   if (!kin.ok()) return fail(kin.error().message);
-  arm.kinematics = kin.value();
+  lancet::servo::ServoModel& m = a.model.servo;
+  m.kinematics = kin.value();
   auto dev = lancet::app::make_device(*arm.config);
   if (!dev.ok()) return fail(dev.error().message);
   arm.device = std::move(dev.value().device);
@@ -274,8 +275,6 @@ bool open_arm(Args& a, Arm& arm) {
     return fail(lancet::text::format("%s did not answer within %.0f ms of configuration (--first-read-timeout-ms): %s",
                                      arm.device->name().c_str(), a.first_read_timeout_ms, why.c_str()));
   }
-  lancet::servo::ServoModel& m = a.model.servo;
-  m.kinematics = *arm.kinematics;
   const auto& ws = arm.config->safety;
   m.device_origin = 0.5 * (ws.workspace_min + ws.workspace_max);
   for (std::size_t j = 0; j < ws.max_joint_torque.size() && j < m.max_joint_torque.size(); ++j)
