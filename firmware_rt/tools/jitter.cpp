@@ -67,12 +67,6 @@ void merge_into(rt::Distribution& a, const rt::Distribution& b) {
   a.buckets = std::move(merged);
 }
 
-std::string fixed1(double v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.1f", v);
-  return b;
-}
-
 
 std::string percentile_name(double p) {
   std::ostringstream s;
@@ -81,9 +75,9 @@ std::string percentile_name(double p) {
 }
 
 void json_distribution(std::ostringstream& o, const rt::Distribution& d) {
-  o << "{\"count\": " << d.count << ", \"min_us\": " << fixed1(d.min_us) << ", \"avg_us\": " << fixed1(d.avg_us)
-    << ", \"max_us\": " << fixed1(d.max_us);
-  for (double p : rt::kReportPercentiles) o << ", \"" << percentile_name(p) << "_us\": " << fixed1(d.percentile_us(p));
+  o << "{\"count\": " << d.count << ", \"min_us\": " << text::json_number(d.min_us, 1) << ", \"avg_us\": " << text::json_number(d.avg_us, 1)
+    << ", \"max_us\": " << text::json_number(d.max_us, 1);
+  for (double p : rt::kReportPercentiles) o << ", \"" << percentile_name(p) << "_us\": " << text::json_number(d.percentile_us(p), 1);
   o << ", \"overflows\": " << d.overflows << "}";
 }
 
@@ -270,7 +264,7 @@ std::string format_jitter_text(const JitterOptions& o, const JitterResult& r) {
   const rt::Distribution ours = rt::to_distribution(r.wake, "lancet");
   s << "# lancetctl jitter: " << o.duration_s << " s in " << std::max(1, o.rounds) << " round(s), interval "
     << o.rt.period_us << " us, strategy " << o.rt.strategy
-    << (o.rt.strategy == "spin" ? " (margin " + fixed1(o.rt.spin_margin_us) + " us)" : std::string()) << ", priority "
+    << (o.rt.strategy == "spin" ? " (margin " + text::format("%.1f", o.rt.spin_margin_us) + " us)" : std::string()) << ", priority "
     << o.rt.priority << (r.setup.fifo ? " SCHED_FIFO" : " (not SCHED_FIFO)") << ", cpu " << r.cpu << ", workload "
     << (o.servo_workload ? "servo (1024-triangle patch)" : "none") << "\n";
   s << "# kernel " << r.setup.kernel << (r.setup.preempt_rt ? " (PREEMPT_RT)" : " (not PREEMPT_RT)") << "\n";
@@ -360,7 +354,7 @@ std::string format_jitter_json(const JitterOptions& o, const JitterResult& r) {
   s << ",\n    \"period_error\": ";
   json_distribution(s, rt::to_distribution(r.period_error, "period_error"));
   s << ",\n    \"ticks\": " << r.ticks << ", \"missed\": " << r.missed << ", \"overruns\": " << r.overruns
-    << ", \"longest_stall_us\": " << fixed1(static_cast<double>(r.longest_stall_ns) / 1e3)
+    << ", \"longest_stall_us\": " << text::json_number(static_cast<double>(r.longest_stall_ns) / 1e3, 1)
     << ", \"page_faults\": " << (r.minor_faults + r.major_faults) << ", \"watchdog_trips\": " << r.watchdog_trips << "},\n";
   s << "  \"cyclictest\": ";
   if (r.cyclictest) {

@@ -79,9 +79,7 @@ class JsonObject {
       field(key, "null");
       return;
     }
-    char buf[40];
-    std::snprintf(buf, sizeof buf, "%.10g", value);
-    field(key, buf);
+    field(key, text::format("%.10g", value));
   }
   /// The object, or the name of the first number that was not finite.
   [[nodiscard]] Result<std::string> finish() const {
