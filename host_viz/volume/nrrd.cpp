@@ -366,7 +366,7 @@ Result<bool> read_geometry(const HeaderFields& h, Volume& v) {
   if (spacings_f && dirs_f) return h.error(*spacings_f, "either spacings or space directions, not both");
   if (spacings_f) {
     auto s = h.numbers(*spacings_f, 3, true);
-    if (!s) return h.error(*spacings_f, "3 positive finite numbers");
+    if (!s) return s.error();
     v.spacing = Vec3{s.value()[0] * kMm, s.value()[1] * kMm, s.value()[2] * kMm};
   }
   // pynrrd writes space directions (and origin) without a space or space dimension line; teem
