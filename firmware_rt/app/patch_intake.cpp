@@ -22,8 +22,8 @@ void sleep_until_ns(std::int64_t t_ns) noexcept {
 }
 }  // namespace
 
-PatchIntake::PatchIntake(SharedState& shared, std::int64_t period_ns)
-    : shared_(shared), period_ns_(period_ns), buffers_(std::make_unique<std::array<ReadyPatch, 3>>()) {}
+PatchIntake::PatchIntake(SharedState& shared, std::int64_t period_ns, Hand hand)
+    : buffer_(shared.patch[hand_index(hand)]), hand_(hand), period_ns_(period_ns), buffers_(std::make_unique<std::array<ReadyPatch, 3>>()) {}
 
 PatchIntake::~PatchIntake() { stop_thread(); }
 
@@ -32,14 +32,16 @@ bool PatchIntake::poll(std::int64_t now_ns) noexcept {
   // Only the triangles in use are copied (a full patch is 720 KB; a typical one a tenth).
   const auto in_use = [](const TissuePatch& p) { return tissue_patch_bytes(p); };
   std::uint64_t version = seen_;
-  const ReadStatus r = shared_.patch.try_read_prefix_if_newer(b.patch, version, offsetof(TissuePatch, triangles), in_use);
+  const ReadStatus r = buffer_.try_read_prefix_if_newer(b.patch, version, offsetof(TissuePatch, triangles), in_use);
   if (r == ReadStatus::kBusy) {
     counters_.busy.fetch_add(1, std::memory_order_relaxed);
     return false;
   }
   if (r != ReadStatus::kOk) return false;
   seen_ = version;  // read whole: taken or rejected, it is not read again
-  if (const char* why = wire::check(b.patch, now_ns)) {
+  const char* why = wire::check(b.patch, now_ns);
+  if (why == nullptr && b.patch.hand != hand_) why = "patch.hand: not the hand whose buffer it came in";
+  if (why != nullptr) {
     counters_.last_reject.store(why, std::memory_order_relaxed);
     counters_.rejected.fetch_add(1, std::memory_order_relaxed);
     return false;
@@ -75,7 +77,7 @@ void PatchIntake::run() noexcept {
   std::int64_t next_allowed_ns = 0;
   while (!stop_.load(std::memory_order_acquire)) {
     const std::int64_t before = monotonic_ns();
-    const bool newer = shared_.patch.wait_newer(seen_, kWaitNs);
+    const bool newer = buffer_.wait_newer(seen_, kWaitNs);
     counters_.wakeups.fetch_add(1, std::memory_order_relaxed);
     if (stop_.load(std::memory_order_acquire)) break;
     std::int64_t now = monotonic_ns();
@@ -137,7 +139,7 @@ std::string PatchIntake::start_thread(bool fifo, int priority, int avoid_cpu) {
 void PatchIntake::stop_thread() {
   if (!started_) return;
   stop_.store(true, std::memory_order_release);
-  shared_.patch.wake_waiters();
+  buffer_.wake_waiters();
   pthread_join(thread_, nullptr);
   started_ = false;
 }

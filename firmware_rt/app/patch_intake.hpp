@@ -56,7 +56,8 @@ class PatchIntake {
 
   /// shared must outlive the intake. period_ns: the servo's (the helper takes at most one patch
   /// per period). Allocates the three ReadyPatch buffers (about 3 × 820 KB).
-  PatchIntake(SharedState& shared, std::int64_t period_ns);
+  /// Takes `hand`'s patches (SharedState::patch[hand]).
+  PatchIntake(SharedState& shared, std::int64_t period_ns, Hand hand = Hand::kRight);
   ~PatchIntake();  ///< stops the helper, if started
   PatchIntake(const PatchIntake&) = delete;
   PatchIntake& operator=(const PatchIntake&) = delete;
@@ -84,7 +85,8 @@ class PatchIntake {
   static void* entry(void* self) noexcept;
 
   static constexpr std::uint32_t kFresh = 4;  ///< in middle_: the middle buffer holds a patch not yet taken
-  SharedState& shared_;
+  TripleBuffer<TissuePatch>& buffer_;  // SharedState::patch[hand]
+  Hand hand_;
   std::int64_t period_ns_;
   std::unique_ptr<std::array<ReadyPatch, 3>> buffers_;
   std::uint32_t back_ = 0;              ///< intake's

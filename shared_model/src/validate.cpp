@@ -26,6 +26,7 @@ bool pose_ok(const Pose& p) { return position_ok(p.position) && quat_ok(p.orient
 bool force_ok(Vec3 f) { return is_finite(f) && dot(f, f) <= kMaxForce * kMaxForce; }
 bool timestamp_ok(std::int64_t t_ns, std::int64_t now_ns) { return t_ns > 0 && t_ns - now_ns <= kFutureSlackNs; }
 bool flag_ok(std::uint32_t v) { return v <= 1; }
+bool hand_ok(Hand h) { return static_cast<std::size_t>(h) < kHandCount; }
 /// NUL-terminated within its array and printable ASCII before that (nothing for a terminal to obey).
 bool text_ok(const char (&text)[kStatusTextSize]) {
   for (std::size_t i = 0; i < kStatusTextSize; ++i) {
@@ -57,7 +58,8 @@ std::uint32_t command_check(const Command& c) noexcept {
   h = mix(h, c.seq);
   h = mix(h, static_cast<std::uint64_t>(c.t_ns));
   h = mix(h, static_cast<std::uint64_t>(c.kind) | static_cast<std::uint64_t>(c.mode) << 8 |
-                 static_cast<std::uint64_t>(c.reserved) << 16);
+                 static_cast<std::uint64_t>(c.hand) << 16 |
+                 static_cast<std::uint64_t>(c.reserved) << 24);
   return static_cast<std::uint32_t>(avalanche(h));
 }
 
@@ -66,11 +68,13 @@ std::uint64_t operator_request_check(const OperatorRequest& r) noexcept {
   h = mix(h, r.seq);
   h = mix(h, static_cast<std::uint64_t>(r.t_ns));
   h = mix(h, static_cast<std::uint64_t>(r.kind) | static_cast<std::uint64_t>(static_cast<std::uint32_t>(r.pid)) << 32);
+  h = mix(h, r.hands);
   return avalanche(h);
 }
 
 const char* check(const Command& c) noexcept {
   if (c.check != command_check(c)) return "command.check: does not match its fields (garbage in the ring?)";
+  if (!hand_ok(c.hand)) return "command.hand: neither right nor left";
   switch (c.kind) {
     case CommandKind::kNone:
     case CommandKind::kReset:
@@ -84,6 +88,7 @@ const char* check(const Command& c) noexcept {
 
 const char* check(const StylusTarget& t, std::int64_t now_ns) noexcept {
   if (!flag_ok(t.active)) return "stylus_target.active: not 0 or 1";
+  if (!hand_ok(t.hand)) return "stylus_target.hand: neither right nor left";
   if (!timestamp_ok(t.t_ns, now_ns)) return "stylus_target.t_ns: not set or in the future";
   if (!pose_ok(t.target)) return "stylus_target.target: not finite, out of range or not a unit quaternion";
   return nullptr;
@@ -91,6 +96,7 @@ const char* check(const StylusTarget& t, std::int64_t now_ns) noexcept {
 
 const char* check(const TissuePatch& p, std::int64_t now_ns) noexcept {
   if (p.n_triangles > kPatchCapacity) return "patch.n_triangles: above the capacity";
+  if (!hand_ok(p.hand)) return "patch.hand: neither right nor left";
   if (!timestamp_ok(p.t_ns, now_ns)) return "patch.t_ns: not set or in the future";
   for (std::uint32_t i = 0; i < p.n_triangles; ++i) {
     const PatchTriangle& t = p.triangles[i];
@@ -113,12 +119,14 @@ const char* check(const TissuePatch& p, std::int64_t now_ns) noexcept {
 const char* check(const OperatorRequest& r, std::int64_t now_ns) noexcept {
   if (r.check != operator_request_check(r)) return "operator_request.check: does not match its fields";
   if (r.kind != kOperatorRearm) return "operator_request.kind: unknown";
+  if (r.hands == 0 || (r.hands & ~((1u << kHandCount) - 1)) != 0) return "operator_request.hands: no hand, or an unknown one";
   if (!timestamp_ok(r.t_ns, now_ns)) return "operator_request.t_ns: not set or in the future";
   return nullptr;
 }
 
 const char* check(const ToolSample& s) noexcept {
   if (s.n_joints > static_cast<std::uint32_t>(kMaxJoints)) return "sample.n_joints: above kMaxJoints";
+  if (!hand_ok(s.hand)) return "sample.hand: neither right nor left";
   if (static_cast<std::size_t>(s.mode) >= kToolCount) return "sample.mode: unknown tool";
   if (static_cast<std::uint8_t>(s.stage) > static_cast<std::uint8_t>(Stage::kDrilling)) return "sample.stage: unknown";
   if ((s.events & ~kKnownEvents) != 0) return "sample.events: unknown bits";
@@ -147,16 +155,22 @@ const char* check(const RtStatus& s) noexcept {
   if (s.period_ns <= 0) return "rt_status.period_ns: not positive";
   if (s.wake_p50_ns < 0 || s.wake_p99_ns < 0 || s.wake_max_ns < 0 || s.compute_p99_ns < 0 || s.longest_stall_ns < 0)
     return "rt_status.wake/compute: negative";
-  if (!force_ok(s.force)) return "rt_status.force: not finite or above 1000 N";
-  if (!in(s.force_scale, 0, 1)) return "rt_status.force_scale: not in [0, 1]";
-  if (!position_ok(s.tool)) return "rt_status.tool: not finite or out of range";
-  if (!flag_ok(s.watchdog_tripped) || !flag_ok(s.fifo) || !flag_ok(s.viz_alive) || !flag_ok(s.contact) ||
-      !flag_ok(s.has_arm) || !flag_ok(s.link_lost) || !flag_ok(s.rearm_pending))
-    return "rt_status: a flag is not 0 or 1";
-  if (!known_code(s.device_state, kLastDeviceLifecycle)) return "rt_status.device_state: unknown";
-  if (!known_code(s.device_fault_cause, kLastIoStatus)) return "rt_status.device_fault_cause: unknown";
+  if (s.hands < 1 || s.hands > kHandCount) return "rt_status.hands: not 1 or 2";
+  if (!flag_ok(s.watchdog_tripped) || !flag_ok(s.fifo) || !flag_ok(s.viz_alive)) return "rt_status: a flag is not 0 or 1";
   if (!known_code(s.watchdog_reason, kLastWatchdogReason)) return "rt_status.watchdog_reason: unknown";
-  if (!text_ok(s.fault_text) || !text_ok(s.error_text) || !text_ok(s.rearm_text)) return "rt_status: a text is not terminated or not printable";
+  for (const HandStatus& h : s.hand) {
+    if (!force_ok(h.force)) return "rt_status.hand[].force: not finite or above 1000 N";
+    if (!in(h.force_scale, 0, 1)) return "rt_status.hand[].force_scale: not in [0, 1]";
+    if (!position_ok(h.tool)) return "rt_status.hand[].tool: not finite or out of range";
+    if (static_cast<std::size_t>(h.mode) >= kToolCount) return "rt_status.hand[].mode: unknown tool";
+    if (static_cast<std::uint8_t>(h.stage) > static_cast<std::uint8_t>(Stage::kDrilling)) return "rt_status.hand[].stage: unknown";
+    if (!flag_ok(h.contact) || !flag_ok(h.has_arm) || !flag_ok(h.link_lost) || !flag_ok(h.rearm_pending))
+      return "rt_status.hand[]: a flag is not 0 or 1";
+    if (!known_code(h.device_state, kLastDeviceLifecycle)) return "rt_status.hand[].device_state: unknown";
+    if (!known_code(h.device_fault_cause, kLastIoStatus)) return "rt_status.hand[].device_fault_cause: unknown";
+    if (!text_ok(h.fault_text) || !text_ok(h.error_text) || !text_ok(h.rearm_text))
+      return "rt_status.hand[]: a text is not terminated or not printable";
+  }
   return nullptr;
 }
 

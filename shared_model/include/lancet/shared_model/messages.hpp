@@ -56,6 +56,30 @@ enum class Stage : std::uint8_t {
   kDrilling = 5,  ///< drill removing voxels
 };
 
+/// The hand that holds a tool. The right hand is hand 0: a one-handed session, and every recording
+/// made before there were two, is the right hand's.
+enum class Hand : std::uint8_t { kRight = 0, kLeft = 1 };
+inline constexpr std::size_t kHandCount = 2;
+
+/// Each hand's name as people type it (command-line options, trajectory files), in Hand order.
+inline constexpr const char* kHandNames[kHandCount] = {"right", "left"};
+
+constexpr const char* hand_name(Hand h) noexcept {
+  return static_cast<std::size_t>(h) < kHandCount ? kHandNames[static_cast<std::size_t>(h)] : "?";
+}
+constexpr std::size_t hand_index(Hand h) noexcept { return static_cast<std::size_t>(h); }
+
+/// The hand called `name`; false when no hand is.
+constexpr bool hand_from_name(std::string_view name, Hand& out) noexcept {
+  for (std::size_t i = 0; i < kHandCount; ++i) {
+    if (name == kHandNames[i]) {
+      out = static_cast<Hand>(i);
+      return true;
+    }
+  }
+  return false;
+}
+
 /// Event bits of ToolSample::events. Several may be set in one tick; the payload describes the
 /// most significant one (the highest bit set).
 namespace event {
@@ -94,7 +118,8 @@ inline constexpr std::uint8_t kNoReset = 0xff;
 /// Commands one ToolSample records (a tick applies at most this many).
 inline constexpr std::uint32_t kSampleCommands = 16;
 
-/// One servo tick, pushed by lancet-rt once per tick on the ToolSample ring. It carries the
+/// One hand's servo tick, pushed by lancet-rt once per tick and hand on the ToolSample ring (the
+/// right hand's first, then the left's, both with the tick's seq). It carries the
 /// servo step's inputs (the device reading, the commands applied, the liveness flags, the patch
 /// version used) as well as its outputs, so a recording of the samples replays the step exactly
 /// (firmware_rt/servo/servo_step.hpp).
@@ -120,7 +145,7 @@ struct ToolSample {
   std::uint32_t buttons;          ///< the device's buttons read (bit i: button i)
   std::uint16_t n_commands;       ///< valid entries in commands
   std::uint8_t reset_mode;        ///< the tool (ToolMode) kept through this tick's reset; kNoReset: none
-  std::uint8_t reserved2;
+  Hand hand;                      ///< whose tick this is
   std::uint8_t commands[kSampleCommands];  ///< commands applied this tick, in order: kind << 4 | mode
   std::uint64_t state_hash;       ///< hash of the servo's state after this tick; 0 on ticks it is not taken
 };
@@ -151,7 +176,8 @@ struct Command {
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
   CommandKind kind;
   ToolMode mode;             ///< kSetToolMode
-  std::uint16_t reserved;
+  Hand hand;                 ///< the hand it is for (kRearm re-arms the loop's watchdog too)
+  std::uint8_t reserved;
   std::uint32_t check;       ///< command_check(*this): garbage in the ring is never taken for a command
 };
 
@@ -187,7 +213,8 @@ struct TissuePatch {
   /// re-applies to the brick the drill removals it made after that sample.
   std::uint64_t samples_applied;
   std::uint32_t n_triangles; ///< valid entries in triangles
-  std::uint32_t reserved0;
+  Hand hand;                 ///< the hand whose tool it was cut out around (each hand has its own)
+  std::uint8_t reserved0[3];
   VoxelBrick brick;
   PatchTriangle triangles[kPatchCapacity];  ///< (n_triangles)
 };
@@ -205,7 +232,8 @@ struct StylusTarget {
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when sent (ns)
   Pose target;               ///< desired stylus pose
   std::uint32_t active;      ///< 1: follow this target; 0: lancet-rt uses its own script
-  std::uint32_t reserved;
+  Hand hand;                 ///< whose stylus (each hand has its own target)
+  std::uint8_t reserved[3];
 };
 
 /// What the arm's bus has done so far, by kind (device::IoCounters on the wire).
@@ -239,31 +267,17 @@ inline constexpr std::size_t kStatusTextSize = 112;
 inline constexpr std::size_t kWakeBins = 16;
 inline constexpr std::uint32_t kWakeBinLowerUs[kWakeBins] = {0, 2, 5, 10, 20, 35, 50, 75, 100, 150, 200, 300, 500, 750, 1000, 2000};
 
-/// lancet-rt → anyone (seqlock): live figures of the servo loop, for the viz overlay, lancetctl
-/// and test rigs.
-struct RtStatus {
-  std::uint64_t tick;              ///< ticks run
-  std::int64_t t_ns;               ///< deadline of the last tick (ns)
-  std::int64_t period_ns;          ///< nominal period (ns)
-  std::uint64_t overruns;          ///< deadlines skipped because a tick ran past the next one
-  std::uint64_t missed;            ///< missed deadlines (late ticks plus skipped deadlines)
-  std::int64_t wake_p50_ns;        ///< wake-up latency percentiles so far (ns), refreshed every 100 ms
-  std::int64_t wake_p99_ns;
-  std::int64_t wake_max_ns;
-  std::int64_t compute_p99_ns;     ///< tick computation time p99 (ns)
-  std::int64_t longest_stall_ns;   ///< longest gap between two wake-ups (ns)
-  std::uint32_t watchdog_tripped;  ///< 1 while the watchdog holds the force at zero
-  std::uint32_t fifo;              ///< 1 when the loop runs SCHED_FIFO
+/// One hand in RtStatus: its force, tool and device.
+struct HandStatus {
   Vec3 force;                      ///< last commanded force (N)
   double force_scale;              ///< fade factor applied (1 = full, 0 = faded out)
-  std::uint64_t patch_version;     ///< TissuePatch version in use (0: none)
-  std::uint32_t viz_alive;         ///< 1 while the viz heartbeat is fresh
+  std::uint64_t patch_version;     ///< this hand's TissuePatch version in use (0: none)
   std::uint32_t contact;           ///< 1 while the tool touches the patch
-  std::uint64_t samples_pushed;    ///< ToolSamples pushed
-  std::uint64_t samples_dropped;   ///< ToolSamples refused because the ring was full
-  std::int64_t viz_last_beat_ns;   ///< last viz heartbeat seen (ns; 0: never)
-  std::int64_t force_zero_ns;      ///< first tick with zero force after the viz was lost (ns; 0: n/a)
+  ToolMode mode;                   ///< the tool in use
+  Stage stage;                     ///< its stage
+  std::uint8_t reserved0[2];
   Vec3 tool;                       ///< tool position, tissue frame (m)
+  std::uint64_t clamped_ticks;     ///< ticks the safety clamp limited the force
   DeviceLifecycle device_state;    ///< the arm's lifecycle (kUnconfigured with the built-in stylus)
   IoStatus device_fault_cause;     ///< what tripped the arm's fault (kOk: none)
   std::uint8_t reserved_cause[3];
@@ -275,14 +289,40 @@ struct RtStatus {
   char fault_text[kStatusTextSize];///< the fault in words ("" when none)
   char error_text[kStatusTextSize];///< the arm's last error of any kind, in words ("" when none)
   BusCounters bus;                 ///< the arm's bus counters
-  WatchdogReason watchdog_reason;  ///< why the watchdog tripped (kNone: it has not)
-  std::uint32_t rearm_pending;     ///< 1 while a requested re-arm is under way
-  std::uint64_t rearms;            ///< re-arms done (watchdog and arm)
+  std::uint32_t rearm_pending;     ///< 1 while a requested re-arm of this arm is under way
+  std::uint32_t reserved1;
   std::uint64_t rearm_failures;    ///< re-arms of the arm that failed (rearm_text says why)
-  std::uint64_t operator_requests; ///< re-arm requests taken from lancetctl (OperatorRequest)
   char rearm_text[kStatusTextSize];///< outcome of the last re-arm of the arm ("" when none)
+};
+
+/// lancet-rt → anyone (seqlock): live figures of the servo loop and of each hand, for the viz
+/// overlay, lancetctl and test rigs.
+struct RtStatus {
+  std::uint64_t tick;              ///< ticks run
+  std::int64_t t_ns;               ///< deadline of the last tick (ns)
+  std::int64_t period_ns;          ///< nominal period (ns)
+  std::uint64_t overruns;          ///< deadlines skipped because a tick ran past the next one
+  std::uint64_t missed;            ///< missed deadlines (late ticks plus skipped deadlines)
+  std::int64_t wake_p50_ns;        ///< wake-up latency percentiles so far (ns), refreshed every 100 ms
+  std::int64_t wake_p99_ns;
+  std::int64_t wake_max_ns;
+  std::int64_t compute_p99_ns;     ///< tick computation time p99 (ns)
+  std::int64_t longest_stall_ns;   ///< longest gap between two wake-ups (ns)
+  std::uint32_t watchdog_tripped;  ///< 1 while the watchdog holds every hand's force at zero
+  std::uint32_t fifo;              ///< 1 when the loop runs SCHED_FIFO
+  std::uint32_t viz_alive;         ///< 1 while the viz heartbeat is fresh
+  std::uint32_t hands;             ///< hands the loop drives (1 or 2): hand[0 .. hands-1] are in use
+  std::uint64_t samples_pushed;    ///< ToolSamples pushed
+  std::uint64_t samples_dropped;   ///< ToolSamples refused because the ring was full
+  std::int64_t viz_last_beat_ns;   ///< last viz heartbeat seen (ns; 0: never)
+  std::int64_t force_zero_ns;      ///< first tick with every hand at zero force after the viz was lost (ns; 0: n/a)
+  WatchdogReason watchdog_reason;  ///< why the watchdog tripped (kNone: it has not)
+  std::uint32_t reserved0;
+  std::uint64_t rearms;            ///< re-arms done (watchdog and arms)
+  std::uint64_t operator_requests; ///< re-arm requests taken from lancetctl (OperatorRequest)
   SegmentHealth health;            ///< what lancet-rt rejected of its peers' writes
   std::uint64_t wake_histogram[kWakeBins]; ///< wake-ups per latency bin since start (kWakeBinLowerUs), refreshed with the percentiles
+  HandStatus hand[kHandCount];     ///< by Hand
 };
 
 /// An operator's request to lancet-rt outside the viz (lancetctl rearm), through its own seqlock
@@ -293,6 +333,8 @@ struct OperatorRequest {
   std::int64_t t_ns;         ///< CLOCK_MONOTONIC when asked (ns); older than 2 s is ignored
   std::uint32_t kind;        ///< 1: re-arm
   std::int32_t pid;          ///< who asked
+  std::uint8_t hands;        ///< bit h: hand h (Hand) is meant; 0 is no request
+  std::uint8_t reserved[7];
   std::uint64_t check;       ///< operator_request_check(*this)
 };
 inline constexpr std::uint32_t kOperatorRearm = 1;
@@ -300,7 +342,7 @@ inline constexpr std::uint32_t kOperatorRearm = 1;
 /// Bytes of an arm's configuration file an ArmConfigText carries.
 inline constexpr std::uint32_t kArmConfigCapacity = 16384;
 
-/// lancet-rt → anyone, once at start: the text of the arm's configuration file (and of its
+/// lancet-rt → anyone, once at start, per hand: the text of the hand's arm configuration file (and of its
 /// calibration file, appended), for recordings. size 0: the built-in simulated stylus.
 struct ArmConfigText {
   std::uint32_t size;       ///< valid bytes of text (<= kArmConfigCapacity)
@@ -311,7 +353,7 @@ struct ArmConfigText {
 /// Bytes a ServoModelBlob can carry.
 inline constexpr std::uint32_t kServoModelCapacity = 4096;
 
-/// lancet-rt → anyone, once at start: the servo's model (firmware_rt/servo's ServoModel, its bytes
+/// lancet-rt → anyone, once at start, per hand: the hand's servo model (firmware_rt/servo's ServoModel, its bytes
 /// as they are: both processes are one build, which the layout hash checks) so that a recording
 /// can replay the servo step exactly. layout is servo::kServoModelLayout of the writer; a reader
 /// checks it, the size and every value (servo::model_from_blob) before using any of it.
@@ -334,6 +376,7 @@ LANCET_ASSERT_WIRE_TYPE(VoxelBrick);
 LANCET_ASSERT_WIRE_TYPE(TissuePatch);
 LANCET_ASSERT_WIRE_TYPE(StylusTarget);
 LANCET_ASSERT_WIRE_TYPE(RtStatus);
+LANCET_ASSERT_WIRE_TYPE(HandStatus);
 LANCET_ASSERT_WIRE_TYPE(BusCounters);
 LANCET_ASSERT_WIRE_TYPE(SegmentHealth);
 LANCET_ASSERT_WIRE_TYPE(OperatorRequest);

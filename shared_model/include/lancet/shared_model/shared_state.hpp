@@ -31,26 +31,29 @@ namespace lancet {
 ///    SegmentHealth::patches_unreadable; a 16 s sample ring.
 /// 10: the device, I/O and watchdog codes are typed (device_codes.hpp); Command carries no
 ///    material and StylusTarget no buttons (neither was read).
-inline constexpr std::uint64_t kProtocolVersion = 10;
-/// 16384 ToolSamples = 16 s of ticks at 1 kHz (7 MB): the viz may stall that long without loss (a
-/// laptop swapping, a debugger's breakpoint). A longer stall loses ticks: a recording marks the gap
-/// and its replay checks the servo up to it (record/replay.hpp).
-inline constexpr std::size_t kSampleRingCapacity = 16384;
+/// 11: two hands: ToolSample, Command, StylusTarget and TissuePatch say their hand; a patch, a
+///    stylus target, a servo model and an arm config per hand; RtStatus::hand[]; an operator
+///    request names its hands; a 32768-sample ring.
+inline constexpr std::uint64_t kProtocolVersion = 11;
+/// 32768 ToolSamples = 16 s of ticks at 1 kHz for two hands (14 MB): the viz may stall that long
+/// without loss (a laptop swapping, a debugger's breakpoint). A longer stall loses ticks: a
+/// recording marks the gap and its replay checks the servo up to it (record/replay.hpp).
+inline constexpr std::size_t kSampleRingCapacity = 32768;
 inline constexpr std::size_t kCommandRingCapacity = 256;
 /// Default segment name; processes take --shm to use another.
 inline constexpr const char* kDefaultShmName = "/lancet";
 
 struct SharedState {
-  SpscRing<ToolSample, kSampleRingCapacity> samples;  ///< rt → viz
-  SpscRing<Command, kCommandRingCapacity> commands;   ///< viz → rt
-  TripleBuffer<TissuePatch> patch;                    ///< viz → rt (lancet-rt's patch intake claims)
-  Seqlock<StylusTarget> stylus_target;                ///< viz → rt
+  SpscRing<ToolSample, kSampleRingCapacity> samples;  ///< rt → viz (both hands, in tick order)
+  SpscRing<Command, kCommandRingCapacity> commands;   ///< viz → rt (each names its hand)
+  TripleBuffer<TissuePatch> patch[kHandCount];        ///< viz → rt, by Hand (lancet-rt's patch intakes claim)
+  Seqlock<StylusTarget> stylus_target[kHandCount];    ///< viz → rt, by Hand
   Seqlock<RtStatus> rt_status;                        ///< rt → anyone
   Heartbeat rt_heartbeat;                             ///< written by lancet-rt every tick
   Heartbeat viz_heartbeat;                            ///< written by lancet-viz every frame
   Seqlock<OperatorRequest> operator_request;          ///< lancetctl → rt (one operator at a time)
-  Seqlock<ServoModelBlob> servo_model;                ///< rt → anyone, once at start (recordings)
-  Seqlock<ArmConfigText> arm_config;                  ///< rt → anyone, once at start (recordings)
+  Seqlock<ServoModelBlob> servo_model[kHandCount];    ///< rt → anyone, by Hand, once at start (recordings)
+  Seqlock<ArmConfigText> arm_config[kHandCount];      ///< rt → anyone, by Hand, once at start (recordings)
 };
 static_assert(std::is_standard_layout_v<SharedState>);
 
@@ -82,9 +85,10 @@ constexpr std::uint64_t recorded_layout_hash() {
            offsetof(ToolSample, proxy), offsetof(ToolSample, force), offsetof(ToolSample, patch_version),
            offsetof(ToolSample, events), offsetof(ToolSample, payload), sizeof(EventPayload), offsetof(ToolSample, woke_ns),
            offsetof(ToolSample, read_status), offsetof(ToolSample, write_status), offsetof(ToolSample, inputs),
-           offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, reset_mode), offsetof(ToolSample, commands),
+           offsetof(ToolSample, buttons), offsetof(ToolSample, n_commands), offsetof(ToolSample, reset_mode), offsetof(ToolSample, hand),
+           offsetof(ToolSample, commands),
            offsetof(ToolSample, state_hash), kSampleCommands);
-  h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, n_triangles),
+  h = fold(h, sizeof(TissuePatch), offsetof(TissuePatch, samples_applied), offsetof(TissuePatch, n_triangles), offsetof(TissuePatch, hand),
            offsetof(TissuePatch, triangles), offsetof(TissuePatch, brick), sizeof(PatchTriangle),
            offsetof(PatchTriangle, material), offsetof(PatchTriangle, flags), offsetof(PatchTriangle, id), sizeof(VoxelBrick), offsetof(VoxelBrick, hu));
   h = fold(h, sizeof(ServoModelBlob), kServoModelCapacity);
@@ -98,16 +102,18 @@ constexpr std::uint64_t shared_layout_hash() {
   using detail::fold;
   std::uint64_t h = 0xcbf29ce484222325ull;
   h = fold(h, kProtocolVersion, kRecordedLayoutHash, kSampleRingCapacity, kCommandRingCapacity);
-  h = fold(h, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, check),
+  h = fold(h, kHandCount, sizeof(Command), offsetof(Command, kind), offsetof(Command, mode), offsetof(Command, hand), offsetof(Command, check),
            sizeof(MaterialParams), offsetof(MaterialParams, yield_force), offsetof(MaterialParams, density));
-  h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active));
+  h = fold(h, sizeof(StylusTarget), offsetof(StylusTarget, target), offsetof(StylusTarget, active), offsetof(StylusTarget, hand));
   h = fold(h, sizeof(RtStatus), offsetof(RtStatus, missed), offsetof(RtStatus, wake_p99_ns),
-           offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, force), offsetof(RtStatus, viz_alive),
-           offsetof(RtStatus, force_zero_ns), offsetof(RtStatus, device_state), offsetof(RtStatus, has_arm),
-           offsetof(RtStatus, fault_text), offsetof(RtStatus, error_text), offsetof(RtStatus, bus), offsetof(RtStatus, rearms),
-           offsetof(RtStatus, rearm_text), offsetof(RtStatus, health), sizeof(BusCounters), sizeof(SegmentHealth),
-           kStatusTextSize, offsetof(RtStatus, wake_histogram), kWakeBins);
-  h = fold(h, sizeof(OperatorRequest), offsetof(OperatorRequest, kind), offsetof(OperatorRequest, check));
+           offsetof(RtStatus, watchdog_tripped), offsetof(RtStatus, viz_alive), offsetof(RtStatus, hands),
+           offsetof(RtStatus, force_zero_ns), offsetof(RtStatus, rearms), offsetof(RtStatus, health), sizeof(SegmentHealth),
+           offsetof(RtStatus, wake_histogram), kWakeBins, offsetof(RtStatus, hand));
+  h = fold(h, sizeof(HandStatus), offsetof(HandStatus, force), offsetof(HandStatus, mode), offsetof(HandStatus, tool),
+           offsetof(HandStatus, device_state), offsetof(HandStatus, has_arm), offsetof(HandStatus, fault_text),
+           offsetof(HandStatus, error_text), offsetof(HandStatus, bus), offsetof(HandStatus, rearm_pending),
+           offsetof(HandStatus, rearm_text), sizeof(BusCounters), kStatusTextSize);
+  h = fold(h, sizeof(OperatorRequest), offsetof(OperatorRequest, kind), offsetof(OperatorRequest, hands), offsetof(OperatorRequest, check));
   h = fold(h, sizeof(SharedState), alignof(SharedState), offsetof(SharedState, samples),
            offsetof(SharedState, commands), offsetof(SharedState, patch), offsetof(SharedState, stylus_target),
            offsetof(SharedState, rt_status), offsetof(SharedState, rt_heartbeat),
