@@ -100,6 +100,7 @@ Handle sample_type() {
   H5Tinsert(t, "buttons", offsetof(ToolSample, buttons), H5T_NATIVE_UINT32);
   H5Tinsert(t, "n_commands", offsetof(ToolSample, n_commands), H5T_NATIVE_UINT16);
   H5Tinsert(t, "reset_mode", offsetof(ToolSample, reset_mode), H5T_NATIVE_UINT8);
+  H5Tinsert(t, "hand", offsetof(ToolSample, hand), H5T_NATIVE_UINT8);
   H5Tinsert(t, "commands", offsetof(ToolSample, commands), c16);
   H5Tinsert(t, "state_hash", offsetof(ToolSample, state_hash), H5T_NATIVE_UINT64);
   return t;
@@ -111,7 +112,7 @@ constexpr const char* kSampleUnits =
     "quaternion w, x, y, z; force: N (on the hand); payload_magnitude: m (radius, displacement) or N (rupture force); "
     "mode: 0 probe 1 scalpel 2 retractor 3 drill 4 swab; stage: 0 free 1 deform 2 rupture 3 cutting 4 pulling 5 "
     "drilling; events, inputs: bit sets (shared_model/messages.hpp event::, input::); commands: kind << 4 | mode; reset_mode: the tool kept through the tick's reset (255: none); "
-    "state_hash: the servo state's hash every servo_hash_every ticks, else 0";
+    "hand: 0 right, 1 left (each tick has one row per hand, the right's first); state_hash: the servo state's hash every servo_hash_every ticks, else 0";
 
 Handle frame_type() {
   Handle t{H5Tcreate(H5T_COMPOUND, sizeof(FrameRecord)), H5Tclose};
@@ -127,6 +128,11 @@ Handle frame_type() {
   LANCET_FIELD(patch_t_ns, H5T_NATIVE_INT64);
   LANCET_FIELD(patch_samples_applied, H5T_NATIVE_UINT64);
   LANCET_FIELD(patch_centre, v3);
+  LANCET_FIELD(left_patch_version, H5T_NATIVE_UINT64);
+  LANCET_FIELD(left_patch_seq, H5T_NATIVE_UINT64);
+  LANCET_FIELD(left_patch_t_ns, H5T_NATIVE_INT64);
+  LANCET_FIELD(left_patch_samples_applied, H5T_NATIVE_UINT64);
+  LANCET_FIELD(left_patch_centre, v3);
   LANCET_FIELD(task_progress, H5T_NATIVE_DOUBLE);
   LANCET_FIELD(max_deviation, H5T_NATIVE_DOUBLE);
   LANCET_FIELD(outside, H5T_NATIVE_DOUBLE);
@@ -164,7 +170,7 @@ constexpr const char* kEventUnits =
 
 constexpr const char* kFrameUnits =
     "frame: index; t_ns, patch_t_ns: ns, CLOCK_MONOTONIC; last_seq: the newest servo tick applied; ticks: the recorded "
-    "ticks applied this frame; blood_dt: s; "
+    "rows (ticks of either hand) applied this frame; blood_dt: s; patch_*: the right hand's patch, left_patch_*: the left's; "
     "patch_centre, max_deviation: m; task_progress, outside: fraction 0..1; damaged: bit i = avoid[i] reached; "
     "drilled_mm3, drilled_outside_mm3: mm^3; blood_*_ml: mL; scene_hash: the scene's hash every scene_hash_every "
     "frames, else 0";
@@ -366,6 +372,16 @@ bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out,
 // the file does not hold, the ticks no frame it holds applied (format 2), and the events of
 // frames that went. The counts the finished file would
 // have carried are counted here.
+// Each hand's ticks are consecutive: a jump in a hand's seq is a gap (last: by hand, 0 = none yet).
+void count_gap(const ToolSample& s, std::uint64_t (&last)[kHandCount], std::uint64_t& gaps, std::uint64_t& lost) {
+  const std::size_t h = hand_index(s.hand) < kHandCount ? hand_index(s.hand) : 0;
+  if (last[h] != 0 && s.seq != last[h] + 1) {
+    ++gaps;
+    if (s.seq > last[h]) lost += s.seq - last[h] - 1;
+  }
+  last[h] = s.seq;
+}
+
 void trim_cut_short(Recording& r) {
   while (!r.samples.empty() && r.samples.back().seq == 0) r.samples.pop_back();
   while (!r.frames.empty() && r.frames.back().t_ns == 0) r.frames.pop_back();
@@ -383,13 +399,8 @@ void trim_cut_short(Recording& r) {
   const std::uint64_t frames = r.frames.size();
   while (!r.events.empty() && r.events.back().frame >= frames) r.events.pop_back();
   r.samples_lost = 0, r.gaps = 0;
-  for (std::size_t i = 1; i < r.samples.size(); ++i) {
-    const std::uint64_t a = r.samples[i - 1].seq, b = r.samples[i].seq;
-    if (b != a + 1) {
-      ++r.gaps;
-      if (b > a) r.samples_lost += b - a - 1;
-    }
-  }
+  std::uint64_t last[kHandCount] = {};
+  for (const ToolSample& s : r.samples) count_gap(s, last, r.gaps, r.samples_lost);
 }
 
 }  // namespace
@@ -411,6 +422,8 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
   H5Pset_libver_bounds(fapl, H5F_LIBVER_LATEST, H5F_LIBVER_LATEST);
   f->file = Handle{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl), H5Fclose};
   if (!f->file.ok()) return fail(path, "cannot create the recording", ErrorCode::kSystem);
+  if (meta.hands < 1 || meta.hands > kHandCount)
+    return Error{ErrorCode::kInvalid, path + ": hands: expected 1 or 2, found " + std::to_string(meta.hands)};
   if (meta.first_patch_versions.size() != meta.first_patches.size())
     return Error{ErrorCode::kInvalid, path + ": first_patch_versions and first_patches differ in length"};
   f->sample_type = sample_type();
@@ -429,6 +442,7 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
             write_attr(root, "scene_hash_every", H5T_NATIVE_UINT32, meta.scene_hash_every) &&
             write_string_attr(root, "tissue", meta.tissue) && write_string_attr(root, "volume_path", meta.volume_path) &&
             write_attr(root, "patch_radius_m", H5T_NATIVE_DOUBLE, meta.patch_radius) &&
+            write_attr(root, "hands", H5T_NATIVE_UINT32, meta.hands) &&
             // The counts and complete = 1 are written by finish(); here, so that they exist before
             // SWMR mode (which allows no new attributes), their values for a file cut short.
             write_attr(root, "samples", H5T_NATIVE_UINT64, std::uint64_t{0}) &&
@@ -440,7 +454,9 @@ Result<std::unique_ptr<Recorder>> Recorder::create(const std::string& path, cons
   if (ok) {
     const Handle g{H5Gcreate2(root, "meta", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose};
     ok = g.ok() && write_string_dataset(g, "scenario", meta.scenario_toml) && write_string_dataset(g, "arm_config", meta.arm_config) &&
-         write_bytes(g, "servo_model", &meta.servo_model, sizeof meta.servo_model) &&
+         write_bytes(g, "servo_model", &meta.servo_model[0], sizeof meta.servo_model[0]) &&
+         (meta.hands < 2 || (write_bytes(g, "servo_model_left", &meta.servo_model[1], sizeof meta.servo_model[1]) &&
+                             write_string_dataset(g, "arm_config_left", meta.left_arm_config))) &&
          write_u64s(g, "first_patch_versions", meta.first_patch_versions) &&
          write_bytes(g, "first_patches", meta.first_patches.data(), meta.first_patches.size() * sizeof(TissuePatch));
   }
@@ -470,11 +486,7 @@ void Recorder::add_samples(std::span<const ToolSample> samples) {
   const std::lock_guard lock(mutex_);
   if (finished_) return;
   for (const ToolSample& s : samples) {
-    if (n_samples_ > 0 && s.seq != last_seq_ + 1) {
-      ++gaps_;
-      if (s.seq > last_seq_) lost_ += s.seq - last_seq_ - 1;
-    }
-    last_seq_ = s.seq;
+    count_gap(s, last_seq_, gaps_, lost_);
     ++n_samples_;
   }
   samples_.insert(samples_.end(), samples.begin(), samples.end());
@@ -642,8 +654,15 @@ Result<Recording> read_recording(const std::string& path) {
   if (missing != nullptr) return fail(path, std::string("root attribute ") + missing + ": missing or unreadable");
   if (!read_string_dataset(file, "/meta/scenario", r.scenario_toml) || !read_string_dataset(file, "/meta/arm_config", r.arm_config))
     return fail(path, "/meta/scenario or /meta/arm_config: missing or unreadable");
-  if (!read_bytes(file, "/meta/servo_model", &r.servo_model, sizeof r.servo_model))
-    return fail(path, "/meta/servo_model: missing, or not " + std::to_string(sizeof r.servo_model) + " bytes (recorded by another layout)");
+  // Files from before two hands have no hands attribute: one hand, the right.
+  if (!read_attr(file, "hands", H5T_NATIVE_UINT32, r.hands)) r.hands = 1;
+  if (r.hands < 1 || r.hands > kHandCount)
+    return fail(path, "root attribute hands: expected 1 or 2, found " + std::to_string(r.hands));
+  if (!read_bytes(file, "/meta/servo_model", &r.servo_model[0], sizeof r.servo_model[0]))
+    return fail(path, "/meta/servo_model: missing, or not " + std::to_string(sizeof r.servo_model[0]) + " bytes (recorded by another layout)");
+  if (r.hands == 2 && (!read_bytes(file, "/meta/servo_model_left", &r.servo_model[1], sizeof r.servo_model[1]) ||
+                       !read_string_dataset(file, "/meta/arm_config_left", r.left_arm_config)))
+    return fail(path, "/meta/servo_model_left or /meta/arm_config_left: missing, or not the size this build's layout gives (hands = 2)");
   if (r.format_version == 1) {
     auto first = std::make_unique<TissuePatch>();
     if (!read_bytes(file, "/meta/first_patch", first.get(), sizeof(TissuePatch)))

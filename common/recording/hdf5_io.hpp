@@ -74,7 +74,8 @@ class Recorder {
   std::vector<FrameRecord> frames_;
   std::vector<SceneEvent> events_;
   std::uint64_t n_events_ = 0;
-  std::uint64_t n_samples_ = 0, n_frames_ = 0, lost_ = 0, gaps_ = 0, last_seq_ = 0, n_flushed_ = 0;
+  std::uint64_t n_samples_ = 0, n_frames_ = 0, lost_ = 0, gaps_ = 0, n_flushed_ = 0;
+  std::uint64_t last_seq_[kHandCount] = {};  ///< by hand: its newest sample's seq (0: none yet)
   bool stop_ = false, finished_ = false;
   std::string error_;  // the writer thread's first error
   std::thread thread_;

@@ -48,6 +48,13 @@ struct FrameRecord {
   std::int64_t patch_t_ns = 0;     ///< TissuePatch::t_ns
   std::uint64_t patch_samples_applied = 0;  ///< TissuePatch::samples_applied
   Vec3 patch_centre{};             ///< m, where it was cut out around
+  // The left hand's patch published this frame, likewise (left_patch_version 0: none; the fields
+  // above are the right hand's). Absent from files recorded before two hands: 0.
+  std::uint64_t left_patch_version = 0;
+  std::uint64_t left_patch_seq = 0;
+  std::int64_t left_patch_t_ns = 0;
+  std::uint64_t left_patch_samples_applied = 0;
+  Vec3 left_patch_centre{};
   // The task and the tissue after this frame.
   double task_progress = 0;        ///< 0..1 (incision: line covered; drill: window bone removed)
   double max_deviation = 0;        ///< m, incision: farthest cut point from the line (x-y)
@@ -93,22 +100,26 @@ struct Recording {
   std::string scenario_name;       ///< "" without a scenario
   std::string scenario_toml;       ///< the scenario file's whole text ("" without one)
   std::string scenario_file;       ///< the path it was loaded from (informative)
-  std::string arm_config;          ///< the arm's hw_config text ("" for the built-in simulated stylus)
+  std::string arm_config;          ///< the right hand's arm's hw_config text ("" for the built-in simulated stylus)
+  std::string left_arm_config;     ///< the left hand's, likewise
   std::string tissue;              ///< without a scenario: lancet-viz's --tissue ("block" or "phantom")
   std::string volume_path;         ///< lancet-viz's --volume ("" when none)
   double patch_radius = 0.03;      ///< m, lancet-viz's --patch-radius-mm
-  /// The servo's model as lancet-rt published it (ServoModelBlob: the replay steps with exactly it).
-  ServoModelBlob servo_model{};
+  /// Hands recorded (1 or 2): the samples of hand h exist for h < hands.
+  std::uint32_t hands = 1;
+  /// Each hand's servo model as lancet-rt published it (ServoModelBlob: the replay steps with
+  /// exactly it), by Hand; the left's only when hands is 2.
+  ServoModelBlob servo_model[kHandCount]{};
   /// The patches the first recorded ticks may use before the first recorded frame publishes one:
-  /// the reset tick's and every newer one published before the recording began (versions
-  /// ascending, one patch each).
+  /// each hand's reset tick's and every newer one published before the recording began (by hand,
+  /// TissuePatch::hand, then versions ascending, one patch each; a version is the hand's own).
   std::vector<std::uint64_t> first_patch_versions;
   std::vector<TissuePatch> first_patches;
   std::int64_t period_ns = 1'000'000;  ///< the servo period
   std::uint32_t servo_hash_every = 0;  ///< ToolSample::state_hash is set every this many ticks
   std::uint32_t scene_hash_every = 0;  ///< FrameRecord::scene_hash is set every this many frames
   // Data.
-  std::vector<ToolSample> samples;  ///< every tick, seq consecutive (gaps: see samples_lost)
+  std::vector<ToolSample> samples;  ///< every tick of every hand in tick order (right, then left), seq consecutive per hand (gaps: see samples_lost)
   std::vector<FrameRecord> frames;  ///< every frame, in order
   std::vector<SceneEvent> events;   ///< the tissue's events, in order
   // What the recorder saw go wrong (0 for a complete recording).

@@ -103,7 +103,7 @@ std::unique_ptr<tissue::TissueScene> make_scene(const std::vector<std::string>& 
 }
 
 // The hand: ToolSamples 1 ms apart (or dt_ms), fed to the scene in frames of 16.
-struct Hand {
+struct ScriptHand {
   tissue::TissueScene* scene = nullptr;
   ToolMode mode = ToolMode::kProbe;
   std::uint64_t seq = 0;
@@ -176,7 +176,7 @@ int main(int argc, char** argv) {
   }
   const fs::path dir = fs::path(script).parent_path();
   std::unique_ptr<tissue::TissueScene> scene;
-  Hand hand;
+  ScriptHand hand;
   Vec3 blade{};  // where the blade is while cutting
   bool wrote_before = before.empty();
   std::string line;

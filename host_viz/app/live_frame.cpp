@@ -8,10 +8,14 @@ Result<sim::FrameBatch> LiveFrame::drain() {
   sim::FrameBatch b;
   b.samples = recorder_.admit(drained, session_);
   b.blood_dt = blood_dt_;
-  if (session_.attached() && session_.has_sample()) {
-    b.patch = &session_.patch_buffer();
-    b.patch_centre = session_.latest().tool.position;
-    b.header = {session_.frames(), now_ns_, session_.samples_applied()};
+  // Each hand that has sent a sample gets its patch, around its own tool.
+  if (session_.attached()) {
+    for (std::size_t h = 0; h < kHandCount; ++h) {
+      const auto hand = static_cast<Hand>(h);
+      if (!session_.has_sample(hand)) continue;
+      b.patches[h] = {&session_.patch_buffer(hand), session_.latest(hand).tool.position,
+                      {session_.frames(), now_ns_, session_.samples_applied(hand)}};
+    }
   }
   return b;
 }

@@ -26,7 +26,7 @@ class LiveFrame final : public sim::FrameIo {
     blood_dt_ = blood_dt;
   }
   [[nodiscard]] Result<sim::FrameBatch> drain() override;
-  void publish(const TissuePatch* patch) override { session_.publish(patch, now_ns_); }
+  void publish(const std::array<const TissuePatch*, kHandCount>& patches) override { session_.publish(patches, now_ns_); }
 
  private:
   VizSession& session_;

@@ -59,17 +59,25 @@ std::span<const ToolSample> RecorderControl::admit(std::span<const ToolSample> b
 }
 
 void RecorderControl::begin(std::span<const ToolSample> from_reset, VizSession& session) {
-  // The reset tick's patch and every newer one this viz published: what the recorded ticks use
-  // before the first recorded frame publishes.
-  const std::uint64_t reset_patch = from_reset.front().patch_version;
-  const bool have_patches = reset_patch == 0 || std::any_of(armed_patches_.begin(), armed_patches_.end(),
-                                                            [&](const auto& a) { return a.first == reset_patch; });
-  if (!have_patches) {
-    // (Only if the reset took longer than kArmedPatches frames to come back.) Ask again.
-    std::fprintf(stderr, "lancet-viz: the servo's reset used patch %llu, no longer kept: sending the reset again\n",
-                 static_cast<unsigned long long>(reset_patch));
-    state_ = State::kArmed;
-    return;
+  // Each hand's reset tick's patch and every newer one this viz published: what the recorded ticks
+  // use before the first recorded frame publishes. A hand whose reset sample has not arrived yet
+  // (the ring had only the other's when drained) reset in the same tick: the patch its newest
+  // sample used is no newer than that tick's.
+  const std::size_t hands = session.hands();
+  std::array<std::uint64_t, kHandCount> reset_patch{};
+  for (std::size_t h = 0; h < hands; ++h) {
+    const auto hand = static_cast<Hand>(h);
+    const auto own = std::find_if(from_reset.begin(), from_reset.end(), [&](const ToolSample& t) { return t.hand == hand; });
+    reset_patch[h] = own != from_reset.end() ? own->patch_version : session.latest(hand).patch_version;
+    const auto& kept = armed_patches_[h];
+    const bool have = reset_patch[h] == 0 || std::any_of(kept.begin(), kept.end(), [&](const auto& a) { return a.first == reset_patch[h]; });
+    if (!have) {
+      // (Only if the reset took longer than kArmedPatches frames to come back.) Ask again.
+      std::fprintf(stderr, "lancet-viz: the %s hand's reset used patch %llu, no longer kept: sending the reset again\n",
+                   hand_name(hand), static_cast<unsigned long long>(reset_patch[h]));
+      state_ = State::kArmed;
+      return;
+    }
   }
   record::Recording meta;
   meta.lancet_version = lancet_version_;
@@ -87,13 +95,17 @@ void RecorderControl::begin(std::span<const ToolSample> from_reset, VizSession& 
   meta.patch_radius = setup_.patch_radius;
   meta.servo_hash_every = static_cast<std::uint32_t>(servo::kServoHashEvery);
   meta.scene_hash_every = record::kSceneHashEvery;
-  (void)session.read_servo_model(meta.servo_model);
-  meta.arm_config = session.read_arm_config();
+  meta.hands = static_cast<std::uint32_t>(hands);
+  for (std::size_t h = 0; h < hands; ++h) (void)session.read_servo_model(static_cast<Hand>(h), meta.servo_model[h]);
+  meta.arm_config = session.read_arm_config(Hand::kRight);
+  if (hands > 1) meta.left_arm_config = session.read_arm_config(Hand::kLeft);
   meta.period_ns = session.rt_status() ? session.rt_status()->period_ns : 1'000'000;
-  for (const auto& [version, kept] : armed_patches_) {
-    if (reset_patch == 0 || version < reset_patch) continue;
-    meta.first_patch_versions.push_back(version);
-    meta.first_patches.push_back(*kept);
+  for (std::size_t h = 0; h < hands; ++h) {
+    for (const auto& [version, kept] : armed_patches_[h]) {
+      if (reset_patch[h] == 0 || version < reset_patch[h]) continue;
+      meta.first_patch_versions.push_back(version);
+      meta.first_patches.push_back(*kept);
+    }
   }
   auto made = record::Recorder::create(path_, meta);
   if (!made.ok()) {
@@ -110,31 +122,40 @@ void RecorderControl::begin(std::span<const ToolSample> from_reset, VizSession& 
               static_cast<unsigned long long>(from_reset.front().seq));
 }
 
-void RecorderControl::keep_published(const VizSession& session, bool published) {
-  if ((state_ == State::kArmed || state_ == State::kWaitingReset) && published) {
-    std::unique_ptr<TissuePatch> kept;
-    if (armed_patches_.size() >= kArmedPatches) {
-      kept = std::move(armed_patches_.front().second);
-      armed_patches_.pop_front();
-    } else {
-      kept = std::make_unique<TissuePatch>();
+void RecorderControl::keep_published(const VizSession& session, const std::array<bool, kHandCount>& published) {
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    auto& kept_h = armed_patches_[h];
+    if ((state_ == State::kArmed || state_ == State::kWaitingReset) && published[h]) {
+      const auto hand = static_cast<Hand>(h);
+      std::unique_ptr<TissuePatch> kept;
+      if (kept_h.size() >= kArmedPatches) {
+        kept = std::move(kept_h.front().second);
+        kept_h.pop_front();
+      } else {
+        kept = std::make_unique<TissuePatch>();
+      }
+      std::memcpy(static_cast<void*>(kept.get()), &session.patch(hand), tissue_patch_bytes(session.patch(hand)));
+      kept_h.emplace_back(session.patch_version(hand), std::move(kept));
     }
-    std::memcpy(static_cast<void*>(kept.get()), &session.patch(), tissue_patch_bytes(session.patch()));
-    armed_patches_.emplace_back(session.patch_version(), std::move(kept));
+    if (state_ == State::kOff || state_ == State::kOn) kept_h.clear();
   }
-  if (state_ == State::kOff || state_ == State::kOn) armed_patches_.clear();
+}
+
+bool RecorderControl::servo_uses_ours(const VizSession& session) const {
+  for (std::size_t h = 0; h < session.hands(); ++h) {
+    const auto hand = static_cast<Hand>(h);
+    const auto& kept = armed_patches_[h];
+    if (!session.has_sample(hand) || kept.empty() || session.latest(hand).patch_version < kept.front().first) return false;
+  }
+  return true;
 }
 
 void RecorderControl::after_frame(VizSession& session, sim::SceneSim& sim, const sim::FrameResult& frame, std::int64_t now_ns) {
   keep_published(session, frame.patch);
-  // The session's start: the servo's reset, once the servo uses a patch this viz published (the
-  // reset keeps the tool in hand).
-  const bool servo_uses_ours = session.has_sample() && !armed_patches_.empty() &&
-                               session.latest().patch_version >= armed_patches_.front().first;
-  if (session.link() == Link::kConnected && state_ == State::kArmed && servo_uses_ours) {
-    Command c{};
-    c.kind = CommandKind::kReset;
-    if (session.send(c, now_ns)) state_ = State::kWaitingReset;
+  // The session's start: the servo's reset, for every hand at once, once each hand uses a patch
+  // this viz published (the reset keeps the tool in hand).
+  if (session.link() == Link::kConnected && state_ == State::kArmed && servo_uses_ours(session)) {
+    if (session.send_each_hand(CommandKind::kReset, session.hands(), now_ns)) state_ = State::kWaitingReset;
   }
   if (state_ != State::kOn) return;
   record::FrameRecord f;
@@ -143,13 +164,21 @@ void RecorderControl::after_frame(VizSession& session, sim::SceneSim& sim, const
   f.last_seq = last_seq_;
   f.ticks = frame_ticks_;
   frame_ticks_ = 0;
-  if (frame.patch) {
-    const TissuePatch& p = session.patch();
-    f.patch_version = session.patch_version();
+  if (frame.patch[0]) {
+    const TissuePatch& p = session.patch(Hand::kRight);
+    f.patch_version = session.patch_version(Hand::kRight);
     f.patch_seq = p.seq;
     f.patch_t_ns = p.t_ns;
     f.patch_samples_applied = p.samples_applied;
-    f.patch_centre = session.latest().tool.position;
+    f.patch_centre = session.latest(Hand::kRight).tool.position;
+  }
+  if (frame.patch[1]) {
+    const TissuePatch& p = session.patch(Hand::kLeft);
+    f.left_patch_version = session.patch_version(Hand::kLeft);
+    f.left_patch_seq = p.seq;
+    f.left_patch_t_ns = p.t_ns;
+    f.left_patch_samples_applied = p.samples_applied;
+    f.left_patch_centre = session.latest(Hand::kLeft).tool.position;
   }
   f.blood_dt = frame.blood_dt;
   sim.figures(f);

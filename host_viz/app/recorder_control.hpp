@@ -5,12 +5,15 @@
 //   the reset ──the tick that applied it arrives──▶ on (every tick and frame written) ──stop()──▶ off
 //
 // Armed, the fresh scene the caller made for the recording takes no samples (what the servo sends
-// before its reset belongs to no session); waiting, only the ticks from the reset on. The patches
-// this viz published while armed are kept (the newest kArmedPatches), because the servo's first
-// recorded ticks may use one published a frame or two before the recording begins. lancet-rt going
+// before its reset belongs to no session); waiting, only the ticks from the reset on. With two
+// hands, both hands' resets go out at once (VizSession::send_each_hand), so lancet-rt applies them
+// in one tick. The patches this viz published while armed are kept (each hand's newest
+// kArmedPatches), because the servo's first recorded ticks may use one published a frame or two
+// before the recording begins. lancet-rt going
 // away ends the recording (its servo state went with it); with --record FILE the next attempt is
 // armed for FILE-2.h5, FILE-3.h5, ... Not real-time; prints what it does on stdout.
 
+#include <array>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -61,7 +64,9 @@ class RecorderControl {
 
  private:
   void begin(std::span<const ToolSample> from_reset, VizSession& session);
-  void keep_published(const VizSession& session, bool published);
+  void keep_published(const VizSession& session, const std::array<bool, kHandCount>& published);
+  /// Whether every hand in use has a sample using a patch this viz kept while armed.
+  [[nodiscard]] bool servo_uses_ours(const VizSession& session) const;
 
   static constexpr std::size_t kArmedPatches = 8;
   std::string record_path_;  ///< --record ("" none)
@@ -75,7 +80,8 @@ class RecorderControl {
   std::uint64_t frames_ = 0, last_seq_ = 0, frame_ticks_ = 0;
   std::vector<record::SceneEvent> events_;
   std::string message_;
-  std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>> armed_patches_;  ///< (version, patch), newest last
+  /// By hand: (version, patch), newest last.
+  std::array<std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>>, kHandCount> armed_patches_;
 };
 
 }  // namespace lancet::viz

@@ -12,8 +12,9 @@ struct SampleStats {
   std::uint64_t received = 0;      ///< samples taken from the ring
   std::uint64_t first_seq = 0;     ///< seq of the first sample (0: none yet)
   std::uint64_t last_seq = 0;      ///< seq of the newest sample
-  std::uint64_t lost = 0;          ///< seq numbers skipped between consecutive samples
-  std::uint64_t out_of_order = 0;  ///< samples whose seq did not increase (duplicates, reordering)
+  std::uint64_t lost = 0;          ///< seq numbers skipped between a hand's consecutive samples
+  std::uint64_t out_of_order = 0;  ///< samples whose seq did not increase over their hand's last (duplicates, reordering)
+  std::uint64_t hand_last_seq[kHandCount] = {};  ///< by Hand: seq of its newest sample (0: none yet)
   std::uint64_t discarded = 0;     ///< backlog dropped when attaching
   std::uint64_t max_batch = 0;     ///< most samples drained in one frame
   // What the segment held that the viz would not take (never happens with a sane lancet-rt).
@@ -26,16 +27,18 @@ struct SampleStats {
   void ingest(const ToolSample* samples, std::size_t n) noexcept {
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint64_t s = samples[i].seq;
-      if (received > 0) {
-        if (s <= last_seq) {
+      const std::size_t h = hand_index(samples[i].hand) < kHandCount ? hand_index(samples[i].hand) : 0;
+      std::uint64_t& last = hand_last_seq[h];
+      if (last != 0) {
+        if (s <= last) {
           ++out_of_order;
           continue;
         }
-        lost += s - last_seq - 1;
-      } else {
-        first_seq = s;
+        lost += s - last - 1;
       }
-      last_seq = s;
+      if (received == 0) first_seq = s;
+      last = s;
+      if (s > last_seq) last_seq = s;
       ++received;
     }
     if (n > max_batch) max_batch = n;

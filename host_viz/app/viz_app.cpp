@@ -208,7 +208,7 @@ bool VizApp::take_input(std::int64_t now) {
   const InputActions a =
       sc.poller->poll(ui_, offered_, static_cast<int>(preset_names_.size()), sc.overlay.wants_mouse());
   if (a.quit) return false;
-  if (a.stylus_released) session_.set_stylus_target(false, {}, now);
+  if (a.stylus_released) session_.set_stylus_target(a.released_hand, false, {}, now);
   for (const Command& c : a.commands) (void)session_.send(c, now);
   if (a.snapshot) want_snapshot_ = true;
   if (a.record && !replay_) want_record_ = true;
@@ -220,7 +220,7 @@ bool VizApp::take_input(std::int64_t now) {
     // Pushed depth_mm below the surface under the cursor (or below z = 0 off the tissue).
     const auto top = sim().scene().surface_below(p.x, p.y);
     p.z = (top ? top->z : 0.0) - ui_.depth_mm * 1e-3;
-    session_.set_stylus_target(true, p, now);
+    session_.set_stylus_target(ui_.hand, true, p, now);
   }
   return true;
 }
@@ -231,13 +231,20 @@ void VizApp::draw(std::int64_t now) {
   render::SceneInput in;
   // The tool and the patch: lancet-rt's, or the replay's.
   const ToolSample* latest = replay_ ? replay_->latest() : session_.has_sample() ? &session_.latest() : nullptr;
-  in.has_tool = latest != nullptr;
-  if (in.has_tool) {
-    in.tool = latest->tool.position;
-    in.proxy = latest->proxy.position;
-    in.force = latest->force;
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const auto hand = static_cast<Hand>(h);
+    const ToolSample* t = replay_ ? replay_->latest(hand) : session_.has_sample(hand) ? &session_.latest(hand) : nullptr;
+    render::ToolView& tv = in.tools[h];
+    tv.has_tool = t != nullptr;
+    if (t == nullptr) continue;
+    tv.tool = t->tool.position;
+    tv.proxy = t->proxy.position;
+    tv.force = t->force;
+    if (ui_.show_patch) {
+      const TissuePatch* p = replay_ ? replay_->patch(hand) : session_.patch_version(hand) > 0 ? &session_.patch(hand) : nullptr;
+      in.patches[h] = p;
+    }
   }
-  if (ui_.show_patch) in.patch = replay_ ? replay_->patch() : session_.patches_published() > 0 ? &session_.patch() : nullptr;
   in.camera_yaw = ui_.yaw, in.camera_pitch = ui_.pitch, in.camera_distance = ui_.distance;
   if (scenario != nullptr) in.camera_target = scenario->camera.target;
   in.guide = guide_.empty() ? nullptr : &guide_;

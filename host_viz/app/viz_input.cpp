@@ -23,10 +23,10 @@ void on_scroll(GLFWwindow*, double, double dy) {
 }
 
 // The keys, in the order their actions are taken within a frame.
-enum Key { kM, k1, k2, k3, k4, kR, kW, kV, kP, k5, kF12, kF9, kSpace, kT, kKeys };
-constexpr int kKeyCodes[kKeys] = {GLFW_KEY_M, GLFW_KEY_1, GLFW_KEY_2,   GLFW_KEY_3,  GLFW_KEY_4,     GLFW_KEY_R, GLFW_KEY_W,
+enum Key { kH, kM, k1, k2, k3, k4, kR, kW, kV, kP, k5, kF12, kF9, kSpace, kT, kKeys };
+constexpr int kKeyCodes[kKeys] = {GLFW_KEY_H, GLFW_KEY_M, GLFW_KEY_1,  GLFW_KEY_2,   GLFW_KEY_3,  GLFW_KEY_4,     GLFW_KEY_R, GLFW_KEY_W,
                                   GLFW_KEY_V, GLFW_KEY_P, GLFW_KEY_5, GLFW_KEY_F12, GLFW_KEY_F9, GLFW_KEY_SPACE, GLFW_KEY_T};
-static_assert(kKeys == 14, "InputPoller::key_down_ holds one flag a key");
+static_assert(kKeys == 15, "InputPoller::key_down_ holds one flag a key");
 
 }  // namespace
 
@@ -49,7 +49,14 @@ InputActions InputPoller::poll(Interaction& ui, const std::vector<ToolMode>& off
     key_down_[k] = down;
     if (!pressed) continue;
     Command c{};
+    c.hand = ui.hand;
     switch (k) {
+      case kH:
+        // The other hand: the one the mouse drove lets go of its target (its script takes over).
+        a.stylus_released = ui.mouse_drives_stylus;
+        a.released_hand = ui.hand;
+        ui.hand = ui.hand == Hand::kRight ? Hand::kLeft : Hand::kRight;
+        break;
       case kV: ui.view = (ui.view + 1) % 3; break;
       case kT: ui.show_patch = !ui.show_patch; break;
       case kP:
@@ -59,6 +66,7 @@ InputActions InputPoller::poll(Interaction& ui, const std::vector<ToolMode>& off
       case kM:
         ui.mouse_drives_stylus = !ui.mouse_drives_stylus;
         a.stylus_released = !ui.mouse_drives_stylus;
+        a.released_hand = ui.hand;
         break;
       case kR:
       case kW:

@@ -1,8 +1,9 @@
 #pragma once
 // The interactive window's keyboard and mouse: what the user is looking at (Interaction: camera,
 // view, volume window/level and clip) and what they asked for this frame (InputActions). Keys act
-// on the press, not while held: M mouse drives the stylus, 1-5 pick a tool, R reset, W re-arm the
-// watchdog, V next view, P next preset, T the patch's wireframe on or off, F9 record, F12
+// on the press, not while held: M mouse drives the stylus, H switches the hand the mouse and the
+// keys drive (right or left), 1-5 pick that hand's tool, R reset that hand, W re-arm the watchdog
+// (and that hand's arm), V next view, P next preset, T the patch's wireframe on or off, F9 record, F12
 // screenshot, space pause a replay, Esc quit.
 // Left drag rotates, right drag sets window/level, the wheel zooms (or sets the stylus depth).
 
@@ -17,6 +18,7 @@ namespace lancet::viz {
 /// What the user is looking at, and how the mouse drives.
 struct Interaction {
   bool mouse_drives_stylus = false;
+  Hand hand = Hand::kRight;    ///< the hand the mouse and the tool keys drive (H switches)
   double depth_mm = 3.0;       ///< how far below the surface the mouse-driven stylus is pushed
   bool rotating = false, windowing = false;
   double last_x = 0, last_y = 0;  ///< cursor, window pixels
@@ -32,7 +34,8 @@ struct Interaction {
 /// What the keys asked for this frame.
 struct InputActions {
   bool quit = false;              ///< Esc
-  bool stylus_released = false;   ///< M turned mouse driving off: release the stylus target
+  bool stylus_released = false;   ///< M turned mouse driving off, or H switched hands: release that hand's stylus target
+  Hand released_hand = Hand::kRight;  ///< whose
   std::vector<Command> commands;  ///< for lancet-rt, in the order the keys were pressed
   bool snapshot = false;          ///< F12
   bool record = false;            ///< F9
@@ -56,7 +59,7 @@ class InputPoller {
 
  private:
   GLFWwindow* window_;
-  bool key_down_[14] = {};
+  bool key_down_[15] = {};
 };
 
 }  // namespace lancet::viz

@@ -26,26 +26,35 @@ std::vector<render::OverlayLine> status_lines(const VizSession& s, const Interac
                   static_cast<double>(st->wake_max_ns) / 1e3);
     lines.push_back({buf});
     if (st->watchdog_tripped) lines.push_back({"WATCHDOG TRIPPED: force held at zero; press W to re-arm", true});
-    if (st->has_arm != 0 && st->device_state == DeviceLifecycle::kFault) {
-      std::snprintf(buf, sizeof buf, "ARM FAULT: %s; force held at zero; press W to re-arm%s", st->fault_text,
-                    st->link_lost ? " (bus link lost: reconnecting)" : "");
-      lines.push_back({buf, true});
+    const std::size_t hands = std::min<std::size_t>(st->hands, kHandCount);
+    for (std::size_t h = 0; h < hands; ++h) {
+      const HandStatus& hs = st->hand[h];
+      const char* name = hands > 1 ? hand_name(static_cast<Hand>(h)) : "";
+      if (hs.has_arm != 0 && hs.device_state == DeviceLifecycle::kFault) {
+        std::snprintf(buf, sizeof buf, "%s%sARM FAULT: %s; its force held at zero; press W to re-arm%s", name, hands > 1 ? " " : "",
+                      hs.fault_text, hs.link_lost ? " (bus link lost: reconnecting)" : "");
+        lines.push_back({buf, true});
+      }
+      std::snprintf(buf, sizeof buf, "%s%sforce %.2f N (scale %.2f)%s", name, hands > 1 ? ": " : "", norm(hs.force), hs.force_scale,
+                    hs.contact ? "  in contact" : "");
+      lines.push_back({buf});
     }
-    std::snprintf(buf, sizeof buf, "force %.2f N (scale %.2f)%s", norm(st->force), st->force_scale,
-                  st->contact ? "  in contact" : "");
-    lines.push_back({buf});
   }
-  if (s.has_sample()) {
-    const auto& t = s.latest();
-    std::snprintf(buf, sizeof buf, "tool %s at (%.1f, %.1f, %.1f) mm", tool_name(t.mode), t.tool.position.x * 1e3,
-                  t.tool.position.y * 1e3, t.tool.position.z * 1e3);
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const auto hand = static_cast<Hand>(h);
+    if (!s.has_sample(hand)) continue;
+    const auto& t = s.latest(hand);
+    const bool both = s.has_sample(Hand::kLeft);
+    std::snprintf(buf, sizeof buf, "%s%s%s at (%.1f, %.1f, %.1f) mm%s", both ? hand_name(hand) : "", both ? " hand: " : "tool ",
+                  tool_name(t.mode), t.tool.position.x * 1e3, t.tool.position.y * 1e3, t.tool.position.z * 1e3,
+                  both && hand == ui.hand && !headless ? "  (keys and mouse: H switches)" : "");
     lines.push_back({buf});
   }
   if (!events.last.empty()) lines.push_back({events.last, events.last_is_warning});
   const auto& st = s.stats();
   std::snprintf(buf, sizeof buf, "samples %llu received, %llu lost, %llu out of order; patch %u triangles",
                 static_cast<unsigned long long>(st.received), static_cast<unsigned long long>(st.lost),
-                static_cast<unsigned long long>(st.out_of_order), s.patch().n_triangles);
+                static_cast<unsigned long long>(st.out_of_order), s.patch(Hand::kRight).n_triangles + s.patch(Hand::kLeft).n_triangles);
   lines.push_back({buf, st.lost > 0 || st.out_of_order > 0});
   if (st.rejected + st.ring_resets + st.status_rejected > 0) {
     std::snprintf(buf, sizeof buf, "shared segment: %llu samples and %llu status reads rejected, ring reset %llu times (%s)",
@@ -56,7 +65,7 @@ std::vector<render::OverlayLine> status_lines(const VizSession& s, const Interac
   if (!headless) {
     lines.push_back({ui.mouse_drives_stylus ? "M: mouse drives the stylus (scroll: depth), M again: script"
                                             : "M: drive the stylus with the mouse; drag: rotate; scroll: zoom"});
-    lines.push_back({keys + "   V: volume view   R: reset   W: re-arm watchdog   F9: record   Esc: quit"});
+    lines.push_back({keys + "   H: other hand   V: volume view   R: reset   W: re-arm watchdog   F9: record   Esc: quit"});
   }
   return lines;
 }

@@ -12,7 +12,8 @@
 namespace lancet::viz {
 
 VizSession::VizSession(VizSessionParams params)
-    : params_(std::move(params)), batch_(512), patch_(std::make_unique<TissuePatch>()) {
+    : params_(std::move(params)), batch_(512) {
+  for (auto& p : patch_) p = std::make_unique<TissuePatch>();
   message_ = "waiting for lancet-rt on " + params_.shm_name;
 }
 
@@ -34,6 +35,7 @@ void VizSession::try_attach(std::int64_t now_ns) {
   bool reset = false;
   stats_.discarded = s.samples.discard_all(&reset);
   samples_applied_ = 0;  // this lancet-rt's ticks start again
+  hand_seq_.fill(0);
   if (reset) ++stats_.ring_resets;
   link_ = Link::kConnected;
   ++connections_;
@@ -88,11 +90,13 @@ std::span<const ToolSample> VizSession::drain(std::int64_t now_ns) {
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
       const char* why = wire::check(batch_[i]);
-      // The ticks come in order, a ring's worth at most ahead of the last: a sample a little behind
-      // (a stale slot) or far ahead (no overflow is that long) is garbage in the segment; applying
-      // it would replay old events or make every later tick look old. A sample far *behind* says
-      // the last one taken was the garbage: it is taken, and the count starts from it.
-      const std::uint64_t seq = batch_[i].seq, last = samples_applied_;
+      // Each hand's ticks come in order, a ring's worth at most ahead of its last: a sample a
+      // little behind (a stale slot) or far ahead (no overflow is that long) is garbage in the
+      // segment; applying it would replay old events or make every later tick look old. A sample
+      // far *behind* says the last one taken was the garbage: it is taken, and the count starts
+      // from it.
+      const std::size_t h = why == nullptr ? hand_index(batch_[i].hand) : 0;
+      const std::uint64_t seq = batch_[i].seq, last = hand_seq_[h];
       const bool stale = seq <= last && last - seq <= kSampleRingCapacity;
       if (why == nullptr && last != 0 && (stale || (seq > last && seq - last > kSampleRingCapacity)))
         why = "sample.seq: not after the last one, or further ahead than the ring holds";
@@ -101,7 +105,9 @@ std::span<const ToolSample> VizSession::drain(std::int64_t now_ns) {
         stats_.last_reject = why;
         continue;
       }
+      hand_seq_[h] = seq;
       samples_applied_ = seq;
+      latest_by_hand_[h] = batch_[i];
       batch_[kept++] = batch_[i];
     }
     if (kept > 0) {
@@ -124,27 +130,29 @@ std::span<const ToolSample> VizSession::drain(std::int64_t now_ns) {
   return drained_;
 }
 
-void VizSession::publish(const TissuePatch* patch, std::int64_t now_ns) {
+void VizSession::publish(const std::array<const TissuePatch*, kHandCount>& patches, std::int64_t now_ns) {
   if (!channel_) return;
   SharedState& s = channel_->state();
-  if (patch != nullptr) {
-    assert(patch == patch_.get() && "VizSession::publish: the patch is the one filled in patch_buffer()");
-    s.patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
-    patch_version_ = s.patch.version();
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const TissuePatch* patch = patches[h];
+    if (patch == nullptr) continue;
+    assert(patch == patch_[h].get() && "VizSession::publish: a hand's patch is the one filled in patch_buffer(hand)");
+    s.patch[h].publish_prefix(*patch, tissue_patch_bytes(*patch));
+    patch_version_[h] = s.patch[h].version();
     ++patches_published_;
   }
   s.viz_heartbeat.beat(now_ns, static_cast<std::int32_t>(getpid()));
 }
 
-bool VizSession::read_servo_model(ServoModelBlob& out) {
-  if (!channel_) return false;
-  return channel_->state().servo_model.try_read(out, 100) == ReadStatus::kOk;
+bool VizSession::read_servo_model(Hand h, ServoModelBlob& out) {
+  if (!channel_ || hand_index(h) >= kHandCount) return false;
+  return channel_->state().servo_model[hand_index(h)].try_read(out, 100) == ReadStatus::kOk;
 }
 
-std::string VizSession::read_arm_config() {
-  if (!channel_) return {};
+std::string VizSession::read_arm_config(Hand h) {
+  if (!channel_ || hand_index(h) >= kHandCount) return {};
   auto blob = std::make_unique<ArmConfigText>();
-  if (channel_->state().arm_config.try_read(*blob, 100) != ReadStatus::kOk) return {};
+  if (channel_->state().arm_config[hand_index(h)].try_read(*blob, 100) != ReadStatus::kOk) return {};
   // What the peer wrote is input: its size is bounded, its bytes made printable.
   std::string text(blob->text, std::min<std::size_t>(blob->size, kArmConfigCapacity));
   for (char& c : text) {
@@ -155,14 +163,15 @@ std::string VizSession::read_arm_config() {
   return text;
 }
 
-void VizSession::set_stylus_target(bool active, Vec3 position, std::int64_t now_ns) {
-  if (!channel_) return;
+void VizSession::set_stylus_target(Hand hand, bool active, Vec3 position, std::int64_t now_ns) {
+  if (!channel_ || hand_index(hand) >= kHandCount) return;
   StylusTarget t{};
-  t.seq = ++target_seq_;
+  t.seq = ++target_seq_[hand_index(hand)];
   t.t_ns = now_ns;
   t.target = Pose{position, Quat{}};
   t.active = active ? 1u : 0u;
-  channel_->state().stylus_target.write(t);
+  t.hand = hand;
+  channel_->state().stylus_target[hand_index(hand)].write(t);
 }
 
 bool VizSession::send(Command c, std::int64_t now_ns) {
@@ -172,6 +181,23 @@ bool VizSession::send(Command c, std::int64_t now_ns) {
   last_command_t_ns_ = c.t_ns;
   wire::seal(c);
   return channel_->state().commands.try_push(c);
+}
+
+bool VizSession::send_each_hand(CommandKind kind, std::size_t hands, std::int64_t now_ns) {
+  if (!channel_ || hands == 0 || hands > kHandCount) return false;
+  std::array<Command, kHandCount> cs{};
+  for (std::size_t h = 0; h < hands; ++h) {
+    Command& c = cs[h];
+    c.kind = kind;
+    c.hand = static_cast<Hand>(h);
+    c.seq = command_seq_ + 1 + h;
+    c.t_ns = std::max(now_ns, last_command_t_ns_ + 1) + static_cast<std::int64_t>(h);  // each newer than the one before
+    wire::seal(c);
+  }
+  if (!channel_->state().commands.try_push_n(cs.data(), hands)) return false;
+  command_seq_ += hands;
+  last_command_t_ns_ = cs[hands - 1].t_ns;
+  return true;
 }
 
 }  // namespace lancet::viz

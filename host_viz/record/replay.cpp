@@ -1,5 +1,6 @@
 #include "record/replay.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <chrono>
 #include <cstdio>
@@ -28,9 +29,19 @@ namespace {
 constexpr std::uint64_t kEarlierLayoutsRecordingAsThisOne[] = {
     0xdfc3b587a1660cf6ull,  // protocol 9
 };
+// Recorded layouts of earlier builds whose bytes are this build's: protocol 10's ToolSample and
+// TissuePatch had reserved bytes where the hand is now, always 0: the right hand.
+constexpr std::uint64_t kEarlierRecordedLayouts[] = {
+    0x937ea367a07bda5eull,  // protocol 10 (one hand)
+};
 
 bool replayable_layout(const Recording& rec) {
-  if (rec.recorded_layout_hash != 0) return rec.recorded_layout_hash == kRecordedLayoutHash;
+  if (rec.recorded_layout_hash != 0) {
+    if (rec.recorded_layout_hash == kRecordedLayoutHash) return true;
+    for (const std::uint64_t h : kEarlierRecordedLayouts)
+      if (rec.recorded_layout_hash == h) return true;
+    return false;
+  }
   if (rec.layout_hash == kSharedLayoutHash) return true;
   for (const std::uint64_t h : kEarlierLayoutsRecordingAsThisOne)
     if (rec.layout_hash == h) return true;
@@ -56,11 +67,15 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
     if ((s.inputs & input::kCommandsCut) != 0)
       return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " applied more commands than a sample records (" +
                                             std::to_string(kSampleCommands) + "): it cannot be replayed exactly"};
-  auto model = servo::model_from_blob(rec.servo_model);
-  if (!model.ok()) return Error{model.error().code, "the recording's " + model.error().message};
+  if (rec.hands < 1 || rec.hands > kHandCount) return Error{ErrorCode::kInvalid, "the recording's hands: not 1 or 2"};
   std::unique_ptr<Replay> r(new Replay());
   r->rec_ = &rec;
-  r->model_ = model.value();
+  for (std::size_t h = 0; h < rec.hands; ++h) {
+    auto model = servo::model_from_blob(rec.servo_model[h]);
+    if (!model.ok())
+      return Error{model.error().code, std::string("the recording's ") + hand_name(static_cast<Hand>(h)) + " hand's " + model.error().message};
+    r->model_[h] = model.value();
+  }
   sim::SceneSetup setup;
   setup.tissue = rec.tissue;
   setup.scenario_toml = rec.scenario_toml;
@@ -70,27 +85,42 @@ Result<std::unique_ptr<Replay>> Replay::create(const Recording& rec) {
   auto sim = sim::SceneSim::create(setup);
   if (!sim.ok()) return Error{sim.error().code, "the recording's scene: " + sim.error().message};
   r->sim_ = std::move(sim).value();
-  // The session began with the servo's reset: a fresh state, with the tool it kept, at the tick
-  // before the first.
-  const ToolSample& first = rec.samples.front();
-  if (first.reset_mode == kNoReset || first.reset_mode >= kToolCount)
-    return Error{ErrorCode::kInvalid, "the recording's first tick (" + std::to_string(first.seq) +
-                                          ") is not the servo's reset: it cannot be replayed from a known state"};
-  r->data_.tick = first.seq - 1;
-  r->data_.mode = static_cast<ToolMode>(first.reset_mode);
-  for (std::size_t i = 0; i < rec.first_patch_versions.size() && i < rec.first_patches.size(); ++i)
-    r->patches_.emplace_back(rec.first_patch_versions[i], std::make_unique<TissuePatch>(rec.first_patches[i]));
+  // The session began with each hand's servo's reset: a fresh state, with the tool it kept, at the
+  // tick before its first.
+  for (std::size_t h = 0; h < rec.hands; ++h) {
+    const auto hand = static_cast<Hand>(h);
+    const auto first = std::find_if(rec.samples.begin(), rec.samples.end(), [&](const ToolSample& s) { return s.hand == hand; });
+    if (first == rec.samples.end())
+      return Error{ErrorCode::kInvalid, std::string("the recording has no tick of the ") + hand_name(hand) + " hand"};
+    if (first->reset_mode == kNoReset || first->reset_mode >= kToolCount)
+      return Error{ErrorCode::kInvalid, std::string("the recording's first tick of the ") + hand_name(hand) + " hand (" +
+                                            std::to_string(first->seq) + ") is not its servo's reset: it cannot be replayed from a known state"};
+    r->data_[h].tick = first->seq - 1;
+    r->data_[h].mode = static_cast<ToolMode>(first->reset_mode);
+  }
+  for (const ToolSample& s : rec.samples)
+    if (hand_index(s.hand) >= rec.hands)
+      return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " is the " + hand_name(s.hand) + " hand's, in a recording of " +
+                                            std::to_string(rec.hands) + " hand(s)"};
+  for (std::size_t i = 0; i < rec.first_patch_versions.size() && i < rec.first_patches.size(); ++i) {
+    const std::size_t h = hand_index(rec.first_patches[i].hand);
+    if (h >= rec.hands) return Error{ErrorCode::kInvalid, "the recording's first patch " + std::to_string(i) + " is for a hand it does not have"};
+    r->patches_[h].emplace_back(rec.first_patch_versions[i], std::make_unique<TissuePatch>(rec.first_patches[i]));
+  }
   r->replayed_.reserve(rec.samples.size());
   return r;
 }
 
-const TissuePatch* Replay::find_patch(std::uint64_t version) const {
-  for (const auto& [v, p] : patches_)
+const TissuePatch* Replay::find_patch(Hand hand, std::uint64_t version) const {
+  for (const auto& [v, p] : patches_[hand_index(hand)])
     if (v == version) return p.get();
   return nullptr;
 }
 
-const TissuePatch* Replay::patch() const noexcept { return patches_.empty() ? nullptr : patches_.back().second.get(); }
+const TissuePatch* Replay::patch(Hand h) const noexcept {
+  const auto& ps = patches_[hand_index(h)];
+  return ps.empty() ? nullptr : ps.back().second.get();
+}
 
 double Replay::time_s() const noexcept {
   return has_latest_ ? static_cast<double>(latest_.t_ns - rec_->samples.front().t_ns) * 1e-9 : 0.0;
@@ -112,13 +142,16 @@ Result<sim::FrameBatch> Replay::drain() {
                                          : rec_->samples.size();
   while (next_sample_ < frame_end && (by_count || rec_->samples[next_sample_].seq <= f.last_seq)) {
     const ToolSample& s = rec_->samples[next_sample_++];
+    const std::size_t h = hand_index(s.hand);  // checked by create()
     // A gap (the viz stalled longer than the sample ring holds): the servo's state after it
     // depends on ticks nobody kept, so from here the servo is not re-stepped; the scene goes on
     // with the recorded ticks, exactly what the live scene was given, and is still checked.
-    if (check_.gap_seq == 0 && has_latest_ && s.seq != latest_.seq + 1) {
+    if (check_.gap_seq == 0 && has_hand_[h] && s.seq != latest_by_hand_[h].seq + 1) {
       check_.gap_seq = s.seq;
-      check_.ticks_lost = s.seq > latest_.seq ? s.seq - latest_.seq - 1 : 0;
+      check_.ticks_lost = s.seq > latest_by_hand_[h].seq ? s.seq - latest_by_hand_[h].seq - 1 : 0;
     }
+    latest_by_hand_[h] = s;
+    has_hand_[h] = true;
     if (check_.gap_seq != 0) {
       ++check_.ticks_unchecked;
       batch_.push_back(s);
@@ -128,12 +161,12 @@ Result<sim::FrameBatch> Replay::drain() {
     }
     servo::ServoInput in = servo::input_from_sample(s);
     if (s.patch_version != 0) {
-      in.patch = find_patch(s.patch_version);
+      in.patch = find_patch(s.hand, s.patch_version);
       if (in.patch == nullptr)
-        return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " used patch version " + std::to_string(s.patch_version) +
-                                              ", which no recorded frame published"};
+        return Error{ErrorCode::kInvalid, "tick " + std::to_string(s.seq) + " of the " + hand_name(s.hand) + " hand used patch version " +
+                                              std::to_string(s.patch_version) + ", which no recorded frame published"};
     }
-    servo::servo_step(model_, data_, in, out_);
+    servo::servo_step(model_[h], data_[h], in, out_);
     ToolSample& o = out_.sample;
     o.write_status = s.write_status;
     if (s.write_status != IoStatus::kOk) o.events |= event::kFault;
@@ -158,21 +191,37 @@ Result<sim::FrameBatch> Replay::drain() {
   sim::FrameBatch b;
   b.samples = batch_;
   b.blood_dt = f.blood_dt;
-  if (f.patch_version != 0) {
-    filling_ = std::make_unique<TissuePatch>();
-    b.patch = filling_.get();
-    b.patch_centre = has_latest_ ? latest_.tool.position : Vec3{};
-    b.header = {f.patch_seq, f.patch_t_ns, f.patch_samples_applied};
+  const sim::PatchHeader headers[kHandCount] = {{f.patch_seq, f.patch_t_ns, f.patch_samples_applied},
+                                                {f.left_patch_seq, f.left_patch_t_ns, f.left_patch_samples_applied}};
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    if (frame_patch_version(f, h) == 0) continue;
+    filling_[h] = std::make_unique<TissuePatch>();
+    b.patches[h] = {filling_[h].get(), has_hand_[h] ? latest_by_hand_[h].tool.position : Vec3{}, headers[h]};
   }
   return b;
 }
 
-void Replay::publish(const TissuePatch* patch) {
-  if (patch != nullptr) patches_.emplace_back(rec_->frames[next_frame_].patch_version, std::move(filling_));
-  // The patches a later tick may still use: the servo takes newer versions only, so none older
-  // than the next recorded tick's (however many frames a stalled servo let pass meanwhile).
-  const std::uint64_t needed = next_sample_ < rec_->samples.size() ? rec_->samples[next_sample_].patch_version : ~std::uint64_t{0};
-  while (patches_.size() > 1 && patches_.front().first < needed) patches_.pop_front();
+std::uint64_t Replay::frame_patch_version(const FrameRecord& f, std::size_t hand) noexcept {
+  return hand == 0 ? f.patch_version : f.left_patch_version;
+}
+
+void Replay::publish(const std::array<const TissuePatch*, kHandCount>& patches) {
+  const FrameRecord& f = rec_->frames[next_frame_];
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    auto& kept = patches_[h];
+    if (patches[h] != nullptr) kept.emplace_back(frame_patch_version(f, h), std::move(filling_[h]));
+    // The patches a later tick of this hand may still use: the servo takes newer versions only, so
+    // none older than the hand's next recorded tick's (however many frames a stalled servo let
+    // pass meanwhile).
+    std::uint64_t needed = ~std::uint64_t{0};
+    for (std::size_t i = next_sample_; i < rec_->samples.size() && i < next_sample_ + 2 * kHandCount; ++i) {
+      if (hand_index(rec_->samples[i].hand) == h) {
+        needed = rec_->samples[i].patch_version;
+        break;
+      }
+    }
+    while (kept.size() > 1 && kept.front().first < needed) kept.pop_front();
+  }
 }
 
 Result<bool> Replay::step_frame() {

@@ -14,6 +14,7 @@
 // (ReplayCheck::gap_seq says where). A recording cut short (Recording::cut_short) replays up to
 // where its file ends.
 
+#include <array>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -74,8 +75,10 @@ class Replay final : private sim::FrameIo {
   [[nodiscard]] double time_s() const noexcept;
   [[nodiscard]] double duration_s() const noexcept;
   [[nodiscard]] const ToolSample* latest() const noexcept { return has_latest_ ? &latest_ : nullptr; }
-  /// The patch published by the newest replayed frame (null before the first).
-  [[nodiscard]] const TissuePatch* patch() const noexcept;
+  /// The patch published for hand h by the newest replayed frame that published one (null before the first).
+  [[nodiscard]] const TissuePatch* patch(Hand h = Hand::kRight) const noexcept;
+  /// The newest replayed tick of hand h (null before its first).
+  [[nodiscard]] const ToolSample* latest(Hand h) const noexcept { return has_hand_[hand_index(h)] ? &latest_by_hand_[hand_index(h)] : nullptr; }
   [[nodiscard]] sim::SceneSim& sim() noexcept { return *sim_; }
   [[nodiscard]] const Recording& recording() const noexcept { return *rec_; }
   /// The replayed samples so far (live metrics and replayed metrics must agree on them).
@@ -85,21 +88,26 @@ class Replay final : private sim::FrameIo {
   Replay() = default;
   const Recording* rec_ = nullptr;
   std::unique_ptr<sim::SceneSim> sim_;
-  servo::ServoModel model_{};
-  servo::ServoData data_{};
+  // By hand.
+  std::array<servo::ServoModel, kHandCount> model_{};
+  std::array<servo::ServoData, kHandCount> data_{};
   servo::ServoOutput out_{};
   std::size_t next_sample_ = 0, next_frame_ = 0;
-  std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>> patches_;  // by version: those later ticks may use
-  std::unique_ptr<TissuePatch> filling_;  // the frame's patch, between drain() and publish()
+  // By hand, by version: the patches later ticks may use.
+  std::array<std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>>, kHandCount> patches_;
+  std::array<std::unique_ptr<TissuePatch>, kHandCount> filling_;  // the frame's patches, between drain() and publish()
   std::vector<ToolSample> batch_, replayed_;
   ToolSample latest_{};
   bool has_latest_ = false;
+  std::array<ToolSample, kHandCount> latest_by_hand_{};  // the newest recorded tick of each hand
+  std::array<bool, kHandCount> has_hand_{};
   ReplayCheck check_{};
   ReplayTiming timing_{};
-  const TissuePatch* find_patch(std::uint64_t version) const;
+  const TissuePatch* find_patch(Hand hand, std::uint64_t version) const;
+  static std::uint64_t frame_patch_version(const FrameRecord& f, std::size_t hand) noexcept;
   // The recorded frame next_frame_ as the frame function's two ends.
   Result<sim::FrameBatch> drain() override;
-  void publish(const TissuePatch* patch) override;
+  void publish(const std::array<const TissuePatch*, kHandCount>& patches) override;
 };
 
 }  // namespace lancet::record

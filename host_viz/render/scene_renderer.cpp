@@ -359,11 +359,12 @@ void SceneRenderer::render(const SceneInput& in) {
 
   // Lines: the patch wireframe (lifted 0.2 mm so it is not hidden by the surface) and the force.
   std::vector<float> lines;
-  if (in.patch != nullptr) {
+  for (const TissuePatch* patch : in.patches) {
+    if (patch == nullptr) continue;
     const glm::vec3 lift(0, 0, 0.0002f);
-    const std::uint32_t n = std::min(in.patch->n_triangles, kPatchCapacity);
+    const std::uint32_t n = std::min(patch->n_triangles, kPatchCapacity);
     for (std::uint32_t i = 0; i < n; ++i) {
-      const auto& t = in.patch->triangles[i];
+      const auto& t = patch->triangles[i];
       for (int e = 0; e < 3; ++e) {
         push_vertex(lines, gv(t.v[e]) + lift, glm::vec3(0), 0);
         push_vertex(lines, gv(t.v[(e + 1) % 3]) + lift, glm::vec3(0), 0);
@@ -371,9 +372,10 @@ void SceneRenderer::render(const SceneInput& in) {
     }
   }
   const std::size_t patch_floats = lines.size();
-  if (in.has_tool && norm(in.force) > 1e-6) {
-    push_vertex(lines, gv(in.tool), glm::vec3(0), 0);
-    push_vertex(lines, gv(in.tool + 0.01 * in.force), glm::vec3(0), 0);  // 1 cm per newton
+  for (const ToolView& tv : in.tools) {
+    if (!tv.has_tool || norm(tv.force) <= 1e-6) continue;
+    push_vertex(lines, gv(tv.tool), glm::vec3(0), 0);
+    push_vertex(lines, gv(tv.tool + 0.01 * tv.force), glm::vec3(0), 0);  // 1 cm per newton
   }
   const std::size_t force_floats = lines.size() - patch_floats;
   if (in.guide != nullptr)  // the task's line, as segments, lifted like the wireframe
@@ -392,14 +394,17 @@ void SceneRenderer::render(const SceneInput& in) {
     draw(lines_, GL_LINES, patch_vertices + force_vertices, guide_vertices, glm::mat4(1.0f), glm::vec3(0.2f, 0.35f, 0.95f), 2);
   }
 
-  if (in.has_tool) {
-    const glm::vec3 tip = gv(in.tool);
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const ToolView& tv = in.tools[h];
+    if (!tv.has_tool) continue;
+    const glm::vec3 tip = gv(tv.tool);
+    const glm::vec3 colour(kHandColours[h][0], kHandColours[h][1], kHandColours[h][2]);
     draw(sphere_, GL_TRIANGLES, 0, sphere_.count, glm::scale(glm::translate(glm::mat4(1), tip), glm::vec3(0.0015f)),
          glm::vec3(0.75f, 0.78f, 0.82f), 1);
     draw(cylinder_, GL_TRIANGLES, 0, cylinder_.count, glm::scale(glm::translate(glm::mat4(1), tip), glm::vec3(0.0009f, 0.0009f, 0.07f)),
-         glm::vec3(0.55f, 0.58f, 0.62f), 1);
-    if (norm(in.proxy - in.tool) > 1e-5) {
-      draw(sphere_, GL_TRIANGLES, 0, sphere_.count, glm::scale(glm::translate(glm::mat4(1), gv(in.proxy)), glm::vec3(0.001f)),
+         colour, 1);
+    if (norm(tv.proxy - tv.tool) > 1e-5) {
+      draw(sphere_, GL_TRIANGLES, 0, sphere_.count, glm::scale(glm::translate(glm::mat4(1), gv(tv.proxy)), glm::vec3(0.001f)),
            glm::vec3(0.2f, 0.9f, 0.3f), 1);
     }
   }

@@ -16,12 +16,21 @@
 
 namespace lancet::render {
 
-struct SceneInput {
+/// One hand's tool as drawn: its shaft in the hand's colour (kHandColours).
+struct ToolView {
   Vec3 tool{};                 ///< tool tip (m)
   Vec3 proxy{};                ///< proxy (m)
   Vec3 force{};                ///< force on the hand (N)
   bool has_tool = false;
-  const TissuePatch* patch = nullptr;  ///< drawn as a wireframe when non-null
+};
+
+/// The shaft's colour of each hand's tool (linear RGB), by Hand: the right hand's steel blue, the
+/// left's amber.
+inline constexpr float kHandColours[kHandCount][3] = {{0.30f, 0.50f, 0.95f}, {0.95f, 0.60f, 0.15f}};
+
+struct SceneInput {
+  std::array<ToolView, kHandCount> tools{};  ///< by Hand
+  std::array<const TissuePatch*, kHandCount> patches{};  ///< each drawn as a wireframe when non-null
   float camera_yaw = 0.6f;     ///< rad, about +z
   float camera_pitch = 0.55f;  ///< rad above the surface plane
   float camera_distance = 0.26f;  ///< m

@@ -22,17 +22,23 @@ Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
   // the header that says which frame and tick it reflects; published before the blood steps, so
   // the servo never waits for the blood (the blood changes nothing a patch holds).
   t0 = Clock::now();
-  if (b.patch != nullptr) {
-    TissuePatch& p = *b.patch;
+  std::array<const TissuePatch*, kHandCount> out{};
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const HandPatch& hp = b.patches[h];
+    if (hp.patch == nullptr) continue;
+    TissuePatch& p = *hp.patch;
     p.n_triangles = 0;
     p.brick.valid = 0;
-    r.triangles = sim.export_patch(b.patch_centre, p);
-    p.seq = b.header.seq;
-    p.t_ns = b.header.t_ns;
-    p.samples_applied = b.header.samples_applied;
-    r.patch = true;
+    const std::size_t n = sim.export_patch(hp.centre, p);
+    (h == 0 ? r.triangles : r.triangles_left) = n;
+    p.hand = static_cast<Hand>(h);
+    p.seq = hp.header.seq;
+    p.t_ns = hp.header.t_ns;
+    p.samples_applied = hp.header.samples_applied;
+    r.patch[h] = true;
+    out[h] = &p;
   }
-  io.publish(b.patch);
+  io.publish(out);
   r.patch_s = since(t0);
 
   t0 = Clock::now();

@@ -1,6 +1,7 @@
 #include "tissue/tissue_scene.hpp"
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -222,28 +223,31 @@ bool TissueScene::apply(std::span<const ToolSample> batch) {
   const auto dt_between = [](const ToolSample& a, const ToolSample& b) {
     return std::clamp(static_cast<double>(b.t_ns - a.t_ns) * 1e-9, 0.0, 0.1);
   };
-  // A pull sets the opening to the hand's displacement (not by it): of a run of pulls in one
-  // frame, only the newest counts.
-  std::size_t last_pull = batch.size();
+  // Per hand: a pull sets the opening to the hand's displacement (not by it), so of a run of one
+  // hand's pulls in a frame only the newest counts; and the hand's newest sample is always fed.
+  std::array<std::size_t, kHandCount> last_pull, last_of_hand;
+  last_pull.fill(batch.size());
+  last_of_hand.fill(batch.size());
   for (std::size_t i = batch.size(); i-- > 0;) {
-    if ((batch[i].events & event::kPull) != 0) {
-      last_pull = i;
-      break;
-    }
+    const std::size_t h = hand_of(batch[i]);
+    if (last_of_hand[h] == batch.size()) last_of_hand[h] = i;
+    if (last_pull[h] == batch.size() && (batch[i].events & event::kPull) != 0) last_pull[h] = i;
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {
     const ToolSample& t = batch[i];
+    const std::size_t h = hand_of(t);
+    HandFeed& fed = fed_[h];
     tally(t);
     if ((t.events & event::kDrillRemove) != 0) drill(t);
     // The surface: the cut grows by cut progress events (every 0.5 mm of blade travel), the
-    // stages change and pulls apply as they come, the dent follows the newest sample.
+    // stages change and pulls apply as they come, the dent follows the hand's newest sample.
     const bool cut_step = t.stage == Stage::kCutting && (t.events & event::kCutProgress) != 0;
-    const bool transition = !fed_any_ || t.stage != fed_.stage || (t.events & event::kRupture) != 0 || i == last_pull;
-    const bool last = i + 1 == batch.size();
-    if (!(cut_step || transition || last)) continue;
-    apply_one(t, fed_any_ ? dt_between(fed_, t) : 0.0);
-    fed_ = t;
-    fed_any_ = true;
+    const bool transition = !fed.any || t.stage != fed.last.stage || (t.events & (event::kRupture | event::kGrab)) != 0 ||
+                            i == last_pull[h];
+    if (!(cut_step || transition || i == last_of_hand[h])) continue;
+    apply_one(t, fed.any ? dt_between(fed.last, t) : 0.0);
+    fed.last = t;
+    fed.any = true;
   }
   if (!batch.empty()) {
     refresh_bone_surface();
@@ -252,38 +256,82 @@ bool TissueScene::apply(std::span<const ToolSample> batch) {
   return revision() != before;
 }
 
+std::size_t TissueScene::hand_of(const ToolSample& t) noexcept {
+  return hand_index(t.hand) < kHandCount ? hand_index(t.hand) : 0;
+}
+
+// One hand's sample on the surface. Two hands share one surface: the dent is the hand's that
+// pressed first (the other's press is felt, but not drawn, until it lets go), the cut being made is
+// the hand's that began it (the other hand neither ends nor extends it), and a retractor pulls the
+// cut it grabbed, whatever cut the other hand makes meanwhile.
 void TissueScene::apply_one(const ToolSample& sample, double dt) {
   surface::SurfaceModel& m = *surface_;
+  const std::size_t h = hand_of(sample);
   const Vec3 tool = sample.tool.position, proxy = sample.proxy.position;
   if (!is_finite(tool) || !is_finite(proxy)) return;
   const bool cutting_stage = sample.stage == Stage::kRupture || sample.stage == Stage::kCutting;
-  if (m.cutting() && !cutting_stage) m.end_cut();
+  if (m.cutting() && cut_hand_ == h && !cutting_stage) {
+    m.end_cut();
+    cut_hand_ = kNoHand;
+  }
+  // The dent: only the hand that owns it moves or releases it.
+  const bool owns_dent = dent_hand_ == kNoHand || dent_hand_ == h;
+  const auto release_dent = [&] {
+    if (dent_hand_ == h) {
+      m.update_contact(std::nullopt, dt);
+      dent_hand_ = kNoHand;
+    } else if (dent_hand_ == kNoHand) {
+      m.update_contact(std::nullopt, dt);  // the return to rest goes on
+    }
+  };
   switch (sample.stage) {
     case Stage::kDeform: {
+      if (!owns_dent) break;
       const Vec3 into = tool - proxy;
       m.update_contact(surface::Contact{proxy, normalized(into), norm(into)}, dt);
+      dent_hand_ = h;
       break;
     }
     case Stage::kRupture:
     case Stage::kCutting: {
-      m.update_contact(std::nullopt, dt);
+      release_dent();
+      if (m.cutting() && cut_hand_ != h) break;  // the other hand is cutting: one cut at a time
       if (!m.cutting()) {
         const bool rupture = (sample.events & event::kRupture) != 0 && is_finite(sample.payload.position);
         if (!m.begin_cut(rupture ? sample.payload.position : proxy)) break;
+        cut_hand_ = h;
       }
       (void)m.cut_to(proxy);
       break;
     }
-    case Stage::kPulling:
-      m.update_contact(std::nullopt, dt);
-      if (!m.cuts().empty() && (sample.events & event::kPull) != 0) (void)m.pull(m.cuts().size() - 1, sample.payload.magnitude);
+    case Stage::kPulling: {
+      release_dent();
+      if ((sample.events & event::kGrab) != 0 || held_cut_[h] >= m.cuts().size()) held_cut_[h] = nearest_cut(sample.payload.position);
+      if (held_cut_[h] < m.cuts().size() && (sample.events & event::kPull) != 0) (void)m.pull(held_cut_[h], sample.payload.magnitude);
       m.relax(dt);
       break;
+    }
     default:
-      m.update_contact(std::nullopt, dt);
+      release_dent();
+      held_cut_[h] = kNoCut;
       m.relax(dt);
       break;
   }
+}
+
+std::size_t TissueScene::nearest_cut(Vec3 at) const {
+  const auto& cuts = surface_->cuts();
+  if (cuts.empty()) return kNoCut;
+  if (!is_finite(at)) return cuts.size() - 1;
+  std::size_t best = cuts.size() - 1;
+  double best_d2 = std::numeric_limits<double>::infinity();
+  for (std::size_t c = 0; c < cuts.size(); ++c) {
+    for (const Vec3& p : cuts[c].path) {
+      const double dx = p.x - at.x, dy = p.y - at.y, d2 = dx * dx + dy * dy;
+      if (d2 < best_d2) best_d2 = d2, best = c;
+    }
+  }
+  return best;
 }
 
 void TissueScene::tally(const ToolSample& t) {
@@ -437,16 +485,19 @@ void TissueScene::refresh_bone_surface() {
     bone_changed_ = true;
   }
   // The felt surface follows once the drilling pauses (the drill itself pushes against the
-  // brick, not the surface): when the tool is no longer the drill, or half a second after its
+  // brick, not the surface): when no hand holds the drill any more, or half a second after its
   // last removal. Rebuilding it is a whole surface's work, too much for every drilling frame.
   if (!bone_changed_) return;
-  if (fed_.mode == ToolMode::kDrill && fed_.t_ns - last_removal_ns_ < 500'000'000) return;
+  for (const HandFeed& f : fed_)
+    if (f.any && f.last.mode == ToolMode::kDrill && f.last.t_ns - last_removal_ns_ < 500'000'000) return;
   bone_changed_ = false;
   const surface::TriangleMesh m = to_world(bone_->mesh(), placement_);
   auto model = surface::SurfaceModel::create(m.vertices, m.triangles, m.material, desc_.surface_params);
   if (!model.ok()) return;
   own_revision_ += surface_->revision() + 1;  // the new model counts from 0 again: never repeat a revision
   surface_ = std::move(model).value();
+  dent_hand_ = cut_hand_ = kNoHand;  // a new surface: no dent, no cut, nothing held
+  held_cut_.fill(kNoCut);
 }
 
 // ---- the groove ---------------------------------------------------------------------------------

@@ -5,7 +5,8 @@
 // the ChainMail lattice around cuts (elements materialised lazily: the groove under an incision), the live
 // bone isosurface and the drill.
 //
-// It applies lancet-rt's ToolSample stream in order: the dent follows the proxy; a rupture
+// It applies lancet-rt's ToolSample stream in tick order, both hands' samples interleaved, each
+// hand's state kept apart (TissueScene::apply_one says how two hands share the surface): the dent follows the proxy; a rupture
 // starts a cut and each cut-progress event (0.5 mm of blade travel) extends it on the surface and,
 // as a thin cut, into the ChainMail lattice down to the scenario's cut depth; a pull opens the
 // incision to the hand's displacement and the groove with it (the same width at the top, closing
@@ -188,8 +189,19 @@ class TissueScene {
   std::int64_t last_removal_ns_ = 0;  ///< t_ns of the newest drill removal
   std::uint64_t own_revision_ = 0;
   SceneEvents events_;
-  ToolSample fed_{};  ///< the last sample the surface model was given
-  bool fed_any_ = false;
+  /// What a hand last gave the surface model.
+  struct HandFeed {
+    ToolSample last{};
+    bool any = false;
+  };
+  static constexpr std::size_t kNoHand = kHandCount, kNoCut = static_cast<std::size_t>(-1);
+  static std::size_t hand_of(const ToolSample& t) noexcept;
+  /// The cut with a path point nearest `at` in x-y (kNoCut: none; the newest when `at` is not finite).
+  [[nodiscard]] std::size_t nearest_cut(Vec3 at) const;
+  std::array<HandFeed, kHandCount> fed_{};
+  std::size_t dent_hand_ = kNoHand;  ///< the hand whose press the dent shows
+  std::size_t cut_hand_ = kNoHand;   ///< the hand making the active cut
+  std::array<std::size_t, kHandCount> held_cut_{kNoCut, kNoCut};  ///< by hand: the cut its retractor holds
 };
 
 /// Material labels from HU thresholds (air, muscle, cortical bone), for a CT without labels.

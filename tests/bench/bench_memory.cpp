@@ -102,10 +102,10 @@ struct Driver final : sim::FrameIo {
     sim::FrameBatch b;
     b.samples = *batch_;
     b.blood_dt = 1e-3 * kSamplesPerFrame;
-    if (!batch_->empty()) b.patch = patch.get(), b.patch_centre = batch_->back().proxy.position;
+    if (!batch_->empty()) b.patches[0] = {patch.get(), batch_->back().proxy.position, {}};
     return b;
   }
-  void publish(const TissuePatch*) override {}
+  void publish(const std::array<const TissuePatch*, kHandCount>&) override {}
 
   void frame(std::vector<ToolSample>& batch) {
     batch_ = &batch;
@@ -210,7 +210,7 @@ void draw(Driver& d, const scenario::Scenario& s, int frames, Stages& stages) {
   in.camera_pitch = static_cast<float>(s.camera.pitch);
   in.camera_distance = static_cast<float>(s.camera.distance);
   in.camera_target = s.camera.target;
-  in.patch = d.patch.get();
+  in.patches[0] = d.patch.get();
   for (int f = 0; f < frames; ++f) {
     renderer.render(in);
     window.value()->swap_and_poll();

@@ -115,7 +115,7 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
   std::atomic<bool> stop{false};
   auto patch = make_patch(c.triangles);
   patch->t_ns = monotonic_ns();
-  shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
+  shared->patch[0].publish_prefix(*patch, tissue_patch_bytes(*patch));
   stamp(1, monotonic_ns());
   std::uint64_t published = 1;
   std::thread viz([&] {
@@ -129,7 +129,7 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
       }
       patch->t_ns = monotonic_ns();
       ++patch->seq;
-      shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
+      shared->patch[0].publish_prefix(*patch, tissue_patch_bytes(*patch));
       ++published;
       stamp(published, monotonic_ns());
     }

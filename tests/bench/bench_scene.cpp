@@ -118,15 +118,16 @@ int main(int argc, char** argv) {
     // samples drained and applied, the patch filled around the newest tool position, published.
     const auto link_frame = [&](std::int64_t t) {
       apply(session.drain(t));
-      TissuePatch* p = nullptr;
+      std::array<const TissuePatch*, kHandCount> out{};
       if (session.attached() && session.has_sample()) {
-        p = &session.patch_buffer();
+        TissuePatch* p = &session.patch_buffer(Hand::kRight);
         p->n_triangles = 0;
         p->brick.valid = 0;
         fill(session.latest().tool.position, *p);
         p->seq = session.frames(), p->t_ns = t, p->samples_applied = session.samples_applied();
+        out[0] = p;
       }
-      session.publish(p, t);
+      session.publish(out, t);
     };
     std::int64_t now = monotonic_ns();
     s.rt_heartbeat.beat(now, getpid());

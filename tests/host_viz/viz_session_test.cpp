@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "lancet/shared_model/validate.hpp"
 #include "tissue/patch_export.hpp"
 #include "tissue/tissue_scene.hpp"
 
@@ -20,10 +21,11 @@ std::string unique_name(const char* tag) {
   return "/lancet-vs-" + std::string(tag) + "-" + std::to_string(getpid()) + "-" + std::to_string(++n);
 }
 
-ToolSample sample(std::uint64_t seq, Vec3 p) {
+ToolSample sample(std::uint64_t seq, Vec3 p, Hand hand = Hand::kRight) {
   ToolSample s{};
   s.seq = seq;
   s.tool.position = p;
+  s.hand = hand;
   return s;
 }
 
@@ -31,22 +33,27 @@ using SampleSink = std::function<void(std::span<const ToolSample> samples)>;
 using PatchFill = std::function<void(Vec3 tool, TissuePatch& patch)>;
 
 // One frame of the link as the live viz runs it (app/live_frame, sim::run_frame): the samples
-// drained, handed on, the patch filled around the newest tool position once attached with a sample
-// (its header: the frame, its time, the newest tick drained), published with the heartbeat.
+// drained, handed on, each hand's patch filled around its newest tool position once attached with
+// a sample of that hand (its header: the frame, its time, the hand's newest tick drained),
+// published with the heartbeat.
 void link_frame(VizSession& s, std::int64_t now, const SampleSink& sink, const PatchFill& fill) {
   const std::span<const ToolSample> batch = s.drain(now);
   if (sink && !batch.empty()) sink(batch);
-  TissuePatch* p = nullptr;
-  if (s.attached() && s.has_sample()) {
-    p = &s.patch_buffer();
+  std::array<const TissuePatch*, kHandCount> out{};
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    const auto hand = static_cast<Hand>(h);
+    if (!s.attached() || !s.has_sample(hand)) continue;
+    TissuePatch* p = &s.patch_buffer(hand);
     p->n_triangles = 0;
     p->brick.valid = 0;
-    fill(s.latest().tool.position, *p);
+    fill(s.latest(hand).tool.position, *p);
+    p->hand = hand;
     p->seq = s.frames();
     p->t_ns = now;
-    p->samples_applied = s.samples_applied();
+    p->samples_applied = s.samples_applied(hand);
+    out[h] = p;
   }
-  s.publish(p, now);
+  s.publish(out, now);
 }
 
 // The patch source of a plain mesh (no volume: no brick).
@@ -170,7 +177,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
 
   // The patch around the tool reached shared memory.
   auto patch = std::make_unique<TissuePatch>();
-  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  ASSERT_EQ(shared.patch[0].try_read(*patch), ReadStatus::kOk);
   EXPECT_GT(patch->n_triangles, 0u);
   double nearest = 1e9;
   for (std::uint32_t i = 0; i < patch->n_triangles; ++i) nearest = std::min(nearest, norm(to_vec3(patch->triangles[i].v[0]) - Vec3{0.0, 0.0, -0.001}));
@@ -201,7 +208,7 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   link_frame(s, now, sink, with_brick);
   EXPECT_EQ(sunk, 20u);
   EXPECT_EQ(newest_sunk, 620u);
-  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  ASSERT_EQ(shared.patch[0].try_read(*patch), ReadStatus::kOk);
   EXPECT_EQ(patch->brick.valid, 1u);
   EXPECT_EQ(brick_centre, (Vec3{0.001, 0.0, -0.002}));
   EXPECT_EQ(patch->samples_applied, 620u);
@@ -221,13 +228,15 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   EXPECT_EQ(handed, (std::vector<std::uint64_t>{621, 622, 623, 624}));
   EXPECT_EQ(s.stats().rejected, rejected_before + 2);
   EXPECT_EQ(s.stats().lost, 0u);
-  ASSERT_EQ(shared.patch.try_read(*patch), ReadStatus::kOk);
+  ASSERT_EQ(shared.patch[0].try_read(*patch), ReadStatus::kOk);
   EXPECT_EQ(patch->samples_applied, 624u);
 
   // Stylus target and commands travel the other way.
-  s.set_stylus_target(true, {0.01, 0.02, -0.003}, now);
+  s.set_stylus_target(Hand::kLeft, true, {0.01, 0.02, -0.003}, now);
   StylusTarget t{};
-  ASSERT_EQ(shared.stylus_target.try_read(t), ReadStatus::kOk);
+  EXPECT_EQ(shared.stylus_target[0].try_read(t), ReadStatus::kEmpty) << "the left hand's target goes to the left hand's slot";
+  ASSERT_EQ(shared.stylus_target[1].try_read(t), ReadStatus::kOk);
+  EXPECT_EQ(t.hand, Hand::kLeft);
   EXPECT_EQ(t.active, 1u);
   EXPECT_EQ(t.target.position, (Vec3{0.01, 0.02, -0.003}));
   Command c{};
@@ -252,6 +261,75 @@ TEST(VizSession, AttachesDrainsPublishesAndNoticesTheRtLeaving) {
   link_frame(s, monotonic_ns() + 2'000'000'000, {}, mesh_patch(mesh));  // past the retry interval
   EXPECT_EQ(s.link(), Link::kConnected) << s.link_message();
   EXPECT_EQ(s.connections(), 2u);
+}
+
+// Two hands: each tick brings a sample of each with the tick's seq; each hand's order is checked on
+// its own, its patch is cut around its own tool and published to its own buffer, and the resets
+// that start a recording reach the ring together.
+TEST(VizSession, TwoHandsEachInOrderEachWithItsPatch) {
+  const std::string name = unique_name("hands");
+  auto rt = SharedChannel::create(name, {}).value();
+  SharedState& shared = rt.state();
+  RtStatus st{};
+  st.period_ns = 1'000'000;
+  st.hands = 2;
+  shared.rt_status.write(st);
+  std::int64_t now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  VizSessionParams p;
+  p.shm_name = name;
+  VizSession s(p);
+  const auto mesh = surface::make_tissue_block({});
+  link_frame(s, now, {}, mesh_patch(mesh));
+  ASSERT_EQ(s.link(), Link::kConnected) << s.link_message();
+  EXPECT_EQ(s.hands(), 2u);
+
+  const Vec3 right{-0.01, 0.0, -0.001}, left{0.012, 0.01, -0.001};
+  for (std::uint64_t i = 1; i <= 100; ++i) {
+    ASSERT_TRUE(shared.samples.try_push(sample(i, right, Hand::kRight)));
+    ASSERT_TRUE(shared.samples.try_push(sample(i, left, Hand::kLeft)));
+  }
+  // A stale slot of the left hand (its tick 50 again) is garbage; the right hand's 101 is not.
+  ASSERT_TRUE(shared.samples.try_push(sample(50, left, Hand::kLeft)));
+  ASSERT_TRUE(shared.samples.try_push(sample(101, right, Hand::kRight)));
+  now = monotonic_ns();
+  shared.rt_heartbeat.beat(now, getpid());
+  std::size_t rights = 0, lefts = 0;
+  link_frame(s, now, [&](std::span<const ToolSample> batch) {
+    for (const ToolSample& t : batch) (t.hand == Hand::kLeft ? lefts : rights)++;
+  }, mesh_patch(mesh));
+  EXPECT_EQ(rights, 101u);
+  EXPECT_EQ(lefts, 100u);
+  EXPECT_EQ(s.stats().out_of_order, 0u) << "the two hands' samples of one tick share its seq";
+  EXPECT_EQ(s.stats().rejected, 1u);
+  EXPECT_EQ(s.stats().lost, 0u);
+  EXPECT_EQ(s.samples_applied(Hand::kRight), 101u);
+  EXPECT_EQ(s.samples_applied(Hand::kLeft), 100u);
+
+  // Each hand's patch, in its own buffer, around its own tool, saying whose it is.
+  for (const Hand hand : {Hand::kRight, Hand::kLeft}) {
+    auto patch = std::make_unique<TissuePatch>();
+    ASSERT_EQ(shared.patch[hand_index(hand)].try_read(*patch), ReadStatus::kOk) << hand_name(hand);
+    EXPECT_EQ(patch->hand, hand);
+    const Vec3 tool = hand == Hand::kRight ? right : left;
+    double nearest = 1e9;
+    for (std::uint32_t i = 0; i < patch->n_triangles; ++i) nearest = std::min(nearest, norm(to_vec3(patch->triangles[i].v[0]) - tool));
+    EXPECT_LT(nearest, 0.003) << hand_name(hand) << ": the patch is cut around the hand's own tool";
+    EXPECT_EQ(patch->samples_applied, hand == Hand::kRight ? 101u : 100u);
+    EXPECT_EQ(s.patch_version(hand), shared.patch[hand_index(hand)].version());
+  }
+
+  // The resets of both hands arrive in the ring together, each for its hand, each newer than the last.
+  ASSERT_TRUE(s.send_each_hand(CommandKind::kReset, 2, now));
+  Command got[3]{};
+  ASSERT_EQ(shared.commands.try_pop_n(got, 3), 2u);
+  EXPECT_EQ(got[0].hand, Hand::kRight);
+  EXPECT_EQ(got[1].hand, Hand::kLeft);
+  EXPECT_EQ(got[0].kind, CommandKind::kReset);
+  EXPECT_EQ(got[1].kind, CommandKind::kReset);
+  EXPECT_LT(got[0].t_ns, got[1].t_ns);
+  EXPECT_EQ(wire::check(got[0]), nullptr);
+  EXPECT_EQ(wire::check(got[1]), nullptr);
 }
 
 }  // namespace

@@ -47,7 +47,7 @@ Recording sample_recording() {
   r.protocol = 7;
   r.servo_hash_every = 100;
   r.scene_hash_every = 30;
-  r.servo_model.layout = 42, r.servo_model.size = 3, r.servo_model.bytes[2] = 9;
+  r.servo_model[0].layout = 42, r.servo_model[0].size = 3, r.servo_model[0].bytes[2] = 9;
   r.first_patches.resize(2);
   r.first_patches[0].n_triangles = 5;
   r.first_patches[0].triangles[4].v[1].y = 0.25f;

@@ -25,7 +25,7 @@ constexpr int kTicksPerFrame = 16;
 struct ScriptedFrame final : sim::FrameIo {
   sim::FrameBatch next;
   Result<sim::FrameBatch> drain() override { return next; }
-  void publish(const TissuePatch*) override {}
+  void publish(const std::array<const TissuePatch*, kHandCount>&) override {}
 };
 
 struct Live {
@@ -53,7 +53,7 @@ Live run_live(int gap_from, int hold_from = -1) {
   rec.servo_hash_every = servo::kServoHashEvery;
   rec.scene_hash_every = 1;
   const servo::ServoModel model{};
-  rec.servo_model = servo::to_blob(model);
+  rec.servo_model[0] = servo::to_blob(model);
   auto data = std::make_unique<servo::ServoData>();
   auto out = std::make_unique<servo::ServoOutput>();
   // The patch in use: the last one published (the first, before any frame, around the origin).
@@ -103,7 +103,9 @@ Live run_live(int gap_from, int hold_from = -1) {
     f.ticks = batch.size();
     f.blood_dt = 0.016;
     ScriptedFrame io;
-    io.next = {batch, f.blood_dt, patch.get(), latest, {static_cast<std::uint64_t>(frame) + 1, f.t_ns, f.last_seq}};
+    io.next.samples = batch;
+    io.next.blood_dt = f.blood_dt;
+    io.next.patches[0] = {patch.get(), latest, {static_cast<std::uint64_t>(frame) + 1, f.t_ns, f.last_seq}};
     EXPECT_TRUE(sim::run_frame(*sim, io).ok());
     ++version;
     f.patch_version = version, f.patch_seq = patch->seq, f.patch_t_ns = patch->t_ns, f.patch_samples_applied = f.last_seq;

@@ -36,16 +36,18 @@ std::unique_ptr<SceneSim> block_sim() {
 struct ScriptedFrame final : FrameIo {
   FrameBatch next;
   std::vector<std::string> calls;
-  const TissuePatch* published = nullptr;
+  const TissuePatch* published = nullptr;       // the right hand's
+  const TissuePatch* published_left = nullptr;
   bool fail = false;
   Result<FrameBatch> drain() override {
     calls.push_back("drain");
     if (fail) return Error{ErrorCode::kInvalid, "no such patch"};
     return next;
   }
-  void publish(const TissuePatch* patch) override {
+  void publish(const std::array<const TissuePatch*, kHandCount>& patches) override {
     calls.push_back("publish");
-    published = patch;
+    published = patches[0];
+    published_left = patches[1];
   }
 };
 
@@ -69,16 +71,17 @@ TEST(VizFrame, DrainsAppliesExportsWithTheHeaderAndPublishes) {
   ScriptedFrame io;
   io.next.samples = batch;
   io.next.blood_dt = 0.016;
-  io.next.patch = patch.get();
-  io.next.patch_centre = {0.0, 0.0, -0.001};
-  io.next.header = {7, 123'000'000, 5};
+  io.next.patches[0] = {patch.get(), {0.0, 0.0, -0.001}, {7, 123'000'000, 5}};
   auto r = run_frame(*sim, io);
   ASSERT_TRUE(r.ok());
   EXPECT_EQ(io.calls, (std::vector<std::string>{"drain", "publish"}));
   EXPECT_EQ(io.published, patch.get());
   EXPECT_EQ(r.value().samples, 5u);
   EXPECT_EQ(r.value().blood_dt, 0.016);
-  EXPECT_TRUE(r.value().patch);
+  EXPECT_TRUE(r.value().patch[0]);
+  EXPECT_FALSE(r.value().patch[1]) << "no patch was asked for the left hand";
+  EXPECT_EQ(io.published_left, nullptr);
+  EXPECT_EQ(patch->hand, Hand::kRight);
   EXPECT_EQ(sim->scene().events().samples, 5u) << "the batch was applied to the scene";
   EXPECT_NE(sim->hash(), before);
   EXPECT_GT(patch->n_triangles, 0u);
@@ -91,12 +94,12 @@ TEST(VizFrame, DrainsAppliesExportsWithTheHeaderAndPublishes) {
   // No patch asked for: the scene still steps, publish() is told there is none.
   io.calls.clear();
   io.next.samples = {};
-  io.next.patch = nullptr;
+  io.next.patches[0].patch = nullptr;
   r = run_frame(*sim, io);
   ASSERT_TRUE(r.ok());
   EXPECT_EQ(io.calls, (std::vector<std::string>{"drain", "publish"}));
   EXPECT_EQ(io.published, nullptr);
-  EXPECT_FALSE(r.value().patch);
+  EXPECT_FALSE(r.value().patch[0]);
 }
 
 TEST(VizFrame, ADrainErrorStopsTheFrameBeforeTheScene) {
@@ -123,9 +126,11 @@ TEST(VizFrame, TheSameBatchesGiveTheSameScene) {
     std::vector<ToolSample> batch;
     for (int k = 0; k < 16; ++k, ++seq) batch.push_back(pressing(seq + 1, {0.0005 * frame, 0.0, -0.0002 * frame}));
     ScriptedFrame ia, ib;
-    ia.next = {batch, 0.016, pa.get(), batch.back().tool.position, {static_cast<std::uint64_t>(frame), 0, seq}};
+    ia.next.samples = batch;
+    ia.next.blood_dt = 0.016;
+    ia.next.patches[0] = {pa.get(), batch.back().tool.position, {static_cast<std::uint64_t>(frame), 0, seq}};
     ib.next = ia.next;
-    ib.next.patch = pb.get();
+    ib.next.patches[0].patch = pb.get();
     ASSERT_TRUE(run_frame(*a, ia).ok());
     ASSERT_TRUE(run_frame(*b, ib).ok());
     ASSERT_EQ(a->hash(), b->hash()) << "frame " << frame;
@@ -134,53 +139,72 @@ TEST(VizFrame, TheSameBatchesGiveTheSameScene) {
   }
 }
 
-// lancet-rt, in process: each tick pops its commands, takes the newest patch the viz published,
-// steps the servo and pushes its sample, as lancet-rt's loop does around servo_step.
+// lancet-rt, in process, with one or two hands: each tick pops its commands (each for its hand),
+// takes each hand's newest patch the viz published, steps each hand's servo and pushes its sample
+// (the right hand's first), as lancet-rt's loop does around servo_step; its status says how many
+// hands.
 class InProcessRt {
  public:
-  explicit InProcessRt(const std::string& name) : ch_(SharedChannel::create(name, {}).value()) {
-    ch_.state().servo_model.write(servo::to_blob(model_));
+  explicit InProcessRt(const std::string& name, std::size_t hands = 1) : ch_(SharedChannel::create(name, {}).value()), hands_(hands) {
+    for (std::size_t h = 0; h < hands_; ++h) ch_.state().servo_model[h].write(servo::to_blob(model_));
+    RtStatus st{};
+    st.period_ns = 1'000'000;
+    st.hands = static_cast<std::uint32_t>(hands_);
+    ch_.state().rt_status.write(st);
   }
   void tick(std::int64_t now) {
     SharedState& s = ch_.state();
-    std::uint8_t commands[kSampleCommands];
-    std::size_t n = 0;
+    std::uint8_t commands[kHandCount][kSampleCommands];
+    std::size_t n[kHandCount] = {};
     Command c{};
-    while (n < kSampleCommands && s.commands.try_pop(c)) commands[n++] = servo::pack_command(c.kind, c.mode);
-    std::uint64_t seen = version_;
-    if (s.patch.try_read_if_newer(*scratch_, seen) == ReadStatus::kOk) {
-      *patch_ = *scratch_;
-      version_ = seen;
+    while (s.commands.try_pop(c)) {
+      const std::size_t h = hand_index(c.hand);
+      if (n[h] < kSampleCommands) commands[h][n[h]++] = servo::pack_command(c.kind, c.mode);
     }
     const double t = static_cast<double>(ticks_++) * 1e-3;
-    servo::ServoInput in;
-    in.deadline_ns = now;
-    in.woke_ns = now + 10'000;
-    in.commands = {commands, n};
-    in.reading.n = 3;
-    in.reading.q = {-0.01 + 0.02 * t, 0.0, 0.004 - 0.008 * t};  // down into the block, then along x
-    in.patch = version_ != 0 ? patch_.get() : nullptr;
-    in.patch_version = version_;
-    in.viz_alive = true;
-    servo::servo_step(model_, *data_, in, *out_);
-    ASSERT_TRUE(s.samples.try_push(out_->sample));
+    for (std::size_t h = 0; h < hands_; ++h) {
+      Hand& hand = hand_[h];
+      std::uint64_t seen = hand.version;
+      if (s.patch[h].try_read_if_newer(*hand.scratch, seen) == ReadStatus::kOk) {
+        *hand.patch = *hand.scratch;
+        hand.version = seen;
+      }
+      servo::ServoInput in;
+      in.deadline_ns = now;
+      in.woke_ns = now + 10'000;
+      in.commands = {commands[h], n[h]};
+      in.reading.n = 3;
+      // Down into the block, then along x; the left hand 15 mm beside the right and slower.
+      const double y = h == 0 ? 0.0 : 0.015, speed = h == 0 ? 1.0 : 0.5;
+      in.reading.q = {-0.01 + 0.02 * t * speed, y, 0.004 - 0.008 * t * speed};
+      in.patch = hand.version != 0 ? hand.patch.get() : nullptr;
+      in.patch_version = hand.version;
+      in.viz_alive = true;
+      servo::servo_step(model_, *hand.data, in, *hand.out);
+      hand.out->sample.hand = static_cast<lancet::Hand>(h);
+      ASSERT_TRUE(s.samples.try_push(hand.out->sample));
+    }
     s.rt_heartbeat.beat(now, getpid());
   }
 
  private:
+  struct Hand {
+    std::unique_ptr<servo::ServoData> data = std::make_unique<servo::ServoData>();
+    std::unique_ptr<servo::ServoOutput> out = std::make_unique<servo::ServoOutput>();
+    std::unique_ptr<TissuePatch> patch = std::make_unique<TissuePatch>(), scratch = std::make_unique<TissuePatch>();
+    std::uint64_t version = 0;
+  };
   SharedChannel ch_;
+  std::size_t hands_;
   servo::ServoModel model_{};
-  std::unique_ptr<servo::ServoData> data_ = std::make_unique<servo::ServoData>();
-  std::unique_ptr<servo::ServoOutput> out_ = std::make_unique<servo::ServoOutput>();
-  std::unique_ptr<TissuePatch> patch_ = std::make_unique<TissuePatch>(), scratch_ = std::make_unique<TissuePatch>();
-  std::uint64_t version_ = 0;
+  Hand hand_[kHandCount];
   std::uint64_t ticks_ = 0;
 };
 
-TEST(VizFrame, ALiveSessionThroughTheLinkReplaysThroughTheSameFrameToTheSameScene) {
-  const std::string name = "/lancet-frame-" + std::to_string(getpid());
+void live_record_replay(std::size_t hands) {
+  SCOPED_TRACE(std::to_string(hands) + " hand(s)");  const std::string name = "/lancet-frame-" + std::to_string(getpid());
   const std::filesystem::path file = std::filesystem::temp_directory_path() / ("lancet-frame-" + std::to_string(getpid()) + ".h5");
-  InProcessRt rt(name);
+  InProcessRt rt(name, hands);
   viz::VizSessionParams p;
   p.shm_name = name;
   viz::VizSession session(p);
@@ -224,7 +248,28 @@ TEST(VizFrame, ALiveSessionThroughTheLinkReplaysThroughTheSameFrameToTheSameScen
   EXPECT_EQ(ck.value().scene_hash_mismatches, 0u);
   EXPECT_GT(live_sim->scene().events().samples, 0u) << "the live scene was driven";
   EXPECT_EQ(replay.value()->sim().hash(), last_hash) << "the replayed scene ends where the live one did";
+  // Every hand recorded, from its reset on, with its own patches.
+  EXPECT_EQ(rec.value().hands, hands);
+  std::size_t per_hand[kHandCount] = {};
+  for (const ToolSample& t : rec.value().samples) ++per_hand[hand_index(t.hand)];
+  EXPECT_GT(per_hand[0], 500u);
+  if (hands == 2) {
+    EXPECT_EQ(per_hand[1], per_hand[0]) << "a sample of each hand every tick";
+    std::size_t left_patches = 0;
+    for (const record::FrameRecord& f : rec.value().frames) left_patches += f.left_patch_version != 0 ? 1 : 0;
+    EXPECT_GT(left_patches, 50u);
+    ASSERT_NE(replay.value()->latest(Hand::kLeft), nullptr);
+    EXPECT_NEAR(replay.value()->latest(Hand::kLeft)->tool.position.y, 0.015, 1e-6) << "the left hand's ticks were re-stepped as the left's";
+  } else {
+    EXPECT_EQ(per_hand[1], 0u);
+  }
 }
+
+TEST(VizFrame, ALiveSessionThroughTheLinkReplaysThroughTheSameFrameToTheSameScene) { live_record_replay(1); }
+
+// Two hands through the link: each hand's patch published around its own tool, the resets of both
+// in one tick, both recorded, and the replay re-steps each hand's servo bit-exactly.
+TEST(VizFrame, ATwoHandedLiveSessionReplaysBitExactly) { live_record_replay(2); }
 
 }  // namespace
 }  // namespace lancet::sim

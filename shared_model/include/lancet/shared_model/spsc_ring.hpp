@@ -74,6 +74,31 @@ class SpscRing {
     return true;
   }
 
+  /// Producer only. Copies v[0..n) into the ring all at once, or nothing (false, one overflow
+  /// counted) when fewer than n slots are free: the consumer sees all n or none of them, never a
+  /// part (two hands' resets that must reach one tick). An impossible consumer index is handled as
+  /// in try_push. Real-time safe, O(n).
+  [[nodiscard]] bool try_push_n(const T* v, std::size_t n, bool* reset = nullptr) noexcept {
+    if (n > N) return false;
+    std::uint64_t head = head_.load(std::memory_order_relaxed);
+    if (head - tail_cache_ + n > N) {
+      tail_cache_ = tail_.load(std::memory_order_acquire);
+      const std::uint64_t used = head - tail_cache_;
+      if (used > N) {
+        head = tail_cache_;
+        head_.store(head, std::memory_order_release);
+        producer_resets_.store(producer_resets_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+        if (reset != nullptr) *reset = true;
+      } else if (used + n > N) {
+        overflows_.store(overflows_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+        return false;
+      }
+    }
+    for (std::size_t i = 0; i < n; ++i) slots_[(head + i) & kMask] = v[i];
+    head_.store(head + n, std::memory_order_release);
+    return true;
+  }
+
   /// Consumer only. Pops one element into out; false when empty. Real-time safe.
   [[nodiscard]] bool try_pop(T& out) noexcept { return try_pop_n(&out, 1) == 1; }
 
