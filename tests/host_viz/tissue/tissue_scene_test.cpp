@@ -133,6 +133,83 @@ TEST(TissueScene, TheGrooveWidensWithTheOpening) {
   EXPECT_NEAR(scene->grooves().at(0).top_gap, 0.005, 0.0003);
 }
 
+// Two hands, in tick order as lancet-rt sends them (each tick the right hand's sample, then the
+// left's, with the tick's seq): the left hand's retractor grabs the first incision and holds it
+// open while the right hand's scalpel makes a second one beside it. The held incision stays open,
+// its groove with it; the left hand's pulls keep to the cut it grabbed, not the one being made; the
+// right hand's cut is not ended by the left hand's samples.
+TEST(TissueScene, TheHeldIncisionStaysOpenWhileTheOtherHandCuts) {
+  SceneDescription d;
+  d.source = SceneSource::kBlock;
+  auto scene = make(d);
+  ASSERT_TRUE(scene);
+  const surface::TissueBlockParams block{};
+  const auto on = [&](double x, double y) { return Vec3{x, y, surface::tissue_block_height(block, x, y)}; };
+  // The first incision, one-handed (the right hand), 20 mm along x at y = 1.1 mm.
+  Script right;
+  cut_and_open(right, [&](double x, double y) { return surface::tissue_block_height(block, x, y); }, {-0.02, 0.0011, 0}, 0.02, 0.0);
+  right.samples.resize(right.samples.size() - 101);  // up to the grab: the left hand holds it
+  right.play(*scene);
+  ASSERT_EQ(scene->cut_figures().cuts, 1u);
+
+  std::vector<ToolSample> ticks;
+  std::uint64_t seq = 10'000;
+  const auto tick = [&](ToolSample r, ToolSample l) {
+    ++seq;
+    r.seq = l.seq = seq;
+    r.t_ns = l.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
+    r.hand = Hand::kRight;
+    l.hand = Hand::kLeft;
+    ticks.push_back(r);
+    ticks.push_back(l);
+  };
+  const Vec3 grip = on(-0.01, 0.0011), rest_r = on(0.005, -0.012) + Vec3{0, 0, 0.01};
+  const auto sample = [](ToolMode m, Stage st, Vec3 proxy, Vec3 tool, std::uint32_t ev = 0) {
+    return scripted_sample(0, 0, m, st, proxy, tool, ev);
+  };
+  // The left hand grabs and pulls the incision to 4 mm, the right hand hovers.
+  tick(sample(ToolMode::kScalpel, Stage::kFree, rest_r, rest_r), sample(ToolMode::kRetractor, Stage::kPulling, grip, grip, event::kGrab));
+  for (int i = 1; i <= 50; ++i) {
+    ToolSample l = sample(ToolMode::kRetractor, Stage::kPulling, grip, grip, event::kPull);
+    l.payload.magnitude = 0.004 * i / 50.0;
+    tick(sample(ToolMode::kScalpel, Stage::kFree, rest_r, rest_r), l);
+  }
+  // The right hand presses, ruptures and cuts 20 mm along x at y = -12 mm, while the left hand
+  // holds (and, its hand trembling, reports pulls of the same 4 mm).
+  const auto holding = [&](int i) {
+    ToolSample l = sample(ToolMode::kRetractor, Stage::kPulling, grip, grip, i % 7 == 0 ? event::kPull : 0u);
+    l.payload.magnitude = 0.004;
+    return l;
+  };
+  const Vec3 p0 = on(-0.005, -0.012);
+  int i = 0;
+  for (int k = 0; k < 50; ++k, ++i) tick(sample(ToolMode::kScalpel, Stage::kDeform, p0, p0 + Vec3{0, 0, -0.00005 * k}), holding(i));
+  ToolSample rupture = sample(ToolMode::kScalpel, Stage::kRupture, p0, p0 + Vec3{0, 0, -0.003}, event::kRupture);
+  rupture.payload.magnitude = 4.0;
+  tick(rupture, holding(i++));
+  for (int k = 1; k <= 200; ++k, ++i) {
+    const Vec3 p = on(-0.005 + 0.0001 * k, -0.012);
+    tick(sample(ToolMode::kScalpel, Stage::kCutting, p, p + Vec3{0, 0, -0.001}, k % 5 == 0 ? event::kCutProgress : 0u), holding(i));
+  }
+  const Vec3 end = on(0.015, -0.012) + Vec3{0, 0, 0.01};
+  tick(sample(ToolMode::kScalpel, Stage::kFree, end, end), holding(i++));
+  for (std::size_t f = 0; f < ticks.size(); f += 32)
+    (void)scene->apply(std::span<const ToolSample>(ticks).subspan(f, std::min<std::size_t>(32, ticks.size() - f)));
+
+  const auto& cuts = scene->surface().cuts();
+  ASSERT_EQ(cuts.size(), 2u) << "the right hand's cut was made whole, not ended by the left hand's samples";
+  EXPECT_NEAR(cuts[0].opening, 0.004, 1e-9) << "the held incision stays open";
+  EXPECT_EQ(cuts[1].opening, 0.0) << "the left hand's pulls keep to the cut it grabbed";
+  EXPECT_FALSE(cuts[1].active) << "the right hand lifted out: its cut ended";
+  double second = 0;
+  for (std::size_t k = 1; k < cuts[1].path.size(); ++k) second += norm(cuts[1].path[k] - cuts[1].path[k - 1]);
+  EXPECT_NEAR(second, 0.02, 0.002);
+  const auto grooves = scene->grooves();
+  ASSERT_EQ(grooves.size(), 2u);
+  EXPECT_NEAR(grooves[0].top_gap, 0.004, 0.0003) << "the groove opens under the held incision";
+  EXPECT_LT(grooves[1].top_gap, 0.0005);
+}
+
 // The volume as drawn: the open groove is carved out of it (air where the incision gapes, down
 // to the cut depth), the tissue's own volume is untouched, and a narrower opening restores what
 // it no longer opens.
