@@ -49,10 +49,10 @@ VizApp::VizApp(const VizOptions& o, render::Window& win, VizSources sources, std
       live_(session_, recorder_, trace_.get()),
       clock_(o.replay_speed) {
   const scenario::Scenario* scenario = sim().scenario();
-  offered_ = scenario != nullptr ? scenario->tools
-                                 : std::vector<ToolMode>{ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor,
-                                                         ToolMode::kDrill, ToolMode::kSwab};
-  keys_ = tool_keys(offered_);
+  const std::vector<ToolMode> all{ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor, ToolMode::kDrill, ToolMode::kSwab};
+  offered_ = {scenario != nullptr ? scenario->tools : all, scenario != nullptr ? scenario->left_tools : all};
+  for (std::size_t h = 0; h < kHandCount; ++h) keys_[h] = tool_keys(offered_[h]);
+  if (!tool_.empty()) left_tool_ = scenario != nullptr ? tool_name(scenario->left_start_tool) : tool_;
   if (scenario != nullptr && scenario->task == scenario::TaskKind::kIncision) guide_ = sim().scene().drape(scenario->incision.line);
   for (auto p : volume::kTfPresets) preset_names_.emplace_back(volume::tf_preset_name(p));
   ui_.view = o.view;
@@ -145,6 +145,15 @@ void VizApp::step_live(std::int64_t now, double wall_dt) {
     (void)tool_from_name(tool_, c.mode);  // CLI11 or the scenario admitted only the tools' names
     if (session_.send(c, now)) tool_sent_for_ = session_.connections();
   }
+  // The left hand's, once lancet-rt says it drives two.
+  if (!left_tool_.empty() && session_.link() == Link::kConnected && session_.hands() > 1 &&
+      left_tool_sent_for_ != session_.connections()) {
+    Command c{};
+    c.kind = CommandKind::kSetToolMode;
+    c.hand = Hand::kLeft;
+    (void)tool_from_name(left_tool_, c.mode);
+    if (session_.send(c, now)) left_tool_sent_for_ = session_.connections();
+  }
 }
 
 void VizApp::step_replay(double wall_dt) {
@@ -206,7 +215,7 @@ bool VizApp::take_input(std::int64_t now) {
   win_.framebuffer_size(fw_, fh_);
   if (fw_ > 0 && fh_ > 0) sc.renderer.resize(fw_, fh_);
   const InputActions a =
-      sc.poller->poll(ui_, offered_, static_cast<int>(preset_names_.size()), sc.overlay.wants_mouse());
+      sc.poller->poll(ui_, offered_[hand_index(ui_.hand)], static_cast<int>(preset_names_.size()), sc.overlay.wants_mouse());
   if (a.quit) return false;
   if (a.stylus_released) session_.set_stylus_target(a.released_hand, false, {}, now);
   for (const Command& c : a.commands) (void)session_.send(c, now);
@@ -230,7 +239,8 @@ void VizApp::draw(std::int64_t now) {
   const scenario::Scenario* scenario = sim().scenario();
   render::SceneInput in;
   // The tool and the patch: lancet-rt's, or the replay's.
-  const ToolSample* latest = replay_ ? replay_->latest() : session_.has_sample() ? &session_.latest() : nullptr;
+  // The panel shows the hand the keys drive.
+  const ToolSample* latest = replay_ ? replay_->latest(ui_.hand) : session_.has_sample(ui_.hand) ? &session_.latest(ui_.hand) : nullptr;
   for (std::size_t h = 0; h < kHandCount; ++h) {
     const auto hand = static_cast<Hand>(h);
     const ToolSample* t = replay_ ? replay_->latest(hand) : session_.has_sample(hand) ? &session_.latest(hand) : nullptr;
@@ -252,7 +262,7 @@ void VizApp::draw(std::int64_t now) {
   sc.renderer.render(in);
 
   auto lines = status_lines(session_, ui_, o_.headless, sim().scene().events(), scenario,
-                            sim().task() != nullptr ? &sim().task()->status() : nullptr, keys_);
+                            sim().task() != nullptr ? &sim().task()->status() : nullptr, keys_[hand_index(ui_.hand)]);
   if (replay_) replace_link_lines(lines, session_, *replay_, o_.replay_path, clock_.speed(), clock_.paused());
   if (ui_.view != 0) lines.push_back({volume_line(ui_, preset_names_, o_.headless)});
   render::PanelState panel = panel_state(now, latest);
@@ -273,7 +283,7 @@ render::PanelState VizApp::panel_state(std::int64_t now, const ToolSample* lates
     panel.task_progress = static_cast<float>(sim().task()->status().progress);
     panel.task_label = sim().scenario()->task == scenario::TaskKind::kIncision ? "incision along the line" : "drill the window";
   }
-  for (auto m : offered_) {
+  for (auto m : offered_[hand_index(ui_.hand)]) {
     panel.tools.emplace_back(tool_name(m));
     panel.tool_keys.push_back(static_cast<int>(m));
   }
@@ -302,12 +312,14 @@ render::PanelState VizApp::panel_state(std::int64_t now, const ToolSample* lates
 void VizApp::do_panel_actions(const render::PanelActions& act, std::int64_t now) {
   if (act.tool >= 0) {
     Command c{};
+    c.hand = ui_.hand;
     c.kind = CommandKind::kSetToolMode;
     c.mode = static_cast<ToolMode>(act.tool);
     (void)session_.send(c, now);
   }
   if (act.rearm || act.reset) {
     Command c{};
+    c.hand = ui_.hand;
     c.kind = act.reset ? CommandKind::kReset : CommandKind::kRearm;
     (void)session_.send(c, now);
   }

@@ -77,8 +77,8 @@ class VizApp {
   LiveFrame live_;
   ReplayClock clock_;
   std::string replay_error_;  ///< why a replay stopped before its end
-  std::vector<ToolMode> offered_;
-  std::string keys_;
+  std::array<std::vector<ToolMode>, kHandCount> offered_;  ///< by Hand: the tools its keys may pick
+  std::array<std::string, kHandCount> keys_;
   std::vector<Vec3> guide_;   ///< the scenario's incision line on the surface
   std::vector<std::string> preset_names_;
   Interaction ui_;
@@ -89,6 +89,8 @@ class VizApp {
   std::uint64_t shown_revision_ = 0;
   bool shown_walls_off_ = false;
   std::uint32_t tool_sent_for_ = 0;  ///< the connection the starting tool was last sent on
+  std::string left_tool_;            ///< the left hand's starting tool (the scenario's left_start_tool; "" none)
+  std::uint32_t left_tool_sent_for_ = 0;
   bool screenshot_frame_ = false;    ///< the extra frame drawn in --screenshot-view
   bool want_snapshot_ = false, want_record_ = false;
   bool stop_ = false;

@@ -57,38 +57,41 @@ std::string tool_list_text(const std::vector<ToolMode>& tools) {
   return s + "]";
 }
 
-void parse_tools(Section& top, Scenario& out) {
+// `key` (tools, or left_tools): the tools a hand is offered, none twice. Returns false when the key
+// is absent (left_tools may be).
+bool parse_tools(Section& top, const char* key, config::Need req, std::vector<ToolMode>& out) {
   const std::string expected = "an array of 1..5 tool names (\"probe\", \"scalpel\", \"retractor\", \"drill\", \"swab\")";
-  const toml::array* a = top.array("tools", kReq, 1, kToolCount, expected);
-  if (a == nullptr) return;
-  std::vector<std::size_t> index_of;  // file index of each entry of out.tools
+  const toml::array* a = top.array(key, req, 1, kToolCount, expected);
+  if (a == nullptr) return false;
+  std::vector<std::size_t> index_of;  // file index of each entry of out
   for (std::size_t i = 0; i < a->size(); ++i) {
     const toml::node& n = *a->get(i);
-    const auto t = read_choice(top.sink(), n, indexed("tools", i), kToolChoices);
+    const auto t = read_choice(top.sink(), n, indexed(key, i), kToolChoices);
     if (!t) continue;
-    const auto dup = std::find(out.tools.begin(), out.tools.end(), *t);
-    if (dup != out.tools.end()) {
-      const std::size_t first = index_of[static_cast<std::size_t>(dup - out.tools.begin())];
-      top.sink().add(n.source(), indexed("tools", i), "a tool not already listed (tools[" + std::to_string(first) + "])",
+    const auto dup = std::find(out.begin(), out.end(), *t);
+    if (dup != out.end()) {
+      const std::size_t first = index_of[static_cast<std::size_t>(dup - out.begin())];
+      top.sink().add(n.source(), indexed(key, i), "a tool not already listed (" + std::string(key) + "[" + std::to_string(first) + "])",
                      describe(n));
       continue;
     }
-    out.tools.push_back(*t);
+    out.push_back(*t);
     index_of.push_back(i);
   }
+  return true;
 }
 
-// The start tool: optional (the first tool offered), but when given it must be offered.
-void parse_start_tool(Section& top, Scenario& out, bool tools_ok) {
-  const auto start = top.choice<ToolMode>("start_tool", kOpt, kToolChoices);
+// A hand's start tool (`key`: start_tool, or left_start_tool): optional (the first tool it is
+// offered), but when given it must be among `tools`.
+void parse_start_tool(Section& top, const char* key, const std::vector<ToolMode>& tools, bool tools_ok, ToolMode& out) {
+  const auto start = top.choice<ToolMode>(key, kOpt, kToolChoices);
   if (!start) {
-    if (!out.tools.empty()) out.start_tool = out.tools.front();
+    if (!tools.empty()) out = tools.front();
     return;
   }
-  out.start_tool = *start;
-  if (tools_ok && std::find(out.tools.begin(), out.tools.end(), *start) == out.tools.end()) {
-    top.sink().add(top.where("start_tool"), "start_tool", "one of the offered tools " + tool_list_text(out.tools),
-                   "string " + quote(tool_name(*start)));
+  out = *start;
+  if (tools_ok && std::find(tools.begin(), tools.end(), *start) == tools.end()) {
+    top.sink().add(top.where(key), key, "one of the offered tools " + tool_list_text(tools), "string " + quote(tool_name(*start)));
   }
 }
 
@@ -337,9 +340,14 @@ Scenario parse_root(const toml::table& root, Sink& sink, const std::string& sour
   sc.name = top.text("name", kReq, 64).value_or("");
   sc.description = top.text("description", kOpt, 1024).value_or("");
   const std::size_t errors_before_tools = sink.errors.size();
-  parse_tools(top, sc);
+  (void)parse_tools(top, "tools", kReq, sc.tools);
   const bool tools_ok = sink.errors.size() == errors_before_tools && !sc.tools.empty();
-  parse_start_tool(top, sc, tools_ok);
+  parse_start_tool(top, "start_tool", sc.tools, tools_ok, sc.start_tool);
+  // The left hand's: its own list when given, else the same as the right hand's.
+  const std::size_t errors_before_left = sink.errors.size();
+  if (!parse_tools(top, "left_tools", kOpt, sc.left_tools)) sc.left_tools = sc.tools;
+  const bool left_ok = sink.errors.size() == errors_before_left && !sc.left_tools.empty();
+  parse_start_tool(top, "left_start_tool", sc.left_tools, left_ok, sc.left_start_tool);
 
   std::optional<TissueSource> source;
   if (const toml::table* tt = top.table("tissue", kReq)) {

@@ -135,8 +135,10 @@ struct Scenario {
   std::string name, description;
   std::string file;  ///< the path it was loaded from (parse_scenario: the source name)
   Tissue tissue;
-  std::vector<ToolMode> tools;             ///< offered, no duplicates, non-empty, in file order
+  std::vector<ToolMode> tools;             ///< offered to the right hand (and to a single hand), no duplicates, non-empty, in file order
   ToolMode start_tool = ToolMode::kProbe;  ///< among tools
+  std::vector<ToolMode> left_tools;        ///< offered to the left hand (key left_tools; default: tools)
+  ToolMode left_start_tool = ToolMode::kProbe;  ///< among left_tools (key left_start_tool; default: its first)
   Camera camera;
   TaskKind task = TaskKind::kIncision;
   IncisionTask incision;  ///< when task == kIncision

@@ -325,6 +325,25 @@ TEST(ScenarioErrors, StartToolDefaultsToTheFirstTool) {
   EXPECT_EQ(r.value().start_tool, ToolMode::kScalpel);
 }
 
+TEST(ScenarioErrors, TheLeftHandsToolsDefaultToTheRightHandsAndAreCheckedTheSameWay) {
+  auto same = parse_scenario(kBase, "t.toml");
+  ASSERT_TRUE(same.ok()) << same.error().message;
+  EXPECT_EQ(same.value().left_tools, same.value().tools);
+  EXPECT_EQ(same.value().left_start_tool, ToolMode::kProbe);
+
+  const std::string own = replaced(kBase, "start_tool = \"probe\"", "start_tool = \"probe\"\nleft_tools = [\"retractor\", \"swab\"]\nleft_start_tool = \"swab\"");
+  auto r = parse_scenario(own, "t.toml");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r.value().left_tools, (std::vector<ToolMode>{ToolMode::kRetractor, ToolMode::kSwab}));
+  EXPECT_EQ(r.value().left_start_tool, ToolMode::kSwab);
+  EXPECT_EQ(r.value().tools, (std::vector<ToolMode>{ToolMode::kProbe, ToolMode::kScalpel}));
+
+  const std::string wrong = replaced(kBase, "start_tool = \"probe\"", "start_tool = \"probe\"\nleft_tools = [\"retractor\"]\nleft_start_tool = \"drill\"");
+  expect_one(wrong, line_of(wrong, "left_start_tool"), "left_start_tool", "expected one of the offered tools [\"retractor\"], found string \"drill\"");
+  const std::string twice = replaced(kBase, "start_tool = \"probe\"", "start_tool = \"probe\"\nleft_tools = [\"swab\", \"swab\"]");
+  expect_one(twice, line_of(twice, "left_tools"), "left_tools[1]", "expected a tool not already listed (left_tools[0]), found string \"swab\"");
+}
+
 TEST(ScenarioErrors, DuplicateTool) {
   const std::string text = replaced(kBase, "[\"probe\", \"scalpel\"]", "[\"probe\", \"scalpel\", \"probe\"]");
   expect_one(text, line_of(text, "tools ="), "tools[2]",
