@@ -48,6 +48,7 @@ void fill_sample(const ServoData& d, const ServoInput& in, const ServoOutput& ou
                  ToolSample& s) noexcept {
   s = ToolSample{};
   s.reset_mode = reset_mode;
+  s.hand = in.hand;
   s.seq = d.tick;
   s.t_ns = in.deadline_ns;
   s.woke_ns = in.woke_ns;
@@ -238,6 +239,7 @@ ServoInput input_from_sample(const ToolSample& s) noexcept {
   in.patch_version = s.patch_version;
   in.viz_alive = (s.inputs & input::kVizAlive) != 0;
   in.watchdog_tripped = (s.inputs & input::kWatchdogTripped) != 0;
+  in.hand = s.hand;
   return in;
 }
 
