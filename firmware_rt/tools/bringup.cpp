@@ -355,7 +355,7 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
                      st.watchdog_tripped ? "  WATCHDOG TRIPPED" : "");
         for (std::uint32_t k = 0; k < st.hands && k < kHandCount; ++k) {
           const HandStatus& hs = st.hand[k];
-          std::fprintf(out, "%8.3f s  %-5s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  %s  arm %s  errors %llu\n", t,
+          std::fprintf(out, "%8.3f s  %-6s tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  %s  arm %s  errors %llu\n", t,
                        (std::string(hand_name(static_cast<Hand>(k))) + ":").c_str(), hs.tool.x * 1e3, hs.tool.y * 1e3, hs.tool.z * 1e3,
                        hs.force.x, hs.force.y, hs.force.z, hs.force_scale, hs.contact ? " contact" : "", tool_name(hs.mode),
                        app::describe_arm(hs).c_str(), static_cast<unsigned long long>(hs.device_errors));
