@@ -1,5 +1,6 @@
-// lancet-rt: the 1 kHz servo process. Creates the shared-memory segment, runs the servo loop
-// with the simulated stylus or an arm from hw_configs, and pushes one ToolSample per tick to
+// lancet-rt: the 1 kHz servo process. Creates the shared-memory segment, runs one servo loop for
+// one or two hands (--hands), each with a simulated stylus or an arm from hw_configs (--config for
+// the right hand, --left-config for the left), and pushes one ToolSample per tick and hand to
 // lancet-viz. The main thread supervises (re-arms, reconnects, announcements, stalls).
 //
 // It always ends within a bounded time, with its stats written and its segment removed: at
@@ -12,6 +13,7 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -73,9 +75,27 @@ struct StatsInput {
   lancet::RtStatus status{};                    ///< the servo's last published status
   bool has_status = false;
   std::string ended_by;                         ///< duration, SIGTERM, SIGINT, SIGHUP, stall
-  bool clean = true;                            ///< the servo thread stopped and the arm was deactivated
-  std::string arm_name;
+  bool clean = true;                            ///< the servo thread stopped and the arms were deactivated
+  std::size_t hands = 1;
+  std::array<std::string, lancet::kHandCount> arm_name;  ///< by Hand
 };
+
+/// A hand's arm as a JSON object.
+std::string arm_json(const std::string& name, const lancet::HandStatus& st, const char* indent) {
+  const lancet::BusCounters& b = st.bus;
+  return "{\"name\": " + str(name) + ", \"state\": " + str(lancet::device::to_string(st.device_state)) + ", \"fault_cause\": " +
+         str(st.device_state == lancet::device::Lifecycle::kFault ? lancet::device::to_string(st.device_fault_cause) : "") +
+         ", \"fault\": " + str(st.fault_text) + ", \"fault_node\": " + std::to_string(st.fault_node) +
+         ", \"fault_code\": " + std::to_string(st.fault_code) + ", \"last_error\": " + str(st.error_text) +
+         ", \"link_lost\": " + (st.link_lost != 0 ? "true" : "false") + ", \"error_ticks\": " + num(st.device_errors) +
+         ", \"rearm_failures\": " + num(st.rearm_failures) + ", \"last_rearm\": " + str(st.rearm_text) + ",\n" + indent +
+         "\"bus\": {\"reads\": " + num(b.reads) + ", \"writes\": " + num(b.writes) + ", \"ok\": " + num(b.ok) +
+         ", \"timeouts\": " + num(b.timeouts) + ", \"crc_errors\": " + num(b.crc_errors) +
+         ", \"protocol_errors\": " + num(b.protocol_errors) + ", \"disconnects\": " + num(b.disconnects) +
+         ", \"device_faults\": " + num(b.device_faults) + ", \"glitches\": " + num(b.glitches) +
+         ", \"stale_replies\": " + num(b.stale_replies) + ", \"faults\": " + num(b.faults) +
+         ", \"reconnects\": " + num(b.reconnects) + ", \"max_io_us\": " + num(static_cast<double>(b.max_io_ns) / 1e3) + "}}";
+}
 
 bool write_stats(const std::string& path, const StatsInput& in) {
   const lancet::RtStatus& st = in.status;
@@ -101,13 +121,23 @@ bool write_stats(const std::string& path, const StatsInput& in) {
   field("samples_pushed", num(st.samples_pushed));
   field("samples_dropped", num(st.samples_dropped));
   if (in.data != nullptr) {
+    // The top-level figures that scripts and tests have always read cover every hand: counts are
+    // sums over the hands, max_force_n the largest of any hand (per hand: "hands" below).
     const lancet::app::RtData& d = *in.data;
-    field("patches_received", num(d.patches_received));
-    field("contact_ticks", num(d.servo.contact_ticks));
-    field("max_force_n", num(d.servo.max_force_seen, 6));
-    field("nan_guards", num(d.servo.haptic.safety.nan_guards));
-    field("clamps", num(d.servo.haptic.safety.clamps));
-    field("commands_applied", num(d.servo.commands_applied));
+    std::uint64_t patches = 0, contact = 0, nan_guards = 0, clamps = 0, commands = 0;
+    double max_force = 0;
+    for (std::size_t h = 0; h < in.hands; ++h) {
+      const lancet::app::HandData& hd = d.hand[h];
+      patches += hd.patches_received, contact += hd.servo.contact_ticks, nan_guards += hd.servo.haptic.safety.nan_guards;
+      clamps += hd.servo.haptic.safety.clamps, commands += hd.servo.commands_applied;
+      max_force = std::max(max_force, hd.servo.max_force_seen);
+    }
+    field("patches_received", num(patches));
+    field("contact_ticks", num(contact));
+    field("max_force_n", num(max_force, 6));
+    field("nan_guards", num(nan_guards));
+    field("clamps", num(clamps));
+    field("commands_applied", num(commands));
     field("viz_lost_at_beat_ns", num(d.viz_lost_at_beat_ns));
     field("force_zero_ns", num(d.force_zero_ns));
   }
@@ -118,25 +148,26 @@ bool write_stats(const std::string& path, const StatsInput& in) {
        ", \"sample_ring_resets\": " + num(h.sample_ring_resets) + "},\n";
   field("rearms", num(st.rearms));
   field("operator_requests", num(st.operator_requests));
-  if (st.has_arm != 0) {
-    const lancet::BusCounters& b = st.bus;
-    j += "  \"arm\": {\"name\": " + str(in.arm_name) + ", \"state\": " +
-         str(lancet::device::to_string(st.device_state)) + ", \"fault_cause\": " +
-         str(st.device_state == lancet::device::Lifecycle::kFault
-                 ? lancet::device::to_string(st.device_fault_cause)
-                 : "") +
-         ", \"fault\": " + str(st.fault_text) + ", \"fault_node\": " + std::to_string(st.fault_node) +
-         ", \"fault_code\": " + std::to_string(st.fault_code) + ", \"last_error\": " + str(st.error_text) +
-         ", \"link_lost\": " + (st.link_lost != 0 ? "true" : "false") + ", \"error_ticks\": " + num(st.device_errors) +
-         ", \"rearm_failures\": " + num(st.rearm_failures) + ", \"last_rearm\": " + str(st.rearm_text) +
-         ",\n          \"bus\": {\"reads\": " + num(b.reads) + ", \"writes\": " + num(b.writes) + ", \"ok\": " + num(b.ok) +
-         ", \"timeouts\": " + num(b.timeouts) + ", \"crc_errors\": " + num(b.crc_errors) +
-         ", \"protocol_errors\": " + num(b.protocol_errors) + ", \"disconnects\": " + num(b.disconnects) +
-         ", \"device_faults\": " + num(b.device_faults) + ", \"glitches\": " + num(b.glitches) +
-         ", \"stale_replies\": " + num(b.stale_replies) + ", \"faults\": " + num(b.faults) +
-         ", \"reconnects\": " + num(b.reconnects) + ", \"max_io_us\": " + num(static_cast<double>(b.max_io_ns) / 1e3) +
-         "}},\n";
+  // "arm": the right hand's arm, as before there were two (each hand's is in "hands").
+  if (st.hand[0].has_arm != 0) field("arm", arm_json(in.arm_name[0], st.hand[0], "          "));
+  field("hand_count", num(static_cast<std::uint64_t>(in.hands)));
+  // Each hand on its own, right first.
+  j += "  \"hands\": [";
+  for (std::size_t k = 0; k < in.hands; ++k) {
+    const lancet::HandStatus& hs = st.hand[k];
+    j += k == 0 ? "\n" : ",\n";
+    j += "    {\"hand\": " + str(lancet::hand_name(static_cast<lancet::Hand>(k)));
+    if (in.data != nullptr) {
+      const lancet::app::HandData& hd = in.data->hand[k];
+      j += ", \"contact_ticks\": " + num(hd.servo.contact_ticks) + ", \"max_force_n\": " + num(hd.servo.max_force_seen, 6) +
+           ", \"clamps\": " + num(hd.servo.haptic.safety.clamps) + ", \"nan_guards\": " + num(hd.servo.haptic.safety.nan_guards) +
+           ", \"commands_applied\": " + num(hd.servo.commands_applied) + ", \"patches_received\": " + num(hd.patches_received);
+    }
+    j += ", \"device_errors\": " + num(hs.device_errors);
+    if (hs.has_arm != 0) j += ",\n      \"arm\": " + arm_json(in.arm_name[k], hs, "        ");
+    j += "}";
   }
+  j += "\n  ],\n";
   j += "  \"has_status\": " + std::string(in.has_status ? "true" : "false") + "\n}\n";
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return false;
@@ -172,18 +203,22 @@ std::string await_first_read(lancet::device::Device& arm, double timeout_s) {
 
 /// Everything lancet-rt's command line sets.
 struct Args {
+  std::size_t hands = 2;
   std::string shm = lancet::kDefaultShmName;
   double duration = 0;
   bool quiet = false;
   lancet::app::RtCliOptions rt;
   std::string stats_path;
   lancet::app::RtModel model;
+  lancet::servo::ServoModel servo;  ///< every hand's servo model before its arm shapes it
+  double script_depth = 0.004;      ///< m
   double stiffness = 0;
   double timeout_ms = 150, fade_ms = 100, stale_patch_ms = 100;
   bool script_waits = false;
   double stall_timeout_ms = 1000, first_read_timeout_ms = 2000, shutdown_grace_ms = 2000;
   double inject_stall_s = 0;
-  std::string config_path, trajectory_path;
+  std::string trajectory_path;
+  std::array<std::string, lancet::kHandCount> config_path;  ///< by Hand; "" for the built-in stylus
 };
 
 void add_options(CLI::App& cli, Args& a) {
@@ -193,7 +228,9 @@ void add_options(CLI::App& cli, Args& a) {
   cli.add_flag("-q,--quiet", a.quiet, "no once-a-second status line");
   cli.add_option("--stiffness", a.stiffness, "contact stiffness of every material (N/m); default: per material")
       ->check(CLI::Range(1.0, 5000.0));
-  cli.add_option("--max-force", a.model.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
+  cli.add_option("--hands", a.hands, "hands the loop drives: 1 (right) or 2 (right and left; each with its own device)")
+      ->check(CLI::Range(1, 2))->capture_default_str();
+  cli.add_option("--max-force", a.servo.haptic.safety.max_force, "force clamp (N)")->check(CLI::Range(0.0, 40.0))->capture_default_str();
   cli.add_option("--viz-timeout-ms", a.timeout_ms, "viz heartbeat age after which the force fades")->check(CLI::Range(1.0, 10000.0))->capture_default_str();
   cli.add_option("--fade-ms", a.fade_ms, "time for the force to fade from full to zero")->check(CLI::Range(0.0, 10000.0))->capture_default_str();
   cli.add_option("--stale-patch-ms", a.stale_patch_ms, "tissue patch age after which the force fades (the viz stopped publishing)")
@@ -201,7 +238,7 @@ void add_options(CLI::App& cli, Args& a) {
   cli.add_flag("--script-waits-for-tissue", a.script_waits,
                "the scripted hand (or --trajectory) holds its starting point until the first tissue patch arrives, so a "
                "viz that takes long to build its tissue misses none of the script");
-  cli.add_option("--depth-mm", a.model.script_depth, "how deep below the surface the script presses (mm)")
+  cli.add_option("--depth-mm", a.script_depth, "how deep below the surface the script presses (mm)")
       ->transform([](std::string s) { return std::to_string(std::stod(s) * 1e-3); })->check(CLI::Range(0.0, 0.05));
   cli.add_option("--stats", a.stats_path, "write a JSON summary here on exit (also after a signal or a stall)");
   cli.add_option("--stall-timeout-ms", a.stall_timeout_ms,
@@ -219,11 +256,13 @@ void add_options(CLI::App& cli, Args& a) {
                  "testing: block the servo thread for good this many seconds after start (exercises the stall path)")
       ->check(CLI::PositiveNumber)->group("Testing");
   cli.add_option("--trajectory", a.trajectory_path,
-                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm[, tool]) instead of the built-in script; the "
-                 "optional tool cell (probe, scalpel, retractor, drill) picks the tool from that time on");
-  cli.add_option("--config", a.config_path,
-                 "drive the arm described by this hw_configs TOML file (backend sim; the others as they land) instead of the "
-                 "built-in stylus");
+                 "replay this recorded hand trajectory (CSV: t_s, x_mm, y_mm, z_mm[, tool[, hand]]) instead of the built-in "
+                 "scripts; the optional tool cell (probe, scalpel, retractor, drill) picks the tool from that time on, the hand "
+                 "cell (right or left; default right) whose row it is; a hand without rows follows its built-in script");
+  cli.add_option("--config", a.config_path[0],
+                 "drive the right hand's arm described by this hw_configs TOML file instead of its built-in stylus");
+  cli.add_option("--left-config", a.config_path[1],
+                 "drive the left hand's arm described by this hw_configs TOML file instead of its built-in stylus (needs --hands 2)");
 }
 
 /// The configured arm: its config and device, configured and answering.
@@ -238,11 +277,12 @@ bool fail(const std::string& message) {
   return false;
 }
 
-/// Loads the arm of --config, builds its kinematics (into the servo model) and device, configures it
-/// and waits for a good read (activate comes just before the loop starts); fits the servo model to
-/// it.
-bool open_arm(Args& a, Arm& arm) {
-  auto cfg = lancet::arm::load_arm_config(a.config_path);
+/// Loads hand h's arm (--config, --left-config), builds its kinematics (into the hand's servo
+/// model) and device, configures it and waits for a good read (activate comes just before the loop
+/// starts); fits the hand's servo model to it.
+bool open_arm(Args& a, std::size_t h, Arm& arm) {
+  const std::string& config_path = a.config_path[h];
+  auto cfg = lancet::arm::load_arm_config(config_path);
   if (!cfg.ok()) return fail(cfg.error().message);
   arm.config = std::move(cfg).value();
   if (arm.config->canopen) {
@@ -253,16 +293,16 @@ bool open_arm(Args& a, Arm& arm) {
       const double period_us = static_cast<double>(a.rt.loop().period_ns) * 1e-3, sync_us = static_cast<double>(sync_ns) * 1e-3;
       return fail(lancet::text::format("--period-us %.0f differs from sync_period_us %.0f in [bus.canopen] of %s: the drives "
                                        "expect a SYNC every %.0f us (0x1006); give lancet-rt --period-us %.0f or change the config",
-                                       period_us, sync_us, a.config_path.c_str(), sync_us, sync_us));
+                                       period_us, sync_us, config_path.c_str(), sync_us, sync_us));
     }
   }
-  const std::string cal_path = lancet::arm::calibration_path(a.config_path);
+  const std::string cal_path = lancet::arm::calibration_path(config_path);
   auto cal = lancet::arm::apply_calibration_file(*arm.config, cal_path);
   if (!cal.ok()) return fail(cal.error().message);
   if (cal.value()) std::fprintf(stderr, "lancet-rt: calibration %s applied\n", cal_path.c_str());
   auto kin = lancet::arm::make_kinematics(*arm.config);
   if (!kin.ok()) return fail(kin.error().message);
-  lancet::servo::ServoModel& m = a.model.servo;
+  lancet::servo::ServoModel& m = a.model.hand[h].servo;
   m.kinematics = kin.value();
   auto dev = lancet::app::make_device(*arm.config);
   if (!dev.ok()) return fail(dev.error().message);
@@ -283,12 +323,15 @@ bool open_arm(Args& a, Arm& arm) {
   return true;
 }
 
-/// The options that shape the servo model and the loop.
+/// The options that shape the servo models (every hand's alike, before an arm fits its own) and
+/// the loop.
 lancet::rt::LoopParams apply_model_options(Args& a) {
   lancet::rt::LoopParams loop_params = a.rt.loop();
   loop_params.duration_ns = lancet::seconds_to_ns(a.duration);
-  lancet::servo::ServoModel& m = a.model.servo;
+  lancet::servo::ServoModel& m = a.servo;
   m.period_ns = loop_params.period_ns;
+  a.model.period_ns = loop_params.period_ns;
+  a.model.hands = a.hands;
   if (a.stiffness > 0) {
     for (auto& mat : m.haptic.materials) mat.stiffness = a.stiffness;
   }
@@ -296,11 +339,16 @@ lancet::rt::LoopParams apply_model_options(Args& a) {
   m.fade.fade_ns = static_cast<std::int64_t>(a.fade_ms * 1e6);
   m.fade.stale_after_ns = static_cast<std::int64_t>(a.stale_patch_ms * 1e6);
   a.model.script_waits_for_tissue = a.script_waits;
+  for (lancet::app::HandModel& hm : a.model.hand) {
+    hm.servo = m;
+    hm.script_depth = a.script_depth;
+  }
   return loop_params;
 }
 
-/// The arm's files as they were read (config, then calibration), for whoever records the session.
-void publish_arm_config(lancet::SharedState& shared, const std::string& config_path) {
+/// Hand h's arm's files as they were read (config, then calibration), for whoever records the
+/// session.
+void publish_arm_config(lancet::SharedState& shared, std::size_t h, const std::string& config_path) {
   constexpr std::size_t kMaxFile = 1 << 20;
   const auto read = [](const std::string& path) {
     auto r = lancet::config::read_text_file(path, kMaxFile, "an arm config");
@@ -313,18 +361,23 @@ void publish_arm_config(lancet::SharedState& shared, const std::string& config_p
   blob->truncated = text.size() > lancet::kArmConfigCapacity ? 1u : 0u;
   blob->size = static_cast<std::uint32_t>(std::min<std::size_t>(text.size(), lancet::kArmConfigCapacity));
   std::memcpy(blob->text, text.data(), blob->size);
-  shared.arm_config.write(*blob);
+  shared.arm_config[h].write(*blob);
 }
 
 void print_status_line(const lancet::RtStatus& st) {
+  std::string hands;
+  for (std::size_t h = 0; h < st.hands && h < lancet::kHandCount; ++h) {
+    const lancet::HandStatus& hs = st.hand[h];
+    hands += lancet::text::format("  %s %.2f N %s%s v%llu%s%s", lancet::hand_name(static_cast<lancet::Hand>(h)), lancet::norm(hs.force),
+                                  lancet::tool_name(hs.mode), hs.contact ? " contact" : "",
+                                  static_cast<unsigned long long>(hs.patch_version), hs.has_arm ? " arm " : "",
+                                  hs.has_arm ? lancet::app::describe_arm(hs).c_str() : "");
+  }
   std::fprintf(stderr,
-               "lancet-rt: tick %llu  force %.2f N  scale %.2f  viz %s  patch v%llu  wake p99 %.0f us max %.0f us  "
-               "missed %llu  dropped %llu%s%s%s\n",
-               static_cast<unsigned long long>(st.tick), lancet::norm(st.force), st.force_scale,
-               st.viz_alive ? "alive" : "absent", static_cast<unsigned long long>(st.patch_version),
+               "lancet-rt: tick %llu%s  viz %s  wake p99 %.0f us max %.0f us  missed %llu  dropped %llu%s\n",
+               static_cast<unsigned long long>(st.tick), hands.c_str(), st.viz_alive ? "alive" : "absent",
                static_cast<double>(st.wake_p99_ns) / 1e3, static_cast<double>(st.wake_max_ns) / 1e3,
                static_cast<unsigned long long>(st.missed), static_cast<unsigned long long>(st.samples_dropped),
-               st.has_arm ? "  arm " : "", st.has_arm ? lancet::app::describe_arm(st).c_str() : "",
                st.watchdog_tripped ? "  WATCHDOG TRIPPED: force held at zero until re-armed" : "");
 }
 
@@ -338,8 +391,8 @@ struct Ending {
 /// moment it is seen), a servo tick that stops advancing, signals, and the status line once a
 /// second. It reads only the servo's private status, never the segment. Returns when the loop is
 /// done, or when a stop was asked and the grace time has passed without it.
-Ending supervise(const Args& a, lancet::app::RtServo& servo, const std::string& arm_name, const lancet::rt::LoopParams& loop_params,
-                 const std::atomic<bool>& loop_done) {
+Ending supervise(const Args& a, lancet::app::RtServo& servo, const std::array<std::string, lancet::kHandCount>& arm_name,
+                 const lancet::rt::LoopParams& loop_params, const std::atomic<bool>& loop_done) {
   lancet::app::SupervisorParams sp;
   sp.shm_name = a.shm;
   sp.arm_name = arm_name;
@@ -390,6 +443,12 @@ Ending supervise(const Args& a, lancet::app::RtServo& servo, const std::string& 
   std::_Exit(4);
 }
 
+double max_force_seen(const lancet::app::RtServo& servo) {
+  double f = 0;
+  for (std::size_t h = 0; h < servo.hands(); ++h) f = std::max(f, servo.data().hand[h].servo.max_force_seen);
+  return f;
+}
+
 void print_stop_line(const std::string& ended_by, const lancet::rt::LoopStats& ls, const lancet::SharedState& shared,
                      const lancet::app::RtServo& servo) {
   std::fprintf(stderr,
@@ -399,7 +458,7 @@ void print_stop_line(const std::string& ended_by, const lancet::rt::LoopStats& l
                static_cast<double>(ls.wake_latency.percentile_ns(50)) / 1e3,
                static_cast<double>(ls.wake_latency.percentile_ns(99)) / 1e3,
                static_cast<double>(ls.wake_latency.max_ns()) / 1e3,
-               static_cast<unsigned long long>(shared.samples.overflow_count()), servo.data().servo.max_force_seen);
+               static_cast<unsigned long long>(shared.samples.overflow_count()), max_force_seen(servo));
 }
 
 }  // namespace
@@ -413,7 +472,12 @@ int main(int argc, char** argv) {
   // also when lancet-rt was started in the background, where the shell left SIGINT ignored.
   install_signal_handlers();
 
-  std::optional<lancet::device::Trajectory> trajectory;
+  if (a.hands < 2 && !a.config_path[1].empty()) {
+    fail("--left-config needs --hands 2");
+    return 2;
+  }
+  const lancet::rt::LoopParams loop_params = apply_model_options(a);
+  std::optional<lancet::device::HandTrajectories> trajectory;
   if (!a.trajectory_path.empty()) {
     auto tr = lancet::device::load_trajectory_csv(a.trajectory_path);
     if (!tr.ok()) {
@@ -421,12 +485,22 @@ int main(int argc, char** argv) {
       return 2;
     }
     trajectory = std::move(tr).value();
-    a.model.trajectory = &*trajectory;
-    std::fprintf(stderr, "lancet-rt: replaying %zu trajectory points over %.2f s\n", trajectory->t.size(), trajectory->duration());
+    for (std::size_t h = 0; h < lancet::kHandCount; ++h) {
+      const lancet::device::Trajectory& t = (*trajectory)[h];
+      if (t.t.empty()) continue;
+      const char* hand = lancet::hand_name(static_cast<lancet::Hand>(h));
+      if (h >= a.hands) {
+        std::fprintf(stderr, "lancet-rt: %s: the %s hand's rows are not used (--hands %zu)\n", a.trajectory_path.c_str(), hand, a.hands);
+        continue;
+      }
+      a.model.hand[h].trajectory = &t;
+      std::fprintf(stderr, "lancet-rt: %s hand: replaying %zu trajectory points over %.2f s\n", hand, t.t.size(), t.duration());
+    }
   }
-  Arm arm;
-  if (!a.config_path.empty() && !open_arm(a, arm)) return 2;
-  const lancet::rt::LoopParams loop_params = apply_model_options(a);
+  std::array<Arm, lancet::kHandCount> arms;
+  for (std::size_t h = 0; h < a.hands; ++h) {
+    if (!a.config_path[h].empty() && !open_arm(a, h, arms[h])) return 2;
+  }
 
   lancet::ShmSegment::CreateOptions seg_opts;
   seg_opts.creator_name = "lancet-rt";
@@ -446,16 +520,25 @@ int main(int argc, char** argv) {
   lancet::rt::RtEnvironment environment(setup_opts, setup);
   // Enable the arm as late as possible: a drive-side watchdog counts from the end of activate(),
   // so the servo's first tick follows within a period or two.
-  if (arm.device) {
+  std::array<lancet::device::Device*, lancet::kHandCount> devices{};
+  std::array<std::string, lancet::kHandCount> arm_name;
+  for (std::size_t h = 0; h < a.hands; ++h) {
+    Arm& arm = arms[h];
+    if (!arm.device) continue;
     if (const lancet::Result<void> o = arm.device->activate(); !o.ok()) {
       fail(o.error().message);
       return 2;
     }
-    std::fprintf(stderr, "lancet-rt: arm '%s' (%s, %d joints) is %s\n", arm.config->name.c_str(), arm.device->name().c_str(),
-                 arm.device->joint_count(), lancet::device::to_string(arm.device->state()));
+    std::fprintf(stderr, "lancet-rt: %s hand: arm '%s' (%s, %d joints) is %s\n", lancet::hand_name(static_cast<lancet::Hand>(h)),
+                 arm.config->name.c_str(), arm.device->name().c_str(), arm.device->joint_count(),
+                 lancet::device::to_string(arm.device->state()));
+    devices[h] = arm.device.get();
+    arm_name[h] = arm.device->name();
   }
-  lancet::app::RtServo servo(a.model, shared, lancet::monotonic_ns(), arm.device.get());  // after mlockall: locked too
-  if (!a.config_path.empty()) publish_arm_config(shared, a.config_path);
+  lancet::app::RtServo servo(a.model, shared, lancet::monotonic_ns(), devices);  // after mlockall: locked too
+  for (std::size_t h = 0; h < a.hands; ++h) {
+    if (!a.config_path[h].empty()) publish_arm_config(shared, h, a.config_path[h]);
+  }
   // New patches are copied, checked and get their tree on a helper thread, below the servo's
   // priority and off its CPU, so no tick pays for one.
   const std::string intake_line = servo.start_patch_intake(setup_opts.enable, std::max(1, setup_opts.priority - 10), setup_opts.cpu);
@@ -477,20 +560,23 @@ int main(int argc, char** argv) {
   for (const auto& line : setup.applied) std::fprintf(stderr, "lancet-rt: %s\n", line.c_str());
   for (const auto& line : setup.degraded) std::fprintf(stderr, "lancet-rt: degraded: %s\n", line.c_str());
   std::fprintf(stderr, "lancet-rt: %s\n", intake_line.c_str());
-  std::fprintf(stderr, "lancet-rt: running at %.0f Hz on segment %s (pid %d), strategy %s\n",
-               1e9 / static_cast<double>(a.model.servo.period_ns), a.shm.c_str(), static_cast<int>(getpid()), a.rt.strategy.c_str());
+  std::fprintf(stderr, "lancet-rt: running %zu hand%s at %.0f Hz on segment %s (pid %d), strategy %s\n", a.hands,
+               a.hands == 1 ? "" : "s", 1e9 / static_cast<double>(a.model.period_ns), a.shm.c_str(), static_cast<int>(getpid()),
+               a.rt.strategy.c_str());
 
-  const std::string arm_name = arm.device ? arm.device->name() : "";
   const Ending end = supervise(a, servo, arm_name, loop_params, loop_done);
   StatsInput stats;
+  stats.hands = a.hands;
   stats.arm_name = arm_name;
   stats.ended_by = end.by;
   if (!loop_done.load(std::memory_order_acquire)) leave_without_servo(a, servo, stats, channel.value());
   thread.join();
   g_stop.store(true);
-  if (arm.device) {
-    std::fprintf(stderr, "lancet-rt: %s: %s\n", arm_name.c_str(), lancet::app::describe_bus(servo.data().status.bus).c_str());
-    (void)arm.device->deactivate();
+  for (std::size_t h = 0; h < a.hands; ++h) {
+    if (!arms[h].device) continue;
+    std::fprintf(stderr, "lancet-rt: %s arm: %s: %s\n", lancet::hand_name(static_cast<lancet::Hand>(h)), arm_name[h].c_str(),
+                 lancet::app::describe_bus(servo.data().status.hand[h].bus).c_str());
+    (void)arms[h].device->deactivate();
   }
   shared.rt_heartbeat.stop();
 

@@ -1,5 +1,6 @@
 #include "app/supervisor.hpp"
 
+#include <algorithm>
 #include <cinttypes>
 #include <cstdio>
 
@@ -13,11 +14,11 @@ namespace {
 
 using text::format;
 
-bool faulted(const RtStatus& s) { return s.device_state == device::Lifecycle::kFault; }
+bool faulted(const HandStatus& s) { return s.device_state == device::Lifecycle::kFault; }
 
 }  // namespace
 
-std::string describe_arm(const RtStatus& st) {
+std::string describe_arm(const HandStatus& st) {
   if (st.has_arm == 0) return "built-in simulated stylus";
   const auto state = st.device_state;
   std::string s = device::to_string(state);
@@ -58,7 +59,10 @@ std::vector<std::string> RtSupervisor::poll(std::int64_t now_ns) {
   RtStatus st{};
   if (servo_.read_status(st) == ReadStatus::kOk) {
     if (have_) compare(last_, st, now_ns, out);
-    if (!have_ && st.has_arm != 0 && faulted(st)) out.push_back("FAULT on " + params_.arm_name + ": " + describe_arm(st));
+    for (std::size_t h = 0; !have_ && h < st.hands && h < kHandCount; ++h) {
+      if (st.hand[h].has_arm != 0 && faulted(st.hand[h]))
+        out.push_back(std::string(hand_name(static_cast<Hand>(h))) + " arm: FAULT on " + params_.arm_name[h] + ": " + describe_arm(st.hand[h]));
+    }
     last_ = st;
     have_ = true;
   }
@@ -78,30 +82,35 @@ std::vector<std::string> RtSupervisor::poll(std::int64_t now_ns) {
 }
 
 void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t now_ns, std::vector<std::string>& out) {
-  const std::string& arm = params_.arm_name;
-  if (b.has_arm != 0) {
-    if (!faulted(a) && faulted(b)) {
-      out.push_back("FAULT on " + arm + ": " + describe_arm(b) + ". Force held at zero until re-armed: lancetctl rearm --rt " +
-                    params_.shm_name + " (or W in the viz)");
+  const std::size_t hands = std::min<std::size_t>(b.hands, kHandCount);
+  for (std::size_t h = 0; h < hands; ++h) {
+    const HandStatus& ha = a.hand[h];
+    const HandStatus& hb = b.hand[h];
+    if (hb.has_arm == 0) continue;
+    const char* const hand = hand_name(static_cast<Hand>(h));
+    const std::string who = std::string(hand) + " arm: ";  // every line about an arm says whose
+    const std::string& arm = params_.arm_name[h];
+    const std::string rearm_hint = "lancetctl rearm --rt " + params_.shm_name + " --hand " + hand;
+    if (!faulted(ha) && faulted(hb)) {
+      out.push_back(who + "FAULT on " + arm + ": " + describe_arm(hb) + ". Its force held at zero until re-armed: " + rearm_hint +
+                    " (or W in the viz)");
     }
-    if (faulted(a) && !faulted(b)) out.push_back(arm + " re-armed: " + describe_arm(b));
-    if (a.link_lost == 0 && b.link_lost != 0) {
-      link_lost_at_ns_ = now_ns;
-      reconnect_failures_ = 0;
-      out.push_back(arm + ": bus link lost; reconnecting every second (the arm stays faulted until re-armed)");
+    if (faulted(ha) && !faulted(hb)) out.push_back(who + arm + " re-armed: " + describe_arm(hb));
+    if (ha.link_lost == 0 && hb.link_lost != 0) {
+      link_lost_at_ns_[h] = now_ns;
+      out.push_back(who + arm + ": bus link lost; reconnecting every second (the arm stays faulted until re-armed)");
     }
-    if (b.bus.reconnects > a.bus.reconnects) {
-      out.push_back(format("%s: bus link back after %.1f s; re-arm to resume: lancetctl rearm --rt %s", arm.c_str(),
-                        static_cast<double>(now_ns - link_lost_at_ns_) / 1e9, params_.shm_name.c_str()));
-    } else if (b.link_lost != 0 && std::string_view(b.rearm_text) != std::string_view(a.rearm_text) && b.rearm_text[0] != '\0') {
+    if (hb.bus.reconnects > ha.bus.reconnects) {
+      out.push_back(who + format("%s: bus link back after %.1f s; re-arm to resume: %s", arm.c_str(),
+                                 static_cast<double>(now_ns - link_lost_at_ns_[h]) / 1e9, rearm_hint.c_str()));
+    } else if (hb.link_lost != 0 && std::string_view(hb.rearm_text) != std::string_view(ha.rearm_text) && hb.rearm_text[0] != '\0') {
       // A reconnect attempt failed with a new reason: say it once, not every second.
-      ++reconnect_failures_;
-      out.push_back(arm + ": reconnect failed: " + b.rearm_text);
+      out.push_back(who + arm + ": reconnect failed: " + hb.rearm_text);
     }
-    if (b.rearm_failures > a.rearm_failures) out.push_back(arm + ": re-arm failed: " + b.rearm_text);
+    if (hb.rearm_failures > ha.rearm_failures) out.push_back(who + arm + ": re-arm failed: " + hb.rearm_text);
   }
   if (a.watchdog_tripped == 0 && b.watchdog_tripped != 0) {
-    out.push_back(format("WATCHDOG TRIPPED (%s): force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
+    out.push_back(format("WATCHDOG TRIPPED (%s): every hand's force held at zero until re-armed: lancetctl rearm --rt %s (or W in the viz)",
                       rt::to_string(b.watchdog_reason), params_.shm_name.c_str()));
   }
   if (a.watchdog_tripped != 0 && b.watchdog_tripped == 0) out.push_back("watchdog re-armed");
@@ -130,11 +139,14 @@ void RtSupervisor::compare(const RtStatus& a, const RtStatus& b, std::int64_t no
     health_reported_ = h;
     said = true;
   }
-  if (b.bus.glitches > glitches_reported_) {
-    out.push_back(format("%s: %llu encoder glitches (last: %s)", arm.c_str(),
-                      static_cast<unsigned long long>(b.bus.glitches - glitches_reported_), b.error_text));
-    glitches_reported_ = b.bus.glitches;
-    said = true;
+  for (std::size_t k = 0; k < hands; ++k) {
+    const HandStatus& hb = b.hand[k];
+    if (hb.bus.glitches > glitches_reported_[k]) {
+      out.push_back(format("%s arm: %s: %llu encoder glitches (last: %s)", hand_name(static_cast<Hand>(k)), params_.arm_name[k].c_str(),
+                           static_cast<unsigned long long>(hb.bus.glitches - glitches_reported_[k]), hb.error_text));
+      glitches_reported_[k] = hb.bus.glitches;
+      said = true;
+    }
   }
   if (said) next_summary_ns_ = now_ns + params_.summary_interval_ns;
 }

@@ -1,14 +1,17 @@
 #pragma once
 // RtSupervisor: lancet-rt's non-real-time watcher of its own servo. Polled every few ms from an
 // ordinary thread, it
-//   - runs the device handover (RtServo::supervise): re-arms asked for, reconnects of a lost bus;
+//   - runs each hand's device handover (RtServo::supervise): re-arms asked for, reconnects of a
+//     lost bus;
 //   - says on stderr, the moment it sees it, what changed: an arm fault with its cause (node,
-//     code, words) and how to re-arm, a lost and a reopened bus link, a re-arm and its outcome,
+//     code, words) and how to re-arm, a lost and a reopened bus link, a re-arm and its outcome
+//     (each such line starts with the hand's name: "right arm: FAULT on ..."),
 //     a watchdog trip, the viz coming and going, what the segment's peers wrote that was rejected
 //     (at most once a second), encoder glitches (at most once a second);
 //   - notices a servo tick that stops advancing (stalled(): the process must end).
 // It reads only the servo's private status copy (RtServo::read_status), never the segment.
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -19,7 +22,7 @@ namespace lancet::app {
 
 struct SupervisorParams {
   std::string shm_name = kDefaultShmName;    ///< for the re-arm hint
-  std::string arm_name;                      ///< for the messages ("" with the built-in stylus)
+  std::array<std::string, kHandCount> arm_name;  ///< by Hand, for the messages ("" with the built-in stylus)
   std::int64_t stall_timeout_ns = 1'000'000'000;  ///< no new tick for this long: stalled
   std::int64_t first_tick_grace_ns = 2'000'000'000;  ///< the first tick may take this much longer
   std::int64_t summary_interval_ns = 1'000'000'000;   ///< rate limit of the rejected / glitch lines
@@ -52,13 +55,12 @@ class RtSupervisor {
   bool stalled_ = false;
   std::int64_t next_summary_ns_ = 0;
   SegmentHealth health_reported_{};
-  std::uint64_t glitches_reported_ = 0;
-  std::uint64_t reconnect_failures_ = 0;
-  std::int64_t link_lost_at_ns_ = 0;
+  std::array<std::uint64_t, kHandCount> glitches_reported_{};
+  std::array<std::int64_t, kHandCount> link_lost_at_ns_{};
 };
 
-/// The arm state, fault cause and words of a status, as one line: "fault (timeout): node 1: ...".
-[[nodiscard]] std::string describe_arm(const RtStatus& st);
+/// The arm state, fault cause and words of a hand's status, as one line: "fault (timeout): node 1: ...".
+[[nodiscard]] std::string describe_arm(const HandStatus& st);
 /// Per-kind bus counters as one line.
 [[nodiscard]] std::string describe_bus(const BusCounters& b);
 

@@ -44,4 +44,8 @@ Vec3 scripted_target(double t, double depth) noexcept {
   return {x, y, -depth};
 }
 
+Vec3 scripted_target(Hand hand, double t, double depth) noexcept {
+  return hand == Hand::kLeft ? kLeftParked : scripted_target(t, depth);
+}
+
 }  // namespace lancet::device

@@ -8,6 +8,7 @@
 
 #include "device/device.hpp"
 #include "lancet/shared_model/geometry.hpp"
+#include "lancet/shared_model/messages.hpp"
 
 namespace lancet::device {
 
@@ -29,6 +30,14 @@ void step_sim_stylus(const SimStylusParams& p, SimStylusState& s, Vec3 target, V
 
 /// The built-in script: descend to `depth` below z = 0 in 1 s, then a slow figure-of-eight.
 Vec3 scripted_target(double t, double depth) noexcept;
+
+/// Where the left hand's built-in script parks its stylus: above the tissue, out of contact, to
+/// one side of the right hand's figure-of-eight (tissue frame, m).
+inline constexpr Vec3 kLeftParked{0.0, 0.040, 0.020};
+
+/// Each hand's built-in script: the right hand presses and draws scripted_target(t, depth); the
+/// left hand holds kLeftParked. Real-time safe.
+Vec3 scripted_target(Hand hand, double t, double depth) noexcept;
 
 class SimStylus final : public Device {
  public:

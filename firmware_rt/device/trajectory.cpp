@@ -17,10 +17,10 @@ Vec3 Trajectory::at(double s) const noexcept {
   return p[lo] + (p[hi] - p[lo]) * w;
 }
 
-Result<Trajectory> load_trajectory_csv(const std::string& path) {
+Result<HandTrajectories> load_trajectory_csv(const std::string& path) {
   std::ifstream in(path);
   if (!in) return Error{ErrorCode::kNotFound, path + ": cannot open the trajectory file"};
-  Trajectory tr;
+  HandTrajectories hands;
   std::string line;
   int n = 0;
   bool header_allowed = true;
@@ -36,9 +36,9 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
       cells.push_back(b == std::string::npos ? std::string() : c.substr(b, e - b + 1));
     }
     const std::string where = path + ":" + std::to_string(n) + ": ";
-    if (cells.size() != 4 && cells.size() != 5)
+    if (cells.size() < 4 || cells.size() > 6)
       return Error{ErrorCode::kInvalid,
-                   where + "expected 4 or 5 values (t_s, x_mm, y_mm, z_mm[, tool]), found " + std::to_string(cells.size())};
+                   where + "expected 4 to 6 values (t_s, x_mm, y_mm, z_mm[, tool[, hand]]), found " + std::to_string(cells.size())};
     double v[4];
     bool numbers = true;
     for (int i = 0; i < 4; ++i) {
@@ -58,20 +58,27 @@ Result<Trajectory> load_trajectory_csv(const std::string& path) {
     }
     header_allowed = false;
     if (!numbers) continue;  // the header line
+    Hand hand = Hand::kRight;
+    if (cells.size() == 6 && !cells[5].empty() && !hand_from_name(cells[5], hand))
+      return Error{ErrorCode::kInvalid, where + "hand: expected right or left, found '" + cells[5] + "'"};
+    Trajectory& tr = hands[hand_index(hand)];
     if (v[0] < 0) return Error{ErrorCode::kInvalid, where + "t_s: expected >= 0, found " + cells[0]};
     if (!tr.t.empty() && !(v[0] > tr.t.back()))
-      return Error{ErrorCode::kInvalid, where + "t_s: times must increase: " + cells[0] + " follows " + std::to_string(tr.t.back())};
+      return Error{ErrorCode::kInvalid, where + "t_s: times must increase (per hand): " + cells[0] + " follows " +
+                                            std::to_string(tr.t.back()) + " of the " + hand_name(hand) + " hand"};
     tr.t.push_back(v[0]);
     tr.p.push_back(Vec3{v[1] * 1e-3, v[2] * 1e-3, v[3] * 1e-3});
-    if (cells.size() == 5 && !cells[4].empty()) {
+    if (cells.size() >= 5 && !cells[4].empty()) {
       ToolMode mode{};
       if (!tool_from_name(cells[4], mode))
         return Error{ErrorCode::kInvalid, where + "tool: expected probe, scalpel, retractor or drill, found '" + cells[4] + "'"};
       tr.tools.push_back({v[0], mode});
     }
   }
-  if (tr.t.empty()) return Error{ErrorCode::kInvalid, path + ": no trajectory points (lines of t_s, x_mm, y_mm, z_mm)"};
-  return tr;
+  bool any = false;
+  for (const Trajectory& tr : hands) any = any || !tr.t.empty();
+  if (!any) return Error{ErrorCode::kInvalid, path + ": no trajectory points (lines of t_s, x_mm, y_mm, z_mm)"};
+  return hands;
 }
 
 }  // namespace lancet::device

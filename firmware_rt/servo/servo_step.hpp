@@ -120,7 +120,7 @@ struct ServoInput {
   const haptics::PatchBvh* patch_tree = nullptr;
   bool viz_alive = false;          ///< the visualizer's heartbeat is fresh
   bool watchdog_tripped = false;   ///< the loop's watchdog has tripped
-  Hand hand = Hand::kRight;        ///< whose step this is (only stamped on the sample)
+  Hand hand = Hand::kRight;        ///< whose tick it is: copied into the sample, nothing else depends on it
 };
 
 struct ServoOutput {

@@ -5,6 +5,7 @@
 #include <libusb.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <ctime>
@@ -235,35 +236,65 @@ std::optional<RtStatus> read_rt_status(const SharedState& shared, double wait_s,
 namespace {
 // One status as a JSON object on one line (lancetctl monitor --rt --json): what a test rig or a
 // soak reads; every text was checked (wire::check) and is printed escaped.
-void print_status_json(std::FILE* out, double t, int pid, const RtStatus& st) {
+// A hand's fields, the same keys at the top level (the right hand's, as before there were two)
+// and in each entry of "hands".
+std::string hand_status_json(const HandStatus& st) {
   const auto num = [](double v) { return std::isfinite(v) ? text::format("%.9g", v) : std::string("null"); };
   const auto u = [](std::uint64_t v) { return std::to_string(v); };
-  const SegmentHealth& h = st.health;
-  std::string j = "{\"t_s\": " + text::format("%.3f", t) + ", \"pid\": " + std::to_string(pid) + ", \"alive\": true, \"tick\": " + u(st.tick);
-  j += ", \"t_ns\": " + std::to_string(st.t_ns);
-  j += ", \"force_n\": [" + num(st.force.x) + ", " + num(st.force.y) + ", " + num(st.force.z) + "], \"force_scale\": " + num(st.force_scale);
+  std::string j = "\"force_n\": [" + num(st.force.x) + ", " + num(st.force.y) + ", " + num(st.force.z) + "], \"force_scale\": " + num(st.force_scale);
   j += ", \"contact\": " + std::string(st.contact ? "true" : "false") + ", \"tool_mm\": [" + num(st.tool.x * 1e3) + ", " + num(st.tool.y * 1e3) + ", " + num(st.tool.z * 1e3) + "]";
-  j += ", \"viz_alive\": " + std::string(st.viz_alive ? "true" : "false") + ", \"patch_version\": " + u(st.patch_version);
+  j += ", \"tool\": " + text::json_string(tool_name(st.mode)) + ", \"patch_version\": " + u(st.patch_version);
+  j += ", \"clamped_ticks\": " + u(st.clamped_ticks);
   j += ", \"has_arm\": " + std::string(st.has_arm ? "true" : "false");
   j += ", \"device_state\": " + text::json_string(device::to_string(st.device_state));
   j += ", \"fault_cause\": " + text::json_string(st.device_state == device::Lifecycle::kFault
                                                  ? device::to_string(st.device_fault_cause)
                                                  : "");
   j += ", \"fault_text\": " + text::json_string(st.fault_text) + ", \"link_lost\": " + std::string(st.link_lost ? "true" : "false");
-  j += ", \"rearms\": " + u(st.rearms) + ", \"rearm_failures\": " + u(st.rearm_failures) +
-       ", \"rearm_pending\": " + std::string(st.rearm_pending ? "true" : "false") +
-       ", \"operator_requests\": " + u(st.operator_requests);
-  j += ", \"watchdog_tripped\": " + std::string(st.watchdog_tripped ? "true" : "false");
-  j += ", \"missed\": " + u(st.missed) + ", \"wake_p99_us\": " + num(static_cast<double>(st.wake_p99_ns) / 1e3);
-  j += ", \"samples_pushed\": " + u(st.samples_pushed) + ", \"samples_dropped\": " + u(st.samples_dropped);
+  j += ", \"rearm_failures\": " + u(st.rearm_failures) + ", \"rearm_pending\": " + std::string(st.rearm_pending ? "true" : "false");
   j += ", \"device_errors\": " + u(st.device_errors) + ", \"bus_glitches\": " + u(st.bus.glitches) +
        ", \"bus_timeouts\": " + u(st.bus.timeouts) + ", \"bus_protocol_errors\": " + u(st.bus.protocol_errors) +
        ", \"bus_disconnects\": " + u(st.bus.disconnects) + ", \"bus_device_faults\": " + u(st.bus.device_faults) +
        ", \"bus_reconnects\": " + u(st.bus.reconnects);
+  return j;
+}
+
+// One status as a JSON object on one line (lancetctl monitor --rt --json): what a test rig or a
+// soak reads; every text was checked (wire::check) and is printed escaped. The hand's keys at the
+// top level are the right hand's; "hands" holds each hand's (right first).
+void print_status_json(std::FILE* out, double t, int pid, const RtStatus& st) {
+  const auto num = [](double v) { return std::isfinite(v) ? text::format("%.9g", v) : std::string("null"); };
+  const auto u = [](std::uint64_t v) { return std::to_string(v); };
+  const SegmentHealth& h = st.health;
+  std::string j = "{\"t_s\": " + text::format("%.3f", t) + ", \"pid\": " + std::to_string(pid) + ", \"alive\": true, \"tick\": " + u(st.tick);
+  j += ", \"t_ns\": " + std::to_string(st.t_ns);
+  j += ", " + hand_status_json(st.hand[0]);
+  j += ", \"viz_alive\": " + std::string(st.viz_alive ? "true" : "false");
+  j += ", \"rearms\": " + u(st.rearms) + ", \"operator_requests\": " + u(st.operator_requests);
+  j += ", \"watchdog_tripped\": " + std::string(st.watchdog_tripped ? "true" : "false");
+  j += ", \"missed\": " + u(st.missed) + ", \"wake_p99_us\": " + num(static_cast<double>(st.wake_p99_ns) / 1e3);
+  j += ", \"samples_pushed\": " + u(st.samples_pushed) + ", \"samples_dropped\": " + u(st.samples_dropped);
   j += ", \"segment\": {\"ring_resets\": " + u(h.ring_resets) + ", \"commands_rejected\": " + u(h.commands_rejected) +
        ", \"patches_rejected\": " + u(h.patches_rejected) + ", \"patches_unreadable\": " + u(h.patches_unreadable) +
-       ", \"targets_rejected\": " + u(h.targets_rejected) + ", \"sample_ring_resets\": " + u(h.sample_ring_resets) + "}}";
+       ", \"targets_rejected\": " + u(h.targets_rejected) + ", \"sample_ring_resets\": " + u(h.sample_ring_resets) + "}";
+  j += ", \"hand_count\": " + u(st.hands) + ", \"hands\": [";
+  for (std::uint32_t k = 0; k < st.hands && k < kHandCount; ++k) {
+    j += std::string(k == 0 ? "" : ", ") + "{\"hand\": " + text::json_string(hand_name(static_cast<Hand>(k))) + ", " +
+         hand_status_json(st.hand[k]) + "}";
+  }
+  j += "]}";
   std::fprintf(out, "%s\n", j.c_str());
+}
+
+/// Bits of OperatorRequest::hands for `which` (right, left, both) on a loop that drives `hands`;
+/// 0 when it names a hand the loop does not drive.
+std::uint8_t hand_mask(const std::string& which, std::uint32_t hands) {
+  const std::uint8_t driven = static_cast<std::uint8_t>((1u << std::min<std::uint32_t>(hands, kHandCount)) - 1);
+  if (which == "both") return driven;
+  Hand h{};
+  if (!hand_from_name(which, h)) return 0;
+  const auto bit = static_cast<std::uint8_t>(1u << hand_index(h));
+  return (bit & driven) != 0 ? bit : 0;
 }
 }  // namespace
 
@@ -318,10 +349,17 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
       } else if (json) {
         print_status_json(out, t, ch.value().segment().creator_pid(), st);
       } else {
-        std::fprintf(out, "%8.3f s  tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  arm %s  errors %llu  wake p99 %.0f us%s\n",
-                     t, st.tool.x * 1e3, st.tool.y * 1e3, st.tool.z * 1e3, st.force.x, st.force.y, st.force.z, st.force_scale,
-                     st.contact ? " contact" : "", app::describe_arm(st).c_str(), static_cast<unsigned long long>(st.device_errors),
-                     static_cast<double>(st.wake_p99_ns) / 1e3, st.watchdog_tripped ? "  WATCHDOG TRIPPED" : "");
+        // One line for the loop, then one for each hand.
+        std::fprintf(out, "%8.3f s  tick %llu  viz %s  wake p99 %.0f us%s\n", t, static_cast<unsigned long long>(st.tick),
+                     st.viz_alive ? "alive" : "absent", static_cast<double>(st.wake_p99_ns) / 1e3,
+                     st.watchdog_tripped ? "  WATCHDOG TRIPPED" : "");
+        for (std::uint32_t k = 0; k < st.hands && k < kHandCount; ++k) {
+          const HandStatus& hs = st.hand[k];
+          std::fprintf(out, "%8.3f s  %-6s tool %7.2f %7.2f %7.2f mm  force %6.2f %6.2f %6.2f N (x%.2f)%s  %s  arm %s  errors %llu\n", t,
+                       (std::string(hand_name(static_cast<Hand>(k))) + ":").c_str(), hs.tool.x * 1e3, hs.tool.y * 1e3, hs.tool.z * 1e3,
+                       hs.force.x, hs.force.y, hs.force.z, hs.force_scale, hs.contact ? " contact" : "", tool_name(hs.mode),
+                       app::describe_arm(hs).c_str(), static_cast<unsigned long long>(hs.device_errors));
+        }
       }
       std::fflush(out);
     }
@@ -331,7 +369,7 @@ int run_monitor_rt(const std::string& shm, double duration_s, double rate_hz, st
   return 0;
 }
 
-int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::FILE* in, std::FILE* out) {
+int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::FILE* in, std::FILE* out, const std::string& which) {
   if (!(timeout_s > 0)) {
     std::fprintf(out, "rearm: --timeout must be > 0\n");
     return 2;
@@ -348,20 +386,35 @@ int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::
     std::fprintf(out, "rearm: lancet-rt on %s: %s\n", shm.c_str(), why.c_str());
     return 1;
   }
-  const bool arm_faulted = st->has_arm != 0 && st->device_state == device::Lifecycle::kFault;
-  std::fprintf(out, "lancet-rt (pid %d) on %s, tick %llu\n  arm: %s\n", ch.value().segment().creator_pid(), shm.c_str(),
-               static_cast<unsigned long long>(st->tick), app::describe_arm(*st).c_str());
-  if (st->has_arm != 0) {
-    std::fprintf(out, "  bus: %s\n", app::describe_bus(st->bus).c_str());
-    if (st->error_text[0] != '\0') std::fprintf(out, "  last error: %s\n", st->error_text);
+  const std::uint8_t mask = hand_mask(which, st->hands);
+  if (mask == 0) {
+    std::fprintf(out, "rearm: --hand %s: lancet-rt on %s drives %u hand%s (right%s)\n", which.c_str(), shm.c_str(), st->hands,
+                 st->hands == 1 ? "" : "s", st->hands == 1 ? "" : ", left");
+    return 2;
+  }
+  const auto meant = [mask](std::size_t h) { return (mask >> h & 1u) != 0; };
+  std::fprintf(out, "lancet-rt (pid %d) on %s, tick %llu\n", ch.value().segment().creator_pid(), shm.c_str(),
+               static_cast<unsigned long long>(st->tick));
+  bool arm_faulted = false, link_lost = false;
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    if (!meant(h)) continue;
+    const HandStatus& hs = st->hand[h];
+    const char* const hand = hand_name(static_cast<Hand>(h));
+    std::fprintf(out, "  %s arm: %s\n", hand, app::describe_arm(hs).c_str());
+    if (hs.has_arm != 0) {
+      std::fprintf(out, "  %s bus: %s\n", hand, app::describe_bus(hs.bus).c_str());
+      if (hs.error_text[0] != '\0') std::fprintf(out, "  %s last error: %s\n", hand, hs.error_text);
+    }
+    arm_faulted = arm_faulted || (hs.has_arm != 0 && hs.device_state == device::Lifecycle::kFault);
+    link_lost = link_lost || hs.link_lost != 0;
   }
   std::fprintf(out, "  watchdog: %s\n", st->watchdog_tripped ? rt::to_string(st->watchdog_reason) : "armed");
   if (!arm_faulted && st->watchdog_tripped == 0) {
-    std::fprintf(out, "rearm: nothing to re-arm: the arm and the watchdog are armed\n");
+    std::fprintf(out, "rearm: nothing to re-arm: the arms and the watchdog are armed\n");
     return 0;
   }
-  if (st->link_lost != 0) {
-    std::fprintf(out, "rearm: the arm's bus link is down; lancet-rt reconnects on its own, re-arm once it says the link is back\n");
+  if (link_lost) {
+    std::fprintf(out, "rearm: an arm's bus link is down; lancet-rt reconnects on its own, re-arm once it says the link is back\n");
   }
   if (!confirmed) {
     std::fprintf(out, "Re-arm? Forces return as soon as the arm is active. Type 'yes' to re-arm: ");
@@ -377,9 +430,12 @@ int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::
   req.t_ns = monotonic_ns();
   req.kind = kOperatorRearm;
   req.pid = static_cast<std::int32_t>(getpid());
+  req.hands = mask;
   wire::seal(req);
   shared.operator_request.write(req);
-  const std::uint64_t taken_before = st->operator_requests, failures_before = st->rearm_failures;
+  std::array<std::uint64_t, kHandCount> failures_before{};
+  for (std::size_t h = 0; h < kHandCount; ++h) failures_before[h] = st->hand[h].rearm_failures;
+  const std::uint64_t taken_before = st->operator_requests;
   const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(timeout_s));
   bool taken = false;
   while (Clock::now() < until) {
@@ -388,17 +444,24 @@ int run_rearm_rt(const std::string& shm, bool confirmed, double timeout_s, std::
     if (!now) continue;
     taken = taken || now->operator_requests > taken_before;
     if (!taken) continue;
-    if (now->rearm_failures > failures_before) {
-      std::fprintf(out, "rearm: failed: %s\n", now->rearm_text);
-      return 1;
+    bool done = now->watchdog_tripped == 0;
+    std::string arms;
+    for (std::size_t h = 0; h < kHandCount; ++h) {
+      if (!meant(h)) continue;
+      const HandStatus& hs = now->hand[h];
+      if (hs.rearm_failures > failures_before[h]) {
+        std::fprintf(out, "rearm: %s arm: failed: %s\n", hand_name(static_cast<Hand>(h)), hs.rearm_text);
+        return 1;
+      }
+      done = done && hs.rearm_pending == 0 && (hs.has_arm == 0 || hs.device_state == device::Lifecycle::kActive);
+      arms += std::string(hand_name(static_cast<Hand>(h))) + " arm " + app::describe_arm(hs) + ", ";
     }
-    const bool arm_ok = now->has_arm == 0 || now->device_state == device::Lifecycle::kActive;
-    if (now->rearm_pending == 0 && arm_ok && now->watchdog_tripped == 0) {
-      std::fprintf(out, "rearm: re-armed: arm %s, watchdog armed\n", app::describe_arm(*now).c_str());
+    if (done) {
+      std::fprintf(out, "rearm: re-armed: %swatchdog armed\n", arms.c_str());
       return 0;
     }
   }
-  std::fprintf(out, "rearm: %s within %.1f s\n", taken ? "lancet-rt took the request but the arm is not active" : "lancet-rt did not take the request",
+  std::fprintf(out, "rearm: %s within %.1f s\n", taken ? "lancet-rt took the request but an arm is not active" : "lancet-rt did not take the request",
                timeout_s);
   return 1;
 }

@@ -133,13 +133,21 @@ JitterResult run_jitter(const JitterOptions& o) {
   r.cpu = setup_opts.cpu;
   rt::RtEnvironment environment(setup_opts, r.setup);
 
-  // The workload: the servo with the simulated arm pressing into a full patch, viz "alive".
+  // The workload: the servo with two simulated hands as lancet-rt runs by default, each with its
+  // own patch (the right hand pressing into it), viz "alive".
   auto shared = std::make_unique<SharedState>();
   auto patch = std::make_unique<TissuePatch>();
   fill_workload_patch(*patch);
-  shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
+  const auto publish_patches = [&shared, &patch] {
+    for (std::size_t h = 0; h < kHandCount; ++h) {
+      patch->hand = static_cast<Hand>(h);
+      shared->patch[h].publish_prefix(*patch, tissue_patch_bytes(*patch));
+    }
+  };
+  publish_patches();
   app::RtModel model;
-  model.servo.period_ns = o.rt.loop().period_ns;
+  model.hands = kHandCount;
+  model.period_ns = o.rt.loop().period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
   // As in lancet-rt: patches arrive through the intake's helper thread, off the servo's CPU.
   (void)servo.start_patch_intake(setup_opts.enable, std::max(1, setup_opts.priority - 10), setup_opts.cpu);
@@ -188,7 +196,7 @@ JitterResult run_jitter(const JitterOptions& o) {
           std::this_thread::sleep_for(std::chrono::milliseconds(16));
           patch->t_ns = monotonic_ns();
           ++patch->seq;
-          shared->patch.publish_prefix(*patch, tissue_patch_bytes(*patch));
+          publish_patches();
         }
       });
     }

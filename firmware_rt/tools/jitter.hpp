@@ -1,7 +1,7 @@
 #pragma once
-// `lancetctl jitter`: runs the real servo loop (the simulated arm pressing into a 1024-triangle
-// patch: the contact search, safety and sample push of every tick) on the real-time thread for a
-// duration, optionally alternating with cyclictest in the same run, and reports both wake-up
+// `lancetctl jitter`: runs the real servo loop (two simulated hands, as lancet-rt runs by
+// default, each with its own 1024-triangle patch, the right hand pressing into its: the contact
+// search, safety and sample pushes of every tick) on the real-time thread for a duration, optionally alternating with cyclictest in the same run, and reports both wake-up
 // latency distributions side by side, with pass/fail bounds for test rigs.
 
 #include <cstdint>

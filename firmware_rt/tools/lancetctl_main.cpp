@@ -122,14 +122,17 @@ int main(int argc, char** argv) {
   bool rearm_yes = false;
   double rearm_timeout = 5;
   CLI::App* rearm = cli.add_subcommand(
-      "rearm", "re-arm a running lancet-rt's faulted arm and tripped watchdog: shows the fault, asks, then waits for the outcome "
+      "rearm", "re-arm a running lancet-rt's faulted arms and tripped watchdog: shows the fault, asks, then waits for the outcome "
                "(exit 0 re-armed or nothing to do, 1 refused/failed/no answer)");
   rearm->add_option("--rt", rearm_shm, "lancet-rt's shared-memory segment")->capture_default_str();
   rearm->add_flag("--yes", rearm_yes, "do not ask: the workspace is clear and the stylus is held");
   rearm->add_option("--timeout", rearm_timeout, "seconds to wait for the outcome")->check(CLI::Range(0.1, 120.0))->capture_default_str();
+  std::string rearm_hand = "both";
+  rearm->add_option("--hand", rearm_hand, "the hand whose arm to re-arm: right, left or both (every hand lancet-rt drives)")
+      ->check(CLI::IsMember({"right", "left", "both"}))->capture_default_str();
 
   CLI11_PARSE(cli, argc, argv);
-  if (rearm->parsed()) return lancet::tools::run_rearm_rt(rearm_shm, rearm_yes, rearm_timeout, stdin, stdout);
+  if (rearm->parsed()) return lancet::tools::run_rearm_rt(rearm_shm, rearm_yes, rearm_timeout, stdin, stdout, rearm_hand);
   jo.servo_workload = workload == "servo";
   if (cli.got_subcommand("list")) return lancet::tools::run_list(stdout);
   if (probe->parsed()) return lancet::tools::run_probe(config_path, stdout);

@@ -133,23 +133,32 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   auto ch = SharedChannel::create(shm, {});
   ASSERT_TRUE(ch.ok()) << ch.error().message;
   RtStatus st{};
-  st.tool = {0.001, 0.002, -0.003};
-  st.force = {0, 0, 1.5};
-  st.force_scale = 1;
-  st.contact = 1;
-  st.device_state = device::Lifecycle::kFault;
-  st.device_fault_cause = device::IoStatus::kTimeout;
-  st.device_errors = 7;
   st.period_ns = 1'000'000;
-  st.has_arm = 1;
-  std::strcpy(st.fault_text, "3 timeouts in a row on 127.0.0.1:1502");
-  st.fault_node = -1;  // the bus as a whole
+  st.hands = 2;
+  HandStatus& r = st.hand[0];
+  r.tool = {0.001, 0.002, -0.003};
+  r.force = {0, 0, 1.5};
+  r.force_scale = 1;
+  r.contact = 1;
+  r.device_state = device::Lifecycle::kFault;
+  r.device_fault_cause = device::IoStatus::kTimeout;
+  r.device_errors = 7;
+  r.has_arm = 1;
+  std::strcpy(r.fault_text, "3 timeouts in a row on 127.0.0.1:1502");
+  r.fault_node = -1;  // the bus as a whole
+  HandStatus& l = st.hand[1];  // the left hand: the built-in stylus, holding a scalpel
+  l.tool = {0.0, 0.04, 0.02};
+  l.force_scale = 1;
+  l.mode = ToolMode::kScalpel;
   ch.value().state().rt_status.write(st);
   const auto [code, out] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.2, 20, f); });
   EXPECT_EQ(code, 0);
-  EXPECT_NE(out.find("tool    1.00    2.00   -3.00 mm"), std::string::npos) << out;
-  EXPECT_NE(out.find("force   0.00   0.00   1.50 N (x1.00) contact"), std::string::npos) << out;
+  // A line for each hand.
+  EXPECT_NE(out.find("right: tool    1.00    2.00   -3.00 mm"), std::string::npos) << out;
+  EXPECT_NE(out.find("force   0.00   0.00   1.50 N (x1.00) contact  probe"), std::string::npos) << out;
   EXPECT_NE(out.find("arm fault (timeout): 3 timeouts in a row on 127.0.0.1:1502  errors 7"), std::string::npos) << out;
+  EXPECT_NE(out.find("left:  tool    0.00   40.00   20.00 mm  force   0.00   0.00   0.00 N (x1.00)  scalpel  arm built-in simulated stylus  errors 0"),
+            std::string::npos) << out;
   // --json: one object a line, for rigs and scripts (scripts/soak reads it).
   const auto [jcode, jout] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.2, 20, f, true); });
   EXPECT_EQ(jcode, 0);
@@ -162,15 +171,21 @@ TEST_F(Bringup, MonitorFollowsARunningServoThroughSharedMemory) {
   EXPECT_NE(first.find("\"device_state\": \"fault\", \"fault_cause\": \"timeout\""), std::string::npos) << first;
   EXPECT_NE(first.find("\"fault_text\": \"3 timeouts in a row on 127.0.0.1:1502\""), std::string::npos) << first;
   EXPECT_NE(first.find("\"device_errors\": 7"), std::string::npos) << first;
+  // Each hand's, in "hands" (the top-level keys are the right hand's).
+  EXPECT_NE(first.find("\"hand_count\": 2, \"hands\": [{\"hand\": \"right\", \"force_n\": [0, 0, 1.5]"), std::string::npos) << first;
+  EXPECT_NE(first.find("{\"hand\": \"left\", \"force_n\": [0, 0, 0], \"force_scale\": 1, \"contact\": false, \"tool_mm\": [0, 40, 20], "
+                       "\"tool\": \"scalpel\""),
+            std::string::npos)
+      << first;
   // What lancet-rt's segment says is checked before it is printed: no "inf", no 3e142 N.
-  st.force = {3e142, 0, 0};
+  st.hand[1].force = {3e142, 0, 0};  // the left hand's is checked as the right's
   ch.value().state().rt_status.write(st);
   const auto [code2, out2] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f); });
   EXPECT_EQ(code2, 0);
-  EXPECT_NE(out2.find("status rejected (rt_status.force: not finite or above 1000 N)"), std::string::npos) << out2;
+  EXPECT_NE(out2.find("status rejected (rt_status.hand[].force: not finite or above 1000 N)"), std::string::npos) << out2;
   EXPECT_EQ(out2.find("e+142"), std::string::npos) << out2;
   const auto [jcode2, jout2] = capture([&](std::FILE* f) { return run_monitor_rt(shm, 0.15, 20, f, true); });
-  EXPECT_NE(jout2.find("\"rejected\": \"rt_status.force: not finite or above 1000 N\""), std::string::npos) << jout2;
+  EXPECT_NE(jout2.find("\"rejected\": \"rt_status.hand[].force: not finite or above 1000 N\""), std::string::npos) << jout2;
   EXPECT_EQ(jout2.find("e+142"), std::string::npos) << jout2;
   // A lancet-rt whose servo stopped ticking: its last status is not presented as the arm's state.
   ch.value().state().rt_heartbeat.beat(monotonic_ns() - 2'000'000'000, static_cast<std::int32_t>(getpid()));
@@ -188,27 +203,38 @@ TEST_F(Bringup, RearmShowsTheFaultAsksAndSendsASealedRequest) {
   SharedState& shared = ch.value().state();
   RtStatus st{};
   st.period_ns = 1'000'000;
-  st.force_scale = 1;
-  st.has_arm = 1;
-  st.device_state = device::Lifecycle::kActive;
+  st.hands = 2;
+  for (HandStatus& h : st.hand) {
+    h.force_scale = 1;
+    h.has_arm = 1;
+    h.device_state = device::Lifecycle::kActive;
+  }
   shared.rt_status.write(st);
   auto [idle, idle_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, nullptr, f); });
   EXPECT_EQ(idle, 0);
   EXPECT_NE(idle_out.find("nothing to re-arm"), std::string::npos) << idle_out;
 
-  st.device_state = device::Lifecycle::kFault;
-  st.device_fault_cause = device::IoStatus::kDeviceFault;
-  std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
-  st.fault_node = 1;
-  st.fault_code = 0x2310;
+  HandStatus& left = st.hand[1];
+  left.device_state = device::Lifecycle::kFault;
+  left.device_fault_cause = device::IoStatus::kDeviceFault;
+  std::strcpy(left.fault_text, "node 1: EMCY 0x2310 continuous over-current");
+  left.fault_node = 1;
+  left.fault_code = 0x2310;
   shared.rt_status.write(st);
+  // Only the right hand asked for: its arm is active, nothing to do.
+  auto [right_only, right_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, nullptr, f, "right"); });
+  EXPECT_EQ(right_only, 0);
+  EXPECT_NE(right_out.find("nothing to re-arm"), std::string::npos) << right_out;
+  EXPECT_EQ(right_out.find("left arm"), std::string::npos) << right_out;
+  EXPECT_EQ(capture([&](std::FILE* f) { return run_rearm_rt(shm, true, 0.2, nullptr, f, "middle"); }).first, 2);
   // Asked, answered "no": nothing is sent.
   std::FILE* no = fmemopen(const_cast<char*>("no\n"), 3, "r");
   auto [refused, refused_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, false, 0.2, no, f); });
   std::fclose(no);
   EXPECT_EQ(refused, 1);
-  EXPECT_NE(refused_out.find("arm: fault (device fault): node 1: EMCY 0x2310 continuous over-current\n"), std::string::npos)
+  EXPECT_NE(refused_out.find("left arm: fault (device fault): node 1: EMCY 0x2310 continuous over-current\n"), std::string::npos)
       << refused_out;
+  EXPECT_NE(refused_out.find("right arm: active\n"), std::string::npos) << refused_out;
   EXPECT_NE(refused_out.find("Type 'yes' to re-arm"), std::string::npos) << refused_out;
   EXPECT_NE(refused_out.find("not re-armed"), std::string::npos) << refused_out;
   EXPECT_EQ(shared.operator_request.version(), 0u);
@@ -220,6 +246,18 @@ TEST_F(Bringup, RearmShowsTheFaultAsksAndSendsASealedRequest) {
   ASSERT_EQ(shared.operator_request.try_read(req), ReadStatus::kOk);
   EXPECT_EQ(wire::check(req, monotonic_ns()), nullptr);
   EXPECT_EQ(req.pid, static_cast<std::int32_t>(getpid()));
+  EXPECT_EQ(req.hands, 0b11) << "both hands by default";
+  // --hand left: the request names the left hand only.
+  (void)capture([&](std::FILE* f) { return run_rearm_rt(shm, true, 0.2, nullptr, f, "left"); });
+  ASSERT_EQ(shared.operator_request.try_read(req), ReadStatus::kOk);
+  EXPECT_EQ(wire::check(req, monotonic_ns()), nullptr);
+  EXPECT_EQ(req.hands, 0b10);
+  // A lancet-rt driving one hand has no left arm to re-arm.
+  st.hands = 1;
+  shared.rt_status.write(st);
+  const auto [one, one_out] = capture([&](std::FILE* f) { return run_rearm_rt(shm, true, 0.2, nullptr, f, "left"); });
+  EXPECT_EQ(one, 2);
+  EXPECT_NE(one_out.find("--hand left: lancet-rt on " + shm + " drives 1 hand (right)"), std::string::npos) << one_out;
 }
 
 TEST_F(Bringup, JogNeedsConfirmationAndStaysWithinItsBounds) {

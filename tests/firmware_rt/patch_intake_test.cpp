@@ -45,7 +45,7 @@ TEST(PatchIntake, InTheTickAPublishedPatchIsHandedOverWithItsTree) {
   EXPECT_EQ(intake.take(), nullptr);
   const std::int64_t now = monotonic_ns();
   auto p = sheet(64, 64, now);  // 8192 triangles
-  shared->patch.publish_prefix(*p, tissue_patch_bytes(*p));
+  shared->patch[0].publish_prefix(*p, tissue_patch_bytes(*p));
   ASSERT_TRUE(intake.poll(now));
   const ReadyPatch* r = intake.take();
   ASSERT_NE(r, nullptr);
@@ -65,13 +65,13 @@ TEST(PatchIntake, OfTwoPatchesReadyBeforeTheServoLooksItGetsTheNewerAndKeepsItsO
   PatchIntake intake(*shared, kPeriod);
   const std::int64_t now = monotonic_ns();
   auto a = sheet(4, 4, now, 0.0f), b = sheet(4, 4, now, 0.01f), c = sheet(4, 4, now, 0.02f);
-  shared->patch.publish(*a);
+  shared->patch[0].publish(*a);
   ASSERT_TRUE(intake.poll(now));
   const ReadyPatch* first = intake.take();
   ASSERT_NE(first, nullptr);
-  shared->patch.publish(*b);
+  shared->patch[0].publish(*b);
   ASSERT_TRUE(intake.poll(now));
-  shared->patch.publish(*c);
+  shared->patch[0].publish(*c);
   ASSERT_TRUE(intake.poll(now));
   // The servo's buffer was never written while it held it.
   EXPECT_EQ(first->version, 1u);
@@ -87,11 +87,11 @@ TEST(PatchIntake, ABadPatchIsCountedAndNeverHandedOver) {
   PatchIntake intake(*shared, kPeriod);
   const std::int64_t now = monotonic_ns();
   auto good = sheet(4, 4, now);
-  shared->patch.publish(*good);
+  shared->patch[0].publish(*good);
   ASSERT_TRUE(intake.poll(now));
   auto bad = sheet(4, 4, now);
   bad->triangles[5].v[1].y = std::nanf("");
-  shared->patch.publish(*bad);
+  shared->patch[0].publish(*bad);
   EXPECT_FALSE(intake.poll(now));
   EXPECT_EQ(intake.counters().rejected.load(), 1u);
   ASSERT_NE(intake.counters().last_reject.load(), nullptr);
@@ -110,7 +110,7 @@ TEST(PatchIntake, TheServosTakeAllocatesNothing) {
   test::MallocGuard guard;
   for (int k = 0; k < 20; ++k) {
     p->t_ns = now;
-    shared->patch.publish(*p);
+    shared->patch[0].publish(*p);
     (void)intake.poll(now);
     (void)intake.take();
   }
@@ -126,7 +126,7 @@ TEST(PatchIntakeThread, EveryPublishedPatchReachesTheServoFromTheHelperThread) {
   ASSERT_TRUE(intake.threaded()) << said;
   for (std::uint64_t k = 1; k <= 20; ++k) {
     auto p = sheet(32, 32, monotonic_ns(), 0.001f * static_cast<float>(k));
-    shared->patch.publish_prefix(*p, tissue_patch_bytes(*p));
+    shared->patch[0].publish_prefix(*p, tissue_patch_bytes(*p));
     const ReadyPatch* r = nullptr;
     ASSERT_TRUE(test::eventually([&] {
       test::MallocGuard guard;
@@ -156,7 +156,7 @@ TEST(PatchIntakeThread, AWriterFlatOutCostsTheHelperAtMostOnePatchAPeriod) {
   // Until the helper has taken a few and the writer has published several times as many.
   while (intake.counters().taken.load() < 5 || published < 3 * intake.counters().taken.load() + 100) {
     p->t_ns = monotonic_ns();
-    shared->patch.publish(*p);
+    shared->patch[0].publish(*p);
     ++published;
     ASSERT_LT(monotonic_ns() - t0, std::chrono::nanoseconds(test::kHangTimeout).count())
         << "the helper took fewer than 5 patches: taken " << intake.counters().taken.load() << ", busy "
@@ -186,9 +186,9 @@ TEST(PatchIntakeThread, TheServoUsesTheIntakesTreeAndBuildsNoneInItsTick) {
   auto p = sheet(64, 64, t, -0.003f);  // the scripted stylus presses into it
   for (std::uint64_t k = 1; k <= 5; ++k) {
     p->t_ns = monotonic_ns();
-    shared->patch.publish_prefix(*p, tissue_patch_bytes(*p));
+    shared->patch[0].publish_prefix(*p, tissue_patch_bytes(*p));
     ASSERT_TRUE(test::eventually([&] {
-      t += model.servo.period_ns;
+      t += model.period_ns;
       shared->viz_heartbeat.beat(t, 1);
       test::MallocGuard guard;
       servo.tick(rt::TickContext{t, t, ++n, watchdog, live});
@@ -198,9 +198,31 @@ TEST(PatchIntakeThread, TheServoUsesTheIntakesTreeAndBuildsNoneInItsTick) {
       return s.patch_version == k;
     })) << "patch " << k << " never reached the tick";
   }
-  EXPECT_EQ(servo.data().patch_version, 5u);
-  EXPECT_EQ(servo.data().servo.haptic.patch_version, 5u);
-  EXPECT_EQ(servo.data().servo.haptic.bvh.version, 0u) << "the step built a tree the intake had built";
+  EXPECT_EQ(servo.hand(Hand::kRight).patch_version, 5u);
+  EXPECT_EQ(servo.hand(Hand::kRight).servo.haptic.patch_version, 5u);
+  EXPECT_EQ(servo.hand(Hand::kRight).servo.haptic.bvh.version, 0u) << "the step built a tree the intake had built";
+}
+
+TEST(PatchIntake, EachHandsIntakeTakesOnlyItsOwnBufferAndOnlyPatchesThatSayItsHand) {
+  auto shared = std::make_unique<SharedState>();
+  PatchIntake right(*shared, kPeriod, Hand::kRight);
+  PatchIntake left(*shared, kPeriod, Hand::kLeft);
+  const std::int64_t now = monotonic_ns();
+  auto p = sheet(4, 4, now);
+  p->hand = Hand::kLeft;
+  shared->patch[hand_index(Hand::kLeft)].publish(*p);
+  EXPECT_FALSE(right.poll(now)) << "the right hand's buffer is empty";
+  ASSERT_TRUE(left.poll(now));
+  ASSERT_NE(left.take(), nullptr);
+  EXPECT_EQ(left.take()->patch.hand, Hand::kLeft);
+  // A patch cut out for the right hand, published in the left hand's buffer, is rejected.
+  p->hand = Hand::kRight;
+  shared->patch[hand_index(Hand::kLeft)].publish(*p);
+  EXPECT_FALSE(left.poll(now));
+  EXPECT_EQ(left.counters().rejected.load(), 1u);
+  EXPECT_STREQ(left.counters().last_reject.load(), "patch.hand: not the hand whose buffer it came in");
+  EXPECT_EQ(left.take()->version, 1u) << "the patch in use stays";
+  EXPECT_EQ(right.counters().rejected.load(), 0u);
 }
 
 }  // namespace

@@ -257,7 +257,7 @@ TEST(RtLoop, OnTheRealClockEveryDeadlineIsATickOrAnOverrunAndNoneWakesEarly) {
 }
 
 TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
-  // The real tick (servo + contact + samples) on a fast loop: 10 000 ticks at 10 kHz.
+  // The real tick (servo + contact + samples, two hands) on a fast loop: 10 000 ticks at 10 kHz.
   LoopParams p;
   p.period_ns = 100'000;
   p.duration_ns = 1'000'000'000;
@@ -265,14 +265,17 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
   p.max_windows = 16;
   auto shared = std::make_unique<SharedState>();
   app::RtModel model;
-  model.servo.period_ns = p.period_ns;
+  model.hands = 2;
+  model.period_ns = p.period_ns;
   app::RtServo servo(model, *shared, monotonic_ns());
   auto patch = std::make_unique<TissuePatch>();
   patch->n_triangles = 2;
   patch->triangles[0] = {{{-0.1f, -0.1f, 0}, {0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}}, 1, 0, 0};
   patch->triangles[1] = {{{-0.1f, -0.1f, 0}, {0.1f, 0.1f, 0}, {-0.1f, 0.1f, 0}}, 1, 0, 1};
   patch->t_ns = monotonic_ns();  // a patch must be stamped (and not from the future) to be taken
-  shared->patch.publish(*patch);
+  shared->patch[0].publish(*patch);
+  patch->hand = Hand::kLeft;
+  shared->patch[1].publish(*patch);
   RtLoop loop(p);
   std::size_t allocations = 1;
   // Set up as lancet-rt does: mlockall (which maps every page, code included, before the loop;
@@ -306,7 +309,8 @@ TEST(RtLoop, TenThousandServoTicksAllocateNothingAndFaultNoPage) {
     EXPECT_EQ(loop.stats().minor_faults, 0) << "page faults inside the loop after warm-up";
     EXPECT_EQ(loop.stats().major_faults, 0);
   }
-  EXPECT_GT(servo.data().servo.contact_ticks, 0u);
+  EXPECT_GT(servo.hand(Hand::kRight).servo.contact_ticks, 0u);
+  EXPECT_EQ(servo.hand(Hand::kLeft).patch_version, 1u) << "the left hand stepped against its own patch too";
 }
 
 // In a child that has dropped its privileges: what does the setup report?

@@ -91,10 +91,13 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
       *arm, [&] { return ticks_while_granted.load(); }, kTicksHeld, [&] { return done.load(); });
   ASSERT_TRUE(gated.configure().ok());
   ASSERT_TRUE(gated.activate().ok());
+  // The gated arm is the right hand's; the left hand's built-in stylus ticks beside it.
   RtModel model;
-  model.servo.kinematics = kin;
-  model.servo.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
-  for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) model.servo.max_joint_torque[j] = config.safety.max_joint_torque[j];
+  model.hands = 2;
+  servo::ServoModel& right = model.hand[0].servo;
+  right.kinematics = kin;
+  right.device_origin = 0.5 * (config.safety.workspace_min + config.safety.workspace_max);
+  for (std::size_t j = 0; j < config.safety.max_joint_torque.size(); ++j) right.max_joint_torque[j] = config.safety.max_joint_torque[j];
   auto shared = std::make_unique<SharedState>();
   std::int64_t t = 1'000'000'000;
   RtServo servo(model, *shared, t, &gated);
@@ -108,10 +111,10 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
     int quiet_ticks = 0;
     while (faults_injected.load() < kFaults || servo.data().rearms < static_cast<std::uint64_t>(kFaults)) {
       if (n > 2'000'000) break;  // a hang would fail the expectations below, not the test runner
-      t += model.servo.period_ns;
+      t += model.period_ns;
       shared->viz_heartbeat.beat(t, 1);
       // The device is the servo's only while the handover is idle: inject then, and only then.
-      const bool idle = servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kIdle);
+      const bool idle = servo.hand(Hand::kRight).handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kIdle);
       if (idle && ++quiet_ticks > 50 && gated.state() == device::Lifecycle::kActive && faults_injected.load() < kFaults) {
         arm->inject(device::IoStatus::kDeviceFault, 1);
         faults_injected.fetch_add(1);
@@ -127,15 +130,24 @@ TEST(RtServoThreads, ReArmHandshakeBetweenTheServoAndTheSupervisorThreads) {
         (void)shared->commands.try_push(c);
       }
       servo.tick(rt::TickContext{t, t, ++n, watchdog, live});
-      ToolSample s{};
+      ToolSample s{}, popped{};
       bool sampled = false;
-      while (shared->samples.try_pop(s)) sampled = true;
-      if (servo.data().handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kGranted)) {
+      std::uint64_t left_samples = 0;
+      while (shared->samples.try_pop(popped)) {
+        if (popped.hand == Hand::kRight) {
+          s = popped;
+          sampled = true;
+        } else {
+          ++left_samples;
+        }
+      }
+      EXPECT_EQ(left_samples, 1u) << "the left hand ticks on, whatever the right arm does";
+      if (servo.hand(Hand::kRight).handover.load(std::memory_order_acquire) == static_cast<int>(Handover::kGranted)) {
         ticks_while_granted.fetch_add(1);
         // The servo must not have touched the device this tick: it reports kFault without a read
         // or a write, says so in its sample, and commands no force.
-        EXPECT_EQ(servo.data().last_read, device::IoStatus::kFault);
-        EXPECT_EQ(servo.data().last_write, device::IoStatus::kFault);
+        EXPECT_EQ(servo.hand(Hand::kRight).last_read, device::IoStatus::kFault);
+        EXPECT_EQ(servo.hand(Hand::kRight).last_write, device::IoStatus::kFault);
         EXPECT_TRUE(sampled) << "the servo ticks on while the device is held";
         EXPECT_NE(s.inputs & input::kDeviceHeld, 0u);
         EXPECT_EQ(s.force, Vec3{});

@@ -72,7 +72,7 @@ TEST(ArmsimModbus, LancetRtRendersForcesOnTheSimulatedArmOverModbusTcp) {
   RtStatus st{};
   const auto pushing = [&] {
     if (ch->state().rt_status.try_read(st) != ReadStatus::kOk || wire::check(st) != nullptr) return false;
-    return st.patch_version > 0 && st.contact != 0 && std::hypot(st.force.x, st.force.y, st.force.z) > 0.2;
+    return st.hand[0].patch_version > 0 && st.hand[0].contact != 0 && std::hypot(st.hand[0].force.x, st.hand[0].force.y, st.hand[0].force.z) > 0.2;
   };
   const bool pushed = test::eventually(pushing, 2 * test::kHangTimeout, std::chrono::milliseconds(1));
   rt.signal(SIGTERM);

@@ -246,9 +246,9 @@ TEST_F(ArmsimWatchdog, LancetRtRidesOutOccasionalLateRepliesWithoutAFault) {
   ASSERT_FALSE(port.empty()) << read_file(path("armsim.log"));
   auto rt = start_rt(write_config(port));
   RtStatus st{};
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.bus.stale_replies >= 3 || s.bus.faults > 0; }, st)) << read_file(path("rt.log"));
-  EXPECT_EQ(st.device_state, kActive) << read_file(path("rt.log"));
-  EXPECT_EQ(st.bus.faults, 0u) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].bus.stale_replies >= 3 || s.hand[0].bus.faults > 0; }, st)) << read_file(path("rt.log"));
+  EXPECT_EQ(st.hand[0].device_state, kActive) << read_file(path("rt.log"));
+  EXPECT_EQ(st.hand[0].bus.faults, 0u) << read_file(path("rt.log"));
   rt->signal(SIGTERM);
   const auto code = rt->wait_exit(test::kHangTimeout);
   const std::string log = read_file(path("rt.log"));

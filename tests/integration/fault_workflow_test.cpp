@@ -108,12 +108,12 @@ TEST_F(FaultWorkflow, EncoderGlitchesAreCountedAndAnnouncedAndRepeatedOnesFaultT
   ASSERT_FALSE(port.empty()) << read_file(path("armsim1.log"));
   auto rt = start_rt(write_config(port));
   RtStatus st{};
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.bus.glitches >= 1 || s.bus.faults > 0; }, st)) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].bus.glitches >= 1 || s.hand[0].bus.faults > 0; }, st)) << read_file(path("rt.log"));
   // And lancet-rt goes on: a few hundred good readings after it, still active.
-  const std::uint64_t reads_at_glitch = st.bus.reads;
-  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.bus.reads >= reads_at_glitch + 300 || s.bus.faults > 0; }, st))
+  const std::uint64_t reads_at_glitch = st.hand[0].bus.reads;
+  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.hand[0].bus.reads >= reads_at_glitch + 300 || s.hand[0].bus.faults > 0; }, st))
       << read_file(path("rt.log"));
-  EXPECT_EQ(st.device_state, kActive) << read_file(path("rt.log"));
+  EXPECT_EQ(st.hand[0].device_state, kActive) << read_file(path("rt.log"));
   EXPECT_TRUE(wait_log("encoder glitches (last: joint")) << read_file(path("rt.log"));
   ASSERT_TRUE(stop_rt(*rt).has_value()) << read_file(path("rt.log"));
   std::string log = read_file(path("rt.log")), stats = read_file(path("rt.json"));
@@ -129,7 +129,7 @@ TEST_F(FaultWorkflow, EncoderGlitchesAreCountedAndAnnouncedAndRepeatedOnesFaultT
   auto often = start_armsim("0", extra, "armsim2.log", port);
   ASSERT_FALSE(port.empty()) << read_file(path("armsim2.log"));
   rt = start_rt(write_config(port));
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kFault; }, st)) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].device_state == kFault; }, st)) << read_file(path("rt.log"));
   EXPECT_TRUE(wait_log("lancetctl rearm --rt " + shm_)) << read_file(path("rt.log"));
   ASSERT_TRUE(stop_rt(*rt).has_value()) << read_file(path("rt.log"));
   log = read_file(path("rt.log"));
@@ -149,30 +149,30 @@ TEST_F(FaultWorkflow, ALostBusIsReconnectedAndTheArmWaitsForAnExplicitRearmFromL
   ASSERT_FALSE(port.empty()) << read_file(path("armsim1.log"));
   auto rt = start_rt(write_config(port));
   RtStatus st{};
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kActive && s.tick > 200; }, st)) << read_file(path("rt.log"));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].device_state == kActive && s.tick > 200; }, st)) << read_file(path("rt.log"));
 
   // The arm's box dies.
   kill(sim->pid(), SIGKILL);
   (void)sim->wait_exit(test::kHangTimeout);
   ASSERT_TRUE(wait_log("FAULT on modbus arm")) << read_file(path("rt.log"));
   EXPECT_TRUE(wait_log("bus link lost; reconnecting")) << read_file(path("rt.log"));
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kFault && s.link_lost == 1; }, st));
-  EXPECT_EQ(st.force.x, 0.0);
-  EXPECT_EQ(st.force.y, 0.0);
-  EXPECT_EQ(st.force.z, 0.0);
-  EXPECT_GE(st.bus.disconnects + st.bus.timeouts, 1u);
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].device_state == kFault && s.hand[0].link_lost == 1; }, st));
+  EXPECT_EQ(st.hand[0].force.x, 0.0);
+  EXPECT_EQ(st.hand[0].force.y, 0.0);
+  EXPECT_EQ(st.hand[0].force.z, 0.0);
+  EXPECT_GE(st.hand[0].bus.disconnects + st.hand[0].bus.timeouts, 1u);
 
   // It comes back on the same port: lancet-rt reconnects by itself, but does not re-arm.
   std::string port2;
   auto sim2 = start_armsim(port, {}, "armsim2.log", port2);
   ASSERT_EQ(port2, port) << read_file(path("armsim2.log"));
   ASSERT_TRUE(wait_log("bus link back after")) << read_file(path("rt.log"));
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.link_lost == 0; }, st));
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].link_lost == 0; }, st));
   // Some hundreds of ticks on the link that is back: still faulted.
   const std::uint64_t tick_back = st.tick;
-  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.tick >= tick_back + 500 || s.device_state != kFault; }, st));
-  EXPECT_EQ(st.device_state, kFault) << "a reconnect never re-arms";
-  EXPECT_GE(st.bus.reconnects, 1u);
+  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.tick >= tick_back + 500 || s.hand[0].device_state != kFault; }, st));
+  EXPECT_EQ(st.hand[0].device_state, kFault) << "a reconnect never re-arms";
+  EXPECT_GE(st.hand[0].bus.reconnects, 1u);
 
   // The operator re-arms from the command line.
   Child ctl({kBin + "/firmware_rt/lancetctl", "rearm", "--rt", shm_, "--yes", "--timeout", "30"}, path("rearm.log"));
@@ -181,8 +181,8 @@ TEST_F(FaultWorkflow, ALostBusIsReconnectedAndTheArmWaitsForAnExplicitRearmFromL
   ASSERT_TRUE(ctl_code.has_value() && WIFEXITED(*ctl_code)) << ctl_out;
   EXPECT_EQ(WEXITSTATUS(*ctl_code), 0) << ctl_out;
   EXPECT_NE(ctl_out.find("arm: fault ("), std::string::npos) << "the fault is shown first\n" << ctl_out;
-  EXPECT_NE(ctl_out.find("rearm: re-armed: arm active"), std::string::npos) << ctl_out;
-  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.device_state == kActive; }, st));
+  EXPECT_NE(ctl_out.find("rearm: re-armed: right arm active"), std::string::npos) << ctl_out;
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[0].device_state == kActive; }, st));
   EXPECT_TRUE(wait_log("re-arm requested by an operator"));
   EXPECT_TRUE(wait_log("re-armed: active")) << read_file(path("rt.log"));
 

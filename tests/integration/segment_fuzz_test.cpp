@@ -77,14 +77,19 @@ TEST(SegmentFuzz, BothProcessesSurviveRandomBytesAcrossTheLiveSegment) {
     RtStatus st{};
     return state.rt_status.try_read(st) == ReadStatus::kOk ? st : RtStatus{};
   };
-  ASSERT_TRUE(test::eventually([&] { return status().viz_alive != 0 && status().patch_version != 0; }))
+  ASSERT_TRUE(test::eventually([&] { return status().viz_alive != 0 && status().hand[0].patch_version != 0; }))
       << read_file(path("viz.log"));
 
   std::vector<Region> regions;
   add_ring<decltype(SharedState::samples)>(regions, "samples", offsetof(SharedState, samples));
   add_ring<decltype(SharedState::commands)>(regions, "commands", offsetof(SharedState, commands));
-  add_seqlock<decltype(SharedState::patch)>(regions, "patch", offsetof(SharedState, patch), 4);
-  add_seqlock<decltype(SharedState::stylus_target)>(regions, "stylus_target", offsetof(SharedState, stylus_target), 3);
+  // Each hand's patch and stylus target.
+  using PatchBuffer = std::remove_extent_t<decltype(SharedState::patch)>;
+  using TargetLock = std::remove_extent_t<decltype(SharedState::stylus_target)>;
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    add_seqlock<PatchBuffer>(regions, "patch", offsetof(SharedState, patch) + h * sizeof(PatchBuffer), 4);
+    add_seqlock<TargetLock>(regions, "stylus_target", offsetof(SharedState, stylus_target) + h * sizeof(TargetLock), 3);
+  }
   add_seqlock<decltype(SharedState::rt_status)>(regions, "rt_status", offsetof(SharedState, rt_status), 3);
   add_seqlock<decltype(SharedState::operator_request)>(regions, "operator_request", offsetof(SharedState, operator_request), 2);
   regions.push_back({"rt_heartbeat", offsetof(SharedState, rt_heartbeat), sizeof(Heartbeat), 2});

@@ -304,19 +304,22 @@ TEST(SharedChannel, CreateThenOpenSharesTheState) {
   ASSERT_TRUE(viz.state().commands.try_push(c));
   StylusTarget t{};
   t.active = 1;
+  t.hand = Hand::kLeft;
   t.target.position = {0.1, 0.2, 0.3};
-  viz.state().stylus_target.write(t);
+  viz.state().stylus_target[hand_index(Hand::kLeft)].write(t);
 
   Command cmd{};
   ASSERT_TRUE(rt.state().commands.try_pop(cmd));
   EXPECT_EQ(cmd.seq, 7u);
   EXPECT_EQ(cmd.mode, ToolMode::kDrill);
   StylusTarget target{};
-  ASSERT_EQ(rt.state().stylus_target.try_read(target), ReadStatus::kOk);
+  EXPECT_EQ(rt.state().stylus_target[hand_index(Hand::kRight)].try_read(target), ReadStatus::kEmpty) << "each hand has its own";
+  ASSERT_EQ(rt.state().stylus_target[hand_index(Hand::kLeft)].try_read(target), ReadStatus::kOk);
   EXPECT_EQ(target.target.position, (Vec3{0.1, 0.2, 0.3}));
-  // The patch was never written.
+  EXPECT_EQ(target.hand, Hand::kLeft);
+  // The patches were never written.
   auto patch = std::make_unique<TissuePatch>();
-  EXPECT_EQ(rt.state().patch.try_read(*patch), ReadStatus::kEmpty);
+  for (auto& p : rt.state().patch) EXPECT_EQ(p.try_read(*patch), ReadStatus::kEmpty);
 }
 
 TEST(SharedChannel, OpenWithoutACreatorIsNotFound) {

@@ -56,16 +56,85 @@ TEST(WireCheck, ValidMessagesPass) {
   EXPECT_EQ(check(s), nullptr);
   RtStatus st{};
   st.period_ns = 1'000'000;
-  st.force_scale = 1;
-  st.device_state = DeviceLifecycle::kFault;
-  std::strcpy(st.fault_text, "node 1: EMCY 0x2310 continuous over-current");
+  st.hands = 2;
+  st.hand[0].force_scale = 1;
+  st.hand[1].device_state = DeviceLifecycle::kFault;
+  std::strcpy(st.hand[1].fault_text, "node 1: EMCY 0x2310 continuous over-current");
   EXPECT_EQ(check(st), nullptr);
   OperatorRequest r{};
   r.seq = 9;
   r.t_ns = kNow;
   r.kind = kOperatorRearm;
+  r.hands = 0b10;
   seal(r);
   EXPECT_EQ(check(r, kNow), nullptr);
+}
+
+// Two hands: every message that names a hand names one that exists (left or right), and an
+// operator request names at least one.
+TEST(WireCheck, HandsMustBeRightOrLeft) {
+  const auto bad_hand = static_cast<Hand>(2);
+  Command c = good_command();
+  c.hand = Hand::kLeft;
+  seal(c);
+  EXPECT_EQ(check(c), nullptr);
+  c.hand = bad_hand;
+  seal(c);
+  EXPECT_STREQ(check(c), "command.hand: neither right nor left");
+
+  StylusTarget t{};
+  t.t_ns = kNow;
+  t.active = 1;
+  t.hand = Hand::kLeft;
+  EXPECT_EQ(check(t, kNow), nullptr);
+  std::memset(&t.hand, 0xff, 1);
+  EXPECT_STREQ(check(t, kNow), "stylus_target.hand: neither right nor left");
+
+  auto p = good_patch();
+  p->hand = Hand::kLeft;
+  EXPECT_EQ(check(*p, kNow), nullptr);
+  p->hand = bad_hand;
+  EXPECT_STREQ(check(*p, kNow), "patch.hand: neither right nor left");
+
+  ToolSample s{};
+  s.hand = Hand::kLeft;
+  EXPECT_EQ(check(s), nullptr);
+  s.hand = bad_hand;
+  EXPECT_STREQ(check(s), "sample.hand: neither right nor left");
+
+  OperatorRequest r{};
+  r.seq = 1;
+  r.t_ns = kNow;
+  r.kind = kOperatorRearm;
+  for (const std::uint8_t hands : {0b01, 0b10, 0b11}) {
+    r.hands = hands;
+    seal(r);
+    EXPECT_EQ(check(r, kNow), nullptr) << int{hands};
+  }
+  for (const std::uint8_t hands : {0b000, 0b100, 0b101, 0xff}) {
+    r.hands = hands;
+    seal(r);
+    EXPECT_STREQ(check(r, kNow), "operator_request.hands: no hand, or an unknown one") << int{hands};
+  }
+  r.hands = 0b01;
+  seal(r);
+  r.hands = 0b11;  // changed after sealing: which hands is covered by the check
+  EXPECT_NE(check(r, kNow), nullptr);
+
+  RtStatus st{};
+  st.period_ns = 1'000'000;
+  for (const std::uint32_t hands : {0u, 3u, 0xffffffffu}) {
+    st.hands = hands;
+    EXPECT_STREQ(check(st), "rt_status.hands: not 1 or 2") << hands;
+  }
+  st.hands = 1;
+  EXPECT_EQ(check(st), nullptr);
+  // Every HandStatus is checked, the unused one too (its bytes are printed like the others).
+  st.hand[1].force = {kNan, 0, 0};
+  EXPECT_NE(check(st), nullptr);
+  st.hand[1].force = {};
+  std::memset(&st.hand[1].mode, 40, 1);
+  EXPECT_STREQ(check(st), "rt_status.hand[].mode: unknown tool");
 }
 
 TEST(WireCheck, CommandsMustBeSealedKnownAndPhysical) {
@@ -181,23 +250,29 @@ TEST(WireCheck, SampleAndStatusDamageIsCaughtBeforeAnythingIsPrinted) {
 
   RtStatus st{};
   st.period_ns = 1'000'000;
-  st.force = {std::numeric_limits<double>::infinity(), 0, 0};  // what lancet-viz printed as "inf"
+  st.hands = 2;
+  HandStatus& left = st.hand[1];  // the left hand's damage is caught as the right's is
+  left.force = {std::numeric_limits<double>::infinity(), 0, 0};  // what lancet-viz printed as "inf"
   EXPECT_NE(check(st), nullptr);
-  st.force = {};
-  st.force_scale = 1.5;
+  left.force = {};
+  left.force_scale = 1.5;
   EXPECT_NE(check(st), nullptr);
-  st.force_scale = 1;
-  std::memset(st.fault_text, 'A', sizeof st.fault_text);  // no terminator
+  left.force_scale = 1;
+  std::memset(left.fault_text, 'A', sizeof left.fault_text);  // no terminator
   EXPECT_NE(check(st), nullptr);
-  std::strcpy(st.fault_text, "\x1b[2Jgotcha");  // a terminal escape
+  std::strcpy(left.fault_text, "\x1b[2Jgotcha");  // a terminal escape
   EXPECT_NE(check(st), nullptr);
-  st.fault_text[0] = '\0';
-  std::memset(&st.device_state, 9, 1);  // a peer's garbage in the state's byte
+  left.fault_text[0] = '\0';
+  std::memset(&left.device_state, 9, 1);  // a peer's garbage in the state's byte
   EXPECT_NE(check(st), nullptr);
-  st.device_state = DeviceLifecycle::kUnconfigured;
-  std::memset(&st.device_fault_cause, 0x7f, 1);
+  left.device_state = DeviceLifecycle::kUnconfigured;
+  std::memset(&left.device_fault_cause, 0x7f, 1);
   EXPECT_NE(check(st), nullptr);
-  st.device_fault_cause = IoStatus::kOk;
+  left.device_fault_cause = IoStatus::kOk;
+  EXPECT_EQ(check(st), nullptr);
+  st.hand[0].contact = 2;
+  EXPECT_NE(check(st), nullptr);
+  st.hand[0].contact = 1;
   std::memset(&st.watchdog_reason, 3, 1);
   EXPECT_NE(check(st), nullptr);
   st.watchdog_reason = WatchdogReason::kNone;
@@ -220,6 +295,7 @@ TEST(WireCheck, TargetsAndRequestsFromTheFutureOrStaleAreCaught) {
   r.seq = 1;
   r.t_ns = kNow + 10 * kFutureSlackNs;
   r.kind = kOperatorRearm;
+  r.hands = 0b11;
   seal(r);
   EXPECT_NE(check(r, kNow), nullptr);
   r.t_ns = kNow;
