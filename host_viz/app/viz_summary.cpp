@@ -21,7 +21,7 @@ bool write_stats(const std::string& path, const VizSession& s, const sim::SceneS
     if (g.top_gap >= groove.top_gap) groove = g;
   using ull = unsigned long long;
   std::fprintf(f,
-               "{\n  \"frames\": %llu,\n  \"connections\": %u,\n  \"rt_losses\": %u,\n  \"link\": \"%s\",\n"
+               "{\n  \"frames\": %llu,\n  \"hands\": %zu,\n  \"connections\": %u,\n  \"rt_losses\": %u,\n  \"link\": \"%s\",\n"
                "  \"samples_received\": %llu,\n  \"samples_total\": %llu,\n  \"first_seq\": %llu,\n  \"last_seq\": %llu,\n"
                "  \"lost\": %llu,\n  \"out_of_order\": %llu,\n  \"discarded_on_attach\": %llu,\n  \"max_batch\": %llu,\n"
                "  \"patches_published\": %llu,\n  \"samples_rejected\": %llu,\n  \"sample_ring_resets\": %llu,\n"
@@ -36,7 +36,7 @@ bool write_stats(const std::string& path, const VizSession& s, const sim::SceneS
                "  \"blood_lost_ml\": %.4f,\n  \"blood_on_tissue_ml\": %.4f,\n  \"blood_swabbed_ml\": %.4f,\n"
                "  \"vessel_bleeding\": %s,\n  \"blood_ledger_error\": %.3g,\n  \"blood_cells\": %zu,\n  \"blood_ms_per_frame\": %.3f,\n"
                "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
-               static_cast<ull>(run.frames), s.connections(), s.rt_losses(),
+               static_cast<ull>(run.frames), s.hands(), s.connections(), s.rt_losses(),
                s.link() == Link::kConnected ? "connected" : s.link() == Link::kLost ? "lost" : "waiting",
                static_cast<ull>(st.received), static_cast<ull>(s.samples_total()), static_cast<ull>(st.first_seq),
                static_cast<ull>(st.last_seq), static_cast<ull>(st.lost), static_cast<ull>(st.out_of_order),

@@ -150,7 +150,7 @@ CaseResult run_case(const Case& c, double seconds, bool rt_ok) {
           const std::int64_t t0 = monotonic_ns();
           servo.tick(ctx);
           const double us = static_cast<double>(monotonic_ns() - t0) * 1e-3;
-          const std::uint64_t v = servo.data().patch_version;
+          const std::uint64_t v = servo.hand(Hand::kRight).patch_version;
           ToolSample s;
           while (shared->samples.try_pop(s)) {
           }

@@ -188,7 +188,7 @@ TEST_F(RecordReplay, AnArmsSessionReplaysBitExactlyAndCarriesItsConfiguration) {
   ASSERT_TRUE(rec.ok()) << rec.error().message;
   EXPECT_EQ(rec.value().arm_config.substr(0, 200), read_file(config).substr(0, 200));
   EXPECT_EQ(rec.value().samples[1000].n_joints, 3u);
-  auto model = servo::model_from_blob(rec.value().servo_model);
+  auto model = servo::model_from_blob(rec.value().servo_model[0]);
   ASSERT_TRUE(model.ok()) << model.error().message;
   EXPECT_EQ(model.value().kinematics.model(), arm::KinematicModel::kPhantom);
 }
@@ -354,7 +354,7 @@ TEST_F(RecordReplay, BrokenAndForeignRecordingsAreRefused) {
   }
   // A model blob written by another build is refused too.
   record::Recording foreign = rec.value();
-  foreign.servo_model.layout ^= 1;
+  foreign.servo_model[0].layout ^= 1;
   rp = record::Replay::create(foreign);
   ASSERT_FALSE(rp.ok());
   EXPECT_NE(rp.error().message.find("another build"), std::string::npos) << rp.error().message;

@@ -95,14 +95,14 @@ class TwoProcess : public test::ProcessTest {
   std::uint64_t viz_applied() {
     if (!channel_) return 0;
     auto p = std::make_unique<TissuePatch>();
-    return channel_->state().patch.try_peek(*p) == ReadStatus::kOk ? p->samples_applied : 0;
+    return channel_->state().patch[0].try_peek(*p) == ReadStatus::kOk ? p->samples_applied : 0;
   }
   /// Waits until the viz has applied `ticks` servo ticks after the first one it applied with a
   /// patch in use by the servo (the scripted hand's clock starts there with
   /// --script-waits-for-tissue).
   bool wait_viz_applied_after_tissue(std::uint64_t ticks) {
     bool ok = false;
-    const RtStatus first = wait_status([](const RtStatus& st) { return st.patch_version != 0; }, ok);
+    const RtStatus first = wait_status([](const RtStatus& st) { return st.hand[0].patch_version != 0; }, ok);
     return ok && test::eventually([&] { return viz_applied() >= first.tick + ticks; }, std::chrono::seconds(180));
   }
   /// Asks the viz to end (SIGINT, as Ctrl-C does) and checks that it did, cleanly.
@@ -135,16 +135,20 @@ TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
     return first != 0 && a >= first + 2000;
   })) << read_file(path("viz.log"));
   bool ok = false;
-  (void)wait_status([](const RtStatus& st) { return st.contact != 0 && norm(st.force) > 0.2; }, ok);
+  (void)wait_status([](const RtStatus& st) { return st.hand[0].contact != 0 && norm(st.hand[0].force) > 0.2; }, ok);
   ASSERT_TRUE(ok) << "no contact force";
   stop_viz(*viz);
 
   const std::string v = read_file(path("viz.json"));
   ASSERT_FALSE(v.empty()) << read_file(path("viz.log"));
-  // Every tick from the first the viz took to the last: in order, none lost.
+  // Every tick of both hands (lancet-rt drives two by default) from the first the viz took to the
+  // last: in order, none lost (the first and last tick may have brought one hand's sample only).
+  EXPECT_EQ(json_number(v, "hands").value_or(0), 2) << v;
   const double received = json_number(v, "samples_received").value_or(0);
+  const double ticks = json_number(v, "last_seq").value_or(0) - json_number(v, "first_seq").value_or(0) + 1;
   EXPECT_GE(received, 2000) << v;
-  EXPECT_EQ(received, json_number(v, "last_seq").value_or(0) - json_number(v, "first_seq").value_or(0) + 1) << v;
+  EXPECT_GE(received, 2 * ticks - 2) << v;
+  EXPECT_LE(received, 2 * ticks) << v;
   EXPECT_EQ(json_number(v, "lost").value_or(-1), 0) << v;
   EXPECT_EQ(json_number(v, "out_of_order").value_or(-1), 0) << v;
   EXPECT_GT(json_number(v, "patches_published").value_or(0), 0) << v;
@@ -200,7 +204,7 @@ TEST_F(TwoProcess, PhantomSkinTissueGivesContactAndForce) {
   ASSERT_TRUE(rt->running());
   auto viz = start_viz({"--duration", "600", "--tissue", "phantom", "--stats", path("viz.json")});
   bool ok = false;
-  (void)wait_status([](const RtStatus& st) { return st.contact != 0 && norm(st.force) > 0.2; }, ok);
+  (void)wait_status([](const RtStatus& st) { return st.hand[0].contact != 0 && norm(st.hand[0].force) > 0.2; }, ok);
   ASSERT_TRUE(ok) << "no contact force on the phantom's skin\n" << read_file(path("viz.log"));
   stop_viz(*viz);
   EXPECT_GT(json_number(read_file(path("viz.json")), "patches_published").value_or(0), 0);
@@ -263,12 +267,12 @@ void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
   ASSERT_TRUE(rt->running());
   bool ok = false;
   if (pressed_first) {
-    (void)fx.wait_status([](const RtStatus& st) { return st.tool.z < -0.0025; }, ok);
+    (void)fx.wait_status([](const RtStatus& st) { return st.hand[0].tool.z < -0.0025; }, ok);
     ASSERT_TRUE(ok) << "the scripted hand never pressed in";
   }
   auto viz = fx.start_viz({"--duration", "600", "--trace", fx.path("trace.csv"), "--stats", fx.path("viz.json")});
   // Held: from the first contact, hold_s of ticks applied by the viz (so all of them are traced).
-  const RtStatus contact = fx.wait_status([](const RtStatus& st) { return st.contact != 0; }, ok);
+  const RtStatus contact = fx.wait_status([](const RtStatus& st) { return st.hand[0].contact != 0; }, ok);
   ASSERT_TRUE(ok) << "no contact at all\n" << read_file(fx.path("viz.log"));
   const auto hold_ticks = static_cast<std::uint64_t>(hold_s * 1000);
   ASSERT_TRUE(test::eventually([&] { return fx.viz_applied() >= contact.tick + hold_ticks; }, std::chrono::seconds(180)))
@@ -506,15 +510,16 @@ TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   auto viz = start_viz({"--duration", "600"});
   bool ok = false;
   const RtStatus pressing =
-      wait_status([](const RtStatus& st) { return st.viz_alive && st.contact && st.force_scale == 1.0 && norm(st.force) > 0.2; }, ok);
-  ASSERT_TRUE(ok) << "no contact force; last force " << norm(pressing.force) << "\n"
+      wait_status([](const RtStatus& st) { return st.viz_alive && st.hand[0].contact && st.hand[0].force_scale == 1.0 && norm(st.hand[0].force) > 0.2; }, ok);
+  ASSERT_TRUE(ok) << "no contact force; last force " << norm(pressing.hand[0].force) << "\n"
                   << read_file(path("viz.log")) << read_file(path("rt.log"));
 
   viz->signal(SIGKILL);
   ASSERT_TRUE(viz->wait_exit(30s).has_value());
   const RtStatus faded = wait_status([](const RtStatus& st) { return !st.viz_alive && st.force_zero_ns != 0; }, ok);
   ASSERT_TRUE(ok) << "force never reached zero after the viz was killed";
-  EXPECT_EQ(faded.force, Vec3{});
+  EXPECT_EQ(faded.hand[0].force, Vec3{});
+  EXPECT_EQ(faded.hand[1].force, Vec3{}) << "the viz is both hands': both are at zero";
   // Measured on lancet-rt's own clock: from the viz's last heartbeat to the first zero-force tick.
   // Not before the timeout; by timeout + fade, give or take the gaps between the servo's ticks (the
   // fade counts the servo's time, so a host that stalls the loop delays zero force by the stall
@@ -528,7 +533,8 @@ TEST_F(TwoProcess, KillingTheVizFadesTheForceToZeroAndRtKeepsRunning) {
   const std::uint64_t tick = faded.tick;
   const RtStatus later = wait_status([tick](const RtStatus& st) { return st.tick > tick + 200; }, ok);
   ASSERT_TRUE(ok);
-  EXPECT_EQ(later.force, Vec3{});
+  EXPECT_EQ(later.hand[0].force, Vec3{});
+  EXPECT_EQ(later.hand[1].force, Vec3{});
   EXPECT_TRUE(rt->running());
   stop_rt(*rt);
 }
