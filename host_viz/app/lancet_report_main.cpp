@@ -4,11 +4,13 @@
 // against the [score] section of the scenario it was recorded with (the text stored in the file),
 // or of the scenario file given with --scenario (bands recalibrated since).
 // Several files give one page with a comparison table. A one-line verdict per file goes to stdout
-// (stderr when the JSON goes to stdout).
+// (stderr when the JSON goes to stdout); for a two-handed recording each two-hand figure follows it
+// on a line of its own.
 // Exit status: 0 done, 2 bad arguments, a file that cannot be read, or an output that cannot be written.
 
 #include <CLI/CLI.hpp>
 
+#include <cmath>
 #include <cstdio>
 #include <exception>
 #include <fstream>
@@ -44,6 +46,25 @@ Result<void> write_text(const std::string& path, const std::string& text) {
 
 // The first line of a multi-line message.
 std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
+
+// A two-handed attempt's own figures, one a line under its verdict (nothing for one hand).
+void print_two_hands(std::FILE* out, const Metrics& m) {
+  if (m.hands < 2) return;
+  std::fprintf(out, "  two hands (the report's path, angle, economy, movements, jerk and mean force are the right hand's; idle: slower than %g mm/s "
+                    "over %g ms):\n",
+               kIdleSpeed * 1e3, static_cast<double>(kIdleBlockNs) / 1e6);
+  for (const scenario::ScoreMetricInfo& info : scenario::kTwoHandScoreMetrics) {
+    const Metric* x = find_metric(m, info.name);
+    if (x == nullptr) continue;
+    const std::string name(x->name);
+    const char* result = !x->band ? "" : x->pass ? " (pass)" : " (fail)";
+    if (std::isfinite(x->value)) {
+      std::fprintf(out, "    %-30s %.3g %s%s\n", name.c_str(), x->value, x->unit.c_str(), result);
+    } else {
+      std::fprintf(out, "    %-30s not measured%s\n", name.c_str(), result);
+    }
+  }
+}
 
 struct Args {
   std::vector<std::string> files;
@@ -128,7 +149,9 @@ int run(int argc, char** argv) {
   for (const ReportInput& in : inputs) {
     const Metrics& m = in.metrics;
     const char* verdict = m.verdict == Verdict::kProficient ? "proficient" : m.verdict == Verdict::kNotYet ? "not yet proficient" : "not assessed (no bands)";
-    std::fprintf(json_to_stdout ? stderr : stdout, "%s: %s, %zu of %zu banded metrics pass\n", in.file.c_str(), verdict, m.passed, m.banded);
+    std::FILE* text_out = json_to_stdout ? stderr : stdout;
+    std::fprintf(text_out, "%s: %s, %zu of %zu banded metrics pass\n", in.file.c_str(), verdict, m.passed, m.banded);
+    print_two_hands(text_out, m);
   }
   return 0;
 }

@@ -325,9 +325,13 @@ void parse_score(Section& s, Score& out, std::optional<TaskKind> task) {
   if (const toml::table* bt = s.table("bands", kOpt)) {
     // Every metric name is a key of this table, so finish() offers the nearest one for a typo.
     Section bands(s.sink(), *bt, s.field("bands"));
-    for (const ScoreMetricInfo& m : kScoreMetrics) {
-      if (auto band = parse_band(bands, m, task)) out.bands.push_back(std::move(*band));
-    }
+    const auto parse_all = [&](const auto& metrics) {
+      for (const ScoreMetricInfo& m : metrics) {
+        if (auto band = parse_band(bands, m, task)) out.bands.push_back(std::move(*band));
+      }
+    };
+    parse_all(kScoreMetrics);
+    parse_all(kTwoHandScoreMetrics);
     bands.finish();
   }
 }

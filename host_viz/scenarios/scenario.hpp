@@ -107,6 +107,17 @@ inline constexpr std::array<ScoreMetricInfo, 16> kScoreMetrics{{
     {"drilled_outside_mm3", false, true},
     {"blood_loss_ml", true, true},
 }};
+/// The metrics of a two-handed recording only (Recording::hands == 2), in the order the report
+/// lists them, after kScoreMetrics. A band for one of them is checked on two-handed attempts and
+/// ignored on one-handed ones (the metric is not there).
+inline constexpr std::array<ScoreMetricInfo, 6> kTwoHandScoreMetrics{{
+    {"right_path_length_mm", true, true},
+    {"left_path_length_mm", true, true},
+    {"right_economy_of_motion_ratio", true, true},
+    {"left_economy_of_motion_ratio", true, true},
+    {"left_idle_time_s", true, true},
+    {"both_hands_contact_time_s", true, true},
+}};
 
 /// An expert band for one metric (key [score.bands], `name = { mean = x, sd = y }`): the mean and
 /// standard deviation of experts' values, in the metric's own unit (its name's suffix: mm, s, N,
@@ -125,7 +136,7 @@ struct Score {
   double movement_speed = 0.020;   ///< m/s (key movement_speed_mm_s, > 0): a movement is an upward crossing of it
   double movement_filter_hz = 10;  ///< Hz (key movement_filter_hz, (0, 500]): low-pass cut-off applied before counting
   double sd_multiple = 2;          ///< k (key sd_multiple, (0, 10])
-  std::vector<ScoreBand> bands;    ///< in kScoreMetrics order, at most one per metric
+  std::vector<ScoreBand> bands;    ///< in kScoreMetrics then kTwoHandScoreMetrics order, at most one per metric
 };
 
 /// The band for `metric`, or nullptr when the score has none.

@@ -76,6 +76,27 @@ int stage_rank(Stage s) {
   return 0;
 }
 
+// ---- hands -------------------------------------------------------------------------------------
+
+// Each hand's colour: the right steel blue, the left amber (as lancet-viz draws the tools).
+const char* hand_colour(Hand h) { return h == Hand::kLeft ? "#f29926" : "#4d80f2"; }
+
+bool two_hands(const ReportInput& in) { return in.metrics.hands >= 2; }
+
+// One hand's samples in tick order (a copy).
+std::vector<ToolSample> samples_of(const Recording& rec, Hand h) {
+  std::vector<ToolSample> out;
+  for (const ToolSample& t : rec.samples) {
+    if (t.hand == h) out.push_back(t);
+  }
+  return out;
+}
+
+bool is_two_hand_metric(std::string_view name) {
+  return std::any_of(scenario::kTwoHandScoreMetrics.begin(), scenario::kTwoHandScoreMetrics.end(),
+                     [&](const scenario::ScoreMetricInfo& m) { return m.name == name; });
+}
+
 // ---- plots -------------------------------------------------------------------------------------
 
 // A "nice" tick step (1, 2 or 5 times a power of ten) giving about `ticks` ticks over `range`.
@@ -157,13 +178,12 @@ struct PathPoint {
   Stage stage = Stage::kFree;
 };
 
-// The tool tip's path in x-y (mm), at most kMaxPlotPoints / 2 points (each run of a stage repeats
-// the point before it, so the plot draws at most kMaxPlotPoints), each showing the most
-// significant stage of its bucket.
-std::vector<PathPoint> path_points(const std::vector<ToolSample>& s) {
+// The tool tip's path in x-y (mm), at most kMax points (by default kMaxPlotPoints / 2: each run of
+// a stage repeats the point before it, so the plot draws at most kMaxPlotPoints), each showing the
+// most significant stage of its bucket.
+std::vector<PathPoint> path_points(const std::vector<ToolSample>& s, std::size_t kMax = kMaxPlotPoints / 2) {
   std::vector<PathPoint> out;
   if (s.empty()) return out;
-  constexpr std::size_t kMax = kMaxPlotPoints / 2;
   const std::size_t bucket = (s.size() + kMax - 2) / (kMax - 1);  // leaves room for the last tick
   for (std::size_t b = 0; b < s.size(); b += bucket) {
     const std::size_t end = std::min(s.size(), b + bucket);
@@ -179,10 +199,11 @@ std::vector<PathPoint> path_points(const std::vector<ToolSample>& s) {
   return out;
 }
 
-std::string path_svg(const ReportInput& in, const std::string& id) {
-  const Recording& rec = *in.recording;
+// The tool tip's path seen from above: one hand's (paths[0]) coloured by stage, the view on the
+// task and the interaction; or with `by_hand` each hand's (paths[h], by Hand) in its colour, the
+// view on the task and the whole of both paths.
+std::string path_svg(const ReportInput& in, const std::string& id, const std::vector<std::vector<PathPoint>>& paths, bool by_hand) {
   const Metrics& m = in.metrics;
-  const std::vector<PathPoint> pts = path_points(rec.samples);
   Plot plot;
   // The view: the task and the interaction (the approach from afar is clipped); everything
   // when there is neither.
@@ -198,11 +219,16 @@ std::string path_svg(const ReportInput& in, const std::string& id) {
   } else if (m.has_task) {
     grow(m.drill.centre.x * 1e3, m.drill.centre.y * 1e3, m.drill.radius * 1e3);
   }
-  for (const PathPoint& p : pts) {
-    if (p.stage != Stage::kFree) grow(p.x, p.y, 0);
+  // (Each hand's path: all of it, the free motion too.)
+  for (const auto& pts : paths) {
+    for (const PathPoint& p : pts) {
+      if (by_hand || p.stage != Stage::kFree) grow(p.x, p.y, 0);
+    }
   }
   if (!std::isfinite(x0)) {
-    for (const PathPoint& p : pts) grow(p.x, p.y, 0);
+    for (const auto& pts : paths) {
+      for (const PathPoint& p : pts) grow(p.x, p.y, 0);
+    }
   }
   if (!std::isfinite(x0)) grow(0, 0, 10);
   const double pad = std::max({0.08 * (x1 - x0), 0.08 * (y1 - y0), 2.0});
@@ -212,7 +238,7 @@ std::string path_svg(const ReportInput& in, const std::string& id) {
   plot.y1 = y1 + pad;
   plot.equal_aspect();
 
-  std::string s = plot.open("tool path seen from above");
+  std::string s = plot.open(by_hand ? "both hands' tool paths seen from above" : "tool path seen from above");
   s += plot.clip(id);
   s += plot.axes("x (mm)", "y (mm)");
   s += "<g clip-path=\"url(#" + id + ")\">\n";
@@ -230,7 +256,18 @@ std::string path_svg(const ReportInput& in, const std::string& id) {
     s += "<path class=\"task\" d=\"M" + text::format("%.1f", cx - 5) + " " + text::format("%.1f", cy) + "h10M" + text::format("%.1f", cx) + " " +
          text::format("%.1f", cy - 5) + "v10\"/>\n";
   }
+  if (by_hand) {
+    // Each hand's path, one polyline in its colour.
+    for (std::size_t h = 0; h < paths.size() && h < kHandCount; ++h) {
+      std::string line;
+      for (const PathPoint& p : paths[h]) line += plot.point(p.x, p.y);
+      if (line.empty()) continue;
+      s += std::string("<polyline class=\"hand\" stroke=\"") + hand_colour(static_cast<Hand>(h)) + "\" points=\"" + line + "\"/>\n";
+    }
+    return s + "</g>\n</svg>\n";
+  }
   // The path, one polyline per run of the same stage, each starting where the last ended.
+  const std::vector<PathPoint>& pts = paths.front();
   for (std::size_t i = 0; i < pts.size();) {
     std::size_t j = i;
     while (j + 1 < pts.size() && pts[j + 1].stage == pts[i].stage) ++j;
@@ -244,6 +281,42 @@ std::string path_svg(const ReportInput& in, const std::string& id) {
   return s;
 }
 
+// The force magnitude of `smp` (one hand's samples, or a one-handed recording's) as polyline
+// points, at most 2 · pairs: each bucket keeps its smallest and largest force, in time order, so
+// peaks are drawn.
+std::string force_line(const Plot& plot, const std::vector<ToolSample>& smp, std::int64_t t0, std::size_t pairs) {
+  const auto t_of = [&](std::size_t i) { return static_cast<double>(smp[i].t_ns - t0) / 1e9; };
+  std::string line;
+  const std::size_t bucket = std::max<std::size_t>(1, (smp.size() + pairs - 1) / pairs);
+  for (std::size_t b = 0; b < smp.size(); b += bucket) {
+    const std::size_t end = std::min(smp.size(), b + bucket);
+    std::size_t lo = b, hi = b;
+    double flo = kInf, fhi = -kInf;
+    for (std::size_t i = b; i < end; ++i) {
+      const double f = norm(smp[i].force);
+      if (!std::isfinite(f)) continue;
+      if (f < flo) {
+        flo = f;
+        lo = i;
+      }
+      if (f > fhi) {
+        fhi = f;
+        hi = i;
+      }
+    }
+    if (!std::isfinite(flo)) continue;
+    if (lo == hi) {
+      line += plot.point(t_of(lo), flo);
+    } else if (lo < hi) {
+      line += plot.point(t_of(lo), flo) + plot.point(t_of(hi), fhi);
+    } else {
+      line += plot.point(t_of(hi), fhi) + plot.point(t_of(lo), flo);
+    }
+  }
+  return line;
+}
+
+// The force on the hand over time; with two hands one line per hand in its colour.
 std::string force_svg(const ReportInput& in, const std::string& id) {
   const Recording& rec = *in.recording;
   const Metrics& m = in.metrics;
@@ -272,36 +345,14 @@ std::string force_svg(const ReportInput& in, const std::string& id) {
   }
   s += plot.axes("time (s)", "force (N)");
   s += "<g clip-path=\"url(#" + id + ")\">\n";
-  // Each bucket keeps its smallest and largest force, in time order, so peaks are drawn.
-  std::string line;
-  const std::size_t pairs = kMaxPlotPoints / 2;
-  const std::size_t bucket = std::max<std::size_t>(1, (smp.size() + pairs - 1) / pairs);
-  for (std::size_t b = 0; b < smp.size(); b += bucket) {
-    const std::size_t end = std::min(smp.size(), b + bucket);
-    std::size_t lo = b, hi = b;
-    double flo = kInf, fhi = -kInf;
-    for (std::size_t i = b; i < end; ++i) {
-      const double f = norm(smp[i].force);
-      if (!std::isfinite(f)) continue;
-      if (f < flo) {
-        flo = f;
-        lo = i;
-      }
-      if (f > fhi) {
-        fhi = f;
-        hi = i;
-      }
+  if (two_hands(in)) {
+    for (const Hand h : {Hand::kRight, Hand::kLeft}) {
+      s += std::string("<polyline class=\"force\" stroke=\"") + hand_colour(h) + "\" points=\"" +
+           force_line(plot, samples_of(rec, h), t0, kMaxPlotPoints / 4) + "\"/>\n";
     }
-    if (!std::isfinite(flo)) continue;
-    if (lo == hi) {
-      line += plot.point(t_of(lo), flo);
-    } else if (lo < hi) {
-      line += plot.point(t_of(lo), flo) + plot.point(t_of(hi), fhi);
-    } else {
-      line += plot.point(t_of(hi), fhi) + plot.point(t_of(lo), flo);
-    }
+  } else {
+    s += "<polyline class=\"force\" points=\"" + force_line(plot, smp, t0, kMaxPlotPoints / 2) + "\"/>\n";
   }
-  s += "<polyline class=\"force\" points=\"" + line + "\"/>\n";
   s += "</g>\n";
   const double ly = plot.py(limit);
   s += "<line class=\"limit\" x1=\"" + text::format("%.1f", plot.left) + "\" y1=\"" + text::format("%.1f", ly) + "\" x2=\"" +
@@ -346,6 +397,8 @@ svg .limit { stroke: #e53935; stroke-width: 1.2; stroke-dasharray: 5 3; }
 svg .limit-label { font-size: 11px; fill: #e53935; }
 .swatch { display: inline-block; width: 14px; height: 4px; margin: 0 4px 2px 10px; vertical-align: middle; }
 ul.notes { font-size: 13px; color: #555; }
+svg .hand { fill: none; stroke-width: 1.8; stroke-linejoin: round; }
+h3 { font-size: 16px; margin: 20px 0 6px; }
 )";
 
 std::string verdict_html(const Metrics& m) {
@@ -370,15 +423,46 @@ std::string result_cell(const Metric& m) {
   return m.pass ? "<td class=\"pass\">pass</td>" : "<td class=\"fail\">fail</td>";
 }
 
-std::string metrics_table(const Metrics& m) {
-  std::string s = "<table class=\"metrics\">\n<tr><th>Metric</th><th>Value</th><th>Unit</th><th>Band</th><th>Result</th>"
-                  "<th>Better</th><th>How it is measured</th></tr>\n";
+// The metrics table: with `two_hand_metrics` false the shared metrics (with two hands a Hand
+// column says whose each is), with it true kTwoHandScoreMetrics, each marked in its hand's colour.
+std::string metrics_table(const Metrics& m, bool two_hand_metrics) {
+  const bool two = m.hands >= 2;
+  std::string s = std::string("<table class=\"") + (two_hand_metrics ? "two-hands" : "metrics") + "\">\n<tr><th>Metric</th>" +
+                  (two ? "<th>Hand</th>" : "") + "<th>Value</th><th>Unit</th><th>Band</th><th>Result</th><th>Better</th><th>How it is measured</th></tr>\n";
   for (const Metric& x : m.metrics) {
-    s += "<tr><td><code>" + text::xml_escape(x.name) + "</code></td><td class=\"num\">" + text::xml_escape(shown(x.value, x.unit)) + "</td><td>" +
-         text::xml_escape(x.unit) + "</td><td class=\"num\">" + text::xml_escape(band_text(x)) + "</td>" + result_cell(x) + "<td>" +
-         (x.better == Better::kLower ? "lower" : "higher") + "</td><td class=\"desc\">" + text::xml_escape(x.description) + "</td></tr>\n";
+    if (is_two_hand_metric(x.name) != two_hand_metrics) continue;
+    const std::string_view hand = hand_scope_key(x.hand);
+    // The name cell is marked in the hand's colour (grey for both).
+    const std::string mark = x.hand == HandScope::kRight ? hand_colour(Hand::kRight) : x.hand == HandScope::kLeft ? hand_colour(Hand::kLeft) : "#9e9e9e";
+    s += "<tr><td" + (two_hand_metrics ? " style=\"border-left: 5px solid " + mark + "\"" : std::string()) + "><code>" + text::xml_escape(x.name) +
+         "</code></td>" + (two ? "<td>" + std::string(hand) + "</td>" : std::string()) + "<td class=\"num\">" +
+         text::xml_escape(shown(x.value, x.unit)) + "</td><td>" + text::xml_escape(x.unit) + "</td><td class=\"num\">" +
+         text::xml_escape(band_text(x)) + "</td>" + result_cell(x) + "<td>" + (x.better == Better::kLower ? "lower" : "higher") +
+         "</td><td class=\"desc\">" + text::xml_escape(x.description) + "</td></tr>\n";
   }
   return s + "</table>\n";
+}
+
+// The "Two hands" section: each hand's path from above in its colour, the two-hand metrics, and
+// which hand the shared metrics are measured on. Empty for a one-handed recording.
+std::string two_hands_html(const ReportInput& in, const std::string& id) {
+  if (!two_hands(in)) return "";
+  const Recording& rec = *in.recording;
+  std::vector<std::vector<PathPoint>> paths;
+  for (const Hand h : {Hand::kRight, Hand::kLeft}) paths.push_back(path_points(samples_of(rec, h), kMaxPlotPoints / 2));
+  const std::string swatch_right = std::string("<span class=\"swatch\" style=\"background:") + hand_colour(Hand::kRight) + "\"></span>";
+  const std::string swatch_left = std::string("<span class=\"swatch\" style=\"background:") + hand_colour(Hand::kLeft) + "\"></span>";
+  std::string s = "<section class=\"two-hands\">\n<h3>Two hands</h3>\n";
+  s += "<p class=\"meta\">" + swatch_right + "right (dominant) hand" + swatch_left +
+       "left hand. In the table above, task time, peak force, time above the force limit and the incision are both hands'; path, "
+       "angle, economy of motion, movements, jerk and mean force are the right hand's; damage, blood and drilling are the scene's. "
+       "Idle: the left tool tip slower than " +
+       text::xml_escape(shown(kIdleSpeed * 1e3)) + " mm/s over " + text::xml_escape(shown(static_cast<double>(kIdleBlockNs) / 1e6)) +
+       " ms blocks of the task window.</p>\n";
+  s += "<div class=\"plots\">\n<figure>" + path_svg(in, id, paths, true) + "<figcaption>" + swatch_right + "right" + swatch_left +
+       "left: each hand's tool tip from above over the whole recording. Axes in mm (world frame).</figcaption></figure>\n</div>\n";
+  s += metrics_table(in.metrics, true);
+  return s + "</section>\n";
 }
 
 std::string comparison_table(const std::vector<ReportInput>& attempts) {
@@ -393,7 +477,9 @@ std::string comparison_table(const std::vector<ReportInput>& attempts) {
          (v == Verdict::kProficient ? "proficient" : v == Verdict::kNotYet ? "not yet" : "not assessed") + "</td>";
   }
   s += "</tr>\n";
-  for (const scenario::ScoreMetricInfo& info : scenario::kScoreMetrics) {
+  std::vector<scenario::ScoreMetricInfo> rows(scenario::kScoreMetrics.begin(), scenario::kScoreMetrics.end());
+  rows.insert(rows.end(), scenario::kTwoHandScoreMetrics.begin(), scenario::kTwoHandScoreMetrics.end());
+  for (const scenario::ScoreMetricInfo& info : rows) {
     const Metric* first = nullptr;
     for (const ReportInput& a : attempts) {
       if (const Metric* x = find_metric(a.metrics, info.name); x != nullptr && first == nullptr) first = x;
@@ -444,9 +530,11 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
                   (several ? "Attempt " + std::to_string(index + 1) + ": " : std::string("Attempt: ")) + text::xml_escape(in.file) + "</h2>\n";
   s += verdict_html(m) + "\n";
   const double duration = rec.samples.size() > 1 ? static_cast<double>(rec.samples.back().t_ns - rec.samples.front().t_ns) / 1e9 : 0;
+  const bool two = two_hands(in);
   s += "<p class=\"meta\">Scenario " + text::xml_escape(rec.scenario_name.empty() ? "(none)" : rec.scenario_name) + " \u00b7 recorded " +
        text::xml_escape(rec.created.empty() ? "(unknown)" : rec.created) + " \u00b7 " + text::xml_escape(shown(duration)) + " s, " +
-       std::to_string(rec.samples.size()) + " ticks, " + std::to_string(rec.frames.size()) + " frames \u00b7 lancet " +
+       std::to_string(rec.samples.size()) + (two ? " samples of two hands, " : " ticks, ") + std::to_string(rec.frames.size()) +
+       " frames \u00b7 lancet " +
        text::xml_escape(rec.lancet_version.empty() ? "(unknown)" : rec.lancet_version) + "</p>\n";
   s += "<p class=\"meta\">Task window " +
        (std::isfinite(m.window_begin_s) ? text::xml_escape(shown(m.window_begin_s)) + "\u2013" + text::xml_escape(shown(m.window_end_s)) + " s"
@@ -466,11 +554,19 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
   } else if (m.has_task) {
     task_caption = "dashed: the drill window (" + shown(2 * m.drill.radius * 1e3) + " mm across)";
   }
-  s += "<div class=\"plots\">\n<figure>" + path_svg(in, id + "-path") + "<figcaption>" + legend(rec.samples) + ". " + text::xml_escape(task_caption) +
+  // With two hands the stage-coloured path is the right hand's; both are drawn under Two hands.
+  const std::vector<ToolSample> right = two ? samples_of(rec, Hand::kRight) : std::vector<ToolSample>();
+  const std::vector<ToolSample>& path_samples = two ? right : rec.samples;
+  s += "<div class=\"plots\">\n<figure>" + path_svg(in, id + "-path", {path_points(path_samples)}, false) + "<figcaption>" +
+       (two ? "Right hand. " : "") + legend(path_samples) + ". " + text::xml_escape(task_caption) +
        ". Axes in mm (world frame, x along the limb).</figcaption></figure>\n";
-  s += "<figure>" + force_svg(in, id + "-force") +
-       "<figcaption>Force magnitude on the hand; dashed red: the force limit; grey: the task window.</figcaption></figure>\n</div>\n";
-  s += metrics_table(m);
+  s += "<figure>" + force_svg(in, id + "-force") + "<figcaption>Force magnitude on the hand" +
+       (two ? std::string(" (each hand in its colour: <span class=\"swatch\" style=\"background:") + hand_colour(Hand::kRight) +
+                  "\"></span>right<span class=\"swatch\" style=\"background:" + hand_colour(Hand::kLeft) + "\"></span>left)"
+            : std::string()) +
+       "; dashed red: the force limit; grey: the task window.</figcaption></figure>\n</div>\n";
+  s += metrics_table(m, false);
+  s += two_hands_html(in, id + "-hands");
   if (!m.notes.empty()) {
     s += "<ul class=\"notes\">\n";
     for (const auto& n : m.notes) s += "<li>" + text::xml_escape(n) + "</li>\n";
@@ -482,6 +578,23 @@ std::string attempt_html(const ReportInput& in, std::size_t index, bool several)
 // ---- JSON --------------------------------------------------------------------------------------
 
 
+
+// The "two_hands" object (null for one hand): each hand's figures by hand, both hands' contact
+// time, the colours and the idle rule. The same values are in "metrics".
+std::string json_two_hands(const Metrics& m) {
+  if (m.hands < 2) return "null";
+  const auto value = [&](std::string_view name) {
+    const Metric* x = find_metric(m, name);
+    return text::json_number(x ? x->value : std::numeric_limits<double>::quiet_NaN());
+  };
+  return "{\"dominant\": \"right\", \"right\": {\"colour\": \"" + std::string(hand_colour(Hand::kRight)) +
+         "\", \"path_length_mm\": " + value("right_path_length_mm") + ", \"economy_of_motion_ratio\": " +
+         value("right_economy_of_motion_ratio") + "}, \"left\": {\"colour\": \"" + hand_colour(Hand::kLeft) + "\", \"path_length_mm\": " +
+         value("left_path_length_mm") + ", \"economy_of_motion_ratio\": " + value("left_economy_of_motion_ratio") +
+         ", \"idle_time_s\": " + value("left_idle_time_s") + "}, \"both_hands_contact_time_s\": " + value("both_hands_contact_time_s") +
+         ", \"idle_speed_mm_s\": " + text::json_number(kIdleSpeed * 1e3) +
+         ", \"idle_block_ms\": " + text::json_number(static_cast<double>(kIdleBlockNs) / 1e6) + "}";
+}
 
 std::string json_attempt(const ReportInput& in) {
   const Recording& rec = *in.recording;
@@ -495,6 +608,7 @@ std::string json_attempt(const ReportInput& in) {
   s += "      \"task\": " + (m.has_task ? text::json_string(scenario::task_key(m.task)) : std::string("null")) + ",\n";
   s += "      \"duration_s\": " + text::json_number(duration) + ",\n";
   s += "      \"samples\": " + std::to_string(rec.samples.size()) + ",\n";
+  s += "      \"hands\": " + std::to_string(m.hands) + ",\n";
   s += "      \"frames\": " + std::to_string(rec.frames.size()) + ",\n";
   s += "      \"samples_lost\": " + std::to_string(rec.samples_lost) + ",\n";
   s += std::string("      \"cut_short\": ") + (rec.cut_short ? "true" : "false") + ",\n";
@@ -523,9 +637,10 @@ std::string json_attempt(const ReportInput& in) {
     } else {
       s += "null, \"pass\": null";
     }
+    s += ", \"hand\": " + text::json_string(hand_scope_key(x.hand));
     s += ", \"description\": " + text::json_string(x.description) + "}";
   }
-  s += "\n      }\n    }";
+  s += "\n      },\n      \"two_hands\": " + json_two_hands(m) + "\n    }";
   return s;
 }
 

@@ -37,6 +37,30 @@ inline Recording make_recording(std::size_t n, const std::function<void(std::siz
   return r;
 }
 
+/// n ticks at 1 kHz of two hands (hands = 2): each tick's right sample, then its left one, both
+/// with the tick's seq (1..n) and time (kT0Ns + i ms), as make_recording's; `each(i, t_s, sample)`
+/// sets what the test needs (sample.hand says whose it is).
+inline Recording make_two_hand_recording(std::size_t n, const std::function<void(std::size_t, double, ToolSample&)>& each = {}) {
+  Recording r = make_recording(0);
+  r.hands = 2;
+  r.samples.reserve(2 * n);
+  for (std::size_t i = 0; i < n; ++i) {
+    for (const Hand h : {Hand::kRight, Hand::kLeft}) {
+      ToolSample s{};
+      s.seq = i + 1;
+      s.t_ns = kT0Ns + static_cast<std::int64_t>(i) * kPeriodNs;
+      s.mode = h == Hand::kRight ? ToolMode::kScalpel : ToolMode::kRetractor;
+      s.stage = Stage::kDeform;
+      s.hand = h;
+      s.tool.orientation = Quat{};
+      if (each) each(i, static_cast<double>(i) * 1e-3, s);
+      s.proxy = s.tool;
+      r.samples.push_back(s);
+    }
+  }
+  return r;
+}
+
 /// Marks a kCutProgress event every 0.5 mm of x travel while cutting, as the scalpel's step does
 /// (payload: the tool's position).
 inline void mark_cut_progress(Recording& rec) {
