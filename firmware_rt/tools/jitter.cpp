@@ -179,6 +179,7 @@ JitterResult run_jitter(const JitterOptions& o) {
       meta.layout_hash = kSharedLayoutHash;
       meta.protocol = kProtocolVersion;
       meta.period_ns = o.rt.loop().period_ns;
+      meta.hands = static_cast<std::uint32_t>(model.hands);
       auto made = record::Recorder::create(record_path, meta);
       if (made.ok()) {
         recorder = std::move(made).value();

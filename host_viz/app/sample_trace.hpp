@@ -1,6 +1,6 @@
 #pragma once
 // SampleTrace: lancet-viz's --trace, every ToolSample received written as one CSV line (time in s,
-// stage, events, tool and proxy positions in mm, force in N, the patch version the tick used).
+// stage, events, tool and proxy positions in mm, force in N, the patch version the tick used, the hand: right or left).
 
 #include <cstdio>
 #include <memory>

@@ -65,7 +65,7 @@ std::optional<int> parse_viz_cli(int argc, char** argv, VizOptions& o) {
       ->check(CLI::IsMember(preset_names))->capture_default_str();
   cli.add_option("--trace", o.trace_path,
                  "write every ToolSample received here as CSV (time, stage, events, tool and proxy in mm, force in N, the "
-                 "patch version it used), one line a servo tick");
+                 "patch version it used, the hand), one line a servo tick and hand");
   cli.add_option("--record", o.record_path,
                  "record the session to this HDF5 file: lancet-rt's servo and the scene start afresh (a reset) and every "
                  "servo tick and frame from then on is written (the Record button, F9, does the same into "

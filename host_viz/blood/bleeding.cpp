@@ -31,10 +31,11 @@ Bleeding::Bleeding(const TissueScene& scene, BleedingParams params) : p_(params)
 
 void Bleeding::observe(std::span<const ToolSample> samples) {
   for (const ToolSample& s : samples) {
-    tool_ = s.tool.position;
-    mode_ = s.mode;
-    contact_ = s.stage != Stage::kFree;
-    seen_tool_ = true;
+    HandTool& h = hands_[hand_index(s.hand) < kHandCount ? hand_index(s.hand) : 0];
+    h.tool = s.tool.position;
+    h.mode = s.mode;
+    h.contact = s.stage != Stage::kFree;
+    h.seen = true;
     if ((s.events & event::kDrillRemove) != 0) drilled_.push_back(s.payload.position);
   }
 }
@@ -234,13 +235,16 @@ void Bleeding::set_rates(const TissueScene& scene, double dt) {
     }
   }
   // Vessels bleed until pressed for press_seconds without a break (pressure slows them).
-  const bool pressing_tool = seen_tool_ && contact_ && (mode_ == ToolMode::kProbe || mode_ == ToolMode::kRetractor);
+  const auto presses = [&](const HandTool& h, Vec3 at, double within) {
+    return h.seen && h.contact && (h.mode == ToolMode::kProbe || h.mode == ToolMode::kRetractor) && norm(h.tool - at) < within;
+  };
   for (std::size_t s = 0; s < sources_.size(); ++s) {
     BloodSource& v = sources_[s];
     if (v.kind != BloodSource::Kind::kVessel) continue;
     v.rate_ml_s = 0;
     if (v.stopped) continue;
-    const bool pressed = pressing_tool && norm(tool_ - v.position) < p_.press_radius + 0.5 * depth;
+    const double within = p_.press_radius + 0.5 * depth;
+    const bool pressed = presses(hands_[0], v.position, within) || presses(hands_[1], v.position, within);
     v.pressed_s = pressed ? v.pressed_s + dt : 0.0;
     if (v.pressed_s >= p_.press_seconds) {
       v.stopped = true;
@@ -251,12 +255,13 @@ void Bleeding::set_rates(const TissueScene& scene, double dt) {
     v.rate_ml_s = r * kMl;
     v.loss_ml += r * dt * kMl;
   }
-  // The swab takes what its tip touches.
-  if (seen_tool_ && mode_ == ToolMode::kSwab) {
+  // A swab (in either hand) takes what its tip touches.
+  for (const HandTool& h : hands_) {
+    if (!h.seen || h.mode != ToolMode::kSwab) continue;
     for (std::uint32_t v = 0; v < skin_cells_; ++v)
-      if (norm(surf.position(v) - tool_) < p_.swab_radius) sink_rate_[v] = static_cast<float>(p_.swab_rate);
+      if (norm(surf.position(v) - h.tool) < p_.swab_radius) sink_rate_[v] = static_cast<float>(p_.swab_rate);
     for (const GrooveCell& gc : groove_)
-      if (norm(gc.centre - tool_) < p_.swab_radius + 0.5 * depth) sink_rate_[gc.cell] = static_cast<float>(p_.swab_rate);
+      if (norm(gc.centre - h.tool) < p_.swab_radius + 0.5 * depth) sink_rate_[gc.cell] = static_cast<float>(p_.swab_rate);
   }
 }
 

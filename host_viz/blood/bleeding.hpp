@@ -21,6 +21,7 @@
 //
 // Not real-time (the viz thread); allocates when the surface's topology changes.
 
+#include <array>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -132,9 +133,13 @@ class Bleeding {
   double time_ = 0, rebuilt_at_ = -1e9;
   double swabbed_ = 0;
   // The tool, from the newest sample.
-  Vec3 tool_{};
-  ToolMode mode_ = ToolMode::kProbe;
-  bool contact_ = false, seen_tool_ = false;
+  /// Each hand's tool as its newest sample left it (a vessel is pressed, or blood swabbed, by either hand).
+  struct HandTool {
+    Vec3 tool{};
+    ToolMode mode = ToolMode::kProbe;
+    bool contact = false, seen = false;
+  };
+  std::array<HandTool, kHandCount> hands_{};
   std::vector<Vec3> drilled_;  // removal centres since the last advance
 };
 

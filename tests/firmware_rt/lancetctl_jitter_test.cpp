@@ -163,19 +163,25 @@ TEST_F(LancetctlJitter, ComparesRecordingOnAndOffInTheSameRun) {
   // The rounds split the loop's wake-ups between them.
   EXPECT_EQ(json_number(off, "count").value_or(-1) + json_number(on, "count").value_or(-1),
             json_number(json_object(j, "lancet"), "ticks").value_or(-2));
-  // The recorder's rows: every tick of the "on" rounds, one sample each (what the consumer had not
-  // drained when a round ended is drained then, into that round's recording).
+  // The recorder's rows: every tick of the "on" rounds, one sample for each of the two hands (what
+  // the consumer had not drained when a round ended is drained then, into that round's recording).
   const std::string after_on = rec.substr(rec.find(on) + on.size());
   EXPECT_EQ(json_number(after_on, "lost").value_or(-1), 0) << rec;
   const double samples = json_number(after_on, "samples").value_or(-1);
-  EXPECT_EQ(samples, json_number(on, "count").value_or(-2)) << rec;
+  EXPECT_EQ(samples, 2 * json_number(on, "count").value_or(-2)) << rec;
   EXPECT_NE(rec.find("\"error\": \"\""), std::string::npos) << rec;
   auto file = record::read_recording(path("r.h5"));
   ASSERT_TRUE(file.ok()) << file.error().message;
   EXPECT_EQ(static_cast<double>(file.value().samples.size()), samples);
   EXPECT_EQ(file.value().gaps, 0u);
-  for (std::size_t i = 1; i < file.value().samples.size(); ++i)
-    ASSERT_EQ(file.value().samples[i].seq, file.value().samples[i - 1].seq + 1) << "every tick, in order";
+  EXPECT_EQ(file.value().hands, 2u);
+  const auto& s = file.value().samples;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    ASSERT_EQ(s[i].hand, i % 2 == 0 ? Hand::kRight : Hand::kLeft) << "the right hand's sample, then the left's";
+    if (i >= 2) {
+      ASSERT_EQ(s[i].seq, s[i - 2].seq + 1) << "every tick, in order";
+    }
+  }
 }
 
 TEST_F(LancetctlJitter, AMissingCyclictestIsAClearErrorNotACrash) {

@@ -223,7 +223,8 @@ struct TraceRow {
   std::uint64_t patch_version = 0;
 };
 
-std::vector<TraceRow> read_trace(const std::string& file) {
+/// The rows of one hand (`want`: "right" or "left") of a --trace file.
+std::vector<TraceRow> read_trace(const std::string& file, const std::string& want = "right") {
   std::vector<TraceRow> rows;
   std::ifstream in(file);
   std::string line;
@@ -234,10 +235,13 @@ std::vector<TraceRow> read_trace(const std::string& file) {
     char comma = 0;
     for (int k = 0; k < 13; ++k) {
       ss >> v[k];
-      if (k < 12) ss >> comma;
+      ss >> comma;
     }
+    std::string hand;
+    ss >> hand;
     EXPECT_TRUE(ss) << file << ": " << line;
     if (!ss) break;
+    if (hand != want) continue;
     rows.push_back({v[0], static_cast<int>(v[1]), static_cast<std::uint32_t>(v[2]), {v[3], v[4], v[5]}, {v[6], v[7], v[8]},
                     {v[9], v[10], v[11]}, static_cast<std::uint64_t>(v[12])});
   }
