@@ -16,6 +16,14 @@ bool write_stats(const std::string& path, const VizSession& s, const sim::SceneS
   const auto cuts = scene.cut_figures();
   const auto grooves = scene.grooves();
   const blood::BloodFigures bf = sim.bleeding() != nullptr ? sim.bleeding()->figures() : blood::BloodFigures{};
+  // Each cut's opening D (the width it was last opened to), in the order the cuts were made.
+  std::string cut_widths = "[";
+  for (const auto& c : scene.surface().cuts()) {
+    char w[32];
+    std::snprintf(w, sizeof w, "%s%.2f", cut_widths.size() > 1 ? ", " : "", c.opening * 1e3);
+    cut_widths += w;
+  }
+  cut_widths += "]";
   tissue::GrooveFigures groove{};  // the widest
   for (const auto& g : grooves)
     if (g.top_gap >= groove.top_gap) groove = g;
@@ -35,7 +43,7 @@ bool write_stats(const std::string& path, const VizSession& s, const sim::SceneS
                "  \"scenario\": \"%s\",\n  \"task_progress\": %.3f,\n  \"task_damaged\": %zu,\n"
                "  \"blood_lost_ml\": %.4f,\n  \"blood_on_tissue_ml\": %.4f,\n  \"blood_swabbed_ml\": %.4f,\n"
                "  \"vessel_bleeding\": %s,\n  \"blood_ledger_error\": %.3g,\n  \"blood_cells\": %zu,\n  \"blood_ms_per_frame\": %.3f,\n"
-               "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f\n}\n",
+               "  \"screenshot\": \"%s\",\n  \"screenshot_variance\": %.3f,\n  \"cut_widths_mm\": %s\n}\n",
                static_cast<ull>(run.frames), s.hands(), s.connections(), s.rt_losses(),
                s.link() == Link::kConnected ? "connected" : s.link() == Link::kLost ? "lost" : "waiting",
                static_cast<ull>(st.received), static_cast<ull>(s.samples_total()), static_cast<ull>(st.first_seq),
@@ -51,7 +59,7 @@ bool write_stats(const std::string& path, const VizSession& s, const sim::SceneS
                static_cast<ull>(ev.fault_ticks), scenario_name.c_str(), task ? task->progress : 0.0,
                task ? task->damaged.size() : std::size_t{0}, bf.lost_ml, bf.on_tissue_ml, bf.swabbed_ml,
                bf.vessel_bleeding ? "true" : "false", bf.ledger_error, bf.cells, run.blood_ms_per_frame, run.screenshot.c_str(),
-               std::isfinite(run.screenshot_variance) ? run.screenshot_variance : -1.0);
+               std::isfinite(run.screenshot_variance) ? run.screenshot_variance : -1.0, cut_widths.c_str());
   return std::fclose(f) == 0;
 }
 

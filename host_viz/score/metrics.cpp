@@ -378,8 +378,9 @@ double idle_time(const std::vector<ToolSample>& s, const Window& w, const Span& 
   double idle = 0;
   std::int64_t block = -1, block_ns = 0;
   Vec3 from{}, to{};
+  bool touching = false;  // a tick of the block in interaction: holding tissue still is work, not idleness
   const auto close_block = [&] {
-    if (block < 0 || block_ns <= 0) return;
+    if (block < 0 || block_ns <= 0 || touching) return;
     const double speed = norm(to - from) / seconds(block_ns);
     if (std::isfinite(speed) && speed < kIdleSpeed) idle += seconds(block_ns);
   };
@@ -393,10 +394,12 @@ double idle_time(const std::vector<ToolSample>& s, const Window& w, const Span& 
       close_block();
       block = k;
       block_ns = 0;
+      touching = false;
       from = s[i - 1].tool.position;
     }
     block_ns += dt;
     to = s[i].tool.position;
+    touching = touching || s[i].stage != Stage::kFree;
   }
   close_block();
   return idle;
@@ -444,8 +447,8 @@ void add_two_hands(Metrics& out, const Recording& rec, const HandStreams& hands,
   const std::vector<ToolSample>& left = hands.of(Hand::kLeft);
   const Window lw = window_in(left, span);
   add(out, "left_idle_time_s", lw.empty() ? kNaN : idle_time(left, lw, span), "s", Better::kLower,
-      "time in the task window in which the left tool tip moved slower than " + idle_rule +
-          " (net displacement over each block from the window's start / its duration)" + whose(true, HandScope::kLeft),
+      "time in the task window in which the left hand neither touched the tissue nor moved faster than " + idle_rule +
+          " (net displacement over each block from the window's start / its duration; a block with a tick in contact is not idle)" + whose(true, HandScope::kLeft),
       HandScope::kLeft);
   add(out, "both_hands_contact_time_s", rec.samples.empty() ? kNaN : both_in_contact_time(rec), "s", Better::kHigher,
       "ticks at which both tools interact with the tissue at once (the right and the left sample of one seq both in a stage "

@@ -40,7 +40,8 @@
 //       left_idle_time_s: the task window cut into consecutive kIdleBlockNs blocks from its
 //         start (a step between two ticks belongs to the block its later tick falls in); a block
 //         is idle when the left tool tip's net displacement over it divided by its duration is
-//         below kIdleSpeed; the sum of the idle blocks' durations;
+//         below kIdleSpeed and none of its ticks is in interaction (a retractor holding the tissue
+//         still is working); the sum of the idle blocks' durations;
 //       both_hands_contact_time_s: ticks at which the right and the left sample of the same seq
 //         are both in interaction (stage not kFree), times the servo period (the whole recording).
 // A one-handed recording has none of kTwoHandScoreMetrics and its figures are exactly those of

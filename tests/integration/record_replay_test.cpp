@@ -160,6 +160,41 @@ TEST_F(RecordReplay, TheDemoIncisionReplaysBitExactly) {
               read_file(path("report.json")).find("\"blood_loss_ml\"") != std::string::npos);
 }
 
+// The two-handed demo (what ./lancet demo runs): both hands recorded, each hand's servo re-stepped
+// with its own model, the scene driven by both streams in tick order: bit-exact; the report scores
+// both hands.
+TEST_F(RecordReplay, TheTwoHandedDemoReplaysBitExactly) {
+  const std::string file = record("skin_incision", "demo_two_hands.csv", 13, {}, {"--hands", "2"});
+  const auto [rc, log] = replay_cli(file);
+  EXPECT_EQ(rc, 0) << log;
+  EXPECT_NE(log.find(": bit-exact"), std::string::npos) << log;
+  replay_in_process(file, 2 * 13000 * 9 / 10);
+  auto rec = record::read_recording(file);
+  ASSERT_TRUE(rec.ok()) << rec.error().message;
+  EXPECT_EQ(rec.value().hands, 2u);
+  std::size_t left = 0, left_pulling = 0, both_cutting_and_holding = 0;
+  const auto& s = rec.value().samples;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (s[i].hand != Hand::kLeft) continue;
+    ++left;
+    left_pulling += s[i].stage == Stage::kPulling ? 1 : 0;
+    // The right hand's sample of the same tick comes just before: cutting while the left holds.
+    if (i > 0 && s[i - 1].seq == s[i].seq && s[i - 1].stage == Stage::kCutting && s[i].stage == Stage::kPulling) ++both_cutting_and_holding;
+  }
+  EXPECT_GT(left, 12000u);
+  EXPECT_GT(left_pulling, 5000u) << "the left hand holds the incision for seconds";
+  EXPECT_GT(both_cutting_and_holding, 500u) << "the right hand cuts while the left holds";
+  Child report({kReport, file, "--json", path("report.json")}, path("report.log"));
+  const auto rs = report.wait_exit(60s);
+  ASSERT_TRUE(rs.has_value() && WIFEXITED(*rs) && WEXITSTATUS(*rs) == 0) << read_file(path("report.log"));
+  const std::string j = read_file(path("report.json"));
+  EXPECT_NE(j.find("\"two_hands\": {"), std::string::npos) << j;
+  // Both in contact: the right hand's second cut and its swabbing while the left holds (2.2 s when
+  // written); the left hand holds for most of the session, so it is idle for little of it.
+  EXPECT_GT(json_number(j, "both_hands_contact_time_s").value_or(0), 1.0) << j;
+  EXPECT_LT(json_number(j, "idle_time_s").value_or(99), 5.0) << j;
+}
+
 TEST_F(RecordReplay, TheDrillingScenarioReplaysBitExactly) {
   const std::string file = record("bone_drilling", "drill_window.csv", 7);
   const auto [rc, log] = replay_cli(file);
