@@ -20,6 +20,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -255,19 +256,29 @@ std::vector<TraceRow> read_trace(const std::string& file, const std::string& wan
 // surface when the first patch came was never touched by it.) With `pressed_first`, lancet-viz
 // starts once the stylus is already pressed in. The fades' timeouts are generous: this test is
 // about the force against the depth, not about how fast a loaded machine draws.
-void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
+void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s, bool two_hands = false) {
   constexpr double kStiffness = 300;  // N/m, every material
+  // With two hands the left one presses too, elsewhere on the block and less deep: each hand
+  // against its own patch.
+  struct Press {
+    const char* hand;
+    double x_mm, y_mm, depth_mm;
+  };
+  std::vector<Press> presses{{"right", 0, 0, 3.0}};
+  if (two_hands) presses.push_back({"left", 12, 9, 2.0});
   {
     std::ofstream csv(fx.path("press.csv"));
-    csv << "t_s,x_mm,y_mm,z_mm\n";
-    for (int i = 0; i <= 100 * 600; i += i < 200 ? 1 : 100) {  // then held for ten minutes
-      const double t = i * 0.01;
-      const double a = t < 1.0 ? 0.5 - 0.5 * std::cos(M_PI * t) : 1.0;  // 10 mm above → 3 mm below in 1 s
-      csv << t << ",0,0," << 10.0 + a * (-3.0 - 10.0) << "\n";
+    csv << "t_s,x_mm,y_mm,z_mm,tool,hand\n";
+    for (const Press& p : presses) {
+      for (int i = 0; i <= 100 * 600; i += i < 200 ? 1 : 100) {  // then held for ten minutes
+        const double t = i * 0.01;
+        const double a = t < 1.0 ? 0.5 - 0.5 * std::cos(M_PI * t) : 1.0;  // 10 mm above → depth below z = 0 in 1 s
+        csv << t << "," << p.x_mm << "," << p.y_mm << "," << 10.0 + a * (-p.depth_mm - 10.0) << ",," << p.hand << "\n";
+      }
     }
   }
   auto rt = fx.start_rt({"--trajectory", fx.path("press.csv"), "--stiffness", std::to_string(kStiffness), "--viz-timeout-ms",
-                         "10000", "--stale-patch-ms", "10000"});
+                         "10000", "--stale-patch-ms", "10000", "--hands", two_hands ? "2" : "1"});
   ASSERT_TRUE(rt->running());
   bool ok = false;
   if (pressed_first) {
@@ -276,7 +287,8 @@ void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
   }
   auto viz = fx.start_viz({"--duration", "600", "--trace", fx.path("trace.csv"), "--stats", fx.path("viz.json")});
   // Held: from the first contact, hold_s of ticks applied by the viz (so all of them are traced).
-  const RtStatus contact = fx.wait_status([](const RtStatus& st) { return st.hand[0].contact != 0; }, ok);
+  const RtStatus contact = fx.wait_status(
+      [two_hands](const RtStatus& st) { return st.hand[0].contact != 0 && (!two_hands || st.hand[1].contact != 0); }, ok);
   ASSERT_TRUE(ok) << "no contact at all\n" << read_file(fx.path("viz.log"));
   const auto hold_ticks = static_cast<std::uint64_t>(hold_s * 1000);
   ASSERT_TRUE(test::eventually([&] { return fx.viz_applied() >= contact.tick + hold_ticks; }, std::chrono::seconds(180)))
@@ -293,41 +305,44 @@ void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
     const double gx = a / L * std::cos(x / L) * std::cos(y / L), gy = -a / L * std::sin(x / L) * std::sin(y / L);
     return (h - z) / std::sqrt(1 + gx * gx + gy * gy) + kProxyRadius;
   };
-  constexpr std::size_t kSettle = 500;  // ticks after contact while the hand settles against the tissue
-  std::size_t rows = 0, since_contact = 0, checked = 0, free_after_contact = 0, faded = 0;
-  double worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0, contact_t = -1;
-  int first_patch_stage = -1;
-  for (const TraceRow& r : read_trace(fx.path("trace.csv"))) {
-    ++rows;
-    const double d = depth_m(r.tool.x * 1e-3, r.tool.y * 1e-3, r.tool.z * 1e-3);
-    if (first_patch_stage < 0 && r.patch_version != 0) first_patch_stage = r.stage;
-    if (contact_t < 0) {
-      if (r.stage != 0) contact_t = r.t, depth_at_contact = d;
-      continue;
+  for (const Press& press : presses) {
+    SCOPED_TRACE(std::string("the ") + press.hand + " hand");
+    constexpr std::size_t kSettle = 500;  // ticks after contact while the hand settles against the tissue
+    std::size_t rows = 0, since_contact = 0, checked = 0, free_after_contact = 0, faded = 0;
+    double worst = 0, min_depth = 1, worst_t = 0, depth_at_contact = 0, contact_t = -1;
+    int first_patch_stage = -1;
+    for (const TraceRow& r : read_trace(fx.path("trace.csv"), press.hand)) {
+      ++rows;
+      const double d = depth_m(r.tool.x * 1e-3, r.tool.y * 1e-3, r.tool.z * 1e-3);
+      if (first_patch_stage < 0 && r.patch_version != 0) first_patch_stage = r.stage;
+      if (contact_t < 0) {
+        if (r.stage != 0) contact_t = r.t, depth_at_contact = d;
+        continue;
+      }
+      if (++since_contact < kSettle) continue;
+      if (r.stage == 0) ++free_after_contact;
+      if ((r.events & event::kForceFaded) != 0) {
+        ++faded;
+        continue;
+      }
+      const double f = norm(r.force);
+      const double err = std::abs(f - kStiffness * d) / (kStiffness * d);
+      if (err > worst) worst = err, worst_t = r.t - contact_t;
+      min_depth = std::min(min_depth, d);
+      ++checked;
     }
-    if (++since_contact < kSettle) continue;
-    if (r.stage == 0) ++free_after_contact;
-    if ((r.events & event::kForceFaded) != 0) {
-      ++faded;
-      continue;
+    ASSERT_GE(contact_t, 0) << "no contact in the trace (" << rows << " rows)\n" << read_file(fx.path("viz.log"));
+    if (pressed_first) {
+      EXPECT_GT(depth_at_contact, 0.003) << "the stylus was already pressed in when the tissue appeared";
+      EXPECT_NE(first_patch_stage, 0) << "the first tick with a patch is in contact: the stylus is pushed out at once";
     }
-    const double f = norm(r.force);
-    const double err = std::abs(f - kStiffness * d) / (kStiffness * d);
-    if (err > worst) worst = err, worst_t = r.t - contact_t;
-    min_depth = std::min(min_depth, d);
-    ++checked;
+    EXPECT_GE(since_contact + 1, hold_ticks) << "the trace holds every tick of the hold";
+    EXPECT_GE(checked + faded, hold_ticks - kSettle);
+    EXPECT_EQ(faded, 0u) << "ticks faded (the fades' timeouts are 10 s here)";
+    EXPECT_EQ(free_after_contact, 0u) << "ticks without contact while the stylus is held below the surface";
+    EXPECT_GT(min_depth, press.depth_mm * 1e-3 - 0.001) << "the stylus stays well below the surface";
+    EXPECT_LT(worst, 0.10) << "force against k·depth, worst " << worst * 100 << " % at " << worst_t << " s after contact";
   }
-  ASSERT_GE(contact_t, 0) << "no contact in the trace (" << rows << " rows)\n" << read_file(fx.path("viz.log"));
-  if (pressed_first) {
-    EXPECT_GT(depth_at_contact, 0.003) << "the stylus was already pressed in when the tissue appeared";
-    EXPECT_NE(first_patch_stage, 0) << "the first tick with a patch is in contact: the stylus is pushed out at once";
-  }
-  EXPECT_GE(since_contact + 1, hold_ticks) << "the trace holds every tick of the hold";
-  EXPECT_GE(checked + faded, hold_ticks - kSettle);
-  EXPECT_EQ(faded, 0u) << "ticks faded (the fades' timeouts are 10 s here)";
-  EXPECT_EQ(free_after_contact, 0u) << "ticks without contact while the stylus is held below the surface";
-  EXPECT_GT(min_depth, 0.002) << "the stylus stays well below the surface";
-  EXPECT_LT(worst, 0.10) << "force against k·depth, worst " << worst * 100 << " % at " << worst_t << " s after contact";
   const std::string viz_stats = read_file(fx.path("viz.json"));
   EXPECT_EQ(json_number(viz_stats, "lost").value_or(-1), 0) << viz_stats;
 }
@@ -335,6 +350,10 @@ void held_press_is_felt(TwoProcess& fx, bool pressed_first, double hold_s) {
 TEST_F(TwoProcess, APressHeldBelowTheSurfaceIsFeltForAsLongAsItLasts) { held_press_is_felt(*this, false, 7); }
 
 TEST_F(TwoProcess, AStylusAlreadyBelowTheSurfaceWhenTheTissueAppearsIsPushedOut) { held_press_is_felt(*this, true, 4); }
+
+// Two hands pressing at once, each somewhere else and to its own depth: each hand's force is its
+// own k·depth, against its own patch, tick after tick.
+TEST_F(TwoProcess, TwoHandsPressingEachFeelTheirOwnDepth) { held_press_is_felt(*this, false, 5, true); }
 
 // The drill: every patch carries the voxel brick around the tool, lancet-rt's drill passes the
 // soft tissue, stops at the bone and removes it voxel by voxel as the hand presses on; lancet-viz
@@ -442,6 +461,60 @@ TEST_F(TwoProcess, TheDemosScriptedHandCutsAndOpensAnIncision) {
   EXPECT_GT(json_number(stats, "blood_swabbed_ml").value_or(0), 0.0) << "the swab took blood from the opening" << stats;
   EXPECT_LT(json_number(stats, "blood_ledger_error").value_or(1), 1e-5) << stats;
   EXPECT_EQ(stats.find("\"vessel_bleeding\": true"), std::string::npos) << "no vessel under the line" << stats;
+}
+
+// The two-handed demo (docs/examples/demo_two_hands.csv, what ./lancet demo runs): the right hand
+// cuts the first half of the line; the left hand's retractor grabs the incision and holds it open;
+// under the held incision the right hand cuts the second half and swabs. The held incision stays
+// open while the other hand cuts; the demo is good technique: the safety clamp never limits a
+// force.
+TEST_F(TwoProcess, TheTwoHandedDemoHoldsTheIncisionOpenWhileTheOtherHandCuts) {
+  auto viz = start_viz({"--scenario", std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml", "--tool",
+                        "none", "--duration", "600", "--trace", path("trace.csv"), "--stats", path("viz.json")});
+  auto rt = start_rt({"--hands", "2", "--trajectory", std::string(LANCET_SOURCE_DIR) + "/docs/examples/demo_two_hands.csv",
+                      "--script-waits-for-tissue"});
+  ASSERT_TRUE(rt->running());
+  ASSERT_TRUE(wait_viz_applied_after_tissue(13'700)) << read_file(path("viz.log"));
+  stop_viz(*viz);
+  stop_rt(*rt);
+  // Tick by tick (a tick's two rows share its time): the right hand cutting while the left holds.
+  std::map<double, int> left_stage;
+  std::size_t left_pulls = 0;
+  for (const TraceRow& r : read_trace(path("trace.csv"), "left")) {
+    left_stage[r.t] = r.stage;
+    left_pulls += (r.events & event::kPull) != 0 ? 1 : 0;
+  }
+  std::size_t cutting = 0, cutting_while_held = 0, ruptures = 0;
+  for (const TraceRow& r : read_trace(path("trace.csv"), "right")) {
+    ruptures += (r.events & event::kRupture) != 0 ? 1 : 0;
+    if (r.stage != static_cast<int>(Stage::kCutting)) continue;
+    ++cutting;
+    const auto l = left_stage.find(r.t);
+    if (l != left_stage.end() && l->second == static_cast<int>(Stage::kPulling)) ++cutting_while_held;
+  }
+  const std::string stats = read_file(path("viz.json"));
+  std::printf("[ info     ] two hands: %zu ruptures, %zu ticks cutting, %zu of them while the left hand held, %zu left pulls; "
+              "viz: %s\n",
+              ruptures, cutting, cutting_while_held, left_pulls, stats.substr(stats.find("\"cut_widths_mm\"")).c_str());
+  EXPECT_EQ(ruptures, 2u) << "the right hand opens the skin twice: the line's two halves";
+  EXPECT_GT(cutting_while_held, 1000u) << "the second half is cut under the held incision";
+  EXPECT_GT(left_pulls, 5u);
+  EXPECT_EQ(json_number(stats, "hands").value_or(0), 2) << stats;
+  EXPECT_EQ(json_number(stats, "cuts").value_or(-1), 2) << stats;
+  // The held incision was open (its D) at the end, the one cut under it not pulled by the left hand.
+  const std::size_t w = stats.find("\"cut_widths_mm\": [");
+  ASSERT_NE(w, std::string::npos) << stats;
+  double first = 0, second = -1;
+  ASSERT_EQ(std::sscanf(stats.c_str() + w, "\"cut_widths_mm\": [%lf, %lf]", &first, &second), 2) << stats;
+  EXPECT_GT(first, 3.0) << "the held incision stays open" << stats;
+  EXPECT_LT(second, 0.5) << "the left hand pulls only the incision it grabbed" << stats;
+  EXPECT_GT(json_number(stats, "task_progress").value_or(0), 0.8) << "the line is cut along most of its length" << stats;
+  EXPECT_EQ(json_number(stats, "task_damaged").value_or(-1), 0) << stats;
+  EXPECT_GT(json_number(stats, "blood_swabbed_ml").value_or(0), 0.0) << "the right hand's swab took blood from the opening" << stats;
+  EXPECT_EQ(json_number(stats, "clamped_ticks").value_or(-1), 0) << "good technique: the safety clamp never limited a force" << stats;
+  const std::string r = read_file(path("rt.json"));
+  EXPECT_EQ(json_number(r, "clamps").value_or(-1), 0) << r;
+  EXPECT_EQ(json_number(r, "nan_guards").value_or(-1), 0) << r;
 }
 
 // The bone-drilling scenario with a scripted drill: the burr stops at the exposed bone, lancet-rt
