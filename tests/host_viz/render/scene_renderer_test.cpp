@@ -61,6 +61,53 @@ TEST_F(SceneRendererTest, ADentSendsOnlyWhatChangedAndMaterialsColourTheFaces) {
   EXPECT_GT(vessel[0], 2 * vessel[1]);
 }
 
+// Both hands' tools are drawn, each shaft in its hand's colour (blue right, amber left), each
+// where its hand is; a hand without a tool draws nothing.
+TEST_F(SceneRendererTest, EachHandsToolIsDrawnInItsColour) {
+  SceneRenderer r(320, 200);
+  surface::TriangleMesh mesh = surface::make_tissue_block({});
+  r.set_mesh(mesh);
+  SceneInput in;
+  in.camera_pitch = 0.4f;
+  in.camera_distance = 0.15f;
+  // Counts the pixels close to a hand's colour (as the shader shades it: hue, not brightness) in
+  // the left and the right half of the image.
+  const auto count = [&](std::size_t hand, int& left_half, int& right_half) {
+    const Image img = r.read_back();
+    left_half = right_half = 0;
+    const double cr = kHandColours[hand][0], cg = kHandColours[hand][1], cb = kHandColours[hand][2];
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x) {
+        const std::size_t i = static_cast<std::size_t>(4 * (y * img.width + x));
+        const double pr = img.rgba[i], pg = img.rgba[i + 1], pb = img.rgba[i + 2], sum = pr + pg + pb;
+        if (sum < 60) continue;
+        const double dr = pr / sum - cr / (cr + cg + cb), dg = pg / sum - cg / (cr + cg + cb), db = pb / sum - cb / (cr + cg + cb);
+        if (dr * dr + dg * dg + db * db < 0.004) (x < img.width / 2 ? left_half : right_half)++;
+      }
+  };
+  int blue_l = 0, blue_r = 0, amber_l = 0, amber_r = 0;
+  r.render(in);
+  count(0, blue_l, blue_r);
+  count(1, amber_l, amber_r);
+  const int blue_before = blue_l + blue_r, amber_before = amber_l + amber_r;
+
+  // The two tools 40 mm apart along y: on opposite sides of the image, whichever is which.
+  in.tools[0] = {{0.0, -0.02, 0.005}, {0.0, -0.02, 0.005}, {}, true};
+  in.tools[1] = {{0.0, 0.02, 0.005}, {0.0, 0.02, 0.005}, {}, true};
+  r.render(in);
+  count(0, blue_l, blue_r);
+  count(1, amber_l, amber_r);
+  EXPECT_GT(blue_l + blue_r, blue_before + 100) << "the right hand's shaft, blue";
+  EXPECT_GT(amber_l + amber_r, amber_before + 100) << "the left hand's shaft, amber";
+  // On opposite sides of the image.
+  EXPECT_TRUE((blue_l > blue_r) != (amber_l > amber_r)) << "blue " << blue_l << "/" << blue_r << ", amber " << amber_l << "/" << amber_r;
+
+  in.tools[1].has_tool = false;
+  r.render(in);
+  count(1, amber_l, amber_r);
+  EXPECT_LE(amber_l + amber_r, amber_before + 10) << "no left hand, no amber";
+}
+
 TEST_F(SceneRendererTest, AShaderThatDoesNotCompileIsNamedByItsStage) {
   const auto message = [](auto make) {
     try {
