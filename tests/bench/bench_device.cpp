@@ -1,7 +1,8 @@
 // lancet-bench-device: the I/O time of one device tick (read() + write()) on each backend we can
 // run without hardware: the in-process sim, Modbus TCP on loopback against the in-process arm
-// server (its physics thread running at 1 kHz), and Modbus RTU over a pty pair. Prints one JSON
-// object: p50, p99, max in ns per tick, and the ticks that did not come back ok.
+// server (its physics thread running at 1 kHz), two such arms on two servers in one tick (read
+// both, then write both, as lancet-rt's tick does with two hands), and Modbus RTU over a pty pair.
+// Prints one JSON object: p50, p99, max in ns per tick, and the ticks that did not come back ok.
 //   lancet-bench-device [--ticks N] [--timeout-ms T] [--rate HZ]
 // --timeout-ms sets the Modbus response timeout (default: the config's); --rate paces the ticks
 // (default 0: back to back).
@@ -15,6 +16,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -41,24 +43,28 @@ struct Stats {
   std::string note;
 };
 
-Stats measure(device::Device& dev, int ticks, double rate) {
+// One tick's I/O on every device, as lancet-rt's tick does it: read them all, then write them all.
+Stats measure(std::span<device::Device* const> devs, int ticks, double rate) {
   Stats st;
   std::vector<double> ns(static_cast<std::size_t>(ticks));
   device::JointState s;
   device::JointCommand cmd;
-  cmd.n = dev.joint_count();
   const std::int64_t period = rate > 0 ? static_cast<std::int64_t>(1e9 / rate) : 0;
   std::int64_t next = monotonic_ns();
   for (int i = -1000; i < ticks; ++i) {  // 1000 warm-up ticks
-    // A small torque that changes every tick, as the servo's would.
-    for (int j = 0; j < cmd.n; ++j) cmd.tau[static_cast<std::size_t>(j)] = 0.01 * ((i + j) % 7 - 3);
     const std::int64_t t0 = monotonic_ns();
-    const device::IoStatus r = dev.read(s);
-    const device::IoStatus w = dev.write(cmd);
+    bool ok = true;
+    for (device::Device* dev : devs) ok = dev->read(s) == device::IoStatus::kOk && ok;
+    for (std::size_t d = 0; d < devs.size(); ++d) {
+      // A small torque that changes every tick, as the servo's would (each arm its own).
+      cmd.n = devs[d]->joint_count();
+      for (int j = 0; j < cmd.n; ++j) cmd.tau[static_cast<std::size_t>(j)] = 0.01 * ((i + j + static_cast<int>(d)) % 7 - 3);
+      ok = devs[d]->write(cmd) == device::IoStatus::kOk && ok;
+    }
     const std::int64_t t1 = monotonic_ns();
     if (i >= 0) {
       ns[static_cast<std::size_t>(i)] = static_cast<double>(t1 - t0);
-      if (r != device::IoStatus::kOk || w != device::IoStatus::kOk) ++st.errors;
+      if (!ok) ++st.errors;
     }
     if (period > 0) {
       next += period;
@@ -70,7 +76,12 @@ Stats measure(device::Device& dev, int ticks, double rate) {
   st.p50 = q(0.5);
   st.p99 = q(0.99);
   st.max = ns.back();
-  st.counters = dev.counters();
+  for (device::Device* dev : devs) {
+    const device::IoCounters c = dev->counters();
+    st.counters.timeouts += c.timeouts;
+    st.counters.crc_errors += c.crc_errors;
+    st.counters.protocol_errors += c.protocol_errors;
+  }
   st.ran = true;
   return st;
 }
@@ -96,49 +107,85 @@ Stats bench_sim(int ticks, double rate) {
   auto dev = device::SimArm::create(config.value());
   if (!dev.ok()) return {.note = dev.error().message};
   if (!bring_up(*dev.value(), st.note)) return st;
-  return measure(*dev.value(), ticks, rate);
+  device::Device* const devs[] = {dev.value().get()};
+  return measure(devs, ticks, rate);
 }
 
-Stats bench_modbus(arm::ArmConfig config, bool rtu, int ticks, double rate, double timeout) {
-  Stats st;
+// One Modbus arm: the in-process arm server (its physics thread at 1 kHz) and the device on it.
+struct ModbusRig {
+  std::unique_ptr<armsim::ArmServer> server;
+  std::unique_ptr<device::ModbusArm> dev;
+  int master = -1, slave = -1;  // the pty pair (RTU)
+  std::string note;             // why there is no device ("" when there is)
+  ModbusRig() = default;
+  ModbusRig(const ModbusRig&) = delete;
+  ModbusRig& operator=(const ModbusRig&) = delete;
+  ~ModbusRig() {
+    dev.reset();
+    if (server) server->stop();
+    if (master >= 0) close(master);
+    if (slave >= 0) close(slave);
+  }
+};
+
+// Serves `config`'s arm over TCP on an ephemeral port (or RTU on a pty pair) and brings a
+// ModbusArm up on it; rig.note says what failed.
+void start_modbus(arm::ArmConfig config, bool rtu, double timeout, ModbusRig& rig) {
   armsim::ServerOptions o;
   o.hand = armsim::HandMode::kHold;
   auto server = armsim::ArmServer::create(config, o);
-  if (!server.ok()) return {.note = server.error().message};
-  int master = -1, slave = -1;
+  if (!server.ok()) {
+    rig.note = server.error().message;
+    return;
+  }
+  rig.server = std::move(server).value();
   if (rtu) {
     char name[256] = {};
-    if (openpty(&master, &slave, name, nullptr, nullptr) != 0) return {.note = std::string("openpty: ") + std::strerror(errno)};
+    if (openpty(&rig.master, &rig.slave, name, nullptr, nullptr) != 0) {
+      rig.note = std::string("openpty: ") + std::strerror(errno);
+      return;
+    }
     termios t{};
-    tcgetattr(slave, &t);
+    tcgetattr(rig.slave, &t);
     cfmakeraw(&t);
-    tcsetattr(slave, TCSANOW, &t);
+    tcsetattr(rig.slave, TCSANOW, &t);
     config.modbus->transport = arm::ModbusTransport::kRtu;
     config.modbus->host.clear();
     config.modbus->device = name;
     config.modbus->baud = 115200;
-    const Result<void> started = server.value()->start_rtu(master);
-    if (!started.ok()) st.note = started.error().message;
+    const Result<void> started = rig.server->start_rtu(rig.master);
+    if (!started.ok()) rig.note = started.error().message;
   } else {
-    auto port = server.value()->start_tcp(0);
+    auto port = rig.server->start_tcp(0);
     if (port.ok())
       config.modbus->port = port.value();
     else
-      st.note = port.error().message;
+      rig.note = port.error().message;
   }
-  if (st.note.empty()) {
-    if (timeout > 0) config.modbus->response_timeout = timeout;
-    config.modbus->drive_watchdog = 0;  // measures transactions; a slow --rate would trip the arm's watchdog
-    auto dev = device::ModbusArm::create(config, {.max_consecutive_errors = 1'000'000});
-    if (!dev.ok())
-      st.note = dev.error().message;
-    else if (bring_up(*dev.value(), st.note))
-      st = measure(*dev.value(), ticks, rate);
+  if (!rig.note.empty()) return;
+  if (timeout > 0) config.modbus->response_timeout = timeout;
+  config.modbus->drive_watchdog = 0;  // measures transactions; a slow --rate would trip the arm's watchdog
+  auto dev = device::ModbusArm::create(config, {.max_consecutive_errors = 1'000'000});
+  if (!dev.ok()) {
+    rig.note = dev.error().message;
+    return;
   }
-  server.value()->stop();
-  if (master >= 0) close(master);
-  if (slave >= 0) close(slave);
-  return st;
+  rig.dev = std::move(dev).value();
+  if (!bring_up(*rig.dev, rig.note)) rig.dev.reset();
+}
+
+// `arms` Modbus arms, each behind its own server (TCP: two ports, as two drive boxes), read and
+// written in one tick.
+Stats bench_modbus(const arm::ArmConfig& config, bool rtu, int arms, int ticks, double rate, double timeout) {
+  std::vector<std::unique_ptr<ModbusRig>> rigs;
+  std::vector<device::Device*> devs;
+  for (int a = 0; a < arms; ++a) {
+    rigs.push_back(std::make_unique<ModbusRig>());
+    start_modbus(config, rtu, timeout, *rigs.back());
+    if (!rigs.back()->dev) return {.note = rigs.back()->note};
+    devs.push_back(rigs.back()->dev.get());
+  }
+  return measure(devs, ticks, rate);
 }
 
 std::string json_string(const std::string& s) {
@@ -179,8 +226,9 @@ int main(int argc, char** argv) {
   };
   const Row rows[] = {
       {"sim (in process)", bench_sim(ticks, rate)},
-      {"modbus tcp (loopback, in-process server)", bench_modbus(modbus.value(), false, ticks, rate, timeout)},
-      {"modbus rtu (pty pair, in-process server)", bench_modbus(modbus.value(), true, ticks, rate, timeout)},
+      {"modbus tcp (loopback, in-process server)", bench_modbus(modbus.value(), false, 1, ticks, rate, timeout)},
+      {"modbus tcp, two arms (two in-process servers; read both, then write both)", bench_modbus(modbus.value(), false, 2, ticks, rate, timeout)},
+      {"modbus rtu (pty pair, in-process server)", bench_modbus(modbus.value(), true, 1, ticks, rate, timeout)},
   };
   std::printf("{\n  \"ticks\": %d,\n  \"rate_hz\": %g,\n  \"modbus_response_timeout_ms\": %g,\n  \"results\": [\n", ticks, rate, timeout * 1e3);
   bool first = true;

@@ -5,8 +5,11 @@
 // tree). Each as lancet-rt runs it (through the patch's search tree) and, for comparison, scanning
 // every triangle (the step without a patch version; fewer ticks). Then what a patch's arrival
 // costs lancet-rt once: the seqlock copy of the triangles in use, the validation, the tree.
+// Then the whole servo step (servo_step: kinematics, haptics, fade, Jacobian-transpose, sample)
+// for one hand and for two, as lancet-rt's tick steps them: two ServoData, each hand on its own
+// patch with its own search tree, stepped back to back and timed together.
 // Prints one JSON object: p50, p90, p99, max in ns.
-//   lancet-bench-haptics [--ticks N]
+//   lancet-bench-haptics [--ticks N] [--only hands]
 
 #include <algorithm>
 #include <chrono>
@@ -14,6 +17,7 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -23,6 +27,7 @@
 #include "lancet/shared_model/units.hpp"
 #include "lancet/shared_model/validate.hpp"
 #include "patch_sheet.hpp"  // tests/support
+#include "servo/servo_step.hpp"
 
 namespace {
 
@@ -129,19 +134,61 @@ Arrival measure_arrival(int triangles, int reps) {
   return {quantiles(copy), quantiles(check), quantiles(tree)};
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  int ticks = 200'000;
-  for (int i = 1; i < argc; ++i) {
-    if (std::strcmp(argv[i], "--ticks") == 0 && i + 1 < argc) {
-      ticks = std::max(1000, std::atoi(argv[++i]));
-    } else {
-      std::fprintf(stderr, "usage: lancet-bench-haptics [--ticks N]\n");
-      return 2;
-    }
+// One tick of lancet-rt's servo for the hands [first, first + hands) (0: the right, 1: the left)
+// on patches of n triangles (the 4 cm sheet), the probe sliding 2 mm deep, each hand on its own
+// path (the left's is the right's shifted in phase): each hand has its own ServoData, patch and
+// search tree (built before the loop, as the patch intake builds it off the tick); the hands are
+// stepped back to back, and the time is the tick's, both steps together. `preempted`:
+// the ticks over 1 ms (the host took the CPU away: on a shared VM these set the p99 of a long run).
+Stats measure_hands(int triangles, int first, int hands, int ticks, int& preempted) {
+  servo::ServoModel model;  // the built-in stylus: Cartesian kinematics, the tissue's origin at 0
+  for (std::size_t j = 0; j < 3; ++j) model.max_joint_torque[j] = model.haptic.safety.max_force;
+  struct HandRun {
+    std::unique_ptr<TissuePatch> patch;
+    std::unique_ptr<haptics::PatchBvh> tree;
+    std::unique_ptr<servo::ServoData> data;
+    servo::ServoOutput out;
+  };
+  std::vector<HandRun> run(static_cast<std::size_t>(hands));
+  for (std::size_t h = 0; h < run.size(); ++h) {
+    run[h].patch = sheet(triangles);
+    run[h].tree = std::make_unique<haptics::PatchBvh>();
+    haptics::build_patch_bvh(*run[h].tree, *run[h].patch, 1);
+    run[h].data = std::make_unique<servo::ServoData>();
   }
-  std::printf("{\n  \"ticks\": %d,\n  \"results\": [\n", ticks);
+  std::vector<double> ns(static_cast<std::size_t>(ticks));
+  servo::ServoInput in;
+  in.patch_version = 1;
+  in.viz_alive = true;
+  in.reading.n = 3;
+  for (int i = -1000; i < ticks; ++i) {  // 1000 warm-up ticks: down from 5 mm above, then in contact
+    in.deadline_ns = static_cast<std::int64_t>(i + 1000) * 1'000'000;
+    in.woke_ns = in.deadline_ns + 20'000;
+    const double t = i * 0.001;
+    const double z = i < -500 ? 0.005 - 0.007 * (i + 1000) / 500.0 : -0.002;
+    const std::int64_t t0 = monotonic_ns();
+    for (std::size_t k = 0; k < run.size(); ++k) {
+      const std::size_t h = k + static_cast<std::size_t>(first), r = k;
+      const double phase = 1.5 * static_cast<double>(h);  // the left hand on a path of its own
+      in.hand = static_cast<Hand>(h);
+      in.patch = run[r].patch.get();
+      in.patch_tree = run[r].tree.get();
+      in.reading.q = {0.012 * std::sin(t * 1.3 + phase), 0.012 * std::cos(t * 0.7 + phase), z};
+      in.reading.qd = {0.012 * 1.3 * std::cos(t * 1.3 + phase), -0.012 * 0.7 * std::sin(t * 0.7 + phase), 0};
+      servo::servo_step(model, *run[r].data, in, run[r].out);
+    }
+    const std::int64_t t1 = monotonic_ns();
+    if (i >= 0) ns[static_cast<std::size_t>(i)] = static_cast<double>(t1 - t0);
+  }
+  for (const HandRun& r : run)
+    if (!r.data->contact) std::fprintf(stderr, "warning: a hand lost contact\n");
+  preempted = static_cast<int>(std::count_if(ns.begin(), ns.end(), [](double t) { return t > 1e6; }));
+  return quantiles(ns);
+}
+
+// The haptic step's rows and the arrival's (the JSON's "results" and "arrival").
+void print_haptics(int ticks) {
+  std::printf("  \"results\": [\n");
   // Which stage the scalpel run ends in is part of the result: it must be cutting.
   bool first = true;
   struct Case {
@@ -179,6 +226,45 @@ int main(int argc, char** argv) {
                 first ? "" : ",\n", n, offsetof(TissuePatch, triangles) + static_cast<std::size_t>(n) * sizeof(PatchTriangle), a.copy.p50,
                 a.copy.p99, a.check.p50, a.check.p99, a.tree.p50, a.tree.p99);
     first = false;
+  }
+  std::printf("\n  ],\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int ticks = 200'000;
+  bool hands_only = false;
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--ticks") == 0 && i + 1 < argc) {
+      ticks = std::max(1000, std::atoi(argv[++i]));
+    } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc && std::strcmp(argv[i + 1], "hands") == 0) {
+      hands_only = true;
+      ++i;
+    } else {
+      std::fprintf(stderr, "usage: lancet-bench-haptics [--ticks N] [--only hands]\n");
+      return 2;
+    }
+  }
+  std::printf("{\n  \"ticks\": %d,\n", ticks);
+  if (!hands_only) print_haptics(ticks);
+  // One hand against two, each size measured twice in turn (right, left, both; again), so that a
+  // neighbour's load that comes and goes shows as a spread between the two passes. Each figure is
+  // [p50, p90, p99]: the right hand alone (one hand), the left hand alone (its own path), both;
+  // the ratio is both hands' over the right hand's.
+  std::printf("  \"servo_hands\": [\n");
+  bool first = true;
+  for (int n : {1024, 16384}) {
+    for (int pass = 0; pass < 2; ++pass) {
+      int one_preempted = 0, left_preempted = 0, two_preempted = 0;
+      const Stats one = measure_hands(n, 0, 1, ticks, one_preempted), left = measure_hands(n, 1, 1, ticks, left_preempted),
+                  two = measure_hands(n, 0, 2, ticks, two_preempted);
+      std::printf("%s    {\"triangles\": %d, \"pass\": %d, \"right_hand_ns\": [%.0f, %.0f, %.0f], \"left_hand_ns\": [%.0f, %.0f, %.0f], "
+                  "\"two_hands_ns\": [%.0f, %.0f, %.0f], \"two_over_right\": [%.2f, %.2f, %.2f], \"ticks_over_1ms\": [%d, %d, %d]}",
+                  first ? "" : ",\n", n, pass + 1, one.p50, one.p90, one.p99, left.p50, left.p90, left.p99, two.p50, two.p90, two.p99,
+                  two.p50 / one.p50, two.p90 / one.p90, two.p99 / one.p99, one_preempted, left_preempted, two_preempted);
+      first = false;
+    }
   }
   std::printf("\n  ]\n}\n");
   return 0;
