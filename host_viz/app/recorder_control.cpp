@@ -164,22 +164,18 @@ void RecorderControl::after_frame(VizSession& session, sim::SceneSim& sim, const
   f.last_seq = last_seq_;
   f.ticks = frame_ticks_;
   frame_ticks_ = 0;
-  if (frame.patch[0]) {
-    const TissuePatch& p = session.patch(Hand::kRight);
-    f.patch_version = session.patch_version(Hand::kRight);
-    f.patch_seq = p.seq;
-    f.patch_t_ns = p.t_ns;
-    f.patch_samples_applied = p.samples_applied;
-    f.patch_centre = session.latest(Hand::kRight).tool.position;
-  }
-  if (frame.patch[1]) {
-    const TissuePatch& p = session.patch(Hand::kLeft);
-    f.left_patch_version = session.patch_version(Hand::kLeft);
-    f.left_patch_seq = p.seq;
-    f.left_patch_t_ns = p.t_ns;
-    f.left_patch_samples_applied = p.samples_applied;
-    f.left_patch_centre = session.latest(Hand::kLeft).tool.position;
-  }
+  // Each hand's patch published this frame: its version, header and centre (the right hand's in
+  // patch_*, the left's in left_patch_*).
+  const auto published = [&](Hand hand, std::uint64_t& version, std::uint64_t& seq, std::int64_t& t_ns, std::uint64_t& applied,
+                              Vec3& centre) {
+    if (!frame.patch[hand_index(hand)]) return;
+    const TissuePatch& p = session.patch(hand);
+    version = session.patch_version(hand);
+    seq = p.seq, t_ns = p.t_ns, applied = p.samples_applied;
+    centre = session.latest(hand).tool.position;
+  };
+  published(Hand::kRight, f.patch_version, f.patch_seq, f.patch_t_ns, f.patch_samples_applied, f.patch_centre);
+  published(Hand::kLeft, f.left_patch_version, f.left_patch_seq, f.left_patch_t_ns, f.left_patch_samples_applied, f.left_patch_centre);
   f.blood_dt = frame.blood_dt;
   sim.figures(f);
   if (frames_ % record::kSceneHashEvery == 0) f.scene_hash = sim.hash();

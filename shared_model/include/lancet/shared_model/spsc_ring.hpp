@@ -54,25 +54,7 @@ class SpscRing {
   /// is full; never blocks. When the consumer's index is impossible (ahead of head, or more than N
   /// behind) the producer restarts from it, sets *reset (when given) and pushes into the then empty
   /// ring. Real-time safe.
-  [[nodiscard]] bool try_push(const T& v, bool* reset = nullptr) noexcept {
-    std::uint64_t head = head_.load(std::memory_order_relaxed);
-    if (head - tail_cache_ >= N) {
-      tail_cache_ = tail_.load(std::memory_order_acquire);
-      const std::uint64_t used = head - tail_cache_;
-      if (used > N) {
-        head = tail_cache_;
-        head_.store(head, std::memory_order_release);
-        producer_resets_.store(producer_resets_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
-        if (reset != nullptr) *reset = true;
-      } else if (used == N) {
-        overflows_.store(overflows_.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
-        return false;
-      }
-    }
-    slots_[head & kMask] = v;
-    head_.store(head + 1, std::memory_order_release);
-    return true;
-  }
+  [[nodiscard]] bool try_push(const T& v, bool* reset = nullptr) noexcept { return try_push_n(&v, 1, reset); }
 
   /// Producer only. Copies v[0..n) into the ring all at once, or nothing (false, one overflow
   /// counted) when fewer than n slots are free: the consumer sees all n or none of them, never a
