@@ -151,6 +151,23 @@ TEST(TissueScene, TheHeldIncisionStaysOpenWhileTheOtherHandCuts) {
   right.samples.resize(right.samples.size() - 101);  // up to the grab: the left hand holds it
   right.play(*scene);
   ASSERT_EQ(scene->cut_figures().cuts, 1u);
+  // Whether the surface a patch around `at` gives the haptics covers `at` (seen from above): a
+  // tool there rests on tissue, or falls into the opening.
+  const auto patch_covers = [&](Vec3 at) {
+    auto patch = std::make_unique<TissuePatch>();
+    (void)scene->export_patch(at, *patch);
+    for (std::uint32_t i = 0; i < patch->n_triangles; ++i) {
+      const auto& v = patch->triangles[i].v;
+      const auto side = [&](int a, int b) {
+        return (v[b].x - v[a].x) * (at.y - v[a].y) - (v[b].y - v[a].y) * (at.x - v[a].x);
+      };
+      const double s0 = side(0, 1), s1 = side(1, 2), s2 = side(2, 0);
+      if ((s0 >= 0 && s1 >= 0 && s2 >= 0) || (s0 <= 0 && s1 <= 0 && s2 <= 0)) return true;
+    }
+    return false;
+  };
+  const Vec3 on_the_cut = on(-0.012, 0.0011);
+  EXPECT_TRUE(patch_covers(on_the_cut)) << "a closed incision: the tissue is felt across it";
 
   std::vector<ToolSample> ticks;
   std::uint64_t seq = 10'000;
@@ -207,6 +224,9 @@ TEST(TissueScene, TheHeldIncisionStaysOpenWhileTheOtherHandCuts) {
   const auto grooves = scene->grooves();
   ASSERT_EQ(grooves.size(), 2u);
   EXPECT_NEAR(grooves[0].top_gap, 0.004, 0.0003) << "the groove opens under the held incision";
+  // What the left hand holds, the right hand feels: the patch the right hand would get there has
+  // the opening in it.
+  EXPECT_FALSE(patch_covers(on_the_cut)) << "the held incision is open in the haptic surface too";
   EXPECT_LT(grooves[1].top_gap, 0.0005);
 }
 
