@@ -7,7 +7,12 @@ Result<sim::FrameBatch> LiveFrame::drain() {
   if (trace_ != nullptr) trace_->write(drained);
   sim::FrameBatch b;
   b.samples = recorder_.admit(drained, session_);
-  b.blood_dt = blood_dt_;
+  // A scene armed for a recording stays as it was made until its session begins: its blood does
+  // not flow either (a replay's starts at time 0, and the blood's own clock gates when it
+  // rebuilds its network).
+  const auto state = recorder_.state();
+  const bool frozen = state == RecorderControl::State::kArmed || state == RecorderControl::State::kWaitingReset;
+  b.blood_dt = frozen ? 0.0 : blood_dt_;
   // Each hand that has sent a sample gets its patch, around its own tool.
   if (session_.attached()) {
     for (std::size_t h = 0; h < kHandCount; ++h) {

@@ -1,7 +1,7 @@
 #pragma once
 // LiveFrame: the live viz's two ends of the frame function (sim/viz_frame.hpp). Its samples are
 // those drained from lancet-rt's ring this frame (written to the --trace, then admitted by the
-// recording: a scene armed for a recording waits for the servo's reset); its patch is filled in the
+// recording: a scene armed for a recording waits for the servo's reset, its blood still until then); its patch is filled in the
 // link's buffer around the newest tool position, once attached and a sample has arrived, with the
 // frame's number, time and newest tick as its header, and published to the segment.
 

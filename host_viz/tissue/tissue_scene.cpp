@@ -263,10 +263,13 @@ std::size_t TissueScene::hand_of(const ToolSample& t) noexcept {
 // One hand's sample on the surface. Two hands share one surface: the dent is the hand's that
 // pressed first (the other's press is felt, but not drawn, until it lets go), the cut being made is
 // the hand's that began it (the other hand neither ends nor extends it), and a retractor pulls the
-// cut it grabbed, whatever cut the other hand makes meanwhile.
+// cut it grabbed, whatever cut the other hand makes meanwhile. The surface's own time (a released
+// dent's return to rest, the wrinkle's damping) runs on the right hand's samples alone (every
+// session has a right hand), so two hands do not make it run twice as fast.
 void TissueScene::apply_one(const ToolSample& sample, double dt) {
   surface::SurfaceModel& m = *surface_;
   const std::size_t h = hand_of(sample);
+  const bool keeps_time = h == hand_index(Hand::kRight);
   const Vec3 tool = sample.tool.position, proxy = sample.proxy.position;
   if (!is_finite(tool) || !is_finite(proxy)) return;
   const bool cutting_stage = sample.stage == Stage::kRupture || sample.stage == Stage::kCutting;
@@ -280,7 +283,7 @@ void TissueScene::apply_one(const ToolSample& sample, double dt) {
     if (dent_hand_ == h) {
       m.update_contact(std::nullopt, dt);
       dent_hand_ = kNoHand;
-    } else if (dent_hand_ == kNoHand) {
+    } else if (dent_hand_ == kNoHand && keeps_time) {
       m.update_contact(std::nullopt, dt);  // the return to rest goes on
     }
   };
@@ -308,13 +311,13 @@ void TissueScene::apply_one(const ToolSample& sample, double dt) {
       release_dent();
       if ((sample.events & event::kGrab) != 0 || held_cut_[h] >= m.cuts().size()) held_cut_[h] = nearest_cut(sample.payload.position);
       if (held_cut_[h] < m.cuts().size() && (sample.events & event::kPull) != 0) (void)m.pull(held_cut_[h], sample.payload.magnitude);
-      m.relax(dt);
+      if (keeps_time) m.relax(dt);
       break;
     }
     default:
       release_dent();
       held_cut_[h] = kNoCut;
-      m.relax(dt);
+      if (keeps_time) m.relax(dt);
       break;
   }
 }

@@ -223,6 +223,11 @@ void live_record_replay(std::size_t hands) {
     live.begin(now, 0.016);
     auto r = run_frame(*live_sim, live);
     ASSERT_TRUE(r.ok());
+    // Until the session begins, the scene armed for it stays as made: its blood does not flow (a
+    // replay's starts at time 0; the blood's clock gates its network's rebuilds).
+    if (recorder.state() != viz::RecorderControl::State::kOn) {
+      EXPECT_EQ(r.value().blood_dt, 0.0) << "frame " << frame;
+    }
     recorder.after_frame(session, *live_sim, r.value(), now);
     if (frame == 0) {
       ASSERT_EQ(session.link(), viz::Link::kConnected) << session.link_message();
