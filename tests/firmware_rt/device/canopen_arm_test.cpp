@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 #include <linux/can.h>
+#include <linux/can/raw.h>
 #include <net/if.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
@@ -18,6 +19,8 @@
 #include <sys/mman.h>
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <cerrno>
 #include <climits>
 #include <chrono>
@@ -36,6 +39,8 @@
 #include <vector>
 
 #include "armsim/canopen_nodes.hpp"
+#include "lancet/shared_model/shared_state.hpp"
+#include "lancet/shared_model/validate.hpp"
 #include "malloc_guard.hpp"
 #include "process.hpp"
 #include "wait.hpp"
@@ -1390,6 +1395,132 @@ TEST_F(CanopenPrograms, LancetRtKilledLeavesLancetArmsimsDrivesTorqueFree) {
   std::sort(nodes.begin(), nodes.end());
   EXPECT_EQ(nodes, cfg_.canopen->node_ids) << "each drive once";
   std::printf("  lancet-rt killed: lancet-armsim's four drives torque-free within %.0f ms (watchdog %d ms)\n", elapsed_ms, kDriveWatchdogMs);
+}
+
+// Two arms on one bus (hw_configs/README.md, "Two arms"): lancet-armsim serves each node set (the
+// right arm's nodes 1..4, the left's 11..14) on the same interface, and one lancet-rt drives both
+// hands (`--hands 2 --config right.toml --left-config left.toml`). The left arm has
+// sync_producer = false: the right arm's SYNC, one per tick, drives both node sets. Checked: both
+// arms reach active and their bus counters advance with no fault; the bus carries one SYNC per
+// tick (a second producer would double it); lancet-armsim killed under the left arm faults the
+// left hand only, while the right arm stays active and its bus keeps working.
+TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
+  const std::string right = config_file();
+  const std::string left = write_text(base_ + "_left.toml", canopen_toml({
+      {"interface", "\"" + iface_name() + "\""},
+      {"sync_period_us", std::to_string(std::llround(cfg_.canopen->sync_period * 1e6))},
+      {"heartbeat_ms", std::to_string(kProgramHeartbeatMs)},
+      {"drive_watchdog_ms", std::to_string(kDriveWatchdogMs)},
+      {"node_ids", "[11, 12, 13, 14]"},
+      {"buttons_node", "14"},
+      {"master_node_id", std::to_string(kMasterNodeId - 1)},
+      {"sync_producer", "false"},
+  }));
+  std::array<std::string, 2> sim_log{base_ + "_armsim_right.log", base_ + "_armsim_left.log"};
+  std::array<std::unique_ptr<test::Child>, 2> sims;
+  const std::array<std::string, 2> files{right, left};
+  for (std::size_t h = 0; h < 2; ++h) {
+    sims[h] = std::make_unique<test::Child>(std::vector<std::string>{tools_ + "/lancet-armsim", files[h], "--can", iface_name(), "--hand", "hold"},
+                                            sim_log[h]);
+    ASSERT_TRUE(sims[h]->started());
+    ASSERT_TRUE(wait_for([&] { return test::read_file(sim_log[h]).find("serving") != std::string::npos; })) << test::read_file(sim_log[h]);
+  }
+  // Every SYNC on the bus, counted from the test's own socket (it sees every frame of vcan).
+  const int sync_fd = ::socket(PF_CAN, SOCK_RAW, CAN_RAW);
+  ASSERT_GE(sync_fd, 0) << std::strerror(errno);
+  const can_filter only_sync{0x080, CAN_SFF_MASK | CAN_EFF_FLAG | CAN_RTR_FLAG};
+  ASSERT_EQ(::setsockopt(sync_fd, SOL_CAN_RAW, CAN_RAW_FILTER, &only_sync, sizeof only_sync), 0);
+  timeval tv{0, 100'000};
+  (void)::setsockopt(sync_fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  ifreq ifr{};
+  std::snprintf(ifr.ifr_name, sizeof ifr.ifr_name, "%s", iface_name().c_str());
+  ASSERT_EQ(::ioctl(sync_fd, SIOCGIFINDEX, &ifr), 0);
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = ifr.ifr_ifindex;
+  ASSERT_EQ(::bind(sync_fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr), 0);
+  std::atomic<std::uint64_t> syncs_seen{0};
+  std::atomic<bool> stop_counting{false};
+  std::thread counter([&] {
+    while (!stop_counting.load()) {
+      can_frame f{};
+      if (::read(sync_fd, &f, sizeof f) == static_cast<ssize_t>(sizeof f)) syncs_seen.fetch_add(1);
+    }
+  });
+  struct Cleanup {
+    std::function<void()> f;
+    ~Cleanup() { f(); }
+  } cleanup{[&] {
+    stop_counting.store(true);
+    counter.join();
+    ::close(sync_fd);
+  }};
+
+  shm_ = "/lancet_can_two_arms";
+  ::shm_unlink(shm_.c_str());
+  rt_log_ = base_ + "_rt.log";
+  test::Child rt({tools_ + "/lancet-rt", "--hands", "2", "--config", right, "--left-config", left, "--shm", shm_, "--no-rt", "--period-us",
+                  std::to_string(std::llround(cfg_.canopen->sync_period * 1e6)), "-q"},
+                 rt_log_);
+  ASSERT_TRUE(rt.started());
+  const auto rt_said = [&] { return test::read_file(rt_log_); };
+  // lancet-rt's status (checked), until pred holds; false when it exited or never published.
+  RtStatus st{};
+  const auto status_until = [&](const std::function<bool(const RtStatus&)>& pred) {
+    return wait_while_running(rt, [&] {
+      auto ch = SharedChannel::open(shm_);
+      return ch && ch.value().state().rt_status.try_read(st) == ReadStatus::kOk && wire::check(st) == nullptr && pred(st);
+    });
+  };
+  constexpr auto kActive = DeviceLifecycle::kActive, kFault = DeviceLifecycle::kFault;
+  ASSERT_TRUE(status_until([&](const RtStatus& s) { return s.hands == 2 && s.hand[0].device_state == kActive && s.hand[1].device_state == kActive; }))
+      << rt_said() << test::read_file(sim_log[0]) << test::read_file(sim_log[1]);
+  EXPECT_NE(rt_said().find("right hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
+  EXPECT_NE(rt_said().find("left hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
+
+  // Both buses read and written tick after tick, no fault; one SYNC per tick on the bus.
+  const RtStatus started = st;
+  const std::uint64_t syncs_at_start = syncs_seen.load();
+  const std::uint64_t more = 200;
+  ASSERT_TRUE(status_until([&](const RtStatus& s) {
+    for (std::size_t h = 0; h < 2; ++h)
+      if (s.hand[h].bus.reads < started.hand[h].bus.reads + more || s.hand[h].bus.writes < started.hand[h].bus.writes + more) return false;
+    return true;
+  })) << rt_said();
+  const std::uint64_t syncs = syncs_seen.load() - syncs_at_start;
+  const std::uint64_t right_reads = st.hand[0].bus.reads - started.hand[0].bus.reads;
+  for (std::size_t h = 0; h < 2; ++h) {
+    EXPECT_EQ(st.hand[h].device_state, kActive) << h << ": " << st.hand[h].fault_text;
+    EXPECT_EQ(st.hand[h].bus.faults, 0u) << h << ": " << st.hand[h].fault_text;
+  }
+  // The counter's thread and the status are read at slightly different moments: a few SYNCs either way.
+  EXPECT_LE(syncs, right_reads + 10) << "more SYNCs than the right arm's reads: a second producer?";
+  EXPECT_GE(syncs + 10, right_reads) << "fewer SYNCs than the right arm's reads";
+  std::printf("  %llu SYNCs on the bus during %llu ticks of the right arm and %llu of the left\n", static_cast<unsigned long long>(syncs),
+              static_cast<unsigned long long>(right_reads),
+              static_cast<unsigned long long>(st.hand[1].bus.reads - started.hand[1].bus.reads));
+
+  // The left arm's drives vanish (its lancet-armsim killed): the left hand alone faults.
+  const std::size_t log_from = rt_said().size();
+  sims[1]->signal(SIGKILL);
+  (void)sims[1]->wait_exit(std::chrono::seconds(5));
+  ASSERT_TRUE(status_until([&](const RtStatus& s) { return s.hand[1].device_state == kFault; })) << rt_said();
+  EXPECT_EQ(st.hand[0].device_state, kActive) << st.hand[0].fault_text;
+  const RtStatus at_fault = st;
+  ASSERT_TRUE(status_until([&](const RtStatus& s) {
+    return s.hand[0].bus.reads >= at_fault.hand[0].bus.reads + more && s.hand[0].bus.writes >= at_fault.hand[0].bus.writes + more;
+  })) << rt_said();
+  EXPECT_EQ(st.hand[0].device_state, kActive) << st.hand[0].fault_text;
+  EXPECT_EQ(st.hand[0].bus.faults, at_fault.hand[0].bus.faults) << st.hand[0].fault_text;
+  EXPECT_EQ(st.hand[1].device_state, kFault);
+  EXPECT_TRUE(wait_for([&] { return rt_said().find("left arm: FAULT on canopen arm", log_from) != std::string::npos; })) << rt_said();
+  EXPECT_EQ(rt_said().find("right arm: FAULT", log_from), std::string::npos) << rt_said();
+
+  rt.signal(SIGTERM);
+  const auto code = rt.wait_exit(test::kHangTimeout);
+  EXPECT_TRUE(code.has_value() && WIFEXITED(*code) && WEXITSTATUS(*code) == 0) << rt_said();
+  sims[0]->signal(SIGTERM);
+  (void)sims[0]->wait_exit(std::chrono::seconds(5));
 }
 
 // lancetctl probe and monitor only observe: against drives whose TPDOs come a whole period after
