@@ -1156,6 +1156,87 @@ TEST_F(CanopenArmBus, ReconnectAfterTheInterfaceCameBackLeavesTheDrivesDisabled)
   EXPECT_EQ(nodes_->node(3).torque_actual, expected_per_mille(cfg_, 2, 0.1));
 }
 
+// Two arms on one bus in one process: the right arm (nodes 1..4) sends the SYNC, the left arm
+// (nodes 11..14, sync_producer = false) sends none and takes its nodes' TPDOs answering the right
+// arm's SYNC. Its set-up runs on the right arm's SYNCs (a thread reads the right arm meanwhile, as
+// lancet-rt does); then tick by tick both read, and the left arm counts each SYNC it saw. With the
+// right arm silent, the left arm's read names the missing SYNC.
+TEST_F(CanopenArmBus, AnArmWithoutSyncReadsItsNodesAfterTheOtherArmsSync) {
+  bring_up();
+  arm::ArmConfig left_cfg = cfg_;
+  left_cfg.canopen->node_ids = {11, 12, 13, 14};
+  left_cfg.canopen->buttons_node = 14;
+  left_cfg.canopen->master_node_id = kMasterNodeId - 1;
+  left_cfg.canopen->sync_producer = false;
+  auto left_nodes = CanopenNodeSet::start(left_cfg, {});
+  ASSERT_TRUE(left_nodes.ok()) << left_nodes.error().message;
+  auto made = CanopenArm::create(left_cfg, tolerant(), test_timing());
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  std::unique_ptr<CanopenArm> left = std::move(made).value();
+  ASSERT_TRUE(left->configure().ok());
+  {
+    std::atomic<bool> done{false};
+    std::thread right_reads([&] {
+      JointState js{};
+      while (!done.load()) {
+        (void)arm_->read(js);
+        std::this_thread::sleep_for(std::chrono::nanoseconds(period_ns_));
+      }
+    });
+    const Result<void> a = left->activate();
+    done.store(true);
+    right_reads.join();
+    ASSERT_TRUE(a.ok()) << a.error().message;
+  }
+  EXPECT_EQ(left->state(), Lifecycle::kActive);
+  for (int id : left_cfg.canopen->node_ids)
+    EXPECT_EQ(canopen::cia402_state(left_nodes.value()->node(id).statusword), Cia402State::kOperationEnabled) << "node " << id;
+
+  // Tick by tick: the right arm's SYNC, then both reads. A good left read follows a SYNC it saw.
+  JointCommand zero{};
+  zero.n = 4;
+  JointState left_state{};
+  int good = 0;
+  for (int t = 0; t < 50; ++t) {
+    pace();
+    const std::uint64_t seen_before = left->syncs();
+    (void)arm_->read(state_);
+    const IoStatus r = left->read(left_state);
+    (void)arm_->write(zero);
+    (void)left->write(zero);
+    if (r != IoStatus::kOk) continue;  // a stalled guest: judged by the counts below
+    ++good;
+    EXPECT_GT(left->syncs(), seen_before) << "a good read without a SYNC seen";
+    EXPECT_EQ(left_state.n, 4);
+  }
+  EXPECT_GT(good, 0) << left->last_error().c_str();
+  EXPECT_EQ(left->state(), Lifecycle::kActive) << left->fault_detail().c_str();
+  EXPECT_EQ(arm_->state(), Lifecycle::kActive) << arm_->fault_detail().c_str();
+  // The right arm's nodes never answered a SYNC of the left arm's: there was none to answer.
+  EXPECT_LE(left->syncs(), arm_->syncs());
+
+  // No SYNC at all (the right arm not read): the left arm's TPDOs cannot come, and it says why.
+  JointState js{};
+  EXPECT_EQ(left->read(js), IoStatus::kTimeout);
+  EXPECT_NE(std::string(left->last_error().c_str()).find("no SYNC from the bus's producer"), std::string::npos) << left->last_error().c_str();
+  // Left first, on the right arm's SYNCs, then the right arm.
+  {
+    std::atomic<bool> done{false};
+    std::thread right_reads([&] {
+      JointState rjs{};
+      while (!done.load()) {
+        (void)arm_->read(rjs);
+        std::this_thread::sleep_for(std::chrono::nanoseconds(period_ns_));
+      }
+    });
+    const Result<void> d = left->deactivate();
+    done.store(true);
+    right_reads.join();
+    EXPECT_TRUE(d.ok()) << d.error().message;
+  }
+  left.reset();
+}
+
 // ---------------------------------------------------------------------------------------------
 // The programs in the guest: lancet-rt, lancet-armsim, lancetctl
 
