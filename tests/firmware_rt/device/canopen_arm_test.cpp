@@ -1485,6 +1485,10 @@ TEST_F(CanopenPrograms, LancetRtKilledLeavesLancetArmsimsDrivesTorqueFree) {
 // arms reach active and their bus counters advance with no fault; the bus carries one SYNC per
 // tick (a second producer would double it); lancet-armsim killed under the left arm faults the
 // left hand only, while the right arm stays active and its bus keeps working.
+// Three processes share the guest's one CPU: a stall of the guest can make three reads in a row
+// late (lancet-rt's fault policy, a timeout fault), as in the one-arm tests' starts. Such a run is
+// started again (up to three times, each said); any other fault, or a fault of the wrong hand
+// for another reason, fails at once.
 TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
   const std::string right = config_file();
   const std::string left = write_text(base_ + "_left.toml", canopen_toml({
@@ -1497,15 +1501,6 @@ TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
       {"master_node_id", std::to_string(kMasterNodeId - 1)},
       {"sync_producer", "false"},
   }));
-  std::array<std::string, 2> sim_log{base_ + "_armsim_right.log", base_ + "_armsim_left.log"};
-  std::array<std::unique_ptr<test::Child>, 2> sims;
-  const std::array<std::string, 2> files{right, left};
-  for (std::size_t h = 0; h < 2; ++h) {
-    sims[h] = std::make_unique<test::Child>(std::vector<std::string>{tools_ + "/lancet-armsim", files[h], "--can", iface_name(), "--hand", "hold"},
-                                            sim_log[h]);
-    ASSERT_TRUE(sims[h]->started());
-    ASSERT_TRUE(wait_for([&] { return test::read_file(sim_log[h]).find("serving") != std::string::npos; })) << test::read_file(sim_log[h]);
-  }
   // Every SYNC on the bus, counted from the test's own socket (it sees every frame of vcan).
   const int sync_fd = ::socket(PF_CAN, SOCK_RAW, CAN_RAW);
   ASSERT_GE(sync_fd, 0) << std::strerror(errno);
@@ -1537,71 +1532,137 @@ TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
     ::close(sync_fd);
   }};
 
-  shm_ = "/lancet_can_two_arms";
-  ::shm_unlink(shm_.c_str());
-  rt_log_ = base_ + "_rt.log";
-  test::Child rt({tools_ + "/lancet-rt", "--hands", "2", "--config", right, "--left-config", left, "--shm", shm_, "--no-rt", "--period-us",
-                  std::to_string(std::llround(cfg_.canopen->sync_period * 1e6)), "-q"},
-                 rt_log_);
-  ASSERT_TRUE(rt.started());
-  const auto rt_said = [&] { return test::read_file(rt_log_); };
-  // lancet-rt's status (checked), until pred holds; false when it exited or never published.
-  RtStatus st{};
-  const auto status_until = [&](const std::function<bool(const RtStatus&)>& pred) {
-    return wait_while_running(rt, [&] {
-      auto ch = SharedChannel::open(shm_);
-      return ch && ch.value().state().rt_status.try_read(st) == ReadStatus::kOk && wire::check(st) == nullptr && pred(st);
-    });
-  };
   constexpr auto kActive = DeviceLifecycle::kActive, kFault = DeviceLifecycle::kFault;
-  ASSERT_TRUE(status_until([&](const RtStatus& s) { return s.hands == 2 && s.hand[0].device_state == kActive && s.hand[1].device_state == kActive; }))
-      << rt_said() << test::read_file(sim_log[0]) << test::read_file(sim_log[1]);
-  EXPECT_NE(rt_said().find("right hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
-  EXPECT_NE(rt_said().find("left hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
-
-  // Both buses read and written tick after tick, no fault; one SYNC per tick on the bus.
-  const RtStatus started = st;
-  const std::uint64_t syncs_at_start = syncs_seen.load();
+  const std::array<std::string, 2> files{right, left};
   const std::uint64_t more = 200;
-  ASSERT_TRUE(status_until([&](const RtStatus& s) {
-    for (std::size_t h = 0; h < 2; ++h)
-      if (s.hand[h].bus.reads < started.hand[h].bus.reads + more || s.hand[h].bus.writes < started.hand[h].bus.writes + more) return false;
-    return true;
-  })) << rt_said();
-  const std::uint64_t syncs = syncs_seen.load() - syncs_at_start;
-  const std::uint64_t right_reads = st.hand[0].bus.reads - started.hand[0].bus.reads;
-  for (std::size_t h = 0; h < 2; ++h) {
-    EXPECT_EQ(st.hand[h].device_state, kActive) << h << ": " << st.hand[h].fault_text;
-    EXPECT_EQ(st.hand[h].bus.faults, 0u) << h << ": " << st.hand[h].fault_text;
+  enum class Run { kPassed, kStalled, kFailed };
+  // One run: both armsims, lancet-rt, the checks. kStalled: a timeout fault the run is not about.
+  auto run = [&](int attempt) -> Run {
+    std::array<std::string, 2> sim_log{base_ + "_armsim_right.log", base_ + "_armsim_left.log"};
+    std::array<std::unique_ptr<test::Child>, 2> sims;
+    for (std::size_t h = 0; h < 2; ++h) {
+      ::unlink(sim_log[h].c_str());
+      sims[h] = std::make_unique<test::Child>(
+          std::vector<std::string>{tools_ + "/lancet-armsim", files[h], "--can", iface_name(), "--hand", "hold"}, sim_log[h]);
+      if (!sims[h]->started() || !wait_for([&] { return test::read_file(sim_log[h]).find("serving") != std::string::npos; })) {
+        ADD_FAILURE() << "lancet-armsim did not start: " << test::read_file(sim_log[h]);
+        return Run::kFailed;
+      }
+    }
+    shm_ = "/lancet_can_two_arms" + std::to_string(attempt);
+    ::shm_unlink(shm_.c_str());
+    rt_log_ = base_ + "_rt" + std::to_string(attempt) + ".log";
+    test::Child rt({tools_ + "/lancet-rt", "--hands", "2", "--config", right, "--left-config", left, "--shm", shm_, "--no-rt",
+                    "--period-us", std::to_string(std::llround(cfg_.canopen->sync_period * 1e6)), "-q"},
+                   rt_log_);
+    if (!rt.started()) {
+      ADD_FAILURE() << "cannot start lancet-rt";
+      return Run::kFailed;
+    }
+    const auto rt_said = [&] { return test::read_file(rt_log_); };
+    // lancet-rt's status (checked), until pred holds or a hand faults; false when it never held.
+    RtStatus st{};
+    const auto status_until = [&](const std::function<bool(const RtStatus&)>& pred, std::array<bool, 2> may_fault) {
+      return wait_while_running(rt, [&] {
+        auto ch = SharedChannel::open(shm_);
+        if (!ch || ch.value().state().rt_status.try_read(st) != ReadStatus::kOk || wire::check(st) != nullptr) return false;
+        for (std::size_t h = 0; h < 2; ++h)
+          if (!may_fault[h] && st.hand[h].device_state == kFault) return true;  // stop waiting: judged below
+        return pred(st);
+      }) && pred(st);
+    };
+    // A fault of a hand that should not have one: a stall (a timeout) runs again, anything else fails.
+    const auto judge = [&](const char* when, std::array<bool, 2> may_fault) {
+      for (std::size_t h = 0; h < 2; ++h) {
+        if (may_fault[h] || st.hand[h].device_state != kFault) continue;
+        if (st.hand[h].device_fault_cause == IoStatus::kTimeout) {
+          std::printf("  run %d, %s: a timeout fault of hand %zu (a stalled guest): %s\n%s", attempt, when, h, st.hand[h].fault_text,
+                      rt_said().c_str());
+          return Run::kStalled;
+        }
+        ADD_FAILURE() << when << ": hand " << h << " faulted: " << st.hand[h].fault_text << "\n" << rt_said();
+        return Run::kFailed;
+      }
+      ADD_FAILURE() << when << ": lancet-rt ended or hung\n" << rt_said() << test::read_file(sim_log[0]) << test::read_file(sim_log[1]);
+      return Run::kFailed;
+    };
+    const auto stop_all = [&] {
+      rt.signal(SIGTERM);
+      const auto code = rt.wait_exit(test::kHangTimeout);
+      for (auto& sim : sims) {
+        sim->signal(SIGTERM);
+        (void)sim->wait_exit(std::chrono::seconds(5));
+      }
+      ::shm_unlink(shm_.c_str());
+      return code;
+    };
+
+    if (!status_until([&](const RtStatus& s) { return s.hands == 2 && s.hand[0].device_state == kActive && s.hand[1].device_state == kActive; },
+                      {false, false})) {
+      const Run r = judge("start", {false, false});
+      (void)stop_all();
+      return r;
+    }
+    EXPECT_NE(rt_said().find("right hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
+    EXPECT_NE(rt_said().find("left hand: arm 'canopen-lap-4dof' (canopen arm"), std::string::npos) << rt_said();
+
+    // Both buses read and written tick after tick, no fault; one SYNC per tick on the bus.
+    const RtStatus started = st;
+    const std::uint64_t syncs_at_start = syncs_seen.load();
+    if (!status_until([&](const RtStatus& s) {
+          for (std::size_t h = 0; h < 2; ++h)
+            if (s.hand[h].bus.reads < started.hand[h].bus.reads + more || s.hand[h].bus.writes < started.hand[h].bus.writes + more) return false;
+          return true;
+        }, {false, false})) {
+      const Run r = judge("both arms running", {false, false});
+      (void)stop_all();
+      return r;
+    }
+    const std::uint64_t syncs = syncs_seen.load() - syncs_at_start;
+    const std::uint64_t right_reads = st.hand[0].bus.reads - started.hand[0].bus.reads;
+    for (std::size_t h = 0; h < 2; ++h) {
+      EXPECT_EQ(st.hand[h].device_state, kActive) << h << ": " << st.hand[h].fault_text;
+      EXPECT_EQ(st.hand[h].bus.faults, 0u) << h << ": " << st.hand[h].fault_text;
+    }
+    // The counter's thread and the status are read at slightly different moments: a few SYNCs either way.
+    EXPECT_LE(syncs, right_reads + 10) << "more SYNCs than the right arm's reads: a second producer?";
+    EXPECT_GE(syncs + 10, right_reads) << "fewer SYNCs than the right arm's reads";
+    std::printf("  %llu SYNCs on the bus during %llu ticks of the right arm and %llu of the left\n", static_cast<unsigned long long>(syncs),
+                static_cast<unsigned long long>(right_reads),
+                static_cast<unsigned long long>(st.hand[1].bus.reads - started.hand[1].bus.reads));
+
+    // The left arm's drives vanish (its lancet-armsim killed): the left hand alone faults.
+    const std::size_t log_from = rt_said().size();
+    sims[1]->signal(SIGKILL);
+    (void)sims[1]->wait_exit(std::chrono::seconds(5));
+    if (!status_until([&](const RtStatus& s) { return s.hand[1].device_state == kFault; }, {false, true})) {
+      const Run r = judge("left armsim killed", {false, true});
+      (void)stop_all();
+      return r;
+    }
+    const RtStatus at_fault = st;
+    if (!status_until([&](const RtStatus& s) {
+          return s.hand[0].bus.reads >= at_fault.hand[0].bus.reads + more && s.hand[0].bus.writes >= at_fault.hand[0].bus.writes + more;
+        }, {false, true})) {
+      const Run r = judge("right arm after the left's fault", {false, true});
+      (void)stop_all();
+      return r;
+    }
+    EXPECT_EQ(st.hand[0].device_state, kActive) << st.hand[0].fault_text;
+    EXPECT_EQ(st.hand[0].bus.faults, at_fault.hand[0].bus.faults) << st.hand[0].fault_text;
+    EXPECT_EQ(st.hand[1].device_state, kFault);
+    EXPECT_TRUE(wait_for([&] { return rt_said().find("left arm: FAULT on canopen arm", log_from) != std::string::npos; })) << rt_said();
+    EXPECT_EQ(rt_said().find("right arm: FAULT", log_from), std::string::npos) << rt_said();
+    const auto code = stop_all();
+    EXPECT_TRUE(code.has_value() && WIFEXITED(*code) && WEXITSTATUS(*code) == 0) << rt_said();
+    return Run::kPassed;
+  };
+  constexpr int kRuns = 3;
+  for (int attempt = 1; attempt <= kRuns; ++attempt) {
+    const Run r = run(attempt);
+    if (r != Run::kStalled) return;
   }
-  // The counter's thread and the status are read at slightly different moments: a few SYNCs either way.
-  EXPECT_LE(syncs, right_reads + 10) << "more SYNCs than the right arm's reads: a second producer?";
-  EXPECT_GE(syncs + 10, right_reads) << "fewer SYNCs than the right arm's reads";
-  std::printf("  %llu SYNCs on the bus during %llu ticks of the right arm and %llu of the left\n", static_cast<unsigned long long>(syncs),
-              static_cast<unsigned long long>(right_reads),
-              static_cast<unsigned long long>(st.hand[1].bus.reads - started.hand[1].bus.reads));
-
-  // The left arm's drives vanish (its lancet-armsim killed): the left hand alone faults.
-  const std::size_t log_from = rt_said().size();
-  sims[1]->signal(SIGKILL);
-  (void)sims[1]->wait_exit(std::chrono::seconds(5));
-  ASSERT_TRUE(status_until([&](const RtStatus& s) { return s.hand[1].device_state == kFault; })) << rt_said();
-  EXPECT_EQ(st.hand[0].device_state, kActive) << st.hand[0].fault_text;
-  const RtStatus at_fault = st;
-  ASSERT_TRUE(status_until([&](const RtStatus& s) {
-    return s.hand[0].bus.reads >= at_fault.hand[0].bus.reads + more && s.hand[0].bus.writes >= at_fault.hand[0].bus.writes + more;
-  })) << rt_said();
-  EXPECT_EQ(st.hand[0].device_state, kActive) << st.hand[0].fault_text;
-  EXPECT_EQ(st.hand[0].bus.faults, at_fault.hand[0].bus.faults) << st.hand[0].fault_text;
-  EXPECT_EQ(st.hand[1].device_state, kFault);
-  EXPECT_TRUE(wait_for([&] { return rt_said().find("left arm: FAULT on canopen arm", log_from) != std::string::npos; })) << rt_said();
-  EXPECT_EQ(rt_said().find("right arm: FAULT", log_from), std::string::npos) << rt_said();
-
-  rt.signal(SIGTERM);
-  const auto code = rt.wait_exit(test::kHangTimeout);
-  EXPECT_TRUE(code.has_value() && WIFEXITED(*code) && WEXITSTATUS(*code) == 0) << rt_said();
-  sims[0]->signal(SIGTERM);
-  (void)sims[0]->wait_exit(std::chrono::seconds(5));
+  ADD_FAILURE() << "a timeout fault (a stalled guest) in each of " << kRuns << " runs";
 }
 
 // lancetctl probe and monitor only observe: against drives whose TPDOs come a whole period after
