@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "app/device_factory.hpp"
+#include "device/canopen_arm.hpp"
 #include "app/supervisor.hpp"
 #include "app/rt_servo.hpp"
 #include "app/rt_cli.hpp"
@@ -340,19 +341,20 @@ std::vector<std::string> shared_bus_problems(const Args& a, const std::array<Arm
   return out;
 }
 
-/// Reads the SYNC-producing arm once a SYNC period on a thread of its own while the arm that
-/// shares its bus sets up or shuts down (which waits for SYNCs and the TPDOs answering them); its
-/// reads also keep its heartbeat going for its drives. Start-up and shut-down only, before and
-/// after the servo thread owns the devices.
+/// Keeps the SYNC-producing arm's SYNC (and its heartbeat) going once a SYNC period on a thread
+/// of its own while the arm that shares its bus sets up or shuts down (which waits for SYNCs and
+/// the TPDOs answering them). It judges nothing (CanopenArm::keep_sync): the producer's TPDOs late
+/// while the other arm's set-up keeps the CPU busy are no fault of the producer. Start-up and
+/// shut-down only, before and after the servo thread owns the devices.
 class SyncKeeper {
  public:
   SyncKeeper(lancet::device::Device* producer, std::int64_t period_ns) {
-    if (producer == nullptr) return;
-    thread_ = std::thread([this, producer, period_ns] {
-      lancet::device::JointState js;
+    auto* arm = dynamic_cast<lancet::device::CanopenArm*>(producer);
+    if (arm == nullptr) return;
+    thread_ = std::thread([this, arm, period_ns] {
       auto next = std::chrono::steady_clock::now();
       while (!stop_.load(std::memory_order_relaxed)) {
-        (void)producer->read(js);
+        arm->keep_sync();
         next += std::chrono::nanoseconds(period_ns);
         std::this_thread::sleep_until(next);
       }

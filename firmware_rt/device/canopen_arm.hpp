@@ -59,8 +59,8 @@
 // same budget; no SYNC within it is a missing TPDO (kTimeout) that names the absent SYNC. The
 // frames of the other arm's nodes pass neither the socket's filters nor the node-id match. Each
 // arm keeps its own NMT commands (addressed to its own nodes) and its own heartbeat
-// (master_node_id). lancet-rt reads the producer first in the tick, and keeps reading it while
-// the other arm sets up (which needs the SYNCs).
+// (master_node_id). lancet-rt reads the producer first in the tick, and keeps its SYNC going
+// (keep_sync) while the other arm sets up or shuts down (which needs the SYNCs).
 //
 // read() and write() are real-time safe: no allocation, no exceptions, and each blocks at most
 // for the read budget (CanopenTiming::read_budget_fraction × sync period) in ppoll(); the socket is
@@ -163,6 +163,12 @@ class CanopenArm final : public Device {
   [[nodiscard]] const CanopenEvent& last_event() const noexcept { return last_event_; }
   /// last_event() as a sentence (allocates: not real-time).
   [[nodiscard]] std::string describe(const CanopenEvent& e) const;
+  /// While another arm on this bus sets up or shuts down on this arm's SYNC (lancet-rt, before and
+  /// after its loop): one cycle's SYNC, and the master's heartbeat when due; what arrived is taken
+  /// in as read() would, but nothing is judged (no fault, no counters): the arm is not being read
+  /// for the servo, and a late TPDO here says nothing the first read would not. Nothing while the
+  /// bus is not set up or when this arm sends no SYNC. Real-time safe; one caller at a time.
+  void keep_sync() noexcept;
   /// SYNCs sent since configure() (with sync_producer = false: SYNCs seen on the bus).
   [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
 

@@ -329,6 +329,12 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
   }
 }
 
+void CanopenArm::keep_sync() noexcept {
+  if (!pdo_running_ || !bus_.sync_producer || fd_ < 0) return;
+  (void)drain(monotonic_ns());
+  if (send_sync() == IoStatus::kOk) ++sync_count_;
+}
+
 IoStatus CanopenArm::exchange_without_sync(std::int64_t wait_ns) noexcept {
   // What came since the last read counts only from the newest SYNC on (handle() resets the cycle
   // at each); with none yet, nothing counts: wait for the producer's SYNC and the TPDOs after it.

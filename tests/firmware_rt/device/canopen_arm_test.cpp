@@ -1158,8 +1158,8 @@ TEST_F(CanopenArmBus, ReconnectAfterTheInterfaceCameBackLeavesTheDrivesDisabled)
 
 // Two arms on one bus in one process: the right arm (nodes 1..4) sends the SYNC, the left arm
 // (nodes 11..14, sync_producer = false) sends none and takes its nodes' TPDOs answering the right
-// arm's SYNC. Its set-up runs on the right arm's SYNCs (a thread reads the right arm meanwhile, as
-// lancet-rt does); then tick by tick both read, and the left arm counts each SYNC it saw. With the
+// arm's SYNC. Its set-up runs on the right arm's SYNCs (a thread keeps them going meanwhile, as
+// lancet-rt does: CanopenArm::keep_sync); then tick by tick both read, and the left arm counts each SYNC it saw. With the
 // right arm silent, the left arm's read names the missing SYNC.
 TEST_F(CanopenArmBus, AnArmWithoutSyncReadsItsNodesAfterTheOtherArmsSync) {
   bring_up();
@@ -1176,16 +1176,15 @@ TEST_F(CanopenArmBus, AnArmWithoutSyncReadsItsNodesAfterTheOtherArmsSync) {
   ASSERT_TRUE(left->configure().ok());
   {
     std::atomic<bool> done{false};
-    std::thread right_reads([&] {
-      JointState js{};
+    std::thread right_sync([&] {
       while (!done.load()) {
-        (void)arm_->read(js);
+        arm_->keep_sync();
         std::this_thread::sleep_for(std::chrono::nanoseconds(period_ns_));
       }
     });
     const Result<void> a = left->activate();
     done.store(true);
-    right_reads.join();
+    right_sync.join();
     ASSERT_TRUE(a.ok()) << a.error().message;
   }
   EXPECT_EQ(left->state(), Lifecycle::kActive);
@@ -1222,16 +1221,15 @@ TEST_F(CanopenArmBus, AnArmWithoutSyncReadsItsNodesAfterTheOtherArmsSync) {
   // Left first, on the right arm's SYNCs, then the right arm.
   {
     std::atomic<bool> done{false};
-    std::thread right_reads([&] {
-      JointState rjs{};
+    std::thread right_sync([&] {
       while (!done.load()) {
-        (void)arm_->read(rjs);
+        arm_->keep_sync();
         std::this_thread::sleep_for(std::chrono::nanoseconds(period_ns_));
       }
     });
     const Result<void> d = left->deactivate();
     done.store(true);
-    right_reads.join();
+    right_sync.join();
     EXPECT_TRUE(d.ok()) << d.error().message;
   }
   left.reset();
@@ -1484,7 +1482,9 @@ TEST_F(CanopenPrograms, LancetRtKilledLeavesLancetArmsimsDrivesTorqueFree) {
 // sync_producer = false: the right arm's SYNC, one per tick, drives both node sets. Checked: both
 // arms reach active and their bus counters advance with no fault; the bus carries one SYNC per
 // tick (a second producer would double it); lancet-armsim killed under the left arm faults the
-// left hand only, while the right arm stays active and its bus keeps working.
+// left hand only, while the right arm stays active and its bus keeps working; with a new
+// lancet-armsim there, `lancetctl rearm --hand left` brings the left arm back (its set-up on the
+// right arm's SYNCs from the servo's ticks) and both run again.
 // Three processes share the guest's one CPU: a stall of the guest can make three reads in a row
 // late (lancet-rt's fault policy, a timeout fault), as in the one-arm tests' starts. Such a run is
 // started again (up to three times, each said); any other fault, or a fault of the wrong hand
@@ -1653,6 +1653,35 @@ TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
     EXPECT_EQ(st.hand[1].device_state, kFault);
     EXPECT_TRUE(wait_for([&] { return rt_said().find("left arm: FAULT on canopen arm", log_from) != std::string::npos; })) << rt_said();
     EXPECT_EQ(rt_said().find("right arm: FAULT", log_from), std::string::npos) << rt_said();
+
+    // The left arm's drives back (a new lancet-armsim): once lancet-rt has the link (it reconnects
+    // on its own after a lost heartbeat), lancetctl re-arms the left hand, whose set-up runs on the
+    // right arm's SYNCs from the servo's ticks; then both arms run again.
+    sims[1] = std::make_unique<test::Child>(
+        std::vector<std::string>{tools_ + "/lancet-armsim", files[1], "--can", iface_name(), "--hand", "hold"}, sim_log[1] + ".2");
+    EXPECT_TRUE(wait_for([&] { return test::read_file(sim_log[1] + ".2").find("serving") != std::string::npos; }));
+    if (!status_until([&](const RtStatus& s) { return s.hand[1].link_lost == 0; }, {false, true})) {
+      const Run r = judge("left armsim back", {false, true});
+      (void)stop_all();
+      return r;
+    }
+    const std::string ctl_log = base_ + "_rearm" + std::to_string(attempt) + ".log";
+    test::Child ctl({tools_ + "/lancetctl", "rearm", "--rt", shm_, "--hand", "left", "--yes", "--timeout", "30"}, ctl_log);
+    const auto ctl_code = ctl.wait_exit(2 * test::kHangTimeout);
+    EXPECT_TRUE(ctl_code.has_value() && WIFEXITED(*ctl_code) && WEXITSTATUS(*ctl_code) == 0) << test::read_file(ctl_log) << rt_said();
+    const RtStatus rearmed = st;
+    if (!status_until([&](const RtStatus& s) {
+          for (std::size_t h = 0; h < 2; ++h)
+            if (s.hand[h].device_state != kActive || s.hand[h].bus.reads < rearmed.hand[h].bus.reads + more) return false;
+          return true;
+        }, {false, false})) {
+      const Run r = judge("left arm re-armed", {false, false});
+      (void)stop_all();
+      return r;
+    }
+    EXPECT_TRUE(wait_for([&] {
+      return rt_said().find("left arm: canopen arm 'canopen-lap-4dof' on " + iface_name() + " re-armed: active", log_from) != std::string::npos;
+    })) << rt_said();
     const auto code = stop_all();
     EXPECT_TRUE(code.has_value() && WIFEXITED(*code) && WEXITSTATUS(*code) == 0) << rt_said();
     return Run::kPassed;
