@@ -28,8 +28,10 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "app/device_factory.hpp"
+#include "device/canopen_arm.hpp"
 #include "app/supervisor.hpp"
 #include "app/rt_servo.hpp"
 #include "app/rt_cli.hpp"
@@ -277,14 +279,104 @@ bool fail(const std::string& message) {
   return false;
 }
 
-/// Loads hand h's arm (--config, --left-config), builds its kinematics (into the hand's servo
-/// model) and device, configures it and waits for a good read (activate comes just before the loop
-/// starts); fits the hand's servo model to it.
-bool open_arm(Args& a, std::size_t h, Arm& arm) {
-  const std::string& config_path = a.config_path[h];
-  auto cfg = lancet::arm::load_arm_config(config_path);
+/// Loads hand h's arm config (--config, --left-config); nothing touches a bus yet.
+bool load_arm(const Args& a, std::size_t h, Arm& arm) {
+  auto cfg = lancet::arm::load_arm_config(a.config_path[h]);
   if (!cfg.ok()) return fail(cfg.error().message);
   arm.config = std::move(cfg).value();
+  return true;
+}
+
+/// True when both hands' arms are CANopen on the same interface (one bus, one SYNC producer).
+bool share_a_can_bus(const std::array<Arm, lancet::kHandCount>& arms) {
+  const auto& r = arms[0].config, &l = arms[1].config;
+  return r && l && r->canopen && l->canopen && r->canopen->interface_name == l->canopen->interface_name;
+}
+
+/// Two CANopen arms on one interface are one network: exactly one SYNC producer, and it is the
+/// right hand's (read first in the tick, so the left hand's drives answer the SYNC of the same
+/// tick); no node id (drive or master) used twice; one SYNC period. Each problem as a sentence
+/// naming both files and the fields; none when the arms do not share a bus.
+std::vector<std::string> shared_bus_problems(const Args& a, const std::array<Arm, lancet::kHandCount>& arms) {
+  std::vector<std::string> out;
+  if (!share_a_can_bus(arms)) return out;
+  const lancet::arm::CanopenBusConfig& r = *arms[0].config->canopen;
+  const lancet::arm::CanopenBusConfig& l = *arms[1].config->canopen;
+  const char* rp = a.config_path[0].c_str();
+  const char* lp = a.config_path[1].c_str();
+  const char* bus = r.interface_name.c_str();
+  auto yes_no = [](bool b) { return b ? "true" : "false"; };
+  if (!r.sync_producer || l.sync_producer) {
+    out.push_back(lancet::text::format(
+        "both arms are on CAN interface %s, which takes exactly one SYNC producer (CiA 301), the right hand's arm (read first "
+        "in the tick): expected bus.canopen.sync_producer = true in %s (--config, right) and false in %s (--left-config, left), "
+        "found %s and %s",
+        bus, rp, lp, yes_no(r.sync_producer), yes_no(l.sync_producer)));
+  }
+  // Every node id on the bus belongs to one device: the drives' and the two masters' own.
+  struct Id {
+    int id;
+    std::string field;
+  };
+  auto ids_of = [](const lancet::arm::CanopenBusConfig& c) {
+    std::vector<Id> v;
+    for (std::size_t j = 0; j < c.node_ids.size(); ++j) v.push_back({c.node_ids[j], "bus.canopen.node_ids[" + std::to_string(j) + "]"});
+    v.push_back({c.master_node_id, "bus.canopen.master_node_id"});
+    return v;
+  };
+  for (const Id& x : ids_of(r)) {
+    for (const Id& y : ids_of(l)) {
+      if (x.id != y.id) continue;
+      out.push_back(lancet::text::format("both arms are on CAN interface %s and use node id %d: %s in %s (right) and %s in %s (left); "
+                                         "expected node ids and master node ids that no other device on the bus uses",
+                                         bus, x.id, x.field.c_str(), rp, y.field.c_str(), lp));
+    }
+  }
+  const double r_us = r.sync_period * 1e6, l_us = l.sync_period * 1e6;
+  if (std::llround(r_us) != std::llround(l_us)) {
+    out.push_back(lancet::text::format("both arms are on CAN interface %s, one SYNC for both: expected the same bus.canopen.sync_period_us, "
+                                       "found %.0f in %s (right) and %.0f in %s (left)",
+                                       bus, r_us, rp, l_us, lp));
+  }
+  return out;
+}
+
+/// Keeps the SYNC-producing arm's SYNC (and its heartbeat) going once a SYNC period on a thread
+/// of its own while the arm that shares its bus sets up or shuts down (which waits for SYNCs and
+/// the TPDOs answering them). It judges nothing (CanopenArm::keep_sync): the producer's TPDOs late
+/// while the other arm's set-up keeps the CPU busy are no fault of the producer. Start-up and
+/// shut-down only, before and after the servo thread owns the devices.
+class SyncKeeper {
+ public:
+  SyncKeeper(lancet::device::Device* producer, std::int64_t period_ns) {
+    auto* arm = dynamic_cast<lancet::device::CanopenArm*>(producer);
+    if (arm == nullptr) return;
+    thread_ = std::thread([this, arm, period_ns] {
+      auto next = std::chrono::steady_clock::now();
+      while (!stop_.load(std::memory_order_relaxed)) {
+        arm->keep_sync();
+        next += std::chrono::nanoseconds(period_ns);
+        std::this_thread::sleep_until(next);
+      }
+    });
+  }
+  SyncKeeper(const SyncKeeper&) = delete;
+  SyncKeeper& operator=(const SyncKeeper&) = delete;
+  ~SyncKeeper() {
+    stop_.store(true, std::memory_order_relaxed);
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+/// Builds hand h's kinematics (into the hand's servo model) and device from its loaded config,
+/// configures it and waits for a good read (activate comes just before the loop starts); fits the
+/// hand's servo model to it.
+bool open_arm(Args& a, std::size_t h, Arm& arm) {
+  const std::string& config_path = a.config_path[h];
   if (arm.config->canopen) {
     // The drives were told the cycle (0x1006, 0x60C2) from the config; a servo on another period
     // would send SYNC at a rate they do not expect.
@@ -499,6 +591,15 @@ int main(int argc, char** argv) {
   }
   std::array<Arm, lancet::kHandCount> arms;
   for (std::size_t h = 0; h < a.hands; ++h) {
+    if (!a.config_path[h].empty() && !load_arm(a, h, arms[h])) return 2;
+  }
+  // Before any bus traffic: two arms on one CAN bus must agree on who sends SYNC and on ids.
+  if (const std::vector<std::string> problems = shared_bus_problems(a, arms); !problems.empty()) {
+    for (const std::string& p : problems) fail(p);
+    return 2;
+  }
+  const bool one_can_bus = share_a_can_bus(arms);
+  for (std::size_t h = 0; h < a.hands; ++h) {
     if (!a.config_path[h].empty() && !open_arm(a, h, arms[h])) return 2;
   }
 
@@ -525,6 +626,8 @@ int main(int argc, char** argv) {
   for (std::size_t h = 0; h < a.hands; ++h) {
     Arm& arm = arms[h];
     if (!arm.device) continue;
+    // The left arm on the right's bus sets up on the right's SYNCs.
+    const SyncKeeper keeper(h == 1 && one_can_bus ? arms[0].device.get() : nullptr, a.model.period_ns);
     if (const lancet::Result<void> o = arm.device->activate(); !o.ok()) {
       fail(o.error().message);
       return 2;
@@ -576,6 +679,11 @@ int main(int argc, char** argv) {
     if (!arms[h].device) continue;
     std::fprintf(stderr, "lancet-rt: %s arm: %s: %s\n", lancet::hand_name(static_cast<lancet::Hand>(h)), arm_name[h].c_str(),
                  lancet::app::describe_bus(servo.data().status.hand[h].bus).c_str());
+  }
+  // The left arm first: on the right's bus it shuts its drives down on the right's SYNCs.
+  for (std::size_t h = a.hands; h-- > 0;) {
+    if (!arms[h].device) continue;
+    const SyncKeeper keeper(h == 1 && one_can_bus ? arms[0].device.get() : nullptr, a.model.period_ns);
     (void)arms[h].device->deactivate();
   }
   shared.rt_heartbeat.stop();

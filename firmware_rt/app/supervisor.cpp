@@ -53,9 +53,15 @@ RtSupervisor::RtSupervisor(RtServo& servo, SupervisorParams params, std::int64_t
 
 std::vector<std::string> RtSupervisor::poll(std::int64_t now_ns) {
   std::vector<std::string> out;
+  const std::int64_t job_from = monotonic_ns();
   if (servo_.supervise(now_ns)) {
     // The outcome is announced from the status (below) once the servo has taken the device back.
   }
+  // A device job (a re-arm, a reconnect) blocks supervise() for as long as it takes: what follows
+  // happens that much later. Without this, a tick seen right after a job longer than the stall
+  // timeout was stamped with the time before the job, and the next poll took the job's duration
+  // for a servo that did not tick.
+  now_ns += monotonic_ns() - job_from;
   RtStatus st{};
   if (servo_.read_status(st) == ReadStatus::kOk) {
     if (have_) compare(last_, st, now_ns, out);

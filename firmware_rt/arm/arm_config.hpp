@@ -248,6 +248,10 @@ struct CanopenBusConfig {
   std::vector<PdoConfig> rpdos;   ///< host → node
   std::vector<PdoConfig> tpdos;   ///< node → host
   std::optional<int> buttons_node;  ///< node whose digital inputs carry the buttons; unset: node_ids[0]
+  /// true: this master sends the SYNC (one per read). false: another master on the same interface
+  /// does (two arms on one bus: CiA 301 allows one SYNC producer), and a read takes this arm's
+  /// nodes' TPDOs answering that SYNC. The master's own heartbeat goes out either way.
+  bool sync_producer = true;
 };
 
 struct SafetyConfig {

@@ -2,7 +2,8 @@
 // CanopenArm: a haptic arm whose joints are CiA 402 servo drives on one CAN bus, one node per
 // joint, driven through a SocketCAN raw socket with the PDO map of the arm's config
 // ([bus.canopen] in hw_configs/*.toml; schema and behaviour in hw_configs/README.md). The host is
-// the NMT master, the SYNC producer and, while active, a heartbeat producer the drives watch.
+// the NMT master of its own nodes, the SYNC producer (unless `sync_producer = false`: see below)
+// and, while active, a heartbeat producer the drives watch.
 // Every frame is built and read with the CANopen codec (device/canopen/codec.hpp), which the
 // emulated drives of lancet-armsim use too. The sources: create() and the PDO plan in
 // canopen_arm.cpp, the set-up in canopen_arm_setup.cpp, the real-time exchange in
@@ -50,6 +51,16 @@
 // (quick stop: brakes actively). Back on the bus, the master sees the EMCY (and the drive no longer
 // enabled) as a device fault; rearm() enables the drive again. drive_watchdog = 0: no consumer,
 // no heartbeat of the master, 0x6007 left as the drive has it.
+//
+// Two arms on one bus (`sync_producer = false` in one of them). CiA 301 allows one SYNC producer
+// per network, so the other arm's master sends it and this one sends none: its socket also takes
+// SYNC (0x080), and each SYNC it sees starts a cycle (what came before it is an earlier cycle's).
+// read() and the set-up's cycles then wait for a SYNC and this arm's TPDOs after it, within the
+// same budget; no SYNC within it is a missing TPDO (kTimeout) that names the absent SYNC. The
+// frames of the other arm's nodes pass neither the socket's filters nor the node-id match. Each
+// arm keeps its own NMT commands (addressed to its own nodes) and its own heartbeat
+// (master_node_id). lancet-rt reads the producer first in the tick, and keeps its SYNC going
+// (keep_sync) while the other arm sets up or shuts down (which needs the SYNCs).
 //
 // read() and write() are real-time safe: no allocation, no exceptions, and each blocks at most
 // for the read budget (CanopenTiming::read_budget_fraction × sync period) in ppoll(); the socket is
@@ -152,7 +163,13 @@ class CanopenArm final : public Device {
   [[nodiscard]] const CanopenEvent& last_event() const noexcept { return last_event_; }
   /// last_event() as a sentence (allocates: not real-time).
   [[nodiscard]] std::string describe(const CanopenEvent& e) const;
-  /// SYNCs sent since configure().
+  /// While another arm on this bus sets up or shuts down on this arm's SYNC (lancet-rt, before and
+  /// after its loop): one cycle's SYNC, and the master's heartbeat when due; what arrived is taken
+  /// in as read() would, but nothing is judged (no fault, no counters): the arm is not being read
+  /// for the servo, and a late TPDO here says nothing the first read would not. Nothing while the
+  /// bus is not set up or when this arm sends no SYNC. Real-time safe; one caller at a time.
+  void keep_sync() noexcept;
+  /// SYNCs sent since configure() (with sync_producer = false: SYNCs seen on the bus).
   [[nodiscard]] std::uint64_t syncs() const noexcept { return sync_count_; }
 
  protected:
@@ -243,6 +260,8 @@ class CanopenArm final : public Device {
   static void take_position(Node& nd, std::int32_t raw) noexcept;
   /// drain, SYNC, collect until every node's TPDOs of this cycle are in or the wait ends.
   [[nodiscard]] IoStatus exchange(std::int64_t wait_ns) noexcept;
+  /// exchange() of an arm that sends no SYNC: wait for another master's SYNC and the TPDOs after it.
+  [[nodiscard]] IoStatus exchange_without_sync(std::int64_t wait_ns) noexcept;
   /// The status of the cycle just exchanged (see the header comment for the order).
   [[nodiscard]] IoStatus evaluate(std::int64_t now, bool require_enabled) noexcept;
   /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).
@@ -311,7 +330,8 @@ class CanopenArm final : public Device {
   std::optional<canopen::InterpolationPeriod> interpolation_;  ///< 0x60C2 (cst mode)
   std::uint64_t sync_count_ = 0;
   std::uint64_t tracking_since_ = 0;     ///< SYNC count when TPDO tracking (re)started
-  std::int64_t cycle_t_ns_ = 0;          ///< when this cycle's SYNC went out
+  std::int64_t cycle_t_ns_ = 0;          ///< when this cycle's SYNC went out (or was seen)
+  bool sync_seen_ = false;               ///< sync_producer = false: a SYNC came since this exchange began
   std::int64_t prev_good_t_ns_ = 0;      ///< SYNC time of the previous good read (0: none)
   bool socket_failed_ = false;
   int socket_errno_ = 0;

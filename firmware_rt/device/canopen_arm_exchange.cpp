@@ -120,7 +120,10 @@ void CanopenArm::report(IoStatus s, CanopenEvent::What what, int i, std::uint32_
         divider = tpdos_[static_cast<std::size_t>(k)].divider;
         since = sync_count_ - nodes_[static_cast<std::size_t>(i)].tpdo_sync[static_cast<std::size_t>(k)];
       }
-      if (divider == 1) {
+      if (divider == 1 && !bus_.sync_producer && !sync_seen_) {
+        std::snprintf(text, sizeof text, "node %d: TPDO%d (0x%03X) missing: no SYNC from the bus's producer within %.2f ms", e.node_id,
+                      number, cob, static_cast<double>(read_budget_ns_) * 1e-6);
+      } else if (divider == 1) {
         std::snprintf(text, sizeof text, "node %d: TPDO%d (0x%03X) missing: not within %.2f ms of the SYNC", e.node_id, number, cob,
                       static_cast<double>(read_budget_ns_) * 1e-6);
       } else {
@@ -209,6 +212,17 @@ void CanopenArm::handle(const ::can_frame& raw, std::int64_t now) noexcept {
   }
   if ((raw.can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG)) != 0) return;
   const canopen::Frame f = canopen::from_can_frame(raw);
+  if (f.cob_id == canopen::kCobSync) {
+    // Another master's SYNC (only a consumer's filter takes it): a new cycle. TPDOs not yet seen
+    // belong to earlier ones.
+    if (!bus_.sync_producer) {
+      ++sync_count_;
+      cycle_t_ns_ = now;
+      sync_seen_ = true;
+      for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].seen_mask = 0;
+    }
+    return;
+  }
   const canopen::CobId cob = canopen::decode_cob_id(f.cob_id);
   const int i = index_of_id_[static_cast<std::size_t>(cob.node_id)];
   if (i < 0 || cob.node_id == 0) return;
@@ -289,6 +303,7 @@ bool CanopenArm::drain(std::int64_t now) noexcept {
 IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
   socket_failed_ = false;
   for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].bad_length = false;
+  if (!bus_.sync_producer) return exchange_without_sync(wait_ns);
   // Frames still waiting belong to earlier cycles (late TPDOs, heartbeats, EMCY): take them now
   // so that only what follows this SYNC counts for it (a late malformed one is still reported).
   if (!drain(monotonic_ns())) return IoStatus::kDisconnected;
@@ -308,6 +323,35 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
       all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
     }
     if (all) return IoStatus::kOk;
+    if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
+    wait_frames(deadline);
+    if (socket_failed_) return IoStatus::kDisconnected;
+  }
+}
+
+void CanopenArm::keep_sync() noexcept {
+  if (!pdo_running_ || !bus_.sync_producer || fd_ < 0) return;
+  (void)drain(monotonic_ns());
+  if (send_sync() == IoStatus::kOk) ++sync_count_;
+}
+
+IoStatus CanopenArm::exchange_without_sync(std::int64_t wait_ns) noexcept {
+  // What came since the last read counts only from the newest SYNC on (handle() resets the cycle
+  // at each); with none yet, nothing counts: wait for the producer's SYNC and the TPDOs after it.
+  for (int j = 0; j < n_; ++j) nodes_[static_cast<std::size_t>(j)].seen_mask = 0;
+  sync_seen_ = false;
+  const std::int64_t start = monotonic_ns();
+  for (;;) {
+    const std::int64_t now = monotonic_ns();  // before the drain, as in exchange()
+    if (!drain(now)) return IoStatus::kDisconnected;
+    bool all = sync_seen_;
+    for (int j = 0; j < n_ && all; ++j) {
+      const Node& nd = nodes_[static_cast<std::size_t>(j)];
+      all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
+    }
+    if (all) return IoStatus::kOk;
+    // From the SYNC when one came (its TPDOs get the whole budget), else from the read's start.
+    const std::int64_t deadline = (sync_seen_ ? cycle_t_ns_ : start) + wait_ns;
     if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
     wait_frames(deadline);
     if (socket_failed_) return IoStatus::kDisconnected;

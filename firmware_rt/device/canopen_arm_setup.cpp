@@ -86,6 +86,8 @@ Result<void> CanopenArm::open_socket() {
     add(canopen::heartbeat_cob_id(id));
     for (int k = 0; k < n_tpdos_; ++k) add(canopen::tpdo_cob_id(tpdos_[static_cast<std::size_t>(k)].number, id));
   }
+  // Another master's SYNC starts this arm's cycles (sync_producer = false).
+  if (!bus_.sync_producer) filters.push_back({canopen::kCobSync, CAN_SFF_MASK | CAN_EFF_FLAG | CAN_RTR_FLAG});
   if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, filters.data(), static_cast<socklen_t>(filters.size() * sizeof(can_filter))) < 0) {
     const int err = errno;
     return give_up("CAN interface '" + ifname + "': setsockopt(CAN_RAW_FILTER): " + errno_text(err));

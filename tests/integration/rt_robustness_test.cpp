@@ -11,7 +11,10 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "lancet/shared_model/validate.hpp"
@@ -132,6 +135,101 @@ TEST_F(RtRobustness, AServoPeriodThatDisagreesWithTheCanopenSyncPeriodIsRefusedB
   const std::string log = read_file(path("rt.log"));
   EXPECT_NE(log.find("--period-us 500 differs from sync_period_us 1000 in [bus.canopen]"), std::string::npos) << log;
   EXPECT_FALSE(segment_exists());
+}
+
+// Two CANopen arms on one interface are one network. lancet-rt refuses, before it opens the bus
+// (no CAN interface is needed here), a pair that does not have exactly one SYNC producer, the
+// right hand's; that shares a node id (drives or masters); or that has two SYNC periods. Each
+// problem names both files and the fields.
+class TwoCanopenArms : public RtRobustness {
+ protected:
+  /// hw_configs/canopen_arm.toml with these lines of [bus.canopen] replaced (or added below its
+  /// header when the file has none), as `<name>.toml`.
+  std::string config(const std::string& name, const std::vector<std::pair<std::string, std::string>>& keys) {
+    std::string text = read_file(std::string(LANCET_SOURCE_DIR) + "/hw_configs/canopen_arm.toml");
+    for (const auto& [key, value] : keys) {
+      const std::size_t at = text.find("\n" + key + " ");
+      if (at == std::string::npos) {
+        const std::size_t header = text.find("[bus.canopen]\n");
+        text.insert(header + 14, key + " = " + value + "\n");
+      } else {
+        const std::size_t eol = text.find('\n', at + 1);
+        text.replace(at + 1, eol - at - 1, key + " = " + value);
+      }
+    }
+    const std::string file = path(name + ".toml");
+    std::ofstream(file) << text;
+    return file;
+  }
+  /// lancet-rt on both files: its exit status (2 expected) and its log.
+  std::string refused(const std::string& right, const std::string& left) {
+    Child rt({kRt, "--shm", shm_, "-q", "--no-rt", "--hands", "2", "--config", right, "--left-config", left}, path("rt.log"));
+    const auto st = rt.wait_exit(10s);
+    EXPECT_TRUE(st.has_value() && WIFEXITED(*st) && WEXITSTATUS(*st) == 2) << read_file(path("rt.log"));
+    EXPECT_FALSE(segment_exists());
+    return read_file(path("rt.log"));
+  }
+  /// The left arm as it should be beside the shipped right one: nodes 11..14, master 126, no SYNC.
+  std::vector<std::pair<std::string, std::string>> good_left() const {
+    return {{"node_ids", "[11, 12, 13, 14]"}, {"buttons_node", "14"}, {"master_node_id", "126"}, {"sync_producer", "false"}};
+  }
+};
+
+TEST_F(TwoCanopenArms, OneBusTakesOneSyncProducerAndItIsTheRightHandsArm) {
+  const std::string right = config("right", {});
+  auto left_keys = good_left();
+  left_keys.back().second = "true";
+  std::string log = refused(right, config("left", left_keys));
+  EXPECT_NE(log.find("both arms are on CAN interface can0, which takes exactly one SYNC producer (CiA 301), the right hand's arm"),
+            std::string::npos) << log;
+  EXPECT_NE(log.find("expected bus.canopen.sync_producer = true in " + right + " (--config, right) and false in " + path("left.toml") +
+                     " (--left-config, left), found true and true"),
+            std::string::npos) << log;
+  // The left hand's arm producing and the right's not: refused too (the left is read second).
+  log = refused(config("right", {{"sync_producer", "false"}}), config("left", left_keys));
+  EXPECT_NE(log.find("found false and true"), std::string::npos) << log;
+  left_keys.back().second = "false";
+  log = refused(config("right", {{"sync_producer", "false"}}), config("left", left_keys));
+  EXPECT_NE(log.find("found false and false"), std::string::npos) << log;
+  EXPECT_EQ(log.find("node id"), std::string::npos) << "nothing else is wrong\n" << log;
+}
+
+TEST_F(TwoCanopenArms, NodeIdsAndMasterNodeIdsMayNotOverlap) {
+  const std::string right = config("right", {});
+  auto left_keys = good_left();
+  left_keys[0].second = "[4, 12, 13, 14]";   // the right arm's roll drive
+  left_keys[2].second = "1";                 // the left master on the right arm's yaw drive
+  const std::string left = config("left", left_keys);
+  const std::string log = refused(right, left);
+  EXPECT_NE(log.find("use node id 4: bus.canopen.node_ids[3] in " + right + " (right) and bus.canopen.node_ids[0] in " + left + " (left)"),
+            std::string::npos) << log;
+  EXPECT_NE(log.find("use node id 1: bus.canopen.node_ids[0] in " + right + " (right) and bus.canopen.master_node_id in " + left + " (left)"),
+            std::string::npos) << log;
+  EXPECT_EQ(log.find("SYNC producer"), std::string::npos) << "the SYNC producers are right\n" << log;
+  // Both masters on the default id 127.
+  left_keys = good_left();
+  left_keys[2].second = "127";
+  const std::string log2 = refused(right, config("left", left_keys));
+  EXPECT_NE(log2.find("use node id 127: bus.canopen.master_node_id in " + right + " (right) and bus.canopen.master_node_id in"),
+            std::string::npos) << log2;
+}
+
+TEST_F(TwoCanopenArms, BothArmsHaveOneSyncPeriod) {
+  auto left_keys = good_left();
+  left_keys.emplace_back("sync_period_us", "2000");
+  const std::string right = config("right", {}), left = config("left", left_keys);
+  const std::string log = refused(right, left);
+  EXPECT_NE(log.find("one SYNC for both: expected the same bus.canopen.sync_period_us, found 1000 in " + right + " (right) and 2000 in " +
+                     left + " (left)"),
+            std::string::npos) << log;
+  EXPECT_EQ(log.find("--period-us"), std::string::npos) << "refused as a pair first\n" << log;
+}
+
+TEST_F(TwoCanopenArms, ArmsOnTwoInterfacesEachProduceTheirOwnSync) {
+  // Both producing, both on the default master id and nodes: fine on two buses. lancet-rt then
+  // goes on to open them (refused here for want of CAN or of can1, not for the pair).
+  const std::string log = refused(config("right", {}), config("left", {{"interface", "\"can1\""}}));
+  EXPECT_EQ(log.find("both arms are on CAN interface"), std::string::npos) << log;
 }
 
 }  // namespace

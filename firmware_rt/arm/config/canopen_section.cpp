@@ -148,6 +148,7 @@ CanopenBusConfig parse_canopen(Section& s, const Context& ctx, bool has_buttons,
     }
   }
   c.master_node_id = static_cast<int>(s.integer("master_node_id", kOpt, 1, 127).value_or(127));
+  c.sync_producer = s.boolean("sync_producer", kOpt).value_or(true);
   const std::optional<std::int64_t> watchdog_ms = s.integer("drive_watchdog_ms", kOpt, 0, 65'535);
   c.drive_watchdog = static_cast<double>(watchdog_ms.value_or(100)) * kMs;
   if (watchdog_ms && *watchdog_ms > 0) {

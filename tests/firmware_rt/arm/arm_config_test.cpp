@@ -185,6 +185,7 @@ TEST(ArmConfig, BusSectionsLoad) {
   ASSERT_EQ(c.rpdos.size(), 1u);
   ASSERT_EQ(c.rpdos[0].entries.size(), 2u);
   EXPECT_EQ(c.rpdos[0].entries[1].index, 0x6071);
+  EXPECT_TRUE(c.sync_producer) << "the default: this master sends the SYNC";
   EXPECT_EQ(co.value().joints[2].type, JointType::kPrismatic);
   EXPECT_NEAR(co.value().joints[2].lead, 0.0377, 1e-15);
   EXPECT_NEAR(co.value().joints[2].max, 0.2, 1e-15);
@@ -516,6 +517,17 @@ TEST_F(OneError, CanopenChecks) {
   expect_one(check(t), line_of(t, "buttons_node"), "bus.canopen.buttons_node", "one of node_ids");
   t = replaced(canopen_, "interface = \"can0\"", "interface = \"a-very-long-can-interface\"");
   expect_one(check(t), line_of(t, "interface ="), "bus.canopen.interface");
+  // sync_producer is a boolean: a 0 / 1 or a string is not.
+  t = replaced(canopen_, "bitrate = 1000000\n", "bitrate = 1000000\nsync_producer = 0\n");
+  expect_one(check(t), line_of(t, "sync_producer"), "bus.canopen.sync_producer", "expected true or false, found integer 0");
+  t = replaced(canopen_, "bitrate = 1000000\n", "bitrate = 1000000\nsync_producer = \"no\"\n");
+  expect_one(check(t), line_of(t, "sync_producer"), "bus.canopen.sync_producer", "expected true or false, found string \"no\"");
+  t = replaced(canopen_, "bitrate = 1000000\n", "bitrate = 1000000\nsync_produce = false\n");
+  expect_one(check(t), line_of(t, "sync_produce ="), "bus.canopen.sync_produce", "did you mean \"sync_producer\"");
+  t = replaced(canopen_, "bitrate = 1000000\n", "bitrate = 1000000\nsync_producer = false\n");
+  auto consumer = load_arm_config_text(t, "t.toml");
+  ASSERT_TRUE(consumer.ok()) << consumer.error().message;
+  EXPECT_FALSE(consumer.value().canopen->sync_producer);
   // The target torque not mapped: the RPDO cannot drive the arm.
   t = replaced(canopen_, "  { index = 0x6071, subindex = 0, bits = 16 },\n", "");
   expect_one(check(t), line_of(t, "[[bus.canopen.rpdo]]"), "bus.canopen.rpdo", "target_torque (0x6071:00, 16 bits)");
