@@ -8,10 +8,10 @@
 //     names the hand;
 //   - `lancetctl rearm --hand <that hand>` re-arms it, and only it; then the same the other way
 //     round.
-// No viz runs, so no hand has tissue to push on and every force is zero in any case; that a fault
-// zeroes its own hand's force while the other keeps pushing is covered in-process (two SimArms in
-// rt_servo_arm_test, RtServoTwoArms). Here the subject is the bus: two devices, their lifecycles
-// and counters.
+// In that test no viz runs (the subject is the bus: two devices, their lifecycles and counters), so
+// every force is zero; the second test runs lancet-viz too: a fault on the left hand's arm leaves
+// the right hand pressing into the tissue at full force (as two SimArms do in-process,
+// RtServoTwoArms in rt_servo_arm_test).
 // Nothing here depends on the machine's speed: the bus timeout and the drive watchdog are far
 // longer than anything a loaded VM does to lancet-rt's ticks, and every wait is for an event (a
 // line in a log, a value in lancet-rt's status), with a deadline that only catches hangs.
@@ -21,6 +21,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <cstdlib>
 #include <fstream>
 #include <memory>
 #include <optional>
@@ -228,6 +229,51 @@ TEST_F(TwoArms, TwoModbusArmsInOneLoopFaultAndRearmEachHandAlone) {
     EXPECT_TRUE(code.has_value() && WIFEXITED(*code) && WEXITSTATUS(*code) == 0) << read_file(a.log);
     EXPECT_NE(read_file(a.log).find(" 1 connections, 0 forced disconnects"), std::string::npos) << read_file(a.log);
   }
+}
+
+// With a viz publishing tissue: the right hand (the built-in stylus, pressing into the block by its
+// script) feels the tissue; the left hand's arm (a Modbus arm, lancet-armsim) faults; the right
+// hand's force goes on, at full scale, for as long as the left arm stays faulted.
+TEST_F(TwoArms, AFaultOnTheLeftArmLeavesTheRightHandsForce) {
+  Arm left = start_armsim(1);
+  ASSERT_FALSE(left.port.empty()) << read_file(left.log);
+  const std::string left_config = write_config(1, left.port);
+  auto rt = std::make_unique<Child>(std::vector<std::string>{kBin + "/firmware_rt/lancet-rt", "--hands", "2", "--left-config", left_config,
+                                                             "--shm", shm_, "--duration", "600", "--no-rt", "-q", "--viz-timeout-ms", "2000",
+                                                             "--stale-patch-ms", "2000"},
+                                    path("rt.log"));
+  ASSERT_TRUE(eventually([&] { return static_cast<bool>(SharedChannel::open(shm_)) || !rt->running(); })) << rt_log();
+  // Headless through EGL; leak checking off for Mesa (as the two-process tests do).
+  unsetenv("DISPLAY");
+  Child viz({kBin + "/host_viz/lancet-viz", "--headless", "--shm", shm_, "--width", "320", "--height", "200", "--duration", "600"},
+            path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"});
+  const auto pressing = [](const RtStatus& s) {
+    return s.viz_alive != 0 && s.hand[0].contact != 0 && s.hand[0].force_scale == 1.0 && norm(s.hand[0].force) > 0.2;
+  };
+  RtStatus st{};
+  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.hand[1].device_state == kActive && pressing(s); }, st))
+      << rt_log() << read_file(path("viz.log"));
+  EXPECT_EQ(st.hand[0].has_arm, 0u) << "the right hand is the built-in stylus";
+
+  ASSERT_TRUE(control(left, "fault")) << read_file(left.log);
+  ASSERT_TRUE(wait_status([](const RtStatus& s) { return s.hand[1].device_state == kFault; }, st)) << rt_log();
+  EXPECT_EQ(st.hand[1].force.x, 0.0);
+  EXPECT_EQ(st.hand[1].force.y, 0.0);
+  EXPECT_EQ(st.hand[1].force.z, 0.0);
+  EXPECT_EQ(st.watchdog_tripped, 0u) << "an arm's fault is that hand's, not the loop's";
+  // A thousand ticks on, the left arm still faulted: the right hand presses on, at full scale.
+  const std::uint64_t at_fault = st.tick;
+  ASSERT_TRUE(wait_status([&](const RtStatus& s) { return s.tick > at_fault + 1000 && pressing(s); }, st))
+      << "the right hand's force stopped with the left arm's fault\n" << rt_log();
+  EXPECT_EQ(st.hand[1].device_state, kFault) << "a fault never re-arms itself";
+  EXPECT_EQ(st.hand[0].device_errors, 0u);
+
+  viz.signal(SIGINT);
+  (void)viz.wait_exit(test::kHangTimeout);
+  rt->signal(SIGTERM);
+  (void)rt->wait_exit(test::kHangTimeout);
+  left.sim->signal(SIGTERM);
+  (void)left.sim->wait_exit(test::kHangTimeout);
 }
 
 }  // namespace
