@@ -210,4 +210,51 @@ TEST(Bleeding, ACutVesselBleedsUntilPressedForThreeSecondsAndTheSwabTakesBloodAw
 }
 
 }  // namespace
+// Two hands, their samples interleaved tick by tick as lancet-rt sends them (the right hand's, then
+// the left's): the right hand's probe stops the vessel and its swab takes the blood while the left
+// hand works elsewhere. (The left hand's sample comes last in every tick and frame: it does not
+// stand for the right hand's.)
+TEST(Bleeding, EitherHandPressesAndSwabsWhileTheOtherWorksElsewhere) {
+  auto scene = phantom_scene();
+  ASSERT_TRUE(scene);
+  Bleeding blood(*scene);
+  Hand hand(*scene, blood);
+  hand.cut({0.0, 0.004, 0}, {0.0, 0.020, 0});  // across the superficial vein
+  hand.wait(2.0);
+  ASSERT_TRUE(blood.figures().vessel_bleeding);
+  const BloodSource* vein = nullptr;
+  for (const BloodSource& src : blood.sources())
+    if (src.kind == BloodSource::Kind::kVessel) vein = &src;
+  ASSERT_NE(vein, nullptr);
+  const Vec3 top = hand.on(vein->position.x, vein->position.y);
+  std::uint64_t seq = hand.seq;
+  // seconds of ticks: the right hand's `mode` at `top`, the left hand probing 30 mm away.
+  const auto both = [&](ToolMode right_mode, double seconds) {
+    std::vector<ToolSample> frame;
+    const Vec3 far = hand.on(0.03, -0.01);
+    for (int i = 0; i < static_cast<int>(seconds * 1000); ++i) {
+      ++seq;
+      const auto t = static_cast<std::int64_t>(seq) * 1'000'000;
+      ToolSample r = scripted_sample(seq, t, right_mode, Stage::kDeform, top, top + Vec3{0, 0, -0.002}, 0);
+      ToolSample l = scripted_sample(seq, t, ToolMode::kProbe, Stage::kDeform, far, far + Vec3{0, 0, -0.001}, 0);
+      r.hand = lancet::Hand::kRight;
+      l.hand = lancet::Hand::kLeft;
+      frame.push_back(r);
+      frame.push_back(l);
+      if (frame.size() == 32) {
+        (void)scene->apply(frame);
+        blood.observe(frame);
+        blood.advance(*scene, 0.016);
+        frame.clear();
+      }
+    }
+  };
+  both(ToolMode::kProbe, 3.5);
+  EXPECT_FALSE(blood.figures().vessel_bleeding) << "the right hand's press stopped it, the left hand's samples between";
+  const double swabbed = blood.figures().swabbed_ml;
+  both(ToolMode::kSwab, 2.0);
+  EXPECT_GT(blood.figures().swabbed_ml, swabbed + 0.01) << "the right hand's swab takes blood";
+  EXPECT_LT(blood.figures().ledger_error, 1e-5);
+}
+
 }  // namespace lancet::tissue
