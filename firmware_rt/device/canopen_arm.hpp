@@ -262,6 +262,8 @@ class CanopenArm final : public Device {
   [[nodiscard]] IoStatus exchange(std::int64_t wait_ns) noexcept;
   /// exchange() of an arm that sends no SYNC: wait for another master's SYNC and the TPDOs after it.
   [[nodiscard]] IoStatus exchange_without_sync(std::int64_t wait_ns) noexcept;
+  /// Every node has sent every TPDO this cycle expects, each of the right length.
+  [[nodiscard]] bool cycle_complete() const noexcept;
   /// The status of the cycle just exchanged (see the header comment for the order).
   [[nodiscard]] IoStatus evaluate(std::int64_t now, bool require_enabled) noexcept;
   /// Each node's RPDOs due at this SYNC (all of them with `all`: zero torque, shutdown).

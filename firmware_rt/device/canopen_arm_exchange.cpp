@@ -317,16 +317,19 @@ IoStatus CanopenArm::exchange(std::int64_t wait_ns) noexcept {
     // that arrived in time is never left in the socket while a preempted read gives up.
     const std::int64_t now = monotonic_ns();
     if (!drain(now)) return IoStatus::kDisconnected;
-    bool all = true;
-    for (int j = 0; j < n_ && all; ++j) {
-      const Node& nd = nodes_[static_cast<std::size_t>(j)];
-      all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
-    }
-    if (all) return IoStatus::kOk;
+    if (cycle_complete()) return IoStatus::kOk;
     if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
     wait_frames(deadline);
     if (socket_failed_) return IoStatus::kDisconnected;
   }
+}
+
+bool CanopenArm::cycle_complete() const noexcept {
+  for (int j = 0; j < n_; ++j) {
+    const Node& nd = nodes_[static_cast<std::size_t>(j)];
+    if ((nd.seen_mask & expected_mask_) != expected_mask_ || nd.bad_length) return false;
+  }
+  return true;
 }
 
 void CanopenArm::keep_sync() noexcept {
@@ -344,12 +347,7 @@ IoStatus CanopenArm::exchange_without_sync(std::int64_t wait_ns) noexcept {
   for (;;) {
     const std::int64_t now = monotonic_ns();  // before the drain, as in exchange()
     if (!drain(now)) return IoStatus::kDisconnected;
-    bool all = sync_seen_;
-    for (int j = 0; j < n_ && all; ++j) {
-      const Node& nd = nodes_[static_cast<std::size_t>(j)];
-      all = (nd.seen_mask & expected_mask_) == expected_mask_ && !nd.bad_length;
-    }
-    if (all) return IoStatus::kOk;
+    if (sync_seen_ && cycle_complete()) return IoStatus::kOk;
     // From the SYNC when one came (its TPDOs get the whole budget), else from the read's start.
     const std::int64_t deadline = (sync_seen_ ? cycle_t_ns_ : start) + wait_ns;
     if (now >= deadline) return IoStatus::kOk;  // evaluate() says what is missing
