@@ -38,6 +38,16 @@ TEST(ReplayLayout, AnotherRecordedLayoutIsRefusedWithBothNamed) {
   EXPECT_NE(why.find("replay it with the build that recorded it"), std::string::npos) << why;
 }
 
+// Protocol 10 recorded one hand: its samples' and patches' bytes where the hand is now were
+// reserved and 0, the right hand; its recordings replay as the right hand's.
+TEST(ReplayLayout, OneHandedRecordingsOfProtocol10PassTheCheck) {
+  Recording rec;
+  rec.recorded_layout_hash = 0x937ea367a07bda5eull;
+  std::string why;
+  EXPECT_FALSE(refused_for_layout(rec, &why)) << why;
+  EXPECT_NE(rec.recorded_layout_hash, kRecordedLayoutHash) << "this build's differs: it records the hand";
+}
+
 TEST(ReplayLayout, FilesWithoutTheAttributeGoByTheirSharedLayout) {
   Recording rec;
   rec.recorded_layout_hash = 0;  // as read from a file written before the attribute existed
