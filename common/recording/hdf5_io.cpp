@@ -374,7 +374,7 @@ bool read_table(hid_t file, const char* name, hid_t type, std::vector<Row>& out,
 // have carried are counted here.
 // Each hand's ticks are consecutive: a jump in a hand's seq is a gap (last: by hand, 0 = none yet).
 void count_gap(const ToolSample& s, std::uint64_t (&last)[kHandCount], std::uint64_t& gaps, std::uint64_t& lost) {
-  const std::size_t h = hand_index(s.hand) < kHandCount ? hand_index(s.hand) : 0;
+  const std::size_t h = hand_slot(s.hand);
   if (last[h] != 0 && s.seq != last[h] + 1) {
     ++gaps;
     if (s.seq > last[h]) lost += s.seq - last[h] - 1;

@@ -27,7 +27,7 @@ struct SampleStats {
   void ingest(const ToolSample* samples, std::size_t n) noexcept {
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint64_t s = samples[i].seq;
-      const std::size_t h = hand_index(samples[i].hand) < kHandCount ? hand_index(samples[i].hand) : 0;
+      const std::size_t h = hand_slot(samples[i].hand);
       std::uint64_t& last = hand_last_seq[h];
       if (last != 0) {
         if (s <= last) {

@@ -31,7 +31,7 @@ Bleeding::Bleeding(const TissueScene& scene, BleedingParams params) : p_(params)
 
 void Bleeding::observe(std::span<const ToolSample> samples) {
   for (const ToolSample& s : samples) {
-    HandTool& h = hands_[hand_index(s.hand) < kHandCount ? hand_index(s.hand) : 0];
+    HandTool& h = hands_[hand_slot(s.hand)];
     h.tool = s.tool.position;
     h.mode = s.mode;
     h.contact = s.stage != Stage::kFree;

@@ -229,13 +229,13 @@ bool TissueScene::apply(std::span<const ToolSample> batch) {
   last_pull.fill(batch.size());
   last_of_hand.fill(batch.size());
   for (std::size_t i = batch.size(); i-- > 0;) {
-    const std::size_t h = hand_of(batch[i]);
+    const std::size_t h = hand_slot(batch[i].hand);
     if (last_of_hand[h] == batch.size()) last_of_hand[h] = i;
     if (last_pull[h] == batch.size() && (batch[i].events & event::kPull) != 0) last_pull[h] = i;
   }
   for (std::size_t i = 0; i < batch.size(); ++i) {
     const ToolSample& t = batch[i];
-    const std::size_t h = hand_of(t);
+    const std::size_t h = hand_slot(t.hand);
     HandFeed& fed = fed_[h];
     tally(t);
     if ((t.events & event::kDrillRemove) != 0) drill(t);
@@ -256,10 +256,6 @@ bool TissueScene::apply(std::span<const ToolSample> batch) {
   return revision() != before;
 }
 
-std::size_t TissueScene::hand_of(const ToolSample& t) noexcept {
-  return hand_index(t.hand) < kHandCount ? hand_index(t.hand) : 0;
-}
-
 // One hand's sample on the surface. Two hands share one surface: the dent is the hand's that
 // pressed first (the other's press is felt, but not drawn, until it lets go), the cut being made is
 // the hand's that began it (the other hand neither ends nor extends it), and a retractor pulls the
@@ -268,7 +264,7 @@ std::size_t TissueScene::hand_of(const ToolSample& t) noexcept {
 // session has a right hand), so two hands do not make it run twice as fast.
 void TissueScene::apply_one(const ToolSample& sample, double dt) {
   surface::SurfaceModel& m = *surface_;
-  const std::size_t h = hand_of(sample);
+  const std::size_t h = hand_slot(sample.hand);
   const bool keeps_time = h == hand_index(Hand::kRight);
   const Vec3 tool = sample.tool.position, proxy = sample.proxy.position;
   if (!is_finite(tool) || !is_finite(proxy)) return;

@@ -195,7 +195,6 @@ class TissueScene {
     bool any = false;
   };
   static constexpr std::size_t kNoHand = kHandCount, kNoCut = static_cast<std::size_t>(-1);
-  static std::size_t hand_of(const ToolSample& t) noexcept;
   /// The cut with a path point nearest `at` in x-y (kNoCut: none; the newest when `at` is not finite).
   [[nodiscard]] std::size_t nearest_cut(Vec3 at) const;
   std::array<HandFeed, kHandCount> fed_{};

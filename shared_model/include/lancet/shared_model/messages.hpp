@@ -35,16 +35,22 @@ constexpr const char* tool_name(ToolMode m) noexcept {
   return static_cast<std::size_t>(m) < kToolCount ? kToolNames[static_cast<std::size_t>(m)] : "?";
 }
 
-/// The tool called `name`; false when no tool is.
-constexpr bool tool_from_name(std::string_view name, ToolMode& out) noexcept {
-  for (std::size_t i = 0; i < kToolCount; ++i) {
-    if (name == kToolNames[i]) {
-      out = static_cast<ToolMode>(i);
+namespace detail {
+/// The enumerator whose name (names[i], in enumerator order) is `name`; false when none is.
+template <class E, std::size_t N>
+constexpr bool from_name(const char* const (&names)[N], std::string_view name, E& out) noexcept {
+  for (std::size_t i = 0; i < N; ++i) {
+    if (name == names[i]) {
+      out = static_cast<E>(i);
       return true;
     }
   }
   return false;
 }
+}  // namespace detail
+
+/// The tool called `name`; false when no tool is.
+constexpr bool tool_from_name(std::string_view name, ToolMode& out) noexcept { return detail::from_name(kToolNames, name, out); }
 
 /// Interaction stage of the haptic step (ALGORITHMS.md §2).
 enum class Stage : std::uint8_t {
@@ -68,17 +74,12 @@ constexpr const char* hand_name(Hand h) noexcept {
   return static_cast<std::size_t>(h) < kHandCount ? kHandNames[static_cast<std::size_t>(h)] : "?";
 }
 constexpr std::size_t hand_index(Hand h) noexcept { return static_cast<std::size_t>(h); }
+/// hand_index of a hand read from somewhere unchecked (a file, a peer): a value that names no
+/// hand counts as the right hand's, so an index into a per-hand array is always in range.
+constexpr std::size_t hand_slot(Hand h) noexcept { return hand_index(h) < kHandCount ? hand_index(h) : 0; }
 
 /// The hand called `name`; false when no hand is.
-constexpr bool hand_from_name(std::string_view name, Hand& out) noexcept {
-  for (std::size_t i = 0; i < kHandCount; ++i) {
-    if (name == kHandNames[i]) {
-      out = static_cast<Hand>(i);
-      return true;
-    }
-  }
-  return false;
-}
+constexpr bool hand_from_name(std::string_view name, Hand& out) noexcept { return detail::from_name(kHandNames, name, out); }
 
 /// Event bits of ToolSample::events. Several may be set in one tick; the payload describes the
 /// most significant one (the highest bit set).
