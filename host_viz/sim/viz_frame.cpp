@@ -29,8 +29,7 @@ Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
     TissuePatch& p = *hp.patch;
     p.n_triangles = 0;
     p.brick.valid = 0;
-    const std::size_t n = sim.export_patch(hp.centre, p);
-    (h == 0 ? r.triangles : r.triangles_left) = n;
+    r.triangles[h] = sim.export_patch(hp.centre, p);
     p.hand = static_cast<Hand>(h);
     p.seq = hp.header.seq;
     p.t_ns = hp.header.t_ns;

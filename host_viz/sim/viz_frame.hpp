@@ -47,8 +47,7 @@ struct FrameResult {
   std::size_t samples = 0;     ///< applied to the scene
   double blood_dt = 0;         ///< s of blood simulated
   std::array<bool, kHandCount> patch{};  ///< by Hand: a patch was exported and handed to publish()
-  std::size_t triangles = 0;   ///< the right hand's patch's triangle count
-  std::size_t triangles_left = 0;  ///< the left hand's
+  std::array<std::size_t, kHandCount> triangles{};  ///< by Hand: its patch's triangle count
   double scene_s = 0, patch_s = 0, blood_s = 0;  ///< s spent applying, exporting and publishing, on the blood
 };
 

@@ -86,7 +86,7 @@ TEST(VizFrame, DrainsAppliesExportsWithTheHeaderAndPublishes) {
   EXPECT_NE(sim->hash(), before);
   EXPECT_GT(patch->n_triangles, 0u);
   EXPECT_NE(patch->n_triangles, 12345u);
-  EXPECT_EQ(r.value().triangles, patch->n_triangles);
+  EXPECT_EQ(r.value().triangles[0], patch->n_triangles);
   EXPECT_EQ(patch->seq, 7u);
   EXPECT_EQ(patch->t_ns, 123'000'000);
   EXPECT_EQ(patch->samples_applied, 5u);
