@@ -1,6 +1,7 @@
 #include "surface/bvh.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cassert>
 #include <cmath>
 #include <thread>
@@ -10,11 +11,9 @@ namespace lancet::surface {
 namespace {
 
 constexpr std::uint32_t kNone = 0xffffffffu;
-constexpr int kBins = 16;
-// Below this depth build() stops using SAH and splits at the median, which halves the count each
-// level: SAH alone can make a chain as deep as the mesh on adversarial input.
-constexpr std::size_t kMedianDepth = TriangleBvh::kMaxDepth - 40;
-// A mesh this large builds its root's two subtrees on two threads.
+// Cells a side of the Morton grid (10 bits an axis: 30-bit codes).
+constexpr std::uint32_t kMortonCells = 1024;
+// A mesh this large computes its Morton codes and its boxes on two threads.
 constexpr std::size_t kParallelFaces = 1u << 16;
 // A triangle whose |ab × ac|² is below this fraction of (longest edge)⁴ is treated as its edges.
 constexpr double kDegenerate = 1e-14;
@@ -43,12 +42,6 @@ struct Box {
     grow(b.hi);
   }
   [[nodiscard]] bool empty() const { return !(lo.x <= hi.x); }
-  // Half the surface area (the SAH only compares them).
-  [[nodiscard]] double half_area() const {
-    if (empty()) return 0;
-    const double dx = double{hi.x} - lo.x, dy = double{hi.y} - lo.y, dz = double{hi.z} - lo.z;
-    return dx * dy + dy * dz + dz * dx;
-  }
 };
 
 Box face_box(const MeshView& m, std::uint32_t f) {
@@ -267,70 +260,55 @@ SegmentHit make_segment_hit(std::uint32_t face, double t, double u, double v, Ve
   return {face, static_cast<float>(t), to_vec3f(q), static_cast<float>(u), static_cast<float>(v)};
 }
 
-// A face of the mesh while the tree is built: its box and centroid, carried along as faces are
-// sorted.
-struct BuildRef {
-  Box box;
-  Vec3f centroid;
-  std::uint32_t face;
-};
+// The 30-bit Morton code of a point quantised to 1024 cells a side: the bits of the three cell
+// indices interleaved (x lowest), so that sorting by code lays the cells out along a Z-order curve
+// and every prefix of the code names an octree cell.
+std::uint32_t spread_bits(std::uint32_t v) {
+  v &= 0x3ffu;
+  v = (v | (v << 16)) & 0x030000ffu;
+  v = (v | (v << 8)) & 0x0300f00fu;
+  v = (v | (v << 4)) & 0x030c30c3u;
+  v = (v | (v << 2)) & 0x09249249u;
+  return v;
+}
 
-struct Bin {
-  Box box;
-  std::uint32_t count = 0;
-};
-
-// The binned SAH split of [first, last) (centroids within cbox) over all three axes: partitions
-// the range at the cheapest bin boundary and returns the split point; `last` when no axis
-// separates the centroids.
-std::vector<BuildRef>::iterator sah_partition(std::vector<BuildRef>::iterator first, std::vector<BuildRef>::iterator last,
-                                              const Box& cbox) {
-  int best_axis = -1;
-  double lo[3], scale[3];
-  bool live[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = at(cbox.lo, a);
-    const double extent = double{at(cbox.hi, a)} - lo[a];
-    live[a] = extent > 0;
-    scale[a] = live[a] ? kBins * (1 - 1e-9) / extent : 0.0;
-  }
-  const auto bin_of = [&](const BuildRef& r, int a) {
-    return std::clamp(static_cast<int>((at(r.centroid, a) - lo[a]) * scale[a]), 0, kBins - 1);
+// The faces' Morton codes (of their box centres within the box of all centres), from faces
+// [begin, end) into code[].
+void morton_codes(const MeshView& m, Vec3f lo, const double scale[3], std::uint32_t begin, std::uint32_t end, std::uint32_t* code) {
+  const auto cell = [](double q) {
+    // NaN and anything below the box go to cell 0; the clamp keeps the top edge in cell 1023.
+    return q >= 0 ? static_cast<std::uint32_t>(std::min(q, double{kMortonCells - 1})) : 0u;
   };
-  Bin bins[3][kBins];
-  for (auto it = first; it != last; ++it)
-    for (int a = 0; a < 3; ++a) {
-      Bin& b = bins[a][bin_of(*it, a)];
-      b.box.grow(it->box);
-      ++b.count;
-    }
-  double best_cost = std::numeric_limits<double>::infinity();
-  int best_bin = 0;
-  for (int a = 0; a < 3; ++a) {
-    if (!live[a]) continue;
-    // Sweep: right-hand areas and counts, then left to right.
-    double right_area[kBins];
-    std::uint32_t right_count[kBins];
-    Box acc;
-    std::uint32_t cnt = 0;
-    for (int i = kBins - 1; i > 0; --i) {
-      acc.grow(bins[a][i].box);
-      cnt += bins[a][i].count;
-      right_area[i] = acc.half_area();
-      right_count[i] = cnt;
-    }
-    acc = Box{};
-    cnt = 0;
-    for (int i = 0; i < kBins - 1; ++i) {
-      acc.grow(bins[a][i].box);
-      cnt += bins[a][i].count;
-      if (cnt == 0 || right_count[i + 1] == 0) continue;
-      const double cost = acc.half_area() * cnt + right_area[i + 1] * right_count[i + 1];
-      if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = i;
-    }
+  for (std::uint32_t f = begin; f < end; ++f) {
+    const Box b = face_box(m, f);
+    const double cx = 0.5 * (double{b.lo.x} + b.hi.x), cy = 0.5 * (double{b.lo.y} + b.hi.y), cz = 0.5 * (double{b.lo.z} + b.hi.z);
+    code[f] = spread_bits(cell((cx - lo.x) * scale[0])) | spread_bits(cell((cy - lo.y) * scale[1])) << 1 |
+              spread_bits(cell((cz - lo.z) * scale[2])) << 2;
   }
-  if (best_axis < 0) return last;
-  return std::partition(first, last, [&](const BuildRef& r) { return bin_of(r, best_axis) <= best_bin; });
+}
+
+// Sorts (code, face) pairs by code, stably (equal codes keep their face order): three passes of a
+// least-significant-digit radix sort over 10-bit digits. keys/faces are sorted in place; tmp_*
+// are scratch of the same size.
+void radix_sort(std::vector<std::uint32_t>& keys, std::vector<std::uint32_t>& faces, std::vector<std::uint32_t>& tmp_keys,
+                std::vector<std::uint32_t>& tmp_faces) {
+  constexpr int kDigit = 10;
+  constexpr std::uint32_t kBuckets = 1u << kDigit;
+  const std::size_t n = keys.size();
+  std::vector<std::uint32_t> count(kBuckets);
+  for (int shift = 0; shift < 30; shift += kDigit) {
+    std::fill(count.begin(), count.end(), 0u);
+    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
+    std::uint32_t sum = 0;
+    for (auto& c : count) sum += std::exchange(c, sum);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t at = count[(keys[i] >> shift) & (kBuckets - 1)]++;
+      tmp_keys[at] = keys[i];
+      tmp_faces[at] = faces[i];
+    }
+    keys.swap(tmp_keys);
+    faces.swap(tmp_faces);
+  }
 }
 
 }  // namespace
@@ -363,115 +341,78 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   order_.resize(n);
   leaf_of_.assign(n, kNone);
   if (n == 0) return;
+  const bool two = threads && n >= kParallelFaces && std::thread::hardware_concurrency() > 1;
+  const auto both_halves = [&](auto&& work) {  // work(begin, end) over [0, n), on two threads when `two`
+    const auto half = static_cast<std::uint32_t>(n / 2);
+    if (!two) return work(std::uint32_t{0}, static_cast<std::uint32_t>(n));
+    std::thread worker([&] { work(half, static_cast<std::uint32_t>(n)); });
+    work(std::uint32_t{0}, half);
+    worker.join();
+  };
 
-  // Faces are sorted in place as references carrying their box and centroid, so that every pass
-  // of the build reads memory in order; order_ is read off the leaves.
-  std::vector<BuildRef> refs(n);
+  // 1. Every face's Morton code (its box centre in the box of all centres) and the faces sorted
+  //    by it, stably: neighbours in space become neighbours in order_.
+  Box cbox;
   for (std::uint32_t f = 0; f < n; ++f) {
     const Box b = face_box(m, f);
-    refs[f] = {b, {0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)}, f};
+    cbox.grow(Vec3f{0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)});
   }
+  // Cubic cells (one scale for the three axes, from the longest side): with a cell per axis the
+  // thin axis of a sheet would be split as often as its long ones, into slabs as wide as the sheet.
+  const double longest = std::max({double{cbox.hi.x} - cbox.lo.x, double{cbox.hi.y} - cbox.lo.y, double{cbox.hi.z} - cbox.lo.z});
+  const double cells = longest > 0 ? kMortonCells / longest : 0.0;
+  const double scale[3] = {cells, cells, cells};
+  std::vector<std::uint32_t> code(n), tmp_code(n), tmp_face(n);
+  both_halves([&](std::uint32_t begin, std::uint32_t end) { morton_codes(m, cbox.lo, scale, begin, end, code.data()); });
+  for (std::uint32_t f = 0; f < n; ++f) order_[f] = f;
+  radix_sort(code, order_, tmp_code, tmp_face);
 
+  // 2. The tree over the sorted faces, top down, depth first (the left child first), each node's
+  //    children side by side: a range splits where its codes' highest differing bit turns on (the
+  //    octree cell's halves), or at its middle where every code is equal. Each split uses up a bit
+  //    of 30, and the middle splits halve the count, so depth stays below 30 + log2(n) + 1.
   struct Task {
     std::uint32_t node, begin, end;
     std::size_t depth;
   };
-  nodes_.reserve(n);
-  parent_.reserve(n);
+  nodes_.reserve(n / 2 + 1);
+  parent_.reserve(n / 2 + 1);
   nodes_.push_back({});
   parent_.push_back(0);
-
-  // Splits the tasks' nodes until every range is a leaf, depth first (the left child first), each
-  // node's children appended to `nodes` side by side.
-  // (max_tasks > 0: stops once the stack holds that many, for the caller to share them out.)
-  const auto grow = [&](std::vector<Task>& tasks, std::vector<Node>& nodes, std::vector<std::uint32_t>& parents, std::size_t& depth,
-                        std::size_t max_tasks) {
-    while (!tasks.empty() && (max_tasks == 0 || tasks.size() < max_tasks)) {
-      const Task task = tasks.back();
-      tasks.pop_back();
-      depth = std::max(depth, task.depth);
-      const auto first = refs.begin() + task.begin, last = refs.begin() + task.end;
-      Box box, cbox;
-      for (auto it = first; it != last; ++it) {
-        box.grow(it->box);
-        cbox.grow(it->centroid);
-      }
-      nodes[task.node].lo = box.lo;
-      nodes[task.node].hi = box.hi;
-      const std::uint32_t count = task.end - task.begin;
-      if (count <= kMaxLeafFaces) {
-        nodes[task.node].first = task.begin;
-        nodes[task.node].count = count;
-        for (std::uint32_t i = task.begin; i < task.end; ++i) {
-          order_[i] = refs[i].face;
-          leaf_of_[refs[i].face] = task.node;
-        }
-        continue;
-      }
-
-      // Choose the split: the binned SAH over all three axes, or the median deep in the tree or
-      // when every centroid coincides.
-      std::uint32_t mid = task.begin + count / 2;
-      bool split_by_sah = false;
-      if (task.depth < kMedianDepth) {
-        const auto split = sah_partition(first, last, cbox);
-        split_by_sah = split != first && split != last;
-        if (split_by_sah) mid = static_cast<std::uint32_t>(split - refs.begin());
-      }
-      if (!split_by_sah) {
-        // Median along the widest centroid axis (any order when all centroids coincide).
-        const double ex = double{cbox.hi.x} - cbox.lo.x, ey = double{cbox.hi.y} - cbox.lo.y,
-                     ez = double{cbox.hi.z} - cbox.lo.z;
-        const int axis = ex >= ey ? (ex >= ez ? 0 : 2) : (ey >= ez ? 1 : 2);
-        std::nth_element(first, refs.begin() + mid, last,
-                         [&](const BuildRef& a, const BuildRef& b) { return at(a.centroid, axis) < at(b.centroid, axis); });
-      }
-
-      const auto child = static_cast<std::uint32_t>(nodes.size());
-      nodes[task.node].first = child;
-      nodes[task.node].count = 0;
-      nodes.push_back({});
-      nodes.push_back({});
-      parents.push_back(task.node);
-      parents.push_back(task.node);
-      tasks.push_back({child + 1, mid, task.end, task.depth + 1});
-      tasks.push_back({child, task.begin, mid, task.depth + 1});
-    }
-  };
-
-  // The root's split here; then, for a large mesh, the right subtree on a second thread into its
-  // own arrays while this one builds the left, spliced in after it with the indices a one-thread
-  // build gives (the left subtree's nodes all come before the right's, but for its root): the
-  // same tree, node for node, whatever the threads do.
   std::vector<Task> tasks{{0, 0, static_cast<std::uint32_t>(n), 1}};
-  const bool two = threads && n >= kParallelFaces && std::thread::hardware_concurrency() > 1;
-  grow(tasks, nodes_, parent_, depth_, two ? 2 : 0);
-  if (!tasks.empty()) {
-    // tasks = {right child, left child} of the root (the left on top).
-    const Task right = tasks.front();
-    std::vector<Task> right_tasks{{0, right.begin, right.end, right.depth}};
-    std::vector<Node> right_nodes(1);
-    std::vector<std::uint32_t> right_parents(1, 0);
-    std::size_t right_depth = 0;
-    std::thread worker([&] { grow(right_tasks, right_nodes, right_parents, right_depth, 0); });
-    tasks.erase(tasks.begin());
-    grow(tasks, nodes_, parent_, depth_, 0);
-    worker.join();
-    // Local index 0 is the right child (global right.node); local i >= 1 goes after the left's.
-    const auto base = static_cast<std::uint32_t>(nodes_.size());
-    const auto global = [&](std::uint32_t i) { return i == 0 ? right.node : base + i - 1; };
-    nodes_.resize(base + right_nodes.size() - 1);
-    parent_.resize(nodes_.size());
-    for (std::uint32_t i = 0; i < right_nodes.size(); ++i) {
-      Node node = right_nodes[i];
-      if (node.count == 0) node.first = global(node.first);  // internal: its children
-      nodes_[global(i)] = node;
-      if (i > 0) parent_[global(i)] = global(right_parents[i]);
+  while (!tasks.empty()) {
+    const Task task = tasks.back();
+    tasks.pop_back();
+    depth_ = std::max(depth_, task.depth);
+    const std::uint32_t count = task.end - task.begin;
+    if (count <= kMaxLeafFaces) {
+      nodes_[task.node].first = task.begin;
+      nodes_[task.node].count = count;
+      for (std::uint32_t i = task.begin; i < task.end; ++i) leaf_of_[order_[i]] = task.node;
+      continue;
     }
-    for (std::uint32_t i = right.begin; i < right.end; ++i) leaf_of_[order_[i]] = global(leaf_of_[order_[i]]);
-    depth_ = std::max(depth_, right_depth);
+    std::uint32_t mid = task.begin + count / 2;
+    const std::uint32_t differ = code[task.begin] ^ code[task.end - 1];
+    if (differ != 0) {
+      const std::uint32_t bit = 1u << (31 - std::countl_zero(differ));
+      mid = static_cast<std::uint32_t>(
+          std::partition_point(code.begin() + task.begin, code.begin() + task.end, [&](std::uint32_t c) { return (c & bit) == 0; }) -
+          code.begin());
+    }
+    const auto child = static_cast<std::uint32_t>(nodes_.size());
+    nodes_[task.node].first = child;
+    nodes_[task.node].count = 0;
+    nodes_.push_back({});
+    nodes_.push_back({});
+    parent_.push_back(task.node);
+    parent_.push_back(task.node);
+    tasks.push_back({child + 1, mid, task.end, task.depth + 1});
+    tasks.push_back({child, task.begin, mid, task.depth + 1});
   }
   assert(depth_ <= kMaxDepth && "TriangleBvh::build: tree deeper than the traversal stacks");
+
+  // 3. The boxes, bottom up.
+  refit(m);
   nodes_.shrink_to_fit();
   parent_.shrink_to_fit();
 }

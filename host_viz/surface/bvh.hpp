@@ -1,7 +1,9 @@
 #pragma once
 // TriangleBvh: an axis-aligned bounding-box tree over a deforming triangle mesh, for the local
 // surface operations of ALGORITHMS.md §3 (faces near the tool, closest point, where the blade
-// path crosses the surface). Built once per topology (binned SAH, at most 4 faces a leaf); after
+// path crosses the surface). Built once per topology (the faces sorted along a Morton curve and
+// split where their octree cells part, at most 4 faces a leaf: tens of millions of faces a
+// second, and the spatial-median tree that local queries on a surface want); after
 // vertices move, refit() updates every box in O(n) and refit_faces() only the leaves of the given
 // faces and their ancestors in O(k log n), so the cost of a local edit does not grow with the mesh.
 //
@@ -62,10 +64,12 @@ struct SegmentHit {
 
 class TriangleBvh {
  public:
-  /// Builds the tree over all faces of m (binned SAH, ≤ 4 faces a leaf; tree depth is bounded by
-  /// falling back to median splits deep down). An empty mesh gives an empty tree. Allocates.
-  /// A mesh of 65 536 faces or more builds its root's two subtrees on two threads (`threads`
-  /// false: one); the tree is the same either way, node for node.
+  /// Builds the tree over all faces of m (≤ 4 faces a leaf): the faces sorted by the 30-bit Morton
+  /// code of their box centre (stably, so equal codes keep face order), each range split where
+  /// its codes' highest differing bit turns on, or at its middle where the codes are equal; depth
+  /// stays below 30 + log2(#F) + 1. An empty mesh gives an empty tree. Allocates. A mesh of
+  /// 65 536 faces or more computes its codes on two threads (`threads` false: one); the tree is
+  /// the same either way, node for node.
   void build(const MeshView& m, bool threads = true);
 
   /// Recomputes every box bottom-up from the current positions and face indices. O(#F), no
