@@ -342,28 +342,39 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   leaf_of_.assign(n, kNone);
   if (n == 0) return;
   const bool two = threads && n >= kParallelFaces && std::thread::hardware_concurrency() > 1;
-  const auto both_halves = [&](auto&& work) {  // work(begin, end) over [0, n), on two threads when `two`
-    const auto half = static_cast<std::uint32_t>(n / 2);
-    if (!two) return work(std::uint32_t{0}, static_cast<std::uint32_t>(n));
-    std::thread worker([&] { work(half, static_cast<std::uint32_t>(n)); });
-    work(std::uint32_t{0}, half);
+  // work(begin, end, half) over [0, count): the two halves (half 0 and 1) on two threads when
+  // `two`, else both in turn on this one.
+  const auto in_halves = [&](std::size_t count, auto&& work) {
+    const auto mid = static_cast<std::uint32_t>(count / 2), all = static_cast<std::uint32_t>(count);
+    if (!two) {
+      work(std::uint32_t{0}, mid, 0);
+      work(mid, all, 1);
+      return;
+    }
+    std::thread worker([&] { work(mid, all, 1); });
+    work(std::uint32_t{0}, mid, 0);
     worker.join();
   };
 
   // 1. Every face's Morton code (its box centre in the box of all centres) and the faces sorted
   //    by it, stably: neighbours in space become neighbours in order_.
-  Box cbox;
-  for (std::uint32_t f = 0; f < n; ++f) {
-    const Box b = face_box(m, f);
-    cbox.grow(Vec3f{0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)});
-  }
+  Box half_boxes[2];
+  in_halves(n, [&](std::uint32_t begin, std::uint32_t end, int half) {
+    Box& cb = half_boxes[half];
+    for (std::uint32_t f = begin; f < end; ++f) {
+      const Box b = face_box(m, f);
+      cb.grow(Vec3f{0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)});
+    }
+  });
+  Box cbox = half_boxes[0];
+  cbox.grow(half_boxes[1]);
   // Cubic cells (one scale for the three axes, from the longest side): with a cell per axis the
   // thin axis of a sheet would be split as often as its long ones, into slabs as wide as the sheet.
   const double longest = std::max({double{cbox.hi.x} - cbox.lo.x, double{cbox.hi.y} - cbox.lo.y, double{cbox.hi.z} - cbox.lo.z});
   const double cells = longest > 0 ? kMortonCells / longest : 0.0;
   const double scale[3] = {cells, cells, cells};
   std::vector<std::uint32_t> code(n), tmp_code(n), tmp_face(n);
-  both_halves([&](std::uint32_t begin, std::uint32_t end) { morton_codes(m, cbox.lo, scale, begin, end, code.data()); });
+  in_halves(n, [&](std::uint32_t begin, std::uint32_t end, int) { morton_codes(m, cbox.lo, scale, begin, end, code.data()); });
   for (std::uint32_t f = 0; f < n; ++f) order_[f] = f;
   radix_sort(code, order_, tmp_code, tmp_face);
 
@@ -375,8 +386,8 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
     std::uint32_t node, begin, end;
     std::size_t depth;
   };
-  nodes_.reserve(n / 2 + 1);
-  parent_.reserve(n / 2 + 1);
+  nodes_.reserve(n);  // ≤ 4 faces a leaf gives about 0.6 nodes a face; a leaf of one face, up to 2
+  parent_.reserve(n);
   nodes_.push_back({});
   parent_.push_back(0);
   std::vector<Task> tasks{{0, 0, static_cast<std::uint32_t>(n), 1}};
@@ -411,8 +422,13 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   }
   assert(depth_ <= kMaxDepth && "TriangleBvh::build: tree deeper than the traversal stacks");
 
-  // 3. The boxes, bottom up.
-  refit(m);
+  // 3. The boxes, bottom up: the leaves from their faces (two threads for a large mesh), then the
+  //    internal nodes from their children.
+  in_halves(nodes_.size(), [&](std::uint32_t begin, std::uint32_t end, int) {
+    for (std::uint32_t i = begin; i < end; ++i)
+      if (nodes_[i].count > 0) refit_leaf(m, nodes_[i]);
+  });
+  refit_internal();
   nodes_.shrink_to_fit();
   parent_.shrink_to_fit();
 }
@@ -436,12 +452,16 @@ void TriangleBvh::refit_leaf(const MeshView& m, Node& node) const {
 
 void TriangleBvh::refit(const MeshView& m) {
   assert(m.faces.size() == order_.size() && "TriangleBvh::refit: face count changed since build");
+  for (Node& node : nodes_)
+    if (node.count > 0) refit_leaf(m, node);
+  refit_internal();
+}
+
+void TriangleBvh::refit_internal() {
   // Children always come after their parent, so one backward sweep is bottom-up.
   for (std::size_t i = nodes_.size(); i-- > 0;) {
     Node& node = nodes_[i];
-    if (node.count > 0) {
-      refit_leaf(m, node);
-    } else {
+    if (node.count == 0) {
       const Node& l = nodes_[node.first];
       const Node& r = nodes_[node.first + 1];
       node.lo = {std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};

@@ -127,6 +127,7 @@ class TriangleBvh {
   };
 
   void refit_leaf(const MeshView& m, Node& node) const;
+  void refit_internal();  // every internal box from its children's, bottom up
 
   std::vector<Node> nodes_;             // #nodes, root at 0, children after their parent
   std::vector<std::uint32_t> parent_;   // #nodes, parent node (root: itself)

@@ -7,6 +7,7 @@
 #include <limits>
 #include <numbers>
 #include <string>
+#include <thread>
 
 namespace lancet::surface {
 
@@ -25,6 +26,17 @@ std::uint32_t idx(VH v) { return static_cast<std::uint32_t>(v.idx()); }
 constexpr double kMinArea = 1e-14;  // m²: below this a face counts as degenerate
 constexpr int kMaxWalkSteps = 4096;
 constexpr double kCutReach = 0.02;  // m: a blade tip this close to the surface cuts the point over it
+constexpr std::size_t kParallelElements = 1u << 16;  // create() shares loops this long between two threads
+
+// work(begin, end) over [0, count): for a large count the two halves on two threads, else all on
+// this one. The work must write disjoint elements for disjoint ranges.
+template <class F>
+void in_two_halves(std::size_t count, F&& work) {
+  if (count < kParallelElements || std::thread::hardware_concurrency() < 2) return work(std::size_t{0}, count);
+  std::thread worker([&] { work(count / 2, count); });
+  work(std::size_t{0}, count / 2);
+  worker.join();
+}
 
 }  // namespace
 
@@ -39,15 +51,30 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   if (!(params.deform_sigma > 0) || !(params.relax_tau > 0) || !(params.snap_limit > 0 && params.snap_limit <= 0.5) ||
       !(params.open_limit >= 0) || !(params.wrinkle_tau > 0) || !(params.wrinkle_decay > 0) || !(params.wrinkle_wavelength > 0))
     return Error{ErrorCode::kInvalid, "surface: parameters out of range (sigma, taus, decay, wavelength > 0; 0 < snap_limit <= 0.5; open_limit >= 0)"};
+  for (std::size_t f = 0; f < triangles.size(); ++f)
+    for (const std::uint32_t v : triangles[f])
+      if (v >= positions.size())
+        return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " names a vertex past the " + std::to_string(positions.size()) +
+                                              " given"};
   std::unique_ptr<SurfaceModel> m(new SurfaceModel());
   m->params_ = params;
+  // The BVH needs only the positions and the triangles as given (the mesh's points are the same
+  // numbers), so it is built on a thread of its own while this one builds the half-edge mesh; the
+  // jthread joins before any return (and before m could be destroyed).
+  std::jthread bvh_builder([&] {
+    static_assert(sizeof(Vec3f) == 3 * sizeof(float));
+    m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
+  });
   SurfaceMesh& mesh = m->mesh_;
   mesh.add_property(m->rest_);
   mesh.add_property(m->stable_);
   mesh.reserve(positions.size() * 5 / 4, triangles.size() * 2, triangles.size() * 5 / 4);
-  for (const Vec3f& p : positions) {
-    const VH v = mesh.add_vertex(P(p.x, p.y, p.z));
-    mesh.property(m->rest_, v) = P(p.x, p.y, p.z);
+  // All vertices at once (one resize of every vertex property, where add_vertex grows each by one).
+  mesh.resize(positions.size(), 0, 0);
+  for (std::size_t i = 0; i < positions.size(); ++i) {
+    const P p(positions[i].x, positions[i].y, positions[i].z);
+    mesh.set_point(vh(static_cast<std::uint32_t>(i)), p);
+    mesh.property(m->rest_, vh(static_cast<std::uint32_t>(i))) = p;
   }
   m->faces_.assign(triangles.begin(), triangles.end());
   m->material_.assign(triangles.size(), 0);
@@ -65,9 +92,6 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   }
   for (std::size_t f = 0; !built && f < triangles.size(); ++f) {
     const auto& t = triangles[f];
-    if (t[0] >= positions.size() || t[1] >= positions.size() || t[2] >= positions.size())
-      return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " names a vertex past the " + std::to_string(positions.size()) +
-                                            " given"};
     const FH fh = mesh.add_face(vh(t[0]), vh(t[1]), vh(t[2]));
     if (!fh.is_valid())
       return Error{ErrorCode::kInvalid, "surface: triangle " + std::to_string(f) + " (" + std::to_string(t[0]) + ", " + std::to_string(t[1]) + ", " +
@@ -101,18 +125,29 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     mesh.set_texcoord2D(v, OpenMesh::Vec2f(ext[ua] > 0 ? (p[ua] - lo[ua]) / ext[ua] : 0.f, ext[va] > 0 ? (p[va] - lo[va]) / ext[va] : 0.f));
   }
   // Normals, rest face normals, the BVH.
+  // (Current and rest positions are equal here, so a vertex's normal sums the faces' rest crosses
+  // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
+  // Each vertex and face is written by one thread only.)
   m->rest_normal_.resize(triangles.size());
-  for (std::size_t f = 0; f < triangles.size(); ++f) m->rest_normal_[f] = m->face_cross(static_cast<std::uint32_t>(f), true);
-  for (auto v : mesh.vertices()) {
-    const P n = m->vertex_cross_sum(idx(v));
-    const float len = n.norm();
-    mesh.set_normal(v, len > 0 ? n / len : P(0, 0, 1));
-  }
-  for (auto& n : m->rest_normal_) {
-    const float len = n.norm();
-    n = len > 0 ? n / len : P(0, 0, 0);
-  }
-  m->bvh_.build(m->view());
+  in_two_halves(triangles.size(), [&](std::size_t begin, std::size_t end) {
+    for (std::size_t f = begin; f < end; ++f) m->rest_normal_[f] = m->face_cross(static_cast<std::uint32_t>(f), true);
+  });
+  in_two_halves(nv, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t i = begin; i < end; ++i) {
+      P n(0, 0, 0);
+      for (auto f : mesh.vf_range(vh(static_cast<std::uint32_t>(i)))) n += m->rest_normal_[m->stable_of(f)];
+      const float len = n.norm();
+      mesh.set_normal(vh(static_cast<std::uint32_t>(i)), len > 0 ? n / len : P(0, 0, 1));
+    }
+  });
+  in_two_halves(triangles.size(), [&](std::size_t begin, std::size_t end) {
+    for (std::size_t f = begin; f < end; ++f) {
+      P& n = m->rest_normal_[f];
+      const float len = n.norm();
+      n = len > 0 ? n / len : P(0, 0, 0);
+    }
+  });
+  bvh_builder.join();
   return m;
 }
 

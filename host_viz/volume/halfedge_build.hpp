@@ -12,8 +12,8 @@
 //      build gives up (the caller then falls back to add_face, which refuses such faces one by
 //      one); so does a vertex whose triangles are not one fan (walked across the paired edges);
 //      all of this before the mesh is touched;
-//   2. one OpenMesh edge per undirected edge, one face per triangle in input order, the three
-//      half-edges of each face linked next → next;
+//   2. one OpenMesh edge per undirected edge, one face per triangle in input order (all made by
+//      one resize of the mesh's arrays), the three half-edges of each face linked next → next;
 //   3. the boundary half-edges (edges with one triangle) are linked around each hole: the one that
 //      ends at vertex v is followed by the one that leaves v (one per vertex: one fan);
 //   4. each vertex's outgoing half-edge is its boundary one when it has one (OpenMesh's rule).
@@ -24,6 +24,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <thread>
 #include <vector>
 
 namespace lancet::volume {
@@ -49,12 +50,20 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     }
   }
   for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-  std::vector<std::uint32_t> bucket(3 * nt), fill(start.begin(), start.end() - 1);
+  // Each entry carries the edge's upper vertex and which way the corner runs (bit 31 of the
+  // corner: set when it runs from the lower vertex), so that pairing reads the bucket alone.
+  struct Entry {
+    std::uint32_t corner_dir, hi;
+  };
+  constexpr std::uint32_t kUp = 0x80000000u, kCorner = 0x7fffffffu;
+  if (3 * nt > kCorner) return false;
+  std::vector<Entry> bucket(3 * nt);
+  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
   for (std::size_t t = 0; t < nt; ++t)
     for (std::uint32_t k = 0; k < 3; ++k) {
       const auto& tri = triangles[t];
       const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
-      bucket[fill[std::min(a, b)]++] = static_cast<std::uint32_t>(3 * t + k);
+      bucket[fill[std::min(a, b)]++] = {static_cast<std::uint32_t>(3 * t + k) | (a < b ? kUp : 0u), std::max(a, b)};
     }
   const auto from = [&](std::uint32_t c) { return triangles[c / 3][c % 3]; };
   const auto to = [&](std::uint32_t c) { return triangles[c / 3][(c % 3 + 1) % 3]; };
@@ -63,12 +72,13 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   std::vector<std::uint32_t> partner(3 * nt, kNone);
   for (std::size_t v = 0; v < nv; ++v) {
     for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
-      const std::uint32_t c = bucket[i];
-      const std::uint32_t hi = std::max(from(c), to(c));
+      const Entry ei = bucket[i];
+      const std::uint32_t c = ei.corner_dir & kCorner;
       for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
-        const std::uint32_t d = bucket[j];
-        if (std::max(from(d), to(d)) != hi) continue;
-        if (from(d) == from(c)) return false;                        // the same direction twice: not oriented
+        const Entry ej = bucket[j];
+        if (ej.hi != ei.hi) continue;
+        if ((ej.corner_dir ^ ei.corner_dir) < kUp) return false;      // the same direction twice: not oriented
+        const std::uint32_t d = ej.corner_dir & kCorner;
         if (partner[c] != kNone || partner[d] != kNone) return false;  // a third triangle on the edge
         partner[c] = d;
         partner[d] = c;
@@ -85,8 +95,9 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
       ++count[from(c)];
       if (first[from(c)] == kNone) first[from(c)] = c;
     }
-    for (std::size_t v = 0; v < nv; ++v) {
-      if (first[v] == kNone) continue;
+    // One vertex's walk; false when its triangles are not one fan.
+    const auto one_fan = [&](std::size_t v) {
+      if (first[v] == kNone) return true;
       std::uint32_t seen = 1;
       // Forward: from the corner leaving v, across the edge arriving at v in its triangle.
       std::uint32_t c = first[v];
@@ -108,7 +119,22 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
           if (++seen > count[v]) return false;
         }
       }
-      if (seen != count[v]) return false;
+      return seen == count[v];
+    };
+    // The walks read only; a large mesh shares them between two threads.
+    const auto all_fans = [&](std::size_t begin, std::size_t end) {
+      for (std::size_t v = begin; v < end; ++v)
+        if (!one_fan(v)) return false;
+      return true;
+    };
+    if (nv < (1u << 16)) {
+      if (!all_fans(0, nv)) return false;
+    } else {
+      bool upper = true;
+      std::thread worker([&] { upper = all_fans(nv / 2, nv); });
+      const bool lower = all_fans(0, nv / 2);
+      worker.join();
+      if (!lower || !upper) return false;
     }
   }
 
@@ -117,15 +143,24 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // time would double their capacity whenever the caller's estimate falls short.
   std::size_t n_edges = 0;
   for (std::uint32_t c = 0; c < 3 * nt; ++c) n_edges += partner[c] == kNone || partner[c] > c ? 1 : 0;
-  mesh.reserve(mesh.n_vertices(), mesh.n_edges() + n_edges, mesh.n_faces() + nt);
+  // All edges and faces are made at once (ArrayKernel::resize: one resize of each property array,
+  // where new_edge and new_face grow every property by one element a call), then filled in: edge e
+  // is made by the first corner that has it (in corner order, as new_edge one at a time would
+  // number them), its half-edge 2e runs that corner's way, 2e + 1 the partner's.
+  const std::size_t e0 = mesh.n_edges();
+  mesh.resize(mesh.n_vertices(), e0 + n_edges, nt);
   std::vector<HH> half(3 * nt);  // corner → its half-edge (from → to)
+  std::size_t e = e0;
   for (std::uint32_t c = 0; c < 3 * nt; ++c) {
     if (half[c].is_valid()) continue;
-    half[c] = mesh.new_edge(vertices[from(c)], vertices[to(c)]);
+    half[c] = HH(static_cast<int>(2 * e));
+    mesh.set_vertex_handle(half[c], vertices[to(c)]);
+    mesh.set_vertex_handle(mesh.opposite_halfedge_handle(half[c]), vertices[from(c)]);
     if (partner[c] != kNone) half[partner[c]] = mesh.opposite_halfedge_handle(half[c]);
+    ++e;
   }
   for (std::size_t t = 0; t < nt; ++t) {
-    const FH f = mesh.new_face();
+    const FH f(static_cast<int>(t));
     const HH h0 = half[3 * t], h1 = half[3 * t + 1], h2 = half[3 * t + 2];
     mesh.set_halfedge_handle(f, h0);
     for (const HH h : {h0, h1, h2}) mesh.set_face_handle(h, f);

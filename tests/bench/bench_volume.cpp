@@ -147,6 +147,15 @@ int main(int argc, char** argv) {
       const std::string many = run_capture(base + " --threads 0");
       const double fe1 = json_field(one, "flying_edges", "seconds"), mc1 = json_field(one, "marching_cubes", "seconds");
       const double fen = json_field(many, "flying_edges", "seconds");
+      // VTK doing the whole job ours does, on two threads: read, flying edges with normals,
+      // BuildLinks (the connectivity), vtkStaticCellLocator::BuildLocator (the search structure).
+      const std::string job = run_capture(base + " --threads 2 --same-job");
+      const double job_s = json_field(job, "same_job", "seconds");
+      std::printf(",\n     \"vtk_same_job_2_threads\": {\"read_s\": %.5f, \"flying_edges_normals_s\": %.5f, \"build_links_s\": %.5f, "
+                  "\"static_cell_locator_s\": %.5f, \"seconds\": %.5f},\n     \"end_to_end_over_vtk_same_job\": %.2f",
+                  json_field(job, "same_job", "read_s"), json_field(job, "same_job", "flying_edges_normals_s"),
+                  json_field(job, "same_job", "build_links_s"), json_field(job, "same_job", "static_cell_locator_s"), job_s,
+                  end_to_end / job_s);
       std::printf(",\n     \"vtk_flying_edges_1_thread\": {\"seconds\": %.5f, \"voxels_per_second\": %.4g, \"triangles\": %.0f},\n", fe1,
                   voxels / fe1, json_field(one, "flying_edges", "triangles"));
       std::printf("     \"vtk_flying_edges_default_threads\": {\"seconds\": %.5f, \"voxels_per_second\": %.4g},\n", fen, voxels / fen);
