@@ -545,7 +545,8 @@ std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, f
       for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
         const std::uint32_t f = order_[i];
         const Closest c = closest_on_face(m, f, q);
-        if (c.d2 < best || (!hit && c.d2 <= best)) {
+        // Ties go to the lower face index, so the answer does not depend on the tree's shape.
+        if (c.d2 < best || (c.d2 == best && (!hit || f < hit->face))) {
           best = c.d2;
           hit = to_hit(f, c);
         }
@@ -589,7 +590,8 @@ std::optional<SegmentHit> TriangleBvh::first_hit(const MeshView& m, Vec3f a, Vec
         const auto& tri = m.faces[f];
         const Vec3f p0 = vertex(m, tri[0]), p1 = vertex(m, tri[1]), p2 = vertex(m, tri[2]);
         double t = 0, u = 0, v = 0;
-        if (s.triangle(p0, p1, p2, best, t, u, v) && (!hit || t < best)) {
+        // Ties (a segment through a shared edge) go to the lower face index, whatever the tree.
+        if (s.triangle(p0, p1, p2, best, t, u, v) && (!hit || t < best || (t == best && f < hit->face))) {
           best = t;
           hit = make_segment_hit(f, t, u, v, p0, p1, p2);
         }

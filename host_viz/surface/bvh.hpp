@@ -86,12 +86,13 @@ class TriangleBvh {
   /// same tree). out is cleared first; no allocation when it has capacity for the result.
   void faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order = false) const;
 
-  /// The closest point of the mesh to p, if one lies within max_distance (metres). No allocation.
+  /// The closest point of the mesh to p, if one lies within max_distance (metres); of faces
+  /// equally near, the lowest index (so the answer does not depend on the tree). No allocation.
   [[nodiscard]] std::optional<PointHit> closest_point(
       const MeshView& m, Vec3f p, float max_distance = std::numeric_limits<float>::infinity()) const;
 
-  /// The crossing of segment a→b with the surface nearest to a (both sides of each face count).
-  /// No allocation.
+  /// The crossing of segment a→b with the surface nearest to a (both sides of each face count);
+  /// of crossings equally near, the lowest face index. No allocation.
   [[nodiscard]] std::optional<SegmentHit> first_hit(const MeshView& m, Vec3f a, Vec3f b) const;
 
   /// All crossings of segment a→b, sorted by t (then face). A segment through a shared edge or

@@ -439,8 +439,8 @@ TEST(TriangleBvh, QueriesMatchBruteForceOnAGrid) {
   expect_queries_match(bvh, m, 21);
 }
 
-// A large mesh builds its two halves on two threads: the same tree as one thread builds, node for
-// node, and correct (its checks and queries).
+// A large mesh computes its Morton codes and leaf boxes on two threads: the same tree as one thread
+// builds, node for node, and correct (its checks and queries).
 TEST(TriangleBvh, TwoThreadsBuildTheSameTreeAsOne) {
   const Mesh m = wavy_grid(200);  // 80 000 faces: above the two-thread threshold
   ASSERT_GE(m.faces.size(), 65536u);
@@ -456,6 +456,47 @@ TEST(TriangleBvh, TwoThreadsBuildTheSameTreeAsOne) {
   TriangleBvh three;
   three.build(moved.view(), true);
   EXPECT_FALSE(one.same_tree(three));
+}
+
+// At a vertex every face around it is at distance 0: closest_point must answer the lowest face
+// index of those (what brute force picks), not whichever face the tree's traversal meets first,
+// so that the cut does not depend on the tree's shape.
+TEST(TriangleBvh, TiesGoToTheLowestFaceWhateverTheTree) {
+  const Mesh m = wavy_grid(30, 0.1f, 0.01f, 0.0f);
+  TriangleBvh bvh;
+  bvh.build(m.view());
+  const MeshView mv = m.view();
+  int ties = 0;
+  for (std::uint32_t v = 0; v < m.n_vertices(); v += 7) {
+    const Vec3f p = m.v(v);
+    double best = std::numeric_limits<double>::infinity();
+    std::uint32_t want = 0;
+    int at_best = 0;
+    for (std::uint32_t f = 0; f < m.faces.size(); ++f) {
+      const auto c = m.corners(f);
+      const double d2 = point_triangle_distance_squared(p, c[0], c[1], c[2]);
+      if (d2 < best) best = d2, want = f, at_best = 1;
+      else if (d2 == best) ++at_best;
+    }
+    ties += at_best > 1;
+    const auto hit = bvh.closest_point(mv, p);
+    ASSERT_TRUE(hit.has_value());
+    EXPECT_EQ(hit->face, want) << "vertex " << v;
+    // A vertical segment through the vertex: the faces around it give the same t to within
+    // rounding (first_hit decides in double; an exact tie goes to the lowest face), so the answer
+    // is one of the faces at the least float t.
+    const Vec3f a = add(p, {0, 0, 0.05f}), b = add(p, {0, 0, -0.05f});
+    const auto brute = brute_hits(m, a, b);
+    ASSERT_FALSE(brute.empty()) << "vertex " << v;
+    float t_min = std::numeric_limits<float>::infinity();
+    for (const auto& [f, t] : brute) t_min = std::min(t_min, t);
+    const auto seg = bvh.first_hit(mv, a, b);
+    ASSERT_TRUE(seg.has_value());
+    EXPECT_EQ(seg->t, t_min) << "vertex " << v;
+    EXPECT_TRUE(std::any_of(brute.begin(), brute.end(), [&](const auto& h) { return h.first == seg->face && h.second == t_min; }))
+        << "vertex " << v;
+  }
+  EXPECT_GT(ties, 10);  // the test is about ties: there must be some
 }
 
 TEST(TriangleBvh, QueriesMatchBruteForceOnATriangleSoup) {
