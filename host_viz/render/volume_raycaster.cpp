@@ -18,7 +18,7 @@ uniform sampler2D u_depth;  // the opaque meshes' depth (same camera), when u_us
 uniform sampler3D u_volume;  // R32F, trilinear: the texture unit's interpolation
 layout(std430, binding = 2) readonly buffer Table { vec4 table[256]; };
 layout(std430, binding = 3) readonly buffer Empty { uint empty_brick[]; };
-layout(std430, binding = 4) readonly buffer BrickMax { float brick_max[]; };
+uniform sampler3D u_brick_range;  // RG32F, one texel per brick: the smallest and largest value any sample in it interpolates from
 uniform ivec3 u_dims;
 uniform ivec3 u_bricks;
 uniform vec3 u_origin;
@@ -52,6 +52,40 @@ float jitter(int x, int y) {
   h ^= h >> 15;
   return float(h >> 8) * (1.0 / 16777216.0);
 }
+#if MIP && SKIP
+// One march through the bricks that [t_in, t_out] crosses, in order (a 3-D DDA: from face to face
+// of the 8-voxel grid). Returns the largest brick minimum among the bricks whose stretch of the
+// ray is longer than two steps: each of those holds a sample, which is at least its minimum, so
+// the ray's maximum is at least this. span: the first entry and the last exit of the bricks whose
+// maximum reaches `lower` (empty, x > y, when none does).
+float march_bricks(vec3 q0, vec3 qd, float t_in, float t_out, float ds, float lower, out vec2 span) {
+  const float far = 3.402823466e+38;
+  ivec3 b = clamp(ivec3(clamp(q0 + t_in * qd, vec3(0.0), vec3(u_dims - ivec3(1))) * 0.125), ivec3(0), u_bricks - ivec3(1));
+  ivec3 dir = ivec3(sign(qd));
+  vec3 next = vec3(far), delta = vec3(0.0);
+  for (int ax = 0; ax < 3; ++ax) {
+    if (qd[ax] == 0.0) continue;
+    next[ax] = (float((b[ax] + (qd[ax] > 0.0 ? 1 : 0)) * 8) - q0[ax]) / qd[ax];
+    delta[ax] = 8.0 / abs(qd[ax]);
+  }
+  float surely = -far;
+  span = vec2(far, -far);
+  for (float t0 = t_in; t0 <= t_out;) {
+    float t1 = min(min(next.x, next.y), min(next.z, t_out));
+    vec2 range = texelFetch(u_brick_range, b, 0).rg;
+    if (t1 - t0 > 2.0 * ds) surely = max(surely, range.x);
+    if (range.y >= lower) span = vec2(min(span.x, t0), t1);
+    if (t1 >= t_out) break;
+    // into the brick across the nearest face
+    int ax = next.x <= next.y && next.x <= next.z ? 0 : next.y <= next.z ? 1 : 2;
+    b[ax] += dir[ax];
+    next[ax] += delta[ax];
+    if (b[ax] < 0 || b[ax] >= u_bricks[ax]) break;
+    t0 = t1;
+  }
+  return surely;
+}
+#endif
 void main() {
   ivec2 px = ivec2(gl_GlobalInvocationID.xy);
   if (px.x >= u_size.x || px.y >= u_size.y) return;
@@ -92,21 +126,35 @@ void main() {
   float j = u_jitter == 1 ? jitter(px.x, px.y) : 0.0;
   float cr = 0.0, cg = 0.0, cb = 0.0, ca = 0.0, vmax = -3.402823466e+38;
   bool any = false;
-  for (int k = 0;;) {
+  int k_first = 0, k_end = 2147483647;
+#if MIP && SKIP
+  // MIP skips without a test per step (each lane would pay it on every step, and the lanes of
+  // one SIMD group would drift apart): one march finds a value the ray surely reaches, a second
+  // the stretch of bricks whose maximum reaches it; outside that stretch no sample can raise the
+  // maximum. One more sample at each end covers rounding between the march and the lattice.
+  {
+    vec2 span;
+    float surely = march_bricks(q0, qd, t_in, t_out, ds, -3.402823466e+38, span);
+    march_bricks(q0, qd, t_in, t_out, ds, surely, span);
+    if (span.x <= span.y) {
+      k_first = max(int(floor((span.x - t_in) / ds - j)) - 1, 0);
+      k_end = int(ceil((span.y - t_in) / ds - j)) + 1;
+    } else {
+      k_end = 0;
+    }
+  }
+#endif
+  for (int k = k_first; k < k_end;) {
     float t = t_in + (float(k) + j) * ds;
     if (!(t <= t_out)) break;
     vec3 p = q0 + t * qd;
-#if SKIP
+#if SKIP && !MIP
     {
       int bx = clamp(int(floor(p.x / 8.0)), 0, u_bricks.x - 1);
       int by = clamp(int(floor(p.y / 8.0)), 0, u_bricks.y - 1);
       int bz = clamp(int(floor(p.z / 8.0)), 0, u_bricks.z - 1);
       int b = bx + u_bricks.x * (by + u_bricks.y * bz);
-#if MIP
-      if (any && brick_max[b] <= vmax) {
-#else
       if (empty_brick[b] != 0u) {
-#endif
         float t_exit = 3.402823466e+38;
         ivec3 bi = ivec3(bx, by, bz);
         for (int ax = 0; ax < 3; ++ax) {
@@ -175,7 +223,6 @@ VolumeRaycaster::VolumeRaycaster() {
     programs_[static_cast<std::size_t>(v)] = make_compute_program(defines + kCompute);
   }
   mask_ = Buffer(new_buffer());
-  brick_max_ = Buffer(new_buffer());
   table_ = Buffer(new_buffer());
   set_transfer_function(volume::tf_preset(volume::TfPreset::kCtSoftTissue));
 }
@@ -224,9 +271,26 @@ void VolumeRaycaster::upload_mask() {
   std::vector<std::uint32_t> u(m.begin(), m.end());
   if (u.empty()) u.push_back(0);
   glNamedBufferData(mask_.get(), static_cast<GLsizeiptr>(u.size() * sizeof(std::uint32_t)), u.data(), GL_DYNAMIC_DRAW);
-  std::vector<float> mx(grid_.max().begin(), grid_.max().end());
-  if (mx.empty()) mx.push_back(0);
-  glNamedBufferData(brick_max_.get(), static_cast<GLsizeiptr>(mx.size() * sizeof(float)), mx.data(), GL_DYNAMIC_DRAW);
+  // Each brick's (min, max), one RG32F texel per brick, for MIP.
+  const auto bricks = grid_.dims();
+  if (bricks != brick_range_dims_) {
+    GLuint t = 0;
+    glCreateTextures(GL_TEXTURE_3D, 1, &t);
+    brick_range_ = Texture(t);
+    glTextureStorage3D(t, 1, GL_RG32F, std::max(bricks[0], 1), std::max(bricks[1], 1), std::max(bricks[2], 1));
+    glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    brick_range_dims_ = bricks;
+  }
+  const auto lo = grid_.min(), hi = grid_.max();
+  if (lo.empty()) return;
+  std::vector<float> range(2 * lo.size());
+  for (std::size_t b = 0; b < lo.size(); ++b) {
+    range[2 * b] = lo[b];
+    range[2 * b + 1] = hi[b];
+  }
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  glTextureSubImage3D(brick_range_.get(), 0, 0, 0, 0, bricks[0], bricks[1], bricks[2], GL_RG, GL_FLOAT, range.data());
 }
 
 void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::RaycastParams& params, GLuint depth_texture) {
@@ -263,12 +327,13 @@ void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::Raycast
   glUniform4f(glGetUniformLocation(p, "u_plane"), params.clip_plane[0], params.clip_plane[1], params.clip_plane[2], params.clip_plane[3]);
   glUniform1i(glGetUniformLocation(p, "u_depth"), 0);
   glUniform1i(glGetUniformLocation(p, "u_volume"), 1);
+  glUniform1i(glGetUniformLocation(p, "u_brick_range"), 2);
   glBindTextureUnit(0, depth_texture);
   glBindTextureUnit(1, voxels_.get());
+  glBindTextureUnit(2, brick_range_.get());
   glBindImageTexture(0, image_.get(), 0, GL_FALSE, 0, GL_WRITE_ONLY, GL_RGBA32F);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, table_.get());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, mask_.get());
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, brick_max_.get());
   glDispatchCompute(static_cast<GLuint>((cam.width + 7) / 8), static_cast<GLuint>((cam.height + 7) / 8), 1);
   glMemoryBarrier(GL_SHADER_IMAGE_ACCESS_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT | GL_TEXTURE_UPDATE_BARRIER_BIT);
 }

@@ -39,7 +39,9 @@ class VolumeRaycaster {
   void upload_mask();
   std::array<Program, 8> programs_;  ///< by MIP | SHADE << 1 | SKIP << 2
   Texture voxels_;
-  Buffer mask_, brick_max_, table_;
+  Buffer mask_, table_;
+  Texture brick_range_;  ///< RG32F, one texel per brick: (min, max)
+  std::array<int, 3> brick_range_dims_{};
   Texture image_;
   int image_w_ = 0, image_h_ = 0;
   volume::BrickGrid grid_;
