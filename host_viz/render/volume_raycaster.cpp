@@ -53,37 +53,56 @@ float jitter(int x, int y) {
   return float(h >> 8) * (1.0 / 16777216.0);
 }
 #if MIP && SKIP
-// One march through the bricks that [t_in, t_out] crosses, in order (a 3-D DDA: from face to face
-// of the 8-voxel grid). Returns the largest brick minimum among the bricks whose stretch of the
-// ray is longer than two steps: each of those holds a sample, which is at least its minimum, so
-// the ray's maximum is at least this. span: the first entry and the last exit of the bricks whose
-// maximum reaches `lower` (empty, x > y, when none does).
-float march_bricks(vec3 q0, vec3 qd, float t_in, float t_out, float ds, float lower, out vec2 span) {
-  const float far = 3.402823466e+38;
-  ivec3 b = clamp(ivec3(clamp(q0 + t_in * qd, vec3(0.0), vec3(u_dims - ivec3(1))) * 0.125), ivec3(0), u_bricks - ivec3(1));
-  ivec3 dir = ivec3(sign(qd));
-  vec3 next = vec3(far), delta = vec3(0.0);
+// A walk through the 8-voxel bricks that the ray q0 + t·qd crosses, face to face (a 3-D DDA).
+struct BrickWalk {
+  ivec3 b, dir;     // the brick, and the way the ray steps on each axis
+  vec3 next, delta;  // the t of the next face on each axis, and the t between faces
+};
+BrickWalk walk_from(vec3 q0, vec3 qd, float t) {
+  BrickWalk w;
+  w.b = clamp(ivec3(clamp(q0 + t * qd, vec3(0.0), vec3(u_dims - ivec3(1))) * 0.125), ivec3(0), u_bricks - ivec3(1));
+  w.dir = ivec3(sign(qd));
+  w.next = vec3(3.402823466e+38);
+  w.delta = vec3(0.0);
   for (int ax = 0; ax < 3; ++ax) {
     if (qd[ax] == 0.0) continue;
-    next[ax] = (float((b[ax] + (qd[ax] > 0.0 ? 1 : 0)) * 8) - q0[ax]) / qd[ax];
-    delta[ax] = 8.0 / abs(qd[ax]);
+    w.next[ax] = (float((w.b[ax] + (qd[ax] > 0.0 ? 1 : 0)) * 8) - q0[ax]) / qd[ax];
+    w.delta[ax] = 8.0 / abs(qd[ax]);
   }
-  float surely = -far;
-  span = vec2(far, -far);
+  return w;
+}
+float walk_exit(BrickWalk w) { return min(min(w.next.x, w.next.y), w.next.z); }
+// Into the brick across the nearest face; false once that is outside the grid.
+bool walk_step(inout BrickWalk w) {
+  int ax = w.next.x <= w.next.y && w.next.x <= w.next.z ? 0 : w.next.y <= w.next.z ? 1 : 2;
+  w.b[ax] += w.dir[ax];
+  w.next[ax] += w.delta[ax];
+  return w.b[ax] >= 0 && w.b[ax] < u_bricks[ax];
+}
+// The stretch [x, y] of the ray outside which no sample can raise its maximum (empty, x > y, when
+// it has none). First walk: the largest minimum of a brick that surely holds a sample (its stretch
+// is longer than two steps): the ray's maximum reaches it, so a brick whose maximum is below it
+// cannot matter; and the exit of the last brick whose maximum reaches that bound as known so far
+// (it only grows: no later than needed). Second walk, to the first brick that reaches the bound.
+vec2 mip_stretch(vec3 q0, vec3 qd, float t_in, float t_out, float ds) {
+  float surely = -3.402823466e+38, last = -3.402823466e+38;
+  BrickWalk w = walk_from(q0, qd, t_in);
   for (float t0 = t_in; t0 <= t_out;) {
-    float t1 = min(min(next.x, next.y), min(next.z, t_out));
-    vec2 range = texelFetch(u_brick_range, b, 0).rg;
+    float t1 = min(walk_exit(w), t_out);
+    vec2 range = texelFetch(u_brick_range, w.b, 0).rg;  // (min, max)
     if (t1 - t0 > 2.0 * ds) surely = max(surely, range.x);
-    if (range.y >= lower) span = vec2(min(span.x, t0), t1);
-    if (t1 >= t_out) break;
-    // into the brick across the nearest face
-    int ax = next.x <= next.y && next.x <= next.z ? 0 : next.y <= next.z ? 1 : 2;
-    b[ax] += dir[ax];
-    next[ax] += delta[ax];
-    if (b[ax] < 0 || b[ax] >= u_bricks[ax]) break;
+    if (range.y >= surely) last = t1;
+    if (t1 >= t_out || !walk_step(w)) break;
     t0 = t1;
   }
-  return surely;
+  w = walk_from(q0, qd, t_in);
+  for (float t0 = t_in; t0 <= last;) {
+    if (texelFetch(u_brick_range, w.b, 0).g >= surely) return vec2(t0, last);
+    float t1 = walk_exit(w);
+    if (!walk_step(w)) break;
+    t0 = t1;
+  }
+  return vec2(1.0, 0.0);
 }
 #endif
 void main() {
@@ -128,14 +147,12 @@ void main() {
   bool any = false;
   int k_first = 0, k_end = 2147483647;
 #if MIP && SKIP
-  // MIP skips without a test per step (each lane would pay it on every step, and the lanes of
-  // one SIMD group would drift apart): one march finds a value the ray surely reaches, a second
-  // the stretch of bricks whose maximum reaches it; outside that stretch no sample can raise the
-  // maximum. One more sample at each end covers rounding between the march and the lattice.
+  // MIP skips without a test per step (on a SIMD CPU each lane would pay it on every step, and
+  // the lanes of one group would drift apart): walks through the bricks bound the stretch of the
+  // ray that can hold its maximum, and only that stretch is sampled. One more sample at each end
+  // covers rounding between the walk and the lattice.
   {
-    vec2 span;
-    float surely = march_bricks(q0, qd, t_in, t_out, ds, -3.402823466e+38, span);
-    march_bricks(q0, qd, t_in, t_out, ds, surely, span);
+    vec2 span = mip_stretch(q0, qd, t_in, t_out, ds);
     if (span.x <= span.y) {
       k_first = max(int(floor((span.x - t_in) / ds - j)) - 1, 0);
       k_end = int(ceil((span.y - t_in) / ds - j)) + 1;
@@ -245,6 +262,7 @@ void VolumeRaycaster::set_volume(const volume::Volume& v) {
   }
   grid_ = volume::BrickGrid(v);
   upload_mask();
+  upload_brick_range();
 }
 
 void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox box) {
@@ -258,6 +276,7 @@ void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox bo
                       v.data.data() + slab * static_cast<std::size_t>(k0));
   grid_.update(v, box);
   upload_mask();
+  upload_brick_range();
 }
 
 void VolumeRaycaster::set_transfer_function(const volume::TransferFunction& tf) {
@@ -271,7 +290,9 @@ void VolumeRaycaster::upload_mask() {
   std::vector<std::uint32_t> u(m.begin(), m.end());
   if (u.empty()) u.push_back(0);
   glNamedBufferData(mask_.get(), static_cast<GLsizeiptr>(u.size() * sizeof(std::uint32_t)), u.data(), GL_DYNAMIC_DRAW);
-  // Each brick's (min, max), one RG32F texel per brick, for MIP.
+}
+
+void VolumeRaycaster::upload_brick_range() {
   const auto bricks = grid_.dims();
   if (bricks != brick_range_dims_) {
     GLuint t = 0;
