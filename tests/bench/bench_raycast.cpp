@@ -1,12 +1,14 @@
 // lancet-bench-raycast: the GPU ray caster (render::VolumeRaycaster, a GL compute shader, headless
 // through EGL) on the built-in phantom, a CT with air around the body: ms per frame with and
-// without empty-space skipping, for CT-Skin, CT-Bone and MIP; and the CPU reference on the same
-// frame for scale. Prints one JSON object.
+// without empty-space skipping, for CT-Skin, CT-Bone and MIP, with the largest difference between
+// the two images (skipping must leave it as it is); and the CPU reference on the same frame for
+// scale. Prints one JSON object.
 //   lancet-bench-raycast [--size N] [--frames F] [--volume PATH] [--vtk-export DIR] [--screenshot PREFIX]
 // --volume: a CT (DICOM directory, MetaImage, NRRD) instead of the phantom. --vtk-export: writes
 // what scripts/bench_raycast_vtk.py needs to render the same frames with VTK's
 // vtkGPUVolumeRayCastMapper (volume.mhd/.raw as float32, and setup.json: camera, image size,
 // sample distance, reference step, each preset's table); scripts/bench-raycast-vs-vtk runs both.
+// --screenshot: each preset's image with skipping, as PREFIX-<preset>.png.
 
 #include <epoxy/gl.h>
 
