@@ -18,7 +18,7 @@ uniform sampler2D u_depth;  // the opaque meshes' depth (same camera), when u_us
 uniform sampler3D u_volume;  // R32F, trilinear: the texture unit's interpolation
 layout(std430, binding = 2) readonly buffer Table { vec4 table[256]; };
 layout(std430, binding = 3) readonly buffer Empty { uint empty_brick[]; };
-layout(std430, binding = 4) readonly buffer BrickMax { float brick_max[]; };
+uniform sampler3D u_brick_range;  // RG32F, one texel per brick: the smallest and largest value any sample in it interpolates from
 uniform ivec3 u_dims;
 uniform ivec3 u_bricks;
 uniform vec3 u_origin;
@@ -52,6 +52,59 @@ float jitter(int x, int y) {
   h ^= h >> 15;
   return float(h >> 8) * (1.0 / 16777216.0);
 }
+#if MIP && SKIP
+// A walk through the 8-voxel bricks that the ray q0 + t·qd crosses, face to face (a 3-D DDA).
+struct BrickWalk {
+  ivec3 b, dir;     // the brick, and the way the ray steps on each axis
+  vec3 next, delta;  // the t of the next face on each axis, and the t between faces
+};
+BrickWalk walk_from(vec3 q0, vec3 qd, float t) {
+  BrickWalk w;
+  w.b = clamp(ivec3(clamp(q0 + t * qd, vec3(0.0), vec3(u_dims - ivec3(1))) * 0.125), ivec3(0), u_bricks - ivec3(1));
+  w.dir = ivec3(sign(qd));
+  w.next = vec3(3.402823466e+38);
+  w.delta = vec3(0.0);
+  for (int ax = 0; ax < 3; ++ax) {
+    if (qd[ax] == 0.0) continue;
+    w.next[ax] = (float((w.b[ax] + (qd[ax] > 0.0 ? 1 : 0)) * 8) - q0[ax]) / qd[ax];
+    w.delta[ax] = 8.0 / abs(qd[ax]);
+  }
+  return w;
+}
+float walk_exit(BrickWalk w) { return min(min(w.next.x, w.next.y), w.next.z); }
+// Into the brick across the nearest face; false once that is outside the grid.
+bool walk_step(inout BrickWalk w) {
+  int ax = w.next.x <= w.next.y && w.next.x <= w.next.z ? 0 : w.next.y <= w.next.z ? 1 : 2;
+  w.b[ax] += w.dir[ax];
+  w.next[ax] += w.delta[ax];
+  return w.b[ax] >= 0 && w.b[ax] < u_bricks[ax];
+}
+// The stretch [x, y] of the ray outside which no sample can raise its maximum (empty, x > y, when
+// it has none). First walk: the largest minimum of a brick that surely holds a sample (its stretch
+// is longer than two steps): the ray's maximum reaches it, so a brick whose maximum is below it
+// cannot matter; and the exit of the last brick whose maximum reaches that bound as known so far
+// (it only grows: no later than needed). Second walk, to the first brick that reaches the bound.
+vec2 mip_stretch(vec3 q0, vec3 qd, float t_in, float t_out, float ds) {
+  float surely = -3.402823466e+38, last = -3.402823466e+38;
+  BrickWalk w = walk_from(q0, qd, t_in);
+  for (float t0 = t_in; t0 <= t_out;) {
+    float t1 = min(walk_exit(w), t_out);
+    vec2 range = texelFetch(u_brick_range, w.b, 0).rg;  // (min, max)
+    if (t1 - t0 > 2.0 * ds) surely = max(surely, range.x);
+    if (range.y >= surely) last = t1;
+    if (t1 >= t_out || !walk_step(w)) break;
+    t0 = t1;
+  }
+  w = walk_from(q0, qd, t_in);
+  for (float t0 = t_in; t0 <= last;) {
+    if (texelFetch(u_brick_range, w.b, 0).g >= surely) return vec2(t0, last);
+    float t1 = walk_exit(w);
+    if (!walk_step(w)) break;
+    t0 = t1;
+  }
+  return vec2(1.0, 0.0);
+}
+#endif
 void main() {
   ivec2 px = ivec2(gl_GlobalInvocationID.xy);
   if (px.x >= u_size.x || px.y >= u_size.y) return;
@@ -92,21 +145,33 @@ void main() {
   float j = u_jitter == 1 ? jitter(px.x, px.y) : 0.0;
   float cr = 0.0, cg = 0.0, cb = 0.0, ca = 0.0, vmax = -3.402823466e+38;
   bool any = false;
-  for (int k = 0;;) {
+  int k_first = 0, k_end = 2147483647;
+#if MIP && SKIP
+  // MIP skips without a test per step (on a SIMD CPU each lane would pay it on every step, and
+  // the lanes of one group would drift apart): walks through the bricks bound the stretch of the
+  // ray that can hold its maximum, and only that stretch is sampled. One more sample at each end
+  // covers rounding between the walk and the lattice.
+  {
+    vec2 span = mip_stretch(q0, qd, t_in, t_out, ds);
+    if (span.x <= span.y) {
+      k_first = max(int(floor((span.x - t_in) / ds - j)) - 1, 0);
+      k_end = int(ceil((span.y - t_in) / ds - j)) + 1;
+    } else {
+      k_end = 0;
+    }
+  }
+#endif
+  for (int k = k_first; k < k_end;) {
     float t = t_in + (float(k) + j) * ds;
     if (!(t <= t_out)) break;
     vec3 p = q0 + t * qd;
-#if SKIP
+#if SKIP && !MIP
     {
       int bx = clamp(int(floor(p.x / 8.0)), 0, u_bricks.x - 1);
       int by = clamp(int(floor(p.y / 8.0)), 0, u_bricks.y - 1);
       int bz = clamp(int(floor(p.z / 8.0)), 0, u_bricks.z - 1);
       int b = bx + u_bricks.x * (by + u_bricks.y * bz);
-#if MIP
-      if (any && brick_max[b] <= vmax) {
-#else
       if (empty_brick[b] != 0u) {
-#endif
         float t_exit = 3.402823466e+38;
         ivec3 bi = ivec3(bx, by, bz);
         for (int ax = 0; ax < 3; ++ax) {
@@ -175,7 +240,6 @@ VolumeRaycaster::VolumeRaycaster() {
     programs_[static_cast<std::size_t>(v)] = make_compute_program(defines + kCompute);
   }
   mask_ = Buffer(new_buffer());
-  brick_max_ = Buffer(new_buffer());
   table_ = Buffer(new_buffer());
   set_transfer_function(volume::tf_preset(volume::TfPreset::kCtSoftTissue));
 }
@@ -198,6 +262,7 @@ void VolumeRaycaster::set_volume(const volume::Volume& v) {
   }
   grid_ = volume::BrickGrid(v);
   upload_mask();
+  upload_brick_range();
 }
 
 void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox box) {
@@ -211,6 +276,7 @@ void VolumeRaycaster::update_region(const volume::Volume& v, volume::VoxelBox bo
                       v.data.data() + slab * static_cast<std::size_t>(k0));
   grid_.update(v, box);
   upload_mask();
+  upload_brick_range();
 }
 
 void VolumeRaycaster::set_transfer_function(const volume::TransferFunction& tf) {
@@ -224,9 +290,28 @@ void VolumeRaycaster::upload_mask() {
   std::vector<std::uint32_t> u(m.begin(), m.end());
   if (u.empty()) u.push_back(0);
   glNamedBufferData(mask_.get(), static_cast<GLsizeiptr>(u.size() * sizeof(std::uint32_t)), u.data(), GL_DYNAMIC_DRAW);
-  std::vector<float> mx(grid_.max().begin(), grid_.max().end());
-  if (mx.empty()) mx.push_back(0);
-  glNamedBufferData(brick_max_.get(), static_cast<GLsizeiptr>(mx.size() * sizeof(float)), mx.data(), GL_DYNAMIC_DRAW);
+}
+
+void VolumeRaycaster::upload_brick_range() {
+  const auto bricks = grid_.dims();
+  if (bricks != brick_range_dims_) {
+    GLuint t = 0;
+    glCreateTextures(GL_TEXTURE_3D, 1, &t);
+    brick_range_ = Texture(t);
+    glTextureStorage3D(t, 1, GL_RG32F, std::max(bricks[0], 1), std::max(bricks[1], 1), std::max(bricks[2], 1));
+    glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    brick_range_dims_ = bricks;
+  }
+  const auto lo = grid_.min(), hi = grid_.max();
+  if (lo.empty()) return;
+  std::vector<float> range(2 * lo.size());
+  for (std::size_t b = 0; b < lo.size(); ++b) {
+    range[2 * b] = lo[b];
+    range[2 * b + 1] = hi[b];
+  }
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+  glTextureSubImage3D(brick_range_.get(), 0, 0, 0, 0, bricks[0], bricks[1], bricks[2], GL_RG, GL_FLOAT, range.data());
 }
 
 void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::RaycastParams& params, GLuint depth_texture) {
@@ -263,12 +348,13 @@ void VolumeRaycaster::render(const volume::RayCamera& cam, const volume::Raycast
   glUniform4f(glGetUniformLocation(p, "u_plane"), params.clip_plane[0], params.clip_plane[1], params.clip_plane[2], params.clip_plane[3]);
   glUniform1i(glGetUniformLocation(p, "u_depth"), 0);
   glUniform1i(glGetUniformLocation(p, "u_volume"), 1);
+  glUniform1i(glGetUniformLocation(p, "u_brick_range"), 2);
   glBindTextureUnit(0, depth_texture);
   glBindTextureUnit(1, voxels_.get());
+  glBindTextureUnit(2, brick_range_.get());
   glBindImageTexture(0, image_.get(), 0, GL_FALSE, 0, GL_WRITE_ONLY, GL_RGBA32F);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, table_.get());
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, mask_.get());
-  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, brick_max_.get());
   glDispatchCompute(static_cast<GLuint>((cam.width + 7) / 8), static_cast<GLuint>((cam.height + 7) / 8), 1);
   glMemoryBarrier(GL_SHADER_IMAGE_ACCESS_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT | GL_TEXTURE_UPDATE_BARRIER_BIT);
 }

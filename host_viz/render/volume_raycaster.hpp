@@ -2,11 +2,16 @@
 // VolumeRaycaster: GPU direct volume rendering, one GL 4.5 compute shader invocation per pixel,
 // the same sampling, table, opacity correction, jitter, early termination, empty-space skipping
 // and shading as volume::raycast_cpu (its reference; volume/raycast.hpp states the algorithm).
-// The voxels are an R32F 3-D texture, interpolated by the texture unit (llvmpipe blends in float,
-// so the two agree to rounding; a GPU's 8-bit blend weights differ from the reference by up to
-// 1/256 of a voxel step). The brick grid's empty mask and largest values, and the table, live in
-// storage buffers; the image is an RGBA32F texture, premultiplied. The shader is compiled once
-// per combination of MIP, shading and skipping (no masked-out code for the modes not run). Needs a current GL 4.5 context.
+// MIP skips on a schedule of its own: walks through the brick grid first bound the stretch of the
+// ray that can hold its maximum (from the first to the last brick whose largest value reaches the
+// largest smallest value of a brick the ray surely samples), and only that stretch is sampled,
+// with no test per step; the samples left out cannot raise the maximum, so the image is the
+// reference's. The voxels are an R32F 3-D texture, interpolated by the texture unit (llvmpipe
+// blends in float, so the two agree to rounding; a GPU's 8-bit blend weights differ from the
+// reference by up to 1/256 of a voxel step). The bricks' empty mask and the table live in storage
+// buffers, the bricks' (smallest, largest) values in an RG32F 3-D texture; the image is an RGBA32F
+// texture, premultiplied. The shader is compiled once per combination of MIP, shading and
+// skipping (no masked-out code for the modes not run). Needs a current GL 4.5 context.
 
 #include <array>
 #include <cstdint>
@@ -36,10 +41,13 @@ class VolumeRaycaster {
   [[nodiscard]] GLuint texture() const noexcept { return image_.get(); }
 
  private:
-  void upload_mask();
+  void upload_mask();         ///< the bricks that are empty under the table
+  void upload_brick_range();  ///< each brick's (min, max)
   std::array<Program, 8> programs_;  ///< by MIP | SHADE << 1 | SKIP << 2
   Texture voxels_;
-  Buffer mask_, brick_max_, table_;
+  Buffer mask_, table_;
+  Texture brick_range_;  ///< RG32F, one texel per brick: (min, max)
+  std::array<int, 3> brick_range_dims_{};
   Texture image_;
   int image_w_ = 0, image_h_ = 0;
   volume::BrickGrid grid_;

@@ -1,17 +1,20 @@
 // lancet-bench-raycast: the GPU ray caster (render::VolumeRaycaster, a GL compute shader, headless
 // through EGL) on the built-in phantom, a CT with air around the body: ms per frame with and
-// without empty-space skipping, for CT-Skin, CT-Bone and MIP; and the CPU reference on the same
-// frame for scale. Prints one JSON object.
+// without empty-space skipping, for CT-Skin, CT-Bone and MIP, with the largest difference between
+// the two images (skipping must leave it as it is); and the CPU reference on the same frame for
+// scale. Prints one JSON object.
 //   lancet-bench-raycast [--size N] [--frames F] [--volume PATH] [--vtk-export DIR] [--screenshot PREFIX]
 // --volume: a CT (DICOM directory, MetaImage, NRRD) instead of the phantom. --vtk-export: writes
 // what scripts/bench_raycast_vtk.py needs to render the same frames with VTK's
 // vtkGPUVolumeRayCastMapper (volume.mhd/.raw as float32, and setup.json: camera, image size,
 // sample distance, reference step, each preset's table); scripts/bench-raycast-vs-vtk runs both.
+// --screenshot: each preset's image with skipping, as PREFIX-<preset>.png.
 
 #include <epoxy/gl.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -179,6 +182,7 @@ int main(int argc, char** argv) {
     const volume::TransferFunction tf = volume::tf_preset(presets[n]);
     gpu.set_transfer_function(tf);
     double ms[2] = {0, 0};
+    volume::RgbaImage shown[2];  // the last frame of each, by skip
     for (int skip = 1; skip >= 0; --skip) {
       volume::RaycastParams p;
       p.skip_empty = skip == 1;
@@ -190,11 +194,15 @@ int main(int argc, char** argv) {
         if (f > 0) t.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());  // the first warms up
       }
       ms[skip] = median(t);
+      shown[skip] = gpu.read_back();
     }
-    if (!shot_prefix.empty()) {
+    // Skipping must not change the picture: the largest difference of a channel between the two.
+    float skip_diff = 0;
+    for (std::size_t i = 0; i < shown[1].rgba.size(); ++i) skip_diff = std::max(skip_diff, std::abs(shown[1].rgba[i] - shown[0].rgba[i]));
+    if (!shot_prefix.empty()) {  // the image with skipping, the one timed first
       const std::string name(volume::tf_preset_name(presets[n]));
       const std::string path = shot_prefix + "-" + name.substr(0, name.find(' ')) + ".png";
-      if (!write_shot(path, gpu.read_back())) std::fprintf(stderr, "lancet-bench-raycast: cannot write %s\n", path.c_str());
+      if (!write_shot(path, shown[1])) std::fprintf(stderr, "lancet-bench-raycast: cannot write %s\n", path.c_str());
     }
     // The CPU reference on the same frame, with skipping, for scale.
     volume::RgbaImage img;
@@ -203,8 +211,8 @@ int main(int argc, char** argv) {
     volume::raycast_cpu(v, grid, tf, cam, volume::RaycastParams{}, {}, img, &st);
     const double cpu_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     std::printf("    {\"preset\": \"%s\", \"gpu_ms\": %.1f, \"gpu_ms_no_skipping\": %.1f, \"skipping_speedup\": %.2f, "
-                "\"cpu_reference_ms\": %.0f, \"cpu_samples\": %llu, \"cpu_skipped_bricks\": %llu}%s\n",
-                std::string(volume::tf_preset_name(presets[n])).c_str(), ms[1], ms[0], ms[1] > 0 ? ms[0] / ms[1] : 0.0, cpu_ms,
+                "\"skip_vs_no_skip_max_diff\": %.2g, \"cpu_reference_ms\": %.0f, \"cpu_samples\": %llu, \"cpu_skipped_bricks\": %llu}%s\n",
+                std::string(volume::tf_preset_name(presets[n])).c_str(), ms[1], ms[0], ms[1] > 0 ? ms[0] / ms[1] : 0.0, skip_diff, cpu_ms,
                 static_cast<unsigned long long>(st.samples), static_cast<unsigned long long>(st.skipped_bricks), n + 1 < presets.size() ? "," : "");
   }
   std::printf("  ]\n}\n");
