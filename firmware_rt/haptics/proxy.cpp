@@ -235,17 +235,31 @@ bool is_active(const std::uint32_t* active, std::uint32_t m, std::size_t i) {
 constexpr double kSlack = 1e-9;  // m
 
 // Puts the tree's leaves within reach of p into s.pending, ranked in the order collect_planes would
-// meet their triangles. false when they hold more triangles than kMaxPlanes (the caller then
-// builds every plane, and finds whether they overflow).
-bool collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, double radius, double reach, ProxyScratch& s) {
+// meet their triangles. When they come to hold more triangles than kMaxPlanes, builds the planes
+// of those met so far and of the rest of the walk, as collect_planes would (and finds whether
+// they overflow).
+void collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, double radius, double reach, ProxyScratch& s) {
   s.n_planes = 0;
   s.overflow = false;
   s.n_pending = 0;
   s.patch = &patch, s.from = p, s.radius = radius, s.reach2 = reach * reach;
   std::uint32_t rank = 0;
+  bool build_all = false;
   double nearest = std::numeric_limits<double>::infinity();
-  const bool fits = for_each_leaf_near(bvh, p, reach, [&](std::uint32_t first, std::uint32_t last, double d2) {
-    if (s.n_pending == kMaxPlaneGroups || rank + (last - first) > kMaxPlanes) return false;
+  for_each_leaf_near(bvh, p, reach, [&](std::uint32_t first, std::uint32_t last, double d2) {
+    if (!build_all && (s.n_pending == kMaxPlaneGroups || rank + (last - first) > kMaxPlanes)) {
+      build_all = true;
+      for (std::size_t j = 0; j < s.n_pending; ++j) {
+        const PlaneGroup& g = s.pending[j];
+        for (std::uint32_t i = g.first; i < g.last; ++i) add_plane(patch, i, g.rank + (i - g.first), p, radius, s.reach2, s);
+      }
+      s.n_pending = 0;
+    }
+    if (build_all) {
+      for (std::uint32_t i = first; i < last; ++i)
+        if (!add_plane(patch, i, rank++, p, radius, s.reach2, s)) return false;
+      return true;
+    }
     const double distance = std::sqrt(d2);
     s.pending[s.n_pending++] = PlaneGroup{first, last, rank, distance};
     rank += last - first;
@@ -253,7 +267,6 @@ bool collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, doub
     return true;
   });
   s.nearest_pending = nearest;
-  return fits;
 }
 
 // Whether a pending plane may be violated by more than `violation` at x (NaN: yes).
@@ -337,7 +350,11 @@ ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, 
   const bool lazy = s.lazy && bvh != nullptr && is_finite(p) && is_finite(device);
   for (int halvings = 0;; ++halvings) {
     const double reach = norm(goal - p) + 2.0 * radius;
-    if (!lazy || !collect_pending(patch, *bvh, p, radius, reach, s)) collect_planes(patch, bvh, p, radius, reach, s);
+    if (lazy) {
+      collect_pending(patch, *bvh, p, radius, reach, s);
+    } else {
+      collect_planes(patch, bvh, p, radius, reach, s);
+    }
     bool found = !s.overflow;
     if (found) {
       r.position = solve(
