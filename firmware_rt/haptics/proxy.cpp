@@ -79,8 +79,9 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept {
 namespace {
 
 // Adds triangle i's separating plane (the rank-th triangle the search met) when it lies within
-// reach of p; false when the scratch is full.
-bool add_plane(const TissuePatch& patch, std::uint32_t i, std::uint32_t rank, Vec3 p, double radius, double reach2,
+// reach of p; false when the scratch is full. Inlined into add_planes' loop (it runs for every
+// triangle met).
+[[gnu::always_inline]] inline bool add_plane(const TissuePatch& patch, std::uint32_t i, std::uint32_t rank, Vec3 p, double radius, double reach2,
                ProxyScratch& s) {
   const PatchTriangle& t = patch.triangles[i];
   const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
@@ -101,6 +102,14 @@ bool add_plane(const TissuePatch& patch, std::uint32_t i, std::uint32_t rank, Ve
   // The separating direction; when p lies on the triangle, its face normal.
   const Vec3 nrm = dist2 > 1e-20 ? (1.0 / std::sqrt(dist2)) * d : normalized(face);
   s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i, rank};
+  return true;
+}
+
+// add_plane for triangles [first, last) of the patch, ranks from `rank` on; false when the scratch is full.
+bool add_planes(const TissuePatch& patch, std::uint32_t first, std::uint32_t last, std::uint32_t rank, Vec3 p, double radius,
+                double reach2, ProxyScratch& s) {
+  for (std::uint32_t i = first; i < last; ++i)
+    if (!add_plane(patch, i, rank + (i - first), p, radius, reach2, s)) return false;
   return true;
 }
 
@@ -125,7 +134,7 @@ std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p
   s.n_pending = 0;
   const double reach2 = reach * reach;
   std::uint32_t rank = 0;
-  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_plane(patch, i, rank++, p, radius, reach2, s); });
+  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_planes(patch, i, i + 1, rank++, p, radius, reach2, s); });
   return s.n_planes;
 }
 
@@ -245,28 +254,26 @@ void collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, doub
   s.patch = &patch, s.from = p, s.radius = radius, s.reach2 = reach * reach;
   std::uint32_t rank = 0;
   bool build_all = false;
-  double nearest = std::numeric_limits<double>::infinity();
   for_each_leaf_near(bvh, p, reach, [&](std::uint32_t first, std::uint32_t last, double d2) {
     if (!build_all && (s.n_pending == kMaxPlaneGroups || rank + (last - first) > kMaxPlanes)) {
       build_all = true;
       for (std::size_t j = 0; j < s.n_pending; ++j) {
         const PlaneGroup& g = s.pending[j];
-        for (std::uint32_t i = g.first; i < g.last; ++i) add_plane(patch, i, g.rank + (i - g.first), p, radius, s.reach2, s);
+        add_planes(patch, g.first, g.last, g.rank, p, radius, s.reach2, s);  // they fit: fewer than kMaxPlanes
       }
       s.n_pending = 0;
     }
     if (build_all) {
-      for (std::uint32_t i = first; i < last; ++i)
-        if (!add_plane(patch, i, rank++, p, radius, s.reach2, s)) return false;
-      return true;
+      rank += last - first;
+      return add_planes(patch, first, last, rank - (last - first), p, radius, s.reach2, s);
     }
-    const double distance = std::sqrt(d2);
-    s.pending[s.n_pending++] = PlaneGroup{first, last, rank, distance};
+    s.pending[s.n_pending++] = PlaneGroup{first, last, rank, d2};
     rank += last - first;
-    nearest = std::min(nearest, distance);
     return true;
   });
-  s.nearest_pending = nearest;
+  const auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
+  std::make_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
+  s.nearest_pending = s.n_pending > 0 ? std::sqrt(s.pending[0].distance2) : std::numeric_limits<double>::infinity();
 }
 
 // Whether a pending plane may be violated by more than `violation` at x (NaN: yes).
@@ -274,17 +281,14 @@ bool pending_may_exceed(const ProxyScratch& s, Vec3 x, double violation) {
   return s.n_pending > 0 && !(s.radius - s.nearest_pending + norm(x - s.from) + kSlack <= violation);
 }
 
-// Builds the planes of the nearest pending leaf (appended to s.planes).
+// Builds the planes of the nearest pending leaf (appended to s.planes). s.pending is a heap,
+// nearest on top.
 void build_nearest_pending(ProxyScratch& s) {
-  std::size_t k = 0;
-  for (std::size_t j = 1; j < s.n_pending; ++j)
-    if (s.pending[j].distance < s.pending[k].distance) k = j;
-  const PlaneGroup g = s.pending[k];
-  s.pending[k] = s.pending[--s.n_pending];
-  for (std::uint32_t i = g.first; i < g.last; ++i) add_plane(*s.patch, i, g.rank + (i - g.first), s.from, s.radius, s.reach2, s);
-  double nearest = std::numeric_limits<double>::infinity();
-  for (std::size_t j = 0; j < s.n_pending; ++j) nearest = std::min(nearest, s.pending[j].distance);
-  s.nearest_pending = nearest;
+  const auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
+  std::pop_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
+  const PlaneGroup g = s.pending[--s.n_pending];
+  add_planes(*s.patch, g.first, g.last, g.rank, s.from, s.radius, s.reach2, s);
+  s.nearest_pending = s.n_pending > 0 ? std::sqrt(s.pending[0].distance2) : std::numeric_limits<double>::infinity();
 }
 
 // The most violated plane at x, building those that may be.
@@ -294,11 +298,11 @@ std::size_t most_violated_lazily(ProxyScratch& s, Vec3 x, const std::uint32_t* a
   const auto consider = [&](std::size_t from, std::size_t to) {
     for (std::size_t i = from; i < to; ++i) {
       const double v = s.planes[i].d - dot(s.planes[i].n, x);
-      const bool tie = v == worst_violation && worst != kNone && s.planes[i].rank < s.planes[worst].rank;
-      if ((v > worst_violation || tie) && !is_active(active, m, i)) {
-        worst = i;
-        worst_violation = v;
-      }
+      if (!(v >= worst_violation)) continue;
+      if (v == worst_violation && (worst == kNone || s.planes[i].rank > s.planes[worst].rank)) continue;  // a tie: the lower rank
+      if (is_active(active, m, i)) continue;
+      worst = i;
+      worst_violation = v;
     }
   };
   consider(0, s.n_planes);

@@ -39,10 +39,10 @@ struct Plane {
 inline constexpr std::size_t kMaxPlanes = 1024;
 
 /// Triangles [first, last) of the patch whose planes are not built yet, none nearer the proxy than
-/// `distance` (m; its leaf's box), the first of them rank `rank`.
+/// sqrt(distance2) (m; its leaf's box), the first of them rank `rank`.
 struct PlaneGroup {
   std::uint32_t first = 0, last = 0, rank = 0;
-  double distance = 0;
+  double distance2 = 0;
 };
 inline constexpr std::size_t kMaxPlaneGroups = kMaxPlanes / kPatchLeafSize + 1;
 
