@@ -79,8 +79,8 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept {
 namespace {
 
 // Adds triangle i's separating plane (the rank-th triangle the search met) when it lies within
-// reach of p; false when the scratch is full. Inlined into add_planes' loop (it runs for every
-// triangle met).
+// reach of p; false when the scratch is full. Inlined into the loops that call it (it runs for
+// every triangle met).
 [[gnu::always_inline]] inline bool add_plane(const TissuePatch& patch, std::uint32_t i, std::uint32_t rank, Vec3 p, double radius, double reach2,
                ProxyScratch& s) {
   const PatchTriangle& t = patch.triangles[i];
@@ -134,7 +134,7 @@ std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p
   s.n_pending = 0;
   const double reach2 = reach * reach;
   std::uint32_t rank = 0;
-  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_planes(patch, i, i + 1, rank++, p, radius, reach2, s); });
+  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_plane(patch, i, rank++, p, radius, reach2, s); });
   return s.n_planes;
 }
 
