@@ -243,6 +243,9 @@ bool is_active(const std::uint32_t* active, std::uint32_t m, std::size_t i) {
 // so the first that stays unbuilt speaks for all the rest.
 constexpr double kSlack = 1e-9;  // m
 
+// The order of the heap of pending leaves: the nearest on top.
+constexpr auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
+
 // Puts the tree's leaves within reach of p into s.pending, ranked in the order collect_planes would
 // meet their triangles. When they come to hold more triangles than kMaxPlanes, builds the planes
 // of those met so far and of the rest of the walk, as collect_planes would (and finds whether
@@ -263,15 +266,12 @@ void collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, doub
       }
       s.n_pending = 0;
     }
-    if (build_all) {
-      rank += last - first;
-      return add_planes(patch, first, last, rank - (last - first), p, radius, s.reach2, s);
-    }
-    s.pending[s.n_pending++] = PlaneGroup{first, last, rank, d2};
+    const std::uint32_t first_rank = rank;
     rank += last - first;
+    if (build_all) return add_planes(patch, first, last, first_rank, p, radius, s.reach2, s);
+    s.pending[s.n_pending++] = PlaneGroup{first, last, first_rank, d2};
     return true;
   });
-  const auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
   std::make_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
   s.nearest_pending = s.n_pending > 0 ? std::sqrt(s.pending[0].distance2) : std::numeric_limits<double>::infinity();
 }
@@ -284,7 +284,6 @@ bool pending_may_exceed(const ProxyScratch& s, Vec3 x, double violation) {
 // Builds the planes of the nearest pending leaf (appended to s.planes). s.pending is a heap,
 // nearest on top.
 void build_nearest_pending(ProxyScratch& s) {
-  const auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
   std::pop_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
   const PlaneGroup g = s.pending[--s.n_pending];
   add_planes(*s.patch, g.first, g.last, g.rank, s.from, s.radius, s.reach2, s);
