@@ -50,11 +50,12 @@ inline double box_distance2(const PatchBvh::Box& b, Vec3 p) noexcept {
   return axis(p.x, b.lo.x, b.hi.x) + axis(p.y, b.lo.y, b.hi.y) + axis(p.z, b.lo.z, b.hi.z);
 }
 
-/// Calls visit(i) for every triangle i of the patch in a leaf whose box lies within `reach` of p
-/// (a superset of the triangles within reach; the caller tests them). visit returns false to stop
-/// the walk. Returns false when stopped.
-template <class Visit>
-bool for_each_near(const PatchBvh& bvh, Vec3 p, double reach, Visit&& visit) noexcept {
+/// Calls visit(first, last, d2) for every leaf whose box lies within `reach` of p, nearest tree
+/// order first (left before right): its triangles [first, last) of the patch, none of them nearer
+/// p than sqrt(d2) (the box's distance). visit returns false to stop the walk. Returns false when
+/// stopped.
+template <class VisitLeaf>
+bool for_each_leaf_near(const PatchBvh& bvh, Vec3 p, double reach, VisitLeaf&& visit) noexcept {
   if (bvh.n_triangles == 0) return true;
   const double reach2 = reach * reach;
   std::uint32_t stack[64];
@@ -62,12 +63,12 @@ bool for_each_near(const PatchBvh& bvh, Vec3 p, double reach, Visit&& visit) noe
   stack[top++] = 1;
   while (top > 0) {
     const std::uint32_t node = stack[--top];
-    if (box_distance2(bvh.nodes[node], p) > reach2) continue;
+    const double d2 = box_distance2(bvh.nodes[node], p);
+    if (d2 > reach2) continue;
     if (node >= bvh.first_leaf) {
       const std::uint32_t first = (node - bvh.first_leaf) * kPatchLeafSize;
       const std::uint32_t last = first + kPatchLeafSize < bvh.n_triangles ? first + kPatchLeafSize : bvh.n_triangles;
-      for (std::uint32_t i = first; i < last; ++i)
-        if (!visit(i)) return false;
+      if (first < last && !visit(first, last, d2)) return false;
       continue;
     }
     // Depth ≤ log2(kPatchLeaves) + 1, so the stack holds at most one sibling per level.
@@ -75,6 +76,18 @@ bool for_each_near(const PatchBvh& bvh, Vec3 p, double reach, Visit&& visit) noe
     stack[top++] = 2 * node;
   }
   return true;
+}
+
+/// Calls visit(i) for every triangle i of the patch in a leaf whose box lies within `reach` of p
+/// (a superset of the triangles within reach; the caller tests them), in the order of
+/// for_each_leaf_near. visit returns false to stop the walk. Returns false when stopped.
+template <class Visit>
+bool for_each_near(const PatchBvh& bvh, Vec3 p, double reach, Visit&& visit) noexcept {
+  return for_each_leaf_near(bvh, p, reach, [&](std::uint32_t first, std::uint32_t last, double) {
+    for (std::uint32_t i = first; i < last; ++i)
+      if (!visit(i)) return false;
+    return true;
+  });
 }
 
 }  // namespace lancet::haptics

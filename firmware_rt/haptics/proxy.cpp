@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace lancet::haptics {
 namespace {
@@ -77,8 +78,11 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept {
 
 namespace {
 
-// Adds triangle i's separating plane when it lies within reach of p; false when the scratch is full.
-bool add_plane(const TissuePatch& patch, std::uint32_t i, Vec3 p, double radius, double reach2, ProxyScratch& s) {
+// Adds triangle i's separating plane (the rank-th triangle the search met) when it lies within
+// reach of p; false when the scratch is full. Inlined into the loops that call it (it runs for
+// every triangle met).
+[[gnu::always_inline]] inline bool add_plane(const TissuePatch& patch, std::uint32_t i, std::uint32_t rank, Vec3 p, double radius, double reach2,
+               ProxyScratch& s) {
   const PatchTriangle& t = patch.triangles[i];
   const Vec3 a = to_vec3(t.v[0]), b = to_vec3(t.v[1]), c = to_vec3(t.v[2]);
   const Vec3 face = cross(b - a, c - a);
@@ -97,7 +101,15 @@ bool add_plane(const TissuePatch& patch, std::uint32_t i, Vec3 p, double radius,
   }
   // The separating direction; when p lies on the triangle, its face normal.
   const Vec3 nrm = dist2 > 1e-20 ? (1.0 / std::sqrt(dist2)) * d : normalized(face);
-  s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i};
+  s.planes[s.n_planes++] = Plane{nrm, dot(nrm, q) + radius, i, rank};
+  return true;
+}
+
+// add_plane for triangles [first, last) of the patch, ranks from `rank` on; false when the scratch is full.
+bool add_planes(const TissuePatch& patch, std::uint32_t first, std::uint32_t last, std::uint32_t rank, Vec3 p, double radius,
+                double reach2, ProxyScratch& s) {
+  for (std::uint32_t i = first; i < last; ++i)
+    if (!add_plane(patch, i, rank + (i - first), p, radius, reach2, s)) return false;
   return true;
 }
 
@@ -119,8 +131,10 @@ std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p
                            ProxyScratch& s) noexcept {
   s.n_planes = 0;
   s.overflow = false;
+  s.n_pending = 0;
   const double reach2 = reach * reach;
-  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_plane(patch, i, p, radius, reach2, s); });
+  std::uint32_t rank = 0;
+  for_each_candidate(patch, bvh, p, reach, [&](std::uint32_t i) { return add_plane(patch, i, rank++, p, radius, reach2, s); });
   return s.n_planes;
 }
 
@@ -168,24 +182,24 @@ Vec3 surface_entry(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double
   return best_q + (radius * (1 + 1e-9) + 1e-12) * nrm;
 }
 
-Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active,
-                       std::uint32_t& m, bool* found) noexcept {
+namespace {
+
+constexpr std::size_t kNone = ~std::size_t{0};
+
+// The active-set solve (solve_constraints) over planes that `most_violated(x, active, m)` (the
+// index of the most violated plane at x not among the m active ones, kNone when none is violated
+// by more than kEps; ties to the lower rank) and `satisfied(x)` (every plane holds at x) look
+// through; planes[i] is plane i.
+template <class MostViolated, class Satisfied>
+Vec3 solve(const Plane* planes, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active, std::uint32_t& m, bool* found,
+           MostViolated&& most_violated, Satisfied&& satisfied) {
   m = 0;
   if (found != nullptr) *found = true;
   Vec3 x = goal;
   double lambda[3];
   for (int iter = 0; iter < 12; ++iter) {
-    // The most violated plane not yet active.
-    std::size_t worst = n;
-    double worst_violation = kEps;
-    for (std::size_t i = 0; i < n; ++i) {
-      const double v = planes[i].d - dot(planes[i].n, x);
-      if (v > worst_violation && std::find(active.begin(), active.begin() + m, i) == active.begin() + m) {
-        worst = i;
-        worst_violation = v;
-      }
-    }
-    if (worst == n) return x;  // feasible
+    const std::size_t worst = most_violated(x, active.data(), m);
+    if (worst == kNone) return x;  // feasible
     if (m == 3) break;
     active[m++] = static_cast<std::uint32_t>(worst);
     // Solve on the active set; drop planes that pull (negative multiplier) and solve again.
@@ -208,10 +222,125 @@ Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, st
       }
     }
   }
-  if (feasible(planes, n, x)) return x;
+  if (satisfied(x)) return x;
   m = 0;
   if (found != nullptr) *found = false;
   return p;  // no feasible point found: stay (p satisfies every plane built from it)
+}
+
+bool is_active(const std::uint32_t* active, std::uint32_t m, std::size_t i) {
+  return std::find(active, active + m, i) != active + m;
+}
+
+// ---- Planes built as the solve needs them (ProxyScratch::pending) ----
+//
+// Triangle i's plane, n = (p − q)/|p − q| from its closest point q to the start p, d = n·q + r, is
+// violated at x by d − n·x = r − |p − q| − n·(x − p) ≤ r − |p − q| + |x − p|. Its leaf's box
+// distance D ≤ |p − q| bounds that by r − D + |x − p|; where that bound (plus kSlack, far above the
+// rounding of either side) is at most what the solve is looking for, no plane of the leaf can
+// change its answer, and the leaf stays unbuilt. (A proxy on the triangle, |p − q| ≤ 1e-10, takes
+// the face normal instead: the bound still holds within kSlack.) Leaves are built nearest first,
+// so the first that stays unbuilt speaks for all the rest.
+constexpr double kSlack = 1e-9;  // m
+
+// The order of the heap of pending leaves: the nearest on top.
+constexpr auto further = [](const PlaneGroup& a, const PlaneGroup& b) { return a.distance2 > b.distance2; };
+
+// Puts the tree's leaves within reach of p into s.pending, ranked in the order collect_planes would
+// meet their triangles. When they come to hold more triangles than kMaxPlanes, builds the planes
+// of those met so far and of the rest of the walk, as collect_planes would (and finds whether
+// they overflow).
+void collect_pending(const TissuePatch& patch, const PatchBvh& bvh, Vec3 p, double radius, double reach, ProxyScratch& s) {
+  s.n_planes = 0;
+  s.overflow = false;
+  s.n_pending = 0;
+  s.patch = &patch, s.from = p, s.radius = radius, s.reach2 = reach * reach;
+  std::uint32_t rank = 0;
+  bool build_all = false;
+  for_each_leaf_near(bvh, p, reach, [&](std::uint32_t first, std::uint32_t last, double d2) {
+    if (!build_all && (s.n_pending == kMaxPlaneGroups || rank + (last - first) > kMaxPlanes)) {
+      build_all = true;
+      for (std::size_t j = 0; j < s.n_pending; ++j) {
+        const PlaneGroup& g = s.pending[j];
+        add_planes(patch, g.first, g.last, g.rank, p, radius, s.reach2, s);  // they fit: fewer than kMaxPlanes
+      }
+      s.n_pending = 0;
+    }
+    const std::uint32_t first_rank = rank;
+    rank += last - first;
+    if (build_all) return add_planes(patch, first, last, first_rank, p, radius, s.reach2, s);
+    s.pending[s.n_pending++] = PlaneGroup{first, last, first_rank, d2};
+    return true;
+  });
+  std::make_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
+  s.nearest_pending = s.n_pending > 0 ? std::sqrt(s.pending[0].distance2) : std::numeric_limits<double>::infinity();
+}
+
+// Whether a pending plane may be violated by more than `violation` at x (NaN: yes).
+bool pending_may_exceed(const ProxyScratch& s, Vec3 x, double violation) {
+  return s.n_pending > 0 && !(s.radius - s.nearest_pending + norm(x - s.from) + kSlack <= violation);
+}
+
+// Builds the planes of the nearest pending leaf (appended to s.planes). s.pending is a heap,
+// nearest on top.
+void build_nearest_pending(ProxyScratch& s) {
+  std::pop_heap(s.pending.begin(), s.pending.begin() + static_cast<std::ptrdiff_t>(s.n_pending), further);
+  const PlaneGroup g = s.pending[--s.n_pending];
+  add_planes(*s.patch, g.first, g.last, g.rank, s.from, s.radius, s.reach2, s);
+  s.nearest_pending = s.n_pending > 0 ? std::sqrt(s.pending[0].distance2) : std::numeric_limits<double>::infinity();
+}
+
+// The most violated plane at x, building those that may be.
+std::size_t most_violated_lazily(ProxyScratch& s, Vec3 x, const std::uint32_t* active, std::uint32_t m) {
+  std::size_t worst = kNone;
+  double worst_violation = kEps;
+  const auto consider = [&](std::size_t from, std::size_t to) {
+    for (std::size_t i = from; i < to; ++i) {
+      const double v = s.planes[i].d - dot(s.planes[i].n, x);
+      if (!(v >= worst_violation)) continue;
+      if (v == worst_violation && (worst == kNone || s.planes[i].rank > s.planes[worst].rank)) continue;  // a tie: the lower rank
+      if (is_active(active, m, i)) continue;
+      worst = i;
+      worst_violation = v;
+    }
+  };
+  consider(0, s.n_planes);
+  while (pending_may_exceed(s, x, worst_violation)) {
+    const std::size_t built = s.n_planes;
+    build_nearest_pending(s);
+    consider(built, s.n_planes);
+  }
+  return worst;
+}
+
+// Whether every plane holds at x, building those that may not.
+bool satisfied_lazily(ProxyScratch& s, Vec3 x) {
+  if (!feasible(s.planes.data(), s.n_planes, x)) return false;
+  while (pending_may_exceed(s, x, kEps)) {
+    const std::size_t built = s.n_planes;
+    build_nearest_pending(s);
+    if (!feasible(s.planes.data() + built, s.n_planes - built, x)) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, std::array<std::uint32_t, 3>& active,
+                       std::uint32_t& m, bool* found) noexcept {
+  const auto most_violated = [&](Vec3 x, const std::uint32_t* act, std::uint32_t n_act) {
+    std::size_t worst = kNone;
+    double worst_violation = kEps;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = planes[i].d - dot(planes[i].n, x);
+      if (v > worst_violation && !is_active(act, n_act, i)) {
+        worst = i;
+        worst_violation = v;
+      }
+    }
+    return worst;
+  };
+  return solve(planes, p, goal, active, m, found, most_violated, [&](Vec3 x) { return feasible(planes, n, x); });
 }
 
 ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, Vec3 device, double radius,
@@ -220,16 +349,29 @@ ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, 
   Vec3 goal = device;
   std::array<std::uint32_t, 3> active{};
   std::uint32_t m = 0;
+  // Lazily only from finite places (the bounds mean nothing otherwise).
+  const bool lazy = s.lazy && bvh != nullptr && is_finite(p) && is_finite(device);
   for (int halvings = 0;; ++halvings) {
-    collect_planes(patch, bvh, p, radius, norm(goal - p) + 2.0 * radius, s);
+    const double reach = norm(goal - p) + 2.0 * radius;
+    if (lazy) {
+      collect_pending(patch, *bvh, p, radius, reach, s);
+    } else {
+      collect_planes(patch, bvh, p, radius, reach, s);
+    }
     bool found = !s.overflow;
-    if (found) r.position = solve_constraints(s.planes.data(), s.n_planes, p, goal, active, m, &found);
+    if (found) {
+      r.position = solve(
+          s.planes.data(), p, goal, active, m, &found,
+          [&](Vec3 x, const std::uint32_t* act, std::uint32_t n_act) { return most_violated_lazily(s, x, act, n_act); },
+          [&](Vec3 x) { return satisfied_lazily(s, x); });
+    }
     if (found) break;
     // Too many triangles within the step's reach, or no point found that rests on at most three
     // of their planes (a long step over a curved sheet): go part of the way this tick.
     ++s.shortened;
     if (halvings == kMaxHalvings) {  // not even a sixteenth of the step: stay
       s.n_planes = 0;
+      s.n_pending = 0;
       r.position = p;
       return r;
     }
@@ -288,7 +430,7 @@ bool carry_proxy(const TissuePatch& patch, const PatchBvh* bvh, const ProxyAncho
 }
 
 void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_d, bool sliding,
-                    const ProxyScratch& s) noexcept {
+                    ProxyScratch& s) noexcept {
   if (r.n_active == 0) return;
   // depth: how far the device is below the proxy along the normal; the tangential offset of the
   // previous proxy from the device decides stick or slide.
@@ -311,7 +453,7 @@ void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_
     candidate = base + (std::min(t, mu_d * depth) / t) * tang;  // slide to the edge of the cone
   }
   // Friction never moves the proxy into the tissue: keep it only where every plane holds.
-  if (feasible(s.planes.data(), s.n_planes, candidate)) {
+  if (satisfied_lazily(s, candidate)) {
     r.position = candidate;
     r.stuck = stuck;
   }

@@ -29,17 +29,41 @@ struct Plane {
   Vec3 n;
   double d;
   std::uint32_t triangle;
+  /// Its place in the list collect_planes would build (the order the search meets the triangles):
+  /// what breaks ties in the solve, so a list built in another order solves the same
+  std::uint32_t rank = 0;
 };
 
 /// Most planes one proxy update takes. More triangles within reach (a step much longer than
 /// the triangles are wide) and the step is shortened until they fit (update_proxy).
 inline constexpr std::size_t kMaxPlanes = 1024;
 
+/// Triangles [first, last) of the patch whose planes are not built yet, none nearer the proxy than
+/// sqrt(distance2) (m; its leaf's box), the first of them rank `rank`.
+struct PlaneGroup {
+  std::uint32_t first = 0, last = 0, rank = 0;
+  double distance2 = 0;
+};
+inline constexpr std::size_t kMaxPlaneGroups = kMaxPlanes / kPatchLeafSize + 1;
+
+/// The planes of one proxy update. update_proxy builds them as the solve needs them (lazily): a
+/// triangle whose plane cannot be violated where the solve looks (it lies further from the proxy's
+/// start than that point plus a radius) waits in `pending`, and most never get built; what the
+/// solve and the friction decide is the same as with every plane built (ProxyScratch::lazy false).
 struct ProxyScratch {
   std::array<Plane, kMaxPlanes> planes;
   std::size_t n_planes = 0;
   bool overflow = false;      ///< the last collect_planes found more than kMaxPlanes
   std::uint64_t shortened = 0;  ///< updates whose step was shortened because of it (count)
+  /// false: update_proxy builds every plane within reach up front (the reference the tests
+  /// compare the lazy build against)
+  bool lazy = true;
+  std::array<PlaneGroup, kMaxPlaneGroups> pending;  ///< not built yet, any order
+  std::size_t n_pending = 0;
+  double nearest_pending = 0;  ///< least distance among them (m)
+  const TissuePatch* patch = nullptr;  ///< what they are built from: the patch, the proxy's start,
+  Vec3 from{};                         ///< its radius and the reach (squared)
+  double radius = 0, reach2 = 0;
 };
 
 struct ProxyResult {
@@ -55,7 +79,7 @@ Vec3 closest_point_on_triangle(Vec3 p, Vec3 a, Vec3 b, Vec3 c) noexcept;
 
 /// Builds the separating planes of every patch triangle within `reach` of the sphere at p,
 /// through `bvh` (built for this patch) or, when null, by a scan of the whole patch. Stops with
-/// s.overflow set when more than kMaxPlanes qualify.
+/// s.overflow set when more than kMaxPlanes qualify. Builds them all (s.n_pending = 0).
 std::size_t collect_planes(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, double radius, double reach,
                            ProxyScratch& s) noexcept;
 
@@ -84,7 +108,8 @@ Vec3 solve_constraints(const Plane* planes, std::size_t n, Vec3 p, Vec3 goal, st
 /// planes it used in scratch for apply_friction. When more than kMaxPlanes triangles lie within
 /// the step's reach, or the solve finds no point (a long step over a curved sheet), the step is
 /// halved (the proxy goes part of the way this tick and on later), up to four times; then the
-/// proxy stays at p (always feasible). Bounded: at most five queries and solves.
+/// proxy stays at p (always feasible). Bounded: at most five queries and solves. Through a tree,
+/// the planes are built as the solve needs them (ProxyScratch).
 ProxyResult update_proxy(const TissuePatch& patch, const PatchBvh* bvh, Vec3 p, Vec3 device, double radius,
                          ProxyScratch& scratch) noexcept;
 
@@ -114,8 +139,9 @@ bool carry_proxy(const TissuePatch& patch, const PatchBvh* bvh, const ProxyAncho
 /// Coulomb friction on a proxy in contact (r from update_proxy with the same p, device and
 /// scratch), with static and dynamic coefficients mu_s, mu_d (tangential/normal spring
 /// displacement). A proxy that was sliding last tick (`sliding`) keeps sliding unless it falls
-/// inside the dynamic cone, so the force does not saw-tooth between the two coefficients.
+/// inside the dynamic cone, so the force does not saw-tooth between the two coefficients. May
+/// build more of the scratch's planes.
 void apply_friction(ProxyResult& r, Vec3 p, Vec3 device, double mu_s, double mu_d, bool sliding,
-                    const ProxyScratch& scratch) noexcept;
+                    ProxyScratch& scratch) noexcept;
 
 }  // namespace lancet::haptics

@@ -9,7 +9,9 @@
 // for one hand and for two, as lancet-rt's tick steps them: two ServoData, each hand on its own
 // patch with its own search tree, stepped back to back and timed together.
 // Prints one JSON object: p50, p90, p99, max in ns.
-//   lancet-bench-haptics [--ticks N] [--only hands]
+//   lancet-bench-haptics [--ticks N] [--only hands|probe]
+// --only probe: the probe sliding through the tree on both sheets at 1 024 and 16 384 triangles,
+// nothing else (for a profiler).
 
 #include <algorithm>
 #include <chrono>
@@ -234,19 +236,32 @@ void print_haptics(int ticks) {
 
 int main(int argc, char** argv) {
   int ticks = 200'000;
-  bool hands_only = false;
+  bool hands_only = false, probe_only = false;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--ticks") == 0 && i + 1 < argc) {
       ticks = std::max(1000, std::atoi(argv[++i]));
     } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc && std::strcmp(argv[i + 1], "hands") == 0) {
       hands_only = true;
       ++i;
+    } else if (std::strcmp(argv[i], "--only") == 0 && i + 1 < argc && std::strcmp(argv[i + 1], "probe") == 0) {
+      probe_only = true;
+      ++i;
     } else {
-      std::fprintf(stderr, "usage: lancet-bench-haptics [--ticks N] [--only hands]\n");
+      std::fprintf(stderr, "usage: lancet-bench-haptics [--ticks N] [--only hands|probe]\n");
       return 2;
     }
   }
   std::printf("{\n  \"ticks\": %d,\n", ticks);
+  if (probe_only) {
+    for (const float cell : {0.001f, 0.0f})
+      for (int n : {1024, 16384}) {
+        const Stats s = measure(n, ToolMode::kProbe, Run::kTree, ticks, cell);
+        std::printf("  \"probe_%s_%d\": {\"p50_ns\": %.0f, \"p90_ns\": %.0f, \"p99_ns\": %.0f, \"max_ns\": %.0f},\n", cell > 0 ? "1mm" : "40mm",
+                    n, s.p50, s.p90, s.p99, s.max);
+      }
+    std::printf("  \"only\": \"probe\"\n}\n");
+    return 0;
+  }
   if (!hands_only) print_haptics(ticks);
   // One hand against two, each size measured twice in turn (right, left, both; again), so that a
   // neighbour's load that comes and goes shows as a spread between the two passes. Each figure is
