@@ -240,11 +240,16 @@ class ChainMail {
   struct AxisBox {
     double lo, hi;  // m, neighbour's displacement minus the element's, on one axis
   };
-  struct HeapEntry {
-    std::uint64_t key;  // ~(violation in quanta): larger violations first
-    std::uint32_t ref;  // brick << 11 | axis << 9 | local
+  struct Seed {
+    double value;       // m, a sponsor's displacement on the pass's axis
+    std::uint32_t ref;  // brick << 9 | local
   };
+  static constexpr std::size_t kRing = 64;  // buckets of a pass's queue
 
+ public:
+  struct Pass;  // what a pass keeps in registers (chainmail.cpp)
+
+ private:
   [[nodiscard]] std::uint8_t material_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
   [[nodiscard]] bool present_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
   [[nodiscard]] std::uint8_t neighbour_material(const Brick& b, std::uint32_t local, int direction) const noexcept;
@@ -254,25 +259,26 @@ class ChainMail {
   /// Removes the link between e and its neighbour n = e + 1 along axis (both sides of it).
   void unlink(const Index& e, const Index& n, int axis);
   void check_element(const Index& e, const char* what) const;
-  struct Hot;
-  void push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties);
-  [[nodiscard]] bool refill();
-  void drain(ChainMailStepResult& r);
-  [[nodiscard]] std::size_t heap_capacity_bytes() const noexcept;
-  template <int A>
-  void check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
-                       ChainMailStepResult& r);
-  template <int A, bool Uniform>
-  void settle(Hot& h, Brick& brick, std::uint32_t b, std::uint32_t local, ChainMailStepResult& r);
+  [[nodiscard]] std::size_t ring_capacity_bytes() const noexcept;
   void place_sponsor(std::uint32_t brick, std::uint32_t local, Vec3 u, ChainMailStepResult& r);
+  template <int A, bool Up>
+  void pass(ChainMailStepResult& r);
+  template <int A, bool Up>
+  void relax_ref(Pass& p, std::uint32_t ref, ChainMailStepResult& r);
+  template <int A, bool Up, bool Uniform>
+  void relax(Pass& p, Brick& brick, std::uint32_t b, std::uint32_t local, ChainMailStepResult& r);
+  template <int A, bool Up>
+  void move_to(Pass& p, Brick& n, std::uint32_t nb, std::uint32_t nl, double v, double before);
+  template <int A, bool Up>
+  void move_unmaterialised(Pass& p, std::uint32_t b, std::uint32_t l, int d, double ue, ChainMailStepResult& r);
 
   ChainMailLattice lattice_;
   std::vector<ChainMailMaterial> materials_;
   std::span<const std::uint8_t> ids_;
   std::size_t n_materials_ = 0;
   std::array<std::vector<AxisBox>, 3> axis_boxes_;  // per axis: (m1 · n + m2) · 6 + direction
-  double eps_ = 0;          // m, tolerance for violations and conflicts
-  double inv_quantum_ = 0;  // 1/m, heap keys count violations in eps_/4
+  double eps_ = 0;        // m, tolerance for violations and conflicts
+  double inv_delta_ = 0;  // 1/m, buckets of a pass per m of displacement
 
   std::vector<std::unique_ptr<Brick>> bricks_;
   std::vector<std::uint64_t> hash_keys_;  // open addressing, all ones = empty
@@ -283,11 +289,8 @@ class ChainMail {
   std::vector<std::uint32_t> step_refs_;           // scratch: the sponsors' elements
   std::vector<std::uint64_t> step_linear_;         // scratch: duplicate check
   std::vector<ChainMailSponsor> groove_sponsors_;  // scratch of open_groove()
-  std::array<std::vector<HeapEntry>, 257> heap_;   // radix heap buckets (radix 16)
-  std::array<std::uint64_t, 5> heap_nonempty_{};   // bit b: heap_[b] may hold entries (the ties' bit is clear)
-  std::uint64_t heap_last_ = 0;                    // the last popped key
-  std::size_t heap_ties_ = 0;                      // the bucket of the keys equal to heap_last_
-  std::size_t heap_head_ = 0;                      // next entry of heap_[heap_ties_] (first in, first out)
+  std::vector<Seed> seeds_;                        // scratch of a pass: the sponsors in the order their values come up
+  std::array<std::vector<std::uint32_t>, kRing> ring_;  // a pass's queue: buckets of refs (brick << 9 | local)
 };
 
 }  // namespace lancet::volume
