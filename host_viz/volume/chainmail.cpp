@@ -392,6 +392,8 @@ std::uint8_t ChainMail::neighbour_material(const Brick& B, std::uint32_t l, int 
   return material_at(c[0], c[1], c[2]);
 }
 
+constexpr std::size_t kPrefetch = 8;  // queue entries ahead whose element a pass prefetches
+
 // What a pass keeps in registers. As members they would be reloaded after every store to a mark
 // (std::uint64_t) or a displacement (double), which may alias them.
 struct ChainMail::Pass {
@@ -439,18 +441,14 @@ template <int A, bool Up>
 }
 
 // The neighbour of local element l of brick b in direction d has no brick yet (it is at rest):
-// materialises it when coordinate A of l, at ue, requires it to move.
+// whether coordinate A of l, at ue, requires it to move, and where to (v). Out of line, and without
+// the pass (whose address would then escape and its fields be reloaded after every store).
 template <int A, bool Up>
-[[gnu::noinline]] void ChainMail::move_unmaterialised(Pass& p, std::uint32_t b, std::uint32_t l, int d, double ue, ChainMailStepResult& r) {
+[[gnu::noinline]] bool ChainMail::unmaterialised_moves(std::uint32_t b, std::uint32_t l, int d, double ue, double& v) const {
   const Brick& B = *bricks_[b];
   const std::size_t box = (mat_of(B.mark[l]) * n_materials_ + neighbour_material(B, l, d)) * 6 + static_cast<std::size_t>(d);
-  const double v = ue + (Up ? axis_boxes_[A][box].lo : axis_boxes_[A][box].hi);
-  if (Up ? !(v > p.eps) : !(v < -p.eps)) return;
-  std::int64_t c[3] = {B.coord[0], B.coord[1], B.coord[2]};
-  c[kAxisOf[d]] += kStep[d];
-  const auto nb = static_cast<std::uint32_t>(materialise_brick(c[0], c[1], c[2]));
-  r.materialised += kBrickElements;
-  move_to<A, Up>(p, *bricks_[nb], nb, kNeighbours.local[l][static_cast<std::size_t>(d)], v, 0.0);
+  v = ue + (Up ? axis_boxes_[A][box].lo : axis_boxes_[A][box].hi);
+  return Up ? v > eps_ : v < -eps_;
 }
 
 // Relaxes the links of local element l of brick b on axis A: every linked neighbour that lies
@@ -471,11 +469,17 @@ template <int A, bool Up, bool Uniform>
     const auto di = static_cast<std::size_t>(d);
     const bool across = ((cross >> d) & 1u) != 0;
     Brick* NB = across ? B.nbrp[di] : &B;
+    const std::uint32_t nl = nls[di];
     if (NB == nullptr) [[unlikely]] {
-      move_unmaterialised<A, Up>(p, b, l, d, ue, r);
+      double v = 0;
+      if (!unmaterialised_moves<A, Up>(b, l, d, ue, v)) continue;
+      std::int64_t c[3] = {B.coord[0], B.coord[1], B.coord[2]};
+      c[kAxisOf[d]] += kStep[d];
+      const auto nb = static_cast<std::uint32_t>(materialise_brick(c[0], c[1], c[2]));
+      r.materialised += kBrickElements;
+      move_to<A, Up>(p, *bricks_[nb], nb, nl, v, 0.0);
       continue;
     }
-    const std::uint32_t nl = nls[di];
     const AxisBox& bx = row[(Uniform ? mat : mat_of(NB->mark[nl])) * 6 + di];
     const double v = ue + (Up ? bx.lo : bx.hi), un = NB->u[A][nl];
     if (Up ? !(v > un + p.eps) : !(v < un - p.eps)) continue;
@@ -513,6 +517,12 @@ void ChainMail::pass(ChainMailStepResult& r) {
     const std::size_t slot = static_cast<std::size_t>(p.cur) & (kRing - 1);
     std::vector<std::uint32_t>& bucket = ring_[slot];
     for (std::size_t i = 0; i < bucket.size(); ++i) {  // grows while it is taken
+      if (i + kPrefetch < bucket.size()) {  // the entry taken kPrefetch later: its mark and coordinate
+        const std::uint32_t ahead = bucket[i + kPrefetch];
+        const Brick& F = *bricks_[ahead >> kRefBrickShift];
+        __builtin_prefetch(&F.mark[ahead & (kBrickElements - 1)]);
+        __builtin_prefetch(&F.u[A][ahead & (kBrickElements - 1)]);
+      }
       const std::uint32_t ref = bucket[i];
       std::uint64_t& mark = bricks_[ref >> kRefBrickShift]->mark[ref & (kBrickElements - 1)];
       if ((mark & kQueuedBit) == 0) continue;  // taken already, from a bucket it was queued to later

@@ -270,7 +270,7 @@ class ChainMail {
   template <int A, bool Up>
   void move_to(Pass& p, Brick& n, std::uint32_t nb, std::uint32_t nl, double v, double before);
   template <int A, bool Up>
-  void move_unmaterialised(Pass& p, std::uint32_t b, std::uint32_t l, int d, double ue, ChainMailStepResult& r);
+  bool unmaterialised_moves(std::uint32_t b, std::uint32_t l, int d, double ue, double& v) const;
 
   ChainMailLattice lattice_;
   std::vector<ChainMailMaterial> materials_;
