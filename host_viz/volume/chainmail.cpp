@@ -78,23 +78,6 @@ struct alignas(64) ChainMail::Brick {
   [[nodiscard]] Vec3 displacement(std::uint32_t l) const noexcept { return {u[0][l], u[1][l], u[2][l]}; }
 };
 
-namespace {
-
-template <int A>
-double& at(Vec3& v) noexcept {
-  if constexpr (A == 0) return v.x;
-  else if constexpr (A == 1) return v.y;
-  else return v.z;
-}
-template <int A>
-double at(const Vec3& v) noexcept {
-  if constexpr (A == 0) return v.x;
-  else if constexpr (A == 1) return v.y;
-  else return v.z;
-}
-
-}  // namespace
-
 // ---------------------------------------------------------------------------------------------
 // Model
 
@@ -392,8 +375,6 @@ std::uint8_t ChainMail::neighbour_material(const Brick& B, std::uint32_t l, int 
   return material_at(c[0], c[1], c[2]);
 }
 
-constexpr std::size_t kPrefetch = 8;  // queue entries ahead whose element a pass prefetches
-
 // What a pass keeps in registers. As members they would be reloaded after every store to a mark
 // (std::uint64_t) or a displacement (double), which may alias them.
 struct ChainMail::Pass {
@@ -406,13 +387,17 @@ struct ChainMail::Pass {
   std::uint64_t processed = 0, moved = 0, conflicts = 0;
 };
 
+namespace {
+constexpr std::size_t kPrefetch = 8;  // queue entries ahead whose element a pass prefetches
+
 // Bucket of a value in a raising (Up) or lowering pass: counted from the first seed's value, in
 // steps of 1/inv_delta, away from it (larger values first when raising).
 template <bool Up>
-[[gnu::always_inline]] inline std::int64_t bucket_of(const ChainMail::Pass& p, double value) noexcept {
-  const double x = (Up ? p.origin - value : value - p.origin) * p.inv_delta;
+[[gnu::always_inline]] inline std::int64_t bucket_of(double origin, double inv_delta, double value) noexcept {
+  const double x = (Up ? origin - value : value - origin) * inv_delta;
   return x < 0x1p62 ? static_cast<std::int64_t>(x) : std::int64_t{1} << 62;
 }
+}  // namespace
 
 // Moves coordinate A of local element nl of brick N (index nb) from `before` to v, which its
 // neighbour requires, and queues it (unless queued in the same bucket already). A sponsor does not
@@ -433,8 +418,8 @@ template <int A, bool Up>
   N.u[A][nl] = v;
   const bool queued = (m & kQueuedBit) != 0;
   N.mark[nl] = m | mine | kMovedBit | kQueuedBit;
-  const std::int64_t k = std::clamp(bucket_of<Up>(p, v), p.cur, p.cur + std::int64_t{kRing} - 1);
-  if (queued && k == std::clamp(bucket_of<Up>(p, before), p.cur, p.cur + std::int64_t{kRing} - 1)) return;
+  const std::int64_t k = std::clamp(bucket_of<Up>(p.origin, p.inv_delta, v), p.cur, p.cur + std::int64_t{kRing} - 1);
+  if (queued && k == std::clamp(bucket_of<Up>(p.origin, p.inv_delta, before), p.cur, p.cur + std::int64_t{kRing} - 1)) return;
   const auto slot = static_cast<std::size_t>(k) & (kRing - 1);
   ring_[slot].push_back((nb << kRefBrickShift) | nl);
   p.nonempty |= std::uint64_t{1} << slot;
@@ -513,7 +498,7 @@ void ChainMail::pass(ChainMailStepResult& r) {
   Pass p{step_ << kTagShift, eps_, seeds_.front().value, inv_delta_, 0, 0};
   std::size_t next = 0;
   for (;;) {
-    for (; next < seeds_.size() && bucket_of<Up>(p, seeds_[next].value) <= p.cur; ++next) relax_ref<A, Up>(p, seeds_[next].ref, r);
+    for (; next < seeds_.size() && bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) <= p.cur; ++next) relax_ref<A, Up>(p, seeds_[next].ref, r);
     const std::size_t slot = static_cast<std::size_t>(p.cur) & (kRing - 1);
     std::vector<std::uint32_t>& bucket = ring_[slot];
     for (std::size_t i = 0; i < bucket.size(); ++i) {  // grows while it is taken
@@ -531,7 +516,7 @@ void ChainMail::pass(ChainMailStepResult& r) {
     }
     bucket.clear();
     p.nonempty &= ~(std::uint64_t{1} << slot);
-    const std::int64_t seed = next < seeds_.size() ? bucket_of<Up>(p, seeds_[next].value) : std::numeric_limits<std::int64_t>::max();
+    const std::int64_t seed = next < seeds_.size() ? bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) : std::numeric_limits<std::int64_t>::max();
     if (p.nonempty == 0 && next == seeds_.size()) break;
     const std::int64_t queued = p.nonempty == 0 ? std::numeric_limits<std::int64_t>::max()
                                                 : p.cur + std::countr_zero(std::rotr(p.nonempty, static_cast<int>(slot)));
