@@ -496,9 +496,11 @@ void ChainMail::pass(ChainMailStepResult& r) {
     return x.value != y.value ? (Up ? x.value > y.value : x.value < y.value) : x.ref < y.ref;
   });
   Pass p{step_ << kTagShift, eps_, seeds_.front().value, inv_delta_, 0, 0};
-  std::size_t next = 0;
+  constexpr std::int64_t kNone = std::numeric_limits<std::int64_t>::max();
+  std::size_t next = 0;  // the next seed
+  const auto next_seed_bucket = [&] { return next < seeds_.size() ? bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) : kNone; };
   for (;;) {
-    for (; next < seeds_.size() && bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) <= p.cur; ++next) relax_ref<A, Up>(p, seeds_[next].ref, r);
+    for (; next_seed_bucket() <= p.cur; ++next) relax_ref<A, Up>(p, seeds_[next].ref, r);
     const std::size_t slot = static_cast<std::size_t>(p.cur) & (kRing - 1);
     std::vector<std::uint32_t>& bucket = ring_[slot];
     for (std::size_t i = 0; i < bucket.size(); ++i) {  // grows while it is taken
@@ -516,11 +518,9 @@ void ChainMail::pass(ChainMailStepResult& r) {
     }
     bucket.clear();
     p.nonempty &= ~(std::uint64_t{1} << slot);
-    const std::int64_t seed = next < seeds_.size() ? bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) : std::numeric_limits<std::int64_t>::max();
     if (p.nonempty == 0 && next == seeds_.size()) break;
-    const std::int64_t queued = p.nonempty == 0 ? std::numeric_limits<std::int64_t>::max()
-                                                : p.cur + std::countr_zero(std::rotr(p.nonempty, static_cast<int>(slot)));
-    p.cur = std::min(queued, seed);
+    const std::int64_t queued = p.nonempty == 0 ? kNone : p.cur + std::countr_zero(std::rotr(p.nonempty, static_cast<int>(slot)));
+    p.cur = std::min(queued, next_seed_bucket());
   }
   r.processed += p.processed;
   r.moved += p.moved;
