@@ -65,11 +65,13 @@ std::size_t mat_of(std::uint64_t mark) noexcept { return static_cast<std::size_t
 }  // namespace
 
 // A brick's elements as arrays (structure of arrays): a pass over one axis reads only that axis's
-// displacements and the marks, 16 of the 32 bytes per element, so the cache holds twice the region
-// it would with whole elements; an x-row of 8 elements shares a cache line.
+// displacements and the marks, 16 of the 40 bytes per element (and writes `pre` where it raises),
+// so the cache holds more than twice the region it would with whole elements; an x-row of 8
+// elements shares a cache line.
 struct alignas(64) ChainMail::Brick {
   std::array<std::array<double, kBrickElements>, 3> u;  // m, displacement from rest per axis
   std::array<std::uint64_t, kBrickElements> mark;        // see kTagShift
+  std::array<double, kBrickElements> pre;                // m, a coordinate's value before the step, once raised in it
   std::array<std::int32_t, 6> nbr;    // brick index in direction d, -1 none yet
   std::array<Brick*, 6> nbrp;         // the same bricks (stable: each brick is its own allocation)
   std::array<std::int32_t, 3> coord;  // brick coordinates
@@ -402,7 +404,8 @@ template <bool Up>
 // Moves coordinate A of local element nl of brick N (index nb) from `before` to v, which its
 // neighbour requires, and queues it (unless queued in the same bucket already). A sponsor does not
 // move (a conflict), nor does an element raised on A in this step get lowered without counting
-// one.
+// one: it is lowered only when that moves it further from where it was before the step than the
+// raising did.
 template <int A, bool Up>
 [[gnu::always_inline]] inline void ChainMail::move_to(Pass& p, Brick& N, std::uint32_t nb, std::uint32_t nl, double v, double before) {
   std::uint64_t m = N.mark[nl];
@@ -412,7 +415,15 @@ template <int A, bool Up>
     return;
   }
   constexpr std::uint64_t mine = (Up ? kRaised : kLowered) << A, other = (Up ? kLowered : kRaised) << A;
-  if ((m & (mine | other)) == other) [[unlikely]] ++p.conflicts;  // moved both ways: its bounds disagree
+  if constexpr (Up) {
+    if ((m & mine) == 0) N.pre[nl] = before;
+  } else if ((m & (mine | other)) == other) [[unlikely]] {
+    // Raised in this step, and now required lower than before it: its bounds disagree (a
+    // conflict). The larger of the two moves prevails, as largest violation first would have it.
+    ++p.conflicts;
+    const double rest = N.pre[nl];
+    if (!(v < rest - p.eps) || before - rest >= rest - v) return;
+  }
   p.processed += (m & (mine | other)) == 0 ? 1u : 0u;
   p.moved += (m & kMovedBit) == 0 ? 1u : 0u;
   N.u[A][nl] = v;

@@ -34,11 +34,14 @@
 // order in which the queue takes its entries, but for rounding: this is a label-correcting
 // propagation (a coordinate moves only by more than 1e-9 of the spacing, so each link is met to that
 // tolerance). The tests compare it with a plain largest-violation-first ChainMail (1e-6 of the
-// spacing) and a recorded groove. Where the bounds disagree (L > H: a coordinate raised and then
-// lowered on one axis, or a link that would have to move a sponsor: sponsors that contradict each
-// other, a groove wider than its cut's floor can open without tearing) the lowering pass prevails
-// and the step counts a conflict each time it finds one; conflicts == 0 means every link is valid
-// (to 1e-9 of the spacing) after a step from a valid state. A step from the invalid state a
+// spacing) and a recorded groove. Where the bounds disagree (L > H: a coordinate raised that a
+// neighbour then requires lower, or a link that would have to move a sponsor: sponsors that
+// contradict each other, a groove wider than its cut or its floor can open without tearing) the
+// step counts a conflict each time it finds one, and the larger of the two moves from where the
+// coordinate was before the step prevails (the lowering, and its propagation, only when it is the
+// larger: as largest violation first would take it, and alike for mirror-image sides, a raise
+// winning a tie); the links between the two remain invalid. conflicts == 0 means every link is
+// valid (to 1e-9 of the spacing) after a step from a valid state. A step from the invalid state a
 // conflict leaves repairs only the links its moves reach.
 //
 // Once per step. Each coordinate of each element is counted once per step (`processed`): an
@@ -72,8 +75,9 @@
 // coordinates; each brick keeps its 6 neighbour bricks, so a step never hashes). Only bricks that
 // hold a moved, queued or cut element exist; memory follows the deformed region, never the volume:
 // the same cut in a 64³ and a 4096³ lattice uses the same bytes. A brick stores its elements as
-// arrays (displacement per axis, mark: 32 B per element, 16.5 kB per brick), so a pass over one
-// axis touches 16 B per element and an x-row of 8 shares a cache line. A brick whose elements and
+// arrays (displacement per axis, mark, and a raised coordinate's value before the step: 40 B per
+// element, 20.5 kB per brick), so a pass over one axis touches 16 B per element (24 B where it
+// raises) and an x-row of 8 shares a cache line. A brick whose elements and
 // halo all have one material is flagged, and its passes skip the per-neighbour material lookup.
 // Plus the queue (4 B per entry, the capacity of the largest pass so far) and the hash.
 //

@@ -703,6 +703,38 @@ TEST(ChainMail, TooWideAGrooveReportsConflicts) {
   EXPECT_GT(r.conflicts, 0u);
 }
 
+// A groove held to the very ends of its cut cannot open there without tearing: the elements past
+// each end are pulled both ways (conflicts). How a conflict is settled depends on the order (see
+// the reference tests above), but it must stay where the bounds disagree: the rest of the groove is
+// the reference's, and the two sides, mirror images, are treated alike.
+TEST(ChainMail, ConflictsAtAGroovesEndsStayThere) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.6, 1.5, 0.6)};  // the tissue scene's
+  ChainMail cm(lattice(64, 40, 20), mats);
+  const double y = cm.rest_position({0, 19, 0}).y + 0.5 * kS;  // between rows 19 and 20: the mirror of row j is 39 − j
+  const std::vector<Vec3> line{{cm.rest_position({10, 0, 0}).x + 0.5 * kS, y, 0}, {cm.rest_position({50, 0, 0}).x + 0.5 * kS, y, 0}};
+  const ChainMailCut cut = cm.cut(line, 6 * kS);
+  ChainMailReference ref(cm, mats, {});
+  const ChainMailStepResult want = ref.move(ref.groove(cm, cut, 4e-3, {}), cm), got = cm.open_groove(cut, 4e-3);
+  EXPECT_GT(want.conflicts, 0u);
+  EXPECT_GT(got.conflicts, 0u);
+  double asymmetry = 0;
+  std::size_t differ = 0, differ_inside = 0;
+  for (int k = 0; k < 20; ++k)
+    for (int i = 0; i < 64; ++i)
+      for (int j = 0; j < 20; ++j) {
+        const Vec3 a = cm.displacement({i, j, k}), b = cm.displacement({i, 39 - j, k});
+        asymmetry = std::max({asymmetry, std::abs(a.x - b.x), std::abs(a.y + b.y), std::abs(a.z - b.z)});
+        for (const Index& e : {Index{i, j, k}, Index{i, 39 - j, k}}) {
+          if (max_abs_diff(cm.displacement(e), ref.u[ref.at(e)]) <= kNearRef) continue;
+          ++differ;
+          if (i >= 15 && i <= 45) ++differ_inside;  // 5 elements in from either end of the cut
+        }
+      }
+  EXPECT_LE(asymmetry, kTol);
+  EXPECT_EQ(differ_inside, 0u);
+  EXPECT_LT(differ, 100u);  // of 51 200 elements, ~3 200 displaced
+}
+
 // ---------------------------------------------------------------------------------------------
 // Memory
 
