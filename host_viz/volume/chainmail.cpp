@@ -515,11 +515,18 @@ void ChainMail::pass(ChainMailStepResult& r) {
     const std::size_t slot = static_cast<std::size_t>(p.cur) & (kRing - 1);
     std::vector<std::uint32_t>& bucket = ring_[slot];
     for (std::size_t i = 0; i < bucket.size(); ++i) {  // grows while it is taken
-      if (i + kPrefetch < bucket.size()) {  // the entry taken kPrefetch later: its mark and coordinate
+      if (i + kPrefetch < bucket.size()) {  // the entry taken kPrefetch later: its mark and coordinate, and
+        // those of its neighbours in z within its brick (512 B away: the lines a wave reaches cold)
         const std::uint32_t ahead = bucket[i + kPrefetch];
         const Brick& F = *bricks_[ahead >> kRefBrickShift];
-        __builtin_prefetch(&F.mark[ahead & (kBrickElements - 1)]);
-        __builtin_prefetch(&F.u[A][ahead & (kBrickElements - 1)]);
+        const std::uint32_t la = ahead & (kBrickElements - 1);
+        const std::uint32_t below = la >= 64u ? la - 64u : la, above = la < kBrickElements - 64u ? la + 64u : la;
+        __builtin_prefetch(&F.mark[la]);
+        __builtin_prefetch(&F.u[A][la]);
+        __builtin_prefetch(&F.u[A][below]);
+        __builtin_prefetch(&F.mark[below]);
+        __builtin_prefetch(&F.u[A][above]);
+        __builtin_prefetch(&F.mark[above]);
       }
       const std::uint32_t ref = bucket[i];
       std::uint64_t& mark = bricks_[ref >> kRefBrickShift]->mark[ref & (kBrickElements - 1)];
