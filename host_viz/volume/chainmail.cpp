@@ -17,19 +17,17 @@ namespace {
 constexpr int kBrickShift = 3;                       // bricks of 8 × 8 × 8 elements
 constexpr int kBrickEdge = 1 << kBrickShift;
 constexpr std::uint32_t kBrickElements = 512;
-constexpr std::uint32_t kLocalBits = 9;              // ref = brick << 11 | axis << 9 | local
-constexpr std::uint32_t kRefBrickShift = 11;
+constexpr std::uint32_t kRefBrickShift = 9;         // ref = brick << 9 | local
 constexpr std::uint32_t kMaxBricks = 1u << (32 - kRefBrickShift);
 // Mark, one 64-bit word per element: everything a step reads about an element but its
-// displacement. step << 32 | material << 24 | links << 16 | key axis << 8 | moved << 6 | 2 bits
-// of state per axis (0 untouched, 1 queued, 2 final). Step, key axis, moved and states belong to
-// the step in the high bits (a mark from an earlier step reads as untouched); links (bit d: the
-// link in direction d is live) and material belong to the lattice.
+// displacement. step << 32 | material << 24 | links << 16 | queued << 8 | sponsor << 7 | moved << 6
+// | lowered on z, y, x << 3 | raised on z, y, x. Step and the low bits belong to the step in the
+// high bits (a mark from an earlier step reads as untouched); links (bit d: the link in direction d
+// is live) and material belong to the lattice.
 constexpr int kTagShift = 32;
-constexpr int kKeyAxisShift = 8, kLinksShift = 16, kMatShift = 24;
-constexpr std::uint64_t kMovedBit = 1u << 6;
-constexpr std::uint64_t kQueued = 1, kFinal = 2;
-constexpr std::uint64_t kSponsorKey = 4;  // key axis of a sponsor, besides 0..2
+constexpr int kLinksShift = 16, kMatShift = 24;
+constexpr std::uint64_t kRaised = 1, kLowered = 1u << 3;  // shifted by the axis
+constexpr std::uint64_t kMovedBit = 1u << 6, kSponsorBit = 1u << 7, kQueuedBit = 1u << 8;
 constexpr std::uint64_t kLatticeBits = 0xFFFFull << kLinksShift;  // links and material
 constexpr std::uint64_t kStepBits = ~std::uint64_t{0} << kTagShift;
 constexpr std::uint64_t kMaxStep = 0xFFFFFFFFull;                 // then every mark's step is cleared
@@ -66,13 +64,14 @@ unsigned links_of(std::uint64_t mark) noexcept { return static_cast<unsigned>(ma
 std::size_t mat_of(std::uint64_t mark) noexcept { return static_cast<std::size_t>((mark >> kMatShift) & 0xFFu); }
 }  // namespace
 
-// A brick's elements as arrays (structure of arrays): a step settling one axis reads only that
-// axis's displacements and the marks, 16 of the 40 bytes per element, so the cache holds 2.5
-// times the region it would with whole elements; an x-row of 8 elements shares a cache line.
+// A brick's elements as arrays (structure of arrays): a pass over one axis reads only that axis's
+// displacements and the marks, 16 of the 40 bytes per element (and writes `pre` where it raises),
+// so the cache holds more than twice the region it would with whole elements; an x-row of 8
+// elements shares a cache line.
 struct alignas(64) ChainMail::Brick {
   std::array<std::array<double, kBrickElements>, 3> u;  // m, displacement from rest per axis
   std::array<std::uint64_t, kBrickElements> mark;        // see kTagShift
-  std::array<double, kBrickElements> key;                // m, the violation it is queued with on its key axis
+  std::array<double, kBrickElements> pre;                // m, a coordinate's value before the step, once raised in it
   std::array<std::int32_t, 6> nbr;    // brick index in direction d, -1 none yet
   std::array<Brick*, 6> nbrp;         // the same bricks (stable: each brick is its own allocation)
   std::array<std::int32_t, 3> coord;  // brick coordinates
@@ -80,59 +79,6 @@ struct alignas(64) ChainMail::Brick {
 
   [[nodiscard]] Vec3 displacement(std::uint32_t l) const noexcept { return {u[0][l], u[1][l], u[2][l]}; }
 };
-
-namespace {
-
-// State of axis a in a mark, for the step `step`.
-std::uint64_t axis_state(std::uint64_t mark, std::uint64_t step, int a) noexcept {
-  return (mark >> kTagShift) == step ? (mark >> (2 * a)) & 3u : 0;
-}
-// Heap key of a violation: larger violations give smaller keys. Violations are counted in
-// quanta (a quarter of the tolerance), so that equal violations reached along different paths
-// (equal but for rounding) tie, and ties are taken in the order that keeps the step local.
-std::uint64_t heap_key(double violation, double inv_quantum) noexcept {
-  const double q = std::min(violation * inv_quantum, 0x1p62);  // > 0: a violation is > eps
-  return ~static_cast<std::uint64_t>(static_cast<std::int64_t>(q));
-}
-// Whether coordinate A of an element (its mark and key) must be (re-)queued with `violation` in
-// the step whose mark bits are `tag`; if so, marks it queued and records the violation. An element
-// keeps one key: while another axis of it holds it, re-queueing is not filtered (a stale
-// duplicate costs one skipped pop). Sponsors are never queued.
-template <int A>
-[[gnu::always_inline]] inline bool queue_state(std::uint64_t& mark_ref, double& key, std::uint64_t tag, double violation) noexcept {
-  std::uint64_t mark = mark_ref;
-  if ((mark & kStepBits) != tag) {  // untouched in this step
-    mark_ref = tag | (mark & kLatticeBits) | (std::uint64_t{A} << kKeyAxisShift) | (kQueued << (2 * A));
-    key = violation;
-    return true;
-  }
-  const auto key_axis = static_cast<unsigned>(mark >> kKeyAxisShift) & 7u;
-  if (key_axis == kSponsorKey) return false;
-  const std::uint64_t state = (mark >> (2 * A)) & 3u;
-  if (state == kFinal) return false;
-  if (state == kQueued && key_axis == A && violation <= key) return false;  // already queued at least this high
-  if (key_axis == A || ((mark >> (2 * key_axis)) & 3u) != kQueued) {
-    key = violation;
-    mark = (mark & ~(std::uint64_t{7} << kKeyAxisShift)) | (std::uint64_t{A} << kKeyAxisShift);
-  }
-  mark_ref = (mark & ~(std::uint64_t{3} << (2 * A))) | (kQueued << (2 * A));
-  return true;
-}
-
-template <int A>
-double& at(Vec3& v) noexcept {
-  if constexpr (A == 0) return v.x;
-  else if constexpr (A == 1) return v.y;
-  else return v.z;
-}
-template <int A>
-double at(const Vec3& v) noexcept {
-  if constexpr (A == 0) return v.x;
-  else if constexpr (A == 1) return v.y;
-  else return v.z;
-}
-
-}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Model
@@ -206,6 +152,7 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
   // Link boxes for every pair of materials: the mean of both materials' limits, in displacement
   // form (the neighbour's displacement minus the element's).
   n_materials_ = materials_.size();
+  double widest = 0;  // m, the largest change along a link: compression, stretch or shear
   for (auto& boxes : axis_boxes_) boxes.assign(n_materials_ * n_materials_ * 6, AxisBox{});
   for (std::size_t m1 = 0; m1 < n_materials_; ++m1)
     for (std::size_t m2 = 0; m2 < n_materials_; ++m2) {
@@ -218,6 +165,7 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
         const double dlo = 0.5 * (A.min_length + B.min_length) - s;  // <= 0
         const double dhi = 0.5 * (A.max_length + B.max_length) - s;  // >= 0
         const double shear = 0.5 * (A.max_shear + B.max_shear);
+        widest = std::max({widest, -dlo, dhi, shear});
         const std::size_t box = (m1 * n_materials_ + m2) * 6 + static_cast<std::size_t>(d);
         for (int b = 0; b < 3; ++b) axis_boxes_[static_cast<std::size_t>(b)][box] = {-shear, shear};
         axis_boxes_[static_cast<std::size_t>(a)][box] = {kStep[d] > 0 ? dlo : -dhi, kStep[d] > 0 ? dhi : -dlo};
@@ -225,7 +173,8 @@ ChainMail::ChainMail(const ChainMailLattice& lattice, std::vector<ChainMailMater
     }
   const double smin = std::min({lattice_.spacing.x, lattice_.spacing.y, lattice_.spacing.z});
   eps_ = 1e-9 * smin;
-  inv_quantum_ = 4 / eps_;
+  // A link changes a value by at most `widest`: the ring's buckets span a little more.
+  inv_delta_ = widest > 0 ? static_cast<double>(kRing - 4) / (2 * widest) : 0.0;
 }
 
 ChainMail::~ChainMail() = default;
@@ -307,7 +256,6 @@ std::int32_t ChainMail::materialise_brick(std::int64_t bx, std::int64_t by, std:
   B.nbrp.fill(nullptr);
   for (auto& axis : B.u) axis.fill(0.0);
   B.mark.fill(0);
-  B.key.fill(0.0);
   B.uniform = fill_brick_links(
       B.mark, B.coord, lattice_.dims,
       [this](std::int64_t i, std::int64_t j, std::int64_t k) { return present_at(i, j, k); },
@@ -393,68 +341,6 @@ void ChainMail::check_element(const Index& e, const char* what) const {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Queue: a radix heap (Ahuja et al. 1990) on heap_key(violation), with radix 16: exact
-// largest-first, O(1) push, pop amortised O(entries moved), each entry moved at most once per
-// hexadecimal digit of the key range (usually once or twice); valid because no push is larger
-// than the last pop. Bucket 1 + 16 p + v holds the keys whose highest hexadecimal digit that
-// differs from the last popped key is digit p, with value v there; so a bucket of a higher index
-// holds only larger keys. Keys equal to the last popped one (ties) are in bucket ties_, taken
-// first in, first out: bucket 0, or the bucket that held the least key when all its keys were
-// equal (then nothing is moved: a wavefront of equal violations is taken where it was queued).
-
-namespace {
-[[gnu::always_inline]] inline std::size_t heap_bucket(std::uint64_t key, std::uint64_t last, std::size_t ties) noexcept {
-  const std::uint64_t x = key ^ last;
-  const int p = (std::bit_width(x | 1u) - 1) >> 2;  // highest differing digit (when x != 0)
-  return x == 0 ? ties : static_cast<std::size_t>(1 + 16 * p + static_cast<int>((key >> (4 * p)) & 15u));
-}
-}  // namespace
-
-[[gnu::always_inline]] inline void ChainMail::push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties) {
-  key = std::max(key, last);  // larger only after an invalid earlier state: taken next
-  const std::size_t b = heap_bucket(key, last, ties);
-  heap_[b].push_back({key, ref});
-  heap_nonempty_[b >> 6] |= std::uint64_t{1} << (b & 63u);
-}
-
-// The ties are used up: the least key of the next non-empty bucket becomes the last popped one,
-// and that bucket becomes the ties (all its keys are equal) or is spread over the lower ones.
-// False when the heap is empty.
-bool ChainMail::refill() {
-  heap_[heap_ties_].clear();
-  heap_nonempty_[heap_ties_ >> 6] &= ~(std::uint64_t{1} << (heap_ties_ & 63u));
-  heap_head_ = 0;
-  std::size_t i = 0;
-  for (std::size_t w = 0;; ++w) {
-    if (w == heap_nonempty_.size()) return false;
-    if (heap_nonempty_[w] != 0) {
-      i = 64 * w + static_cast<std::size_t>(std::countr_zero(heap_nonempty_[w]));
-      break;
-    }
-  }
-  std::vector<HeapEntry>& src = heap_[i];
-  std::uint64_t least = src.front().key, most = least;
-  for (const HeapEntry& h : src) {
-    least = std::min(least, h.key);
-    most = std::max(most, h.key);
-  }
-  heap_last_ = least;
-  if (least == most) {  // all ties: taken where they are
-    heap_ties_ = i;
-    return true;
-  }
-  heap_ties_ = 0;
-  heap_nonempty_[i >> 6] &= ~(std::uint64_t{1} << (i & 63u));
-  for (const HeapEntry& h : src) {
-    const std::size_t b = heap_bucket(h.key, least, 0);
-    heap_[b].push_back(h);
-    heap_nonempty_[b >> 6] |= std::uint64_t{1} << (b & 63u);
-  }
-  src.clear();
-  return true;
-}
-
-// ---------------------------------------------------------------------------------------------
 // The step
 
 namespace {
@@ -482,13 +368,6 @@ constexpr NeighbourTable make_neighbour_table() {
 }
 constexpr NeighbourTable kNeighbours = make_neighbour_table();
 
-// The neighbour of local element l of brick b in direction d: in the same brick or across a face
-// (brick index -1 when that brick is not materialised).
-inline void neighbour_of(const std::array<std::int32_t, 6>& nbr, std::uint32_t b, std::uint32_t l, int d, std::int32_t& nb,
-                         std::uint32_t& nl) noexcept {
-  nl = kNeighbours.local[l][static_cast<std::size_t>(d)];
-  nb = ((static_cast<unsigned>(kNeighbours.cross[l]) >> d) & 1u) != 0 ? nbr[static_cast<std::size_t>(d)] : static_cast<std::int32_t>(b);
-}
 }  // namespace
 
 std::uint8_t ChainMail::neighbour_material(const Brick& B, std::uint32_t l, int d) const noexcept {
@@ -498,184 +377,178 @@ std::uint8_t ChainMail::neighbour_material(const Brick& B, std::uint32_t l, int 
   return material_at(c[0], c[1], c[2]);
 }
 
-// Queues coordinate A of a neighbour that lies outside the box [lo, hi] (its displacement on A
-// is un; brick nb, -1 when not materialised yet), or raises its priority.
-template <int A>
-void ChainMail::check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
-                                ChainMailStepResult& r) {
-  const double violation = std::max(lo - un, un - hi);
-  if (!(violation > eps_)) return;
-  if (nb < 0) {
-    const std::array<std::int32_t, 3> c0 = bricks_[static_cast<std::size_t>(from_brick)]->coord;
-    std::int64_t c[3] = {c0[0], c0[1], c0[2]};
-    c[kAxisOf[d]] += kStep[d];
-    nb = materialise_brick(c[0], c[1], c[2]);
-    r.materialised += kBrickElements;
-  }
-  Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-  if (!queue_state<A>(N.mark[nl], N.key[nl], step_ << kTagShift, violation)) return;
-  push(heap_key(violation, inv_quantum_), (static_cast<std::uint32_t>(nb) << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl,
-       heap_last_, heap_ties_);
-}
-
-// What the queue loop of a step keeps in registers. As members they would be reloaded after
-// every store to a mark (std::uint64_t) or a displacement (double), which may alias them.
-struct ChainMail::Hot {
-  std::uint64_t tag;   // step_ << kTagShift
-  std::uint64_t last;  // heap_last_
-  std::size_t ties;    // heap_ties_
-  double eps;          // eps_
-  double inv_quantum;  // inv_quantum_
+// What a pass keeps in registers. As members they would be reloaded after every store to a mark
+// (std::uint64_t) or a displacement (double), which may alias them.
+struct ChainMail::Pass {
+  std::uint64_t tag;       // step_ << kTagShift
+  double eps;              // m, eps_
+  double origin;           // m, the value of bucket 0: the first seed's
+  double inv_delta;        // buckets per m (inv_delta_)
+  std::int64_t cur;        // the bucket being taken
+  std::uint64_t nonempty;  // bit i: ring_[i] holds entries
   std::uint64_t processed = 0, moved = 0, conflicts = 0;
 };
 
-// Settles coordinate A of one element: to the nearest point of the intersection of the intervals
-// that its neighbours already final on A allow (the middle where they do not intersect: a
-// conflict); then checks its other neighbours on A. The hot loop of a step.
-template <int A, bool Uniform>
-[[gnu::always_inline]] inline void ChainMail::settle(Hot& h, Brick& B, std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
+namespace {
+constexpr std::size_t kPrefetch = 8;  // queue entries ahead whose element a pass prefetches
+
+// Bucket of a value in a raising (Up) or lowering pass: counted from the first seed's value, in
+// steps of 1/inv_delta, away from it (larger values first when raising).
+template <bool Up>
+[[gnu::always_inline]] inline std::int64_t bucket_of(double origin, double inv_delta, double value) noexcept {
+  const double x = (Up ? origin - value : value - origin) * inv_delta;
+  return x < 0x1p62 ? static_cast<std::int64_t>(x) : std::int64_t{1} << 62;
+}
+}  // namespace
+
+// Moves coordinate A of local element nl of brick N (index nb) from `before` to v, which its
+// neighbour requires, and queues it (unless queued in the same bucket already). A sponsor does not
+// move (a conflict), nor does an element raised on A in this step get lowered without counting
+// one: it is lowered only when that moves it further from where it was before the step than the
+// raising did.
+template <int A, bool Up>
+[[gnu::always_inline]] inline void ChainMail::move_to(Pass& p, Brick& N, std::uint32_t nb, std::uint32_t nl, double v, double before) {
+  std::uint64_t m = N.mark[nl];
+  if ((m & kStepBits) != p.tag) m = p.tag | (m & kLatticeBits);
+  if ((m & kSponsorBit) != 0) [[unlikely]] {
+    ++p.conflicts;
+    return;
+  }
+  constexpr std::uint64_t mine = (Up ? kRaised : kLowered) << A, other = (Up ? kLowered : kRaised) << A;
+  if constexpr (Up) {
+    if ((m & mine) == 0) N.pre[nl] = before;
+  } else if ((m & (mine | other)) == other) [[unlikely]] {
+    // Raised in this step, and now required lower than before it: its bounds disagree (a
+    // conflict). The larger of the two moves prevails, as largest violation first would have it.
+    ++p.conflicts;
+    const double rest = N.pre[nl];
+    if (!(v < rest - p.eps) || before - rest >= rest - v) return;
+  }
+  p.processed += (m & (mine | other)) == 0 ? 1u : 0u;
+  p.moved += (m & kMovedBit) == 0 ? 1u : 0u;
+  N.u[A][nl] = v;
+  const bool queued = (m & kQueuedBit) != 0;
+  N.mark[nl] = m | mine | kMovedBit | kQueuedBit;
+  const std::int64_t k = std::clamp(bucket_of<Up>(p.origin, p.inv_delta, v), p.cur, p.cur + std::int64_t{kRing} - 1);
+  if (queued && k == std::clamp(bucket_of<Up>(p.origin, p.inv_delta, before), p.cur, p.cur + std::int64_t{kRing} - 1)) return;
+  const auto slot = static_cast<std::size_t>(k) & (kRing - 1);
+  ring_[slot].push_back((nb << kRefBrickShift) | nl);
+  p.nonempty |= std::uint64_t{1} << slot;
+}
+
+// The neighbour of local element l of brick b in direction d has no brick yet (it is at rest):
+// whether coordinate A of l, at ue, requires it to move, and where to (v). Out of line, and without
+// the pass (whose address would then escape and its fields be reloaded after every store).
+template <int A, bool Up>
+[[gnu::noinline]] bool ChainMail::unmaterialised_moves(std::uint32_t b, std::uint32_t l, int d, double ue, double& v) const {
+  const Brick& B = *bricks_[b];
+  const std::size_t box = (mat_of(B.mark[l]) * n_materials_ + neighbour_material(B, l, d)) * 6 + static_cast<std::size_t>(d);
+  v = ue + (Up ? axis_boxes_[A][box].lo : axis_boxes_[A][box].hi);
+  return Up ? v > eps_ : v < -eps_;
+}
+
+// Relaxes the links of local element l of brick b on axis A: every linked neighbour that lies
+// below the interval l's coordinate now allows it (raising) or above it (lowering) moves to its
+// edge. The hot loop of a step. Uniform: the brick and its halo have one material.
+template <int A, bool Up, bool Uniform>
+[[gnu::always_inline]] inline void ChainMail::relax(Pass& p, Brick& B, std::uint32_t b, std::uint32_t l, ChainMailStepResult& r) {
   const std::uint64_t self = B.mark[l];
   const unsigned links = links_of(self);
   const std::size_t mat = mat_of(self);
   const AxisBox* row = axis_boxes_[A].data() + mat * n_materials_ * 6;
   const unsigned cross = kNeighbours.cross[l];
   const std::array<std::uint16_t, 6>& nls = kNeighbours.local[l];
-  // Pass 1: the bounds of the final neighbours, and what the others need in pass 2. Selects
-  // instead of branches (whether a neighbour is final does not predict well): a neighbour that is
-  // not final gives the bounds ±inf (x − (±inf)), a final one x − 0 = x (even for x = −0).
-  static constexpr double kLoPad[2] = {kInf, 0.0}, kHiPad[2] = {-kInf, 0.0};
-  std::array<Brick*, 6> np;  // read only for the bits of `open`, all written
-  std::array<double, 6> blo, bhi, un;
-  unsigned open = 0;  // bit d: a linked neighbour that is not final on A
-  double lo = -kInf, hi = kInf;
-  // Final on A in this step: the step bits and A's state bits match.
-  constexpr std::uint64_t final_mask = kStepBits | (std::uint64_t{3} << (2 * A));
-  const std::uint64_t final_value = h.tag | (kFinal << (2 * A));
+  const double ue = B.u[A][l];
 #pragma GCC unroll 6
   for (int d = 0; d < 6; ++d) {
     if (((links >> d) & 1u) == 0) continue;
     const auto di = static_cast<std::size_t>(d);
-    Brick* NB = ((cross >> d) & 1u) != 0 ? B.nbrp[di] : &B;
-    if (NB == nullptr) [[unlikely]] {  // its brick is not materialised: at rest, not final
-      const AxisBox& bx = row[static_cast<std::size_t>(neighbour_material(B, l, d)) * 6 + di];
-      np[di] = nullptr;
-      blo[di] = bx.lo;
-      bhi[di] = bx.hi;
-      un[di] = 0;
-      open |= 1u << d;
+    const bool across = ((cross >> d) & 1u) != 0;
+    Brick* NB = across ? B.nbrp[di] : &B;
+    const std::uint32_t nl = nls[di];
+    if (NB == nullptr) [[unlikely]] {
+      double v = 0;
+      if (!unmaterialised_moves<A, Up>(b, l, d, ue, v)) continue;
+      std::int64_t c[3] = {B.coord[0], B.coord[1], B.coord[2]};
+      c[kAxisOf[d]] += kStep[d];
+      const auto nb = static_cast<std::uint32_t>(materialise_brick(c[0], c[1], c[2]));
+      r.materialised += kBrickElements;
+      move_to<A, Up>(p, *bricks_[nb], nb, nl, v, 0.0);
       continue;
     }
-    const std::uint32_t nl = nls[di];
-    const std::uint64_t m = NB->mark[nl];
-    const AxisBox& bx = row[(Uniform ? mat : mat_of(m)) * 6 + di];
-    const auto fin = static_cast<std::size_t>((m & final_mask) == final_value);
-    const double u = NB->u[A][nl], lo_d = bx.lo, hi_d = bx.hi;
-    lo = std::max(lo, (u - hi_d) - kLoPad[fin]);
-    hi = std::min(hi, (u - lo_d) - kHiPad[fin]);
-    np[di] = NB;
-    blo[di] = lo_d;
-    bhi[di] = hi_d;
-    un[di] = u;
-    open |= static_cast<unsigned>(fin ^ 1u) << d;
+    const AxisBox& bx = row[(Uniform ? mat : mat_of(NB->mark[nl])) * 6 + di];
+    const double v = ue + (Up ? bx.lo : bx.hi), un = NB->u[A][nl];
+    if (Up ? !(v > un + p.eps) : !(v < un - p.eps)) continue;
+    move_to<A, Up>(p, *NB, across ? static_cast<std::uint32_t>(B.nbr[di]) : b, nl, v, un);
   }
-  // Place the coordinate.
-  double& uself = B.u[A][l];
-  const double before = uself;
-  double v;
-  if (lo > hi) [[unlikely]] {
-    if (lo - hi > h.eps) ++h.conflicts;
-    v = 0.5 * (lo + hi);
+}
+
+template <int A, bool Up>
+[[gnu::always_inline]] inline void ChainMail::relax_ref(Pass& p, std::uint32_t ref, ChainMailStepResult& r) {
+  const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
+  Brick& B = *bricks_[b];
+  if (B.uniform >= 0) {
+    relax<A, Up, true>(p, B, b, l, r);
   } else {
-    v = std::min(std::max(before, lo), hi);
-  }
-  std::uint64_t mark = (self & ~(std::uint64_t{3} << (2 * A))) | (kFinal << (2 * A));  // queued: self is of this step
-  if (v != before) {
-    uself = v;
-    h.moved += (mark & kMovedBit) == 0 ? 1u : 0u;
-    mark |= kMovedBit;
-  }
-  B.mark[l] = mark;
-  ++h.processed;
-  // Pass 2: queue the neighbours that are outside the interval this coordinate now allows them.
-  for (unsigned m = open; m != 0; m &= m - 1) {
-    const int d = std::countr_zero(m);
-    const auto di = static_cast<std::size_t>(d);
-    const double violation = std::max(v + blo[di] - un[di], un[di] - (v + bhi[di]));
-    if (!(violation > h.eps)) continue;
-    const std::uint32_t nl = nls[di];
-    if (np[di] == nullptr) [[unlikely]] {
-      check_neighbour<A>(-1, nl, static_cast<std::int32_t>(b), d, v + blo[di], v + bhi[di], un[di], r);
-      continue;
-    }
-    if (!queue_state<A>(np[di]->mark[nl], np[di]->key[nl], h.tag, violation)) continue;
-    const std::uint32_t nb = ((cross >> d) & 1u) != 0 ? static_cast<std::uint32_t>(B.nbr[di]) : b;
-    push(heap_key(violation, h.inv_quantum), (nb << kRefBrickShift) | (std::uint32_t{A} << kLocalBits) | nl, h.last, h.ties);
+    relax<A, Up, false>(p, B, b, l, r);
   }
 }
 
-// Candidates (element, axis), largest violation first, until the queue is empty; stale entries
-// (re-queued higher, already final) are skipped.
-void ChainMail::drain(ChainMailStepResult& r) {
-  Hot h{step_ << kTagShift, heap_last_, heap_ties_, eps_, inv_quantum_};
-  std::size_t head = heap_head_;
+// One pass over axis A: raising (Up) or lowering every coordinate a link requires, from the
+// sponsors out. A bucketed label-correcting propagation: buckets of 1/inv_delta_ of the value
+// (kRing of them in a ring, more than the largest change of a link), taken largest value first
+// when raising, each first in, first out; an element raised again after it was taken (by one of
+// its bucket) is queued again. The sponsors enter when their bucket comes up.
+template <int A, bool Up>
+void ChainMail::pass(ChainMailStepResult& r) {
+  seeds_.clear();
+  for (const std::uint32_t ref : step_refs_) seeds_.push_back({bricks_[ref >> kRefBrickShift]->u[A][ref & (kBrickElements - 1)], ref});
+  std::sort(seeds_.begin(), seeds_.end(), [](const Seed& x, const Seed& y) {
+    return x.value != y.value ? (Up ? x.value > y.value : x.value < y.value) : x.ref < y.ref;
+  });
+  Pass p{step_ << kTagShift, eps_, seeds_.front().value, inv_delta_, 0, 0};
+  constexpr std::int64_t kNone = std::numeric_limits<std::int64_t>::max();
+  std::size_t next = 0;  // the next seed
+  const auto next_seed_bucket = [&] { return next < seeds_.size() ? bucket_of<Up>(p.origin, p.inv_delta, seeds_[next].value) : kNone; };
   for (;;) {
-    if (head == heap_[h.ties].size()) {
-      if (!refill()) break;
-      head = 0;
-      h.last = heap_last_;
-      h.ties = heap_ties_;
-    }
-    const std::vector<HeapEntry>& ties = heap_[h.ties];
-    const std::uint32_t ref = ties[head++].ref;
-    const std::uint32_t b = ref >> kRefBrickShift, l = ref & (kBrickElements - 1);
-    const int a = static_cast<int>((ref >> kLocalBits) & 3u);
-    Brick& B = *bricks_[b];
-    if (((B.mark[l] >> (2 * a)) & 3u) == kFinal) continue;  // queued, so the mark is of this step
-    if (B.uniform >= 0) {
-      switch (a) {
-        case 0: settle<0, true>(h, B, b, l, r); break;
-        case 1: settle<1, true>(h, B, b, l, r); break;
-        default: settle<2, true>(h, B, b, l, r); break;
+    for (; next_seed_bucket() <= p.cur; ++next) relax_ref<A, Up>(p, seeds_[next].ref, r);
+    const std::size_t slot = static_cast<std::size_t>(p.cur) & (kRing - 1);
+    std::vector<std::uint32_t>& bucket = ring_[slot];
+    for (std::size_t i = 0; i < bucket.size(); ++i) {  // grows while it is taken
+      if (i + kPrefetch < bucket.size()) {  // the entry taken kPrefetch later: its mark and coordinate, and
+        // those of its neighbours in z within its brick (512 B away: the lines a wave reaches cold)
+        const std::uint32_t ahead = bucket[i + kPrefetch];
+        const Brick& F = *bricks_[ahead >> kRefBrickShift];
+        const std::uint32_t la = ahead & (kBrickElements - 1);
+        const std::uint32_t below = la >= 64u ? la - 64u : la, above = la < kBrickElements - 64u ? la + 64u : la;
+        __builtin_prefetch(&F.mark[la]);
+        __builtin_prefetch(&F.u[A][la]);
+        __builtin_prefetch(&F.u[A][below]);
+        __builtin_prefetch(&F.mark[below]);
+        __builtin_prefetch(&F.u[A][above]);
+        __builtin_prefetch(&F.mark[above]);
       }
-    } else {
-      switch (a) {
-        case 0: settle<0, false>(h, B, b, l, r); break;
-        case 1: settle<1, false>(h, B, b, l, r); break;
-        default: settle<2, false>(h, B, b, l, r); break;
-      }
+      const std::uint32_t ref = bucket[i];
+      std::uint64_t& mark = bricks_[ref >> kRefBrickShift]->mark[ref & (kBrickElements - 1)];
+      if ((mark & kQueuedBit) == 0) continue;  // taken already, from a bucket it was queued to later
+      mark &= ~kQueuedBit;
+      relax_ref<A, Up>(p, ref, r);
     }
+    bucket.clear();
+    p.nonempty &= ~(std::uint64_t{1} << slot);
+    if (p.nonempty == 0 && next == seeds_.size()) break;
+    const std::int64_t queued = p.nonempty == 0 ? kNone : p.cur + std::countr_zero(std::rotr(p.nonempty, static_cast<int>(slot)));
+    p.cur = std::min(queued, next_seed_bucket());
   }
-  heap_head_ = head;
-  r.processed += h.processed;
-  r.moved += h.moved;
-  r.conflicts += h.conflicts;
+  r.processed += p.processed;
+  r.moved += p.moved;
+  r.conflicts += p.conflicts;
 }
 
-// Places a sponsor (all three coordinates, final), counts a conflict when a neighbour already
-// final disagrees, and checks its other neighbours on every axis.
+// Places a sponsor: all three coordinates, as given.
 void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMailStepResult& r) {
   Brick& B = *bricks_[b];
-  const std::uint64_t self = B.mark[l];
-  const unsigned links = links_of(self);
-  const std::size_t row = mat_of(self) * n_materials_;
-  bool conflict = false;
-  for (int d = 0; d < 6; ++d) {
-    if (((links >> d) & 1u) == 0) continue;
-    std::int32_t nb;
-    std::uint32_t nl = 0;
-    neighbour_of(B.nbr, b, l, d, nb, nl);
-    if (nb < 0) continue;  // at rest, not final
-    const Brick& N = *bricks_[static_cast<std::size_t>(nb)];
-    const std::size_t box = (row + mat_of(N.mark[nl])) * 6 + static_cast<std::size_t>(d);
-    for (int a = 0; a < 3; ++a) {  // N - u must lie in the box on every axis where N is final
-      const auto ai = static_cast<std::size_t>(a);
-      const double rel = N.u[ai][nl] - comp(u, a);
-      const AxisBox& bx = axis_boxes_[ai][box];
-      if (axis_state(N.mark[nl], step_, a) == kFinal && (rel < bx.lo - eps_ || rel > bx.hi + eps_)) conflict = true;
-    }
-  }
-  if (conflict) ++r.conflicts;
-  std::uint64_t mark = (step_ << kTagShift) | (self & kLatticeBits) | (kSponsorKey << kKeyAxisShift) | kFinal | kFinal << 2 | kFinal << 4;
+  std::uint64_t mark = (step_ << kTagShift) | (B.mark[l] & kLatticeBits) | kSponsorBit;
   if (!(u == B.displacement(l))) {
     mark |= kMovedBit;
     ++r.moved;
@@ -685,28 +558,6 @@ void ChainMail::place_sponsor(std::uint32_t b, std::uint32_t l, Vec3 u, ChainMai
   }
   B.mark[l] = mark;
   ++r.processed;
-  for (int d = 0; d < 6; ++d) {
-    if (((links >> d) & 1u) == 0) continue;
-    std::int32_t nb;
-    std::uint32_t nl = 0;
-    neighbour_of(B.nbr, b, l, d, nb, nl);
-    Vec3 un{};
-    std::size_t mn;
-    if (nb >= 0) {
-      un = bricks_[static_cast<std::size_t>(nb)]->displacement(nl);
-      mn = mat_of(bricks_[static_cast<std::size_t>(nb)]->mark[nl]);
-    } else {
-      mn = neighbour_material(B, l, d);
-    }
-    const std::size_t box = (row + mn) * 6 + static_cast<std::size_t>(d);
-    const AxisBox bx = axis_boxes_[0][box], by = axis_boxes_[1][box], bz = axis_boxes_[2][box];
-    // check_neighbour may materialise nb's brick; re-resolve for each axis.
-    check_neighbour<0>(nb, nl, static_cast<std::int32_t>(b), d, u.x + bx.lo, u.x + bx.hi, un.x, r);
-    neighbour_of(B.nbr, b, l, d, nb, nl);
-    check_neighbour<1>(nb, nl, static_cast<std::int32_t>(b), d, u.y + by.lo, u.y + by.hi, un.y, r);
-    neighbour_of(B.nbr, b, l, d, nb, nl);
-    check_neighbour<2>(nb, nl, static_cast<std::int32_t>(b), d, u.z + bz.lo, u.z + bz.hi, un.z, r);
-  }
 }
 
 ChainMailStepResult ChainMail::move(const Index& e, Vec3 position) {
@@ -739,27 +590,22 @@ ChainMailStepResult ChainMail::move(std::span<const ChainMailSponsor> sponsors) 
       for (std::uint64_t& m : brick->mark) m &= kLatticeBits;
     step_ = 1;
   }
-  for (auto& bucket : heap_) bucket.clear();  // empty unless an earlier step ended by an exception
-  heap_nonempty_.fill(0);
-  heap_last_ = 0;
-  heap_head_ = 0;
-  heap_ties_ = 0;
+  for (auto& bucket : ring_) bucket.clear();  // empty unless an earlier step ended by an exception
 
-  // Sponsors: materialised and marked first, so that none is queued as a candidate.
   step_refs_.clear();
   const std::size_t bricks_before = bricks_.size();
-  for (const ChainMailSponsor& s : sponsors) {
-    const std::uint32_t ref = materialise_element(s.element);
-    std::uint64_t& mark = bricks_[ref >> kRefBrickShift]->mark[ref & (kBrickElements - 1)];
-    mark = (step_ << kTagShift) | (mark & kLatticeBits) | (kSponsorKey << kKeyAxisShift) | kQueued | kQueued << 2 | kQueued << 4;
-    step_refs_.push_back(ref);
-  }
+  for (const ChainMailSponsor& s : sponsors) step_refs_.push_back(materialise_element(s.element));
   r.materialised += (bricks_.size() - bricks_before) * kBrickElements;
   for (std::size_t s = 0; s < sponsors.size(); ++s)
     place_sponsor(step_refs_[s] >> kRefBrickShift, step_refs_[s] & (kBrickElements - 1),
                   sponsors[s].position - rest_position(sponsors[s].element), r);
-
-  drain(r);
+  if (sponsors.empty()) return r;
+  pass<0, true>(r);
+  pass<0, false>(r);
+  pass<1, true>(r);
+  pass<1, false>(r);
+  pass<2, true>(r);
+  pass<2, false>(r);
   return r;
 }
 
@@ -802,9 +648,9 @@ void ChainMail::for_each_materialised(const std::function<void(const Index&, con
   }
 }
 
-std::size_t ChainMail::heap_capacity_bytes() const noexcept {
-  std::size_t n = 0;
-  for (const auto& bucket : heap_) n += bucket.capacity() * sizeof(HeapEntry);
+std::size_t ChainMail::ring_capacity_bytes() const noexcept {
+  std::size_t n = seeds_.capacity() * sizeof(Seed);
+  for (const auto& bucket : ring_) n += bucket.capacity() * sizeof(std::uint32_t);
   return n;
 }
 
@@ -815,7 +661,7 @@ std::size_t ChainMail::bytes_used() const noexcept {
          bricks_.capacity() * sizeof(std::unique_ptr<Brick>) + bricks_.size() * sizeof(Brick) +
          hash_keys_.capacity() * sizeof(std::uint64_t) + hash_vals_.capacity() * sizeof(std::int32_t) +
          step_refs_.capacity() * sizeof(std::uint32_t) + step_linear_.capacity() * sizeof(std::uint64_t) +
-         groove_sponsors_.capacity() * sizeof(ChainMailSponsor) + heap_capacity_bytes();
+         groove_sponsors_.capacity() * sizeof(ChainMailSponsor) + ring_capacity_bytes();
 }
 
 }  // namespace lancet::volume

@@ -11,47 +11,51 @@
 // their limits, so whether a link is valid never depends on which end moved. Internally everything
 // is kept as displacement from rest, and an untouched element is implicitly at rest.
 //
-// A step (move). Sponsors are placed exactly where the caller says. Then Enhanced ChainMail: every
-// neighbour of a moved element is checked against the box the moved element defines for it; one
-// that lies outside is a candidate with priority = its violation (the distance to the box, eq.
-// 3.9), and candidates are taken largest first. The box constraints are separable: a link's limits
-// on axis a involve only the a coordinates of its ends. So a candidate is an (element, axis) pair:
-// its coordinate on that axis is moved to the nearest point of the intersection of the intervals
-// allowed by ALL its neighbours already final on that axis in this step. The thesis moves the
-// whole element into its sponsor's box only, in one order for all three coordinates; but the
-// three coordinates need three different orders (e.g. a diagonal push: x spreads by compression
-// along x and by shear along y), so the thesis's version leaves links invalid (its fig. 3.21) and
-// this one does not: with one sponsor (or several moving the same way on an axis), taken in
-// largest-first order from a valid state, every candidate's intersection is non-empty (up to the
-// queue's quantum, below the tolerance). Where it is empty all the same (final neighbours that
-// disagree: a groove wider than its cut's floor can open without tearing, sponsors that contradict
-// each other) the coordinate goes to the middle of the conflicting bounds and the step counts a
-// conflict; conflicts == 0 means every link is valid (to 1e-9 of the spacing) after the step.
+// A step (move). Sponsors are placed exactly where the caller says; every other element moves as
+// little as its links require. The box constraints are separable: a link's limits on axis a involve
+// only the a coordinates of its ends, so each axis is solved on its own. On one axis, a chain of
+// links from a sponsor bounds an element's coordinate from below by the sponsor's value less the
+// links' allowances along the chain (its lower bound L, over all chains the tightest) and from above
+// likewise (H); the coordinate moves to the nearest point of [L, H]. That is what Enhanced ChainMail
+// (largest violation first, eq. 3.9) computes when it settles each (element, axis) pair once, in
+// that order, against its neighbours already final. The thesis moves the whole element into its
+// sponsor's box only, in one order for all three coordinates; but the three coordinates need three
+// different orders (e.g. a diagonal push: x spreads by compression along x and by shear along y),
+// so the thesis's version leaves links invalid (its fig. 3.21) and this one does not.
 //
-// Once per step. Each coordinate of each element is settled at most once per step: an element
-// pushed along one axis (a groove, a push) is processed once, one moved diagonally at most three
-// times, once per coordinate. Instead of Dräger's ignore-direction flags (thesis fig. 3.22), each
-// element carries a 64-bit mark: the step counter (32 bits; after 4e9 steps every mark's counter
-// is cleared once and counting starts again) above its material, its 6 link bits, the axis of its
-// queued violation, a "moved" bit and 2 bits of state per axis (untouched, queued, final), so
-// that checking a neighbour reads one word besides its coordinate. A queued candidate whose violation grows (a second moved neighbour pushes it harder) is
-// re-queued at the higher priority and the stale entry is skipped when it comes up, as in
-// Dijkstra's algorithm; it is still settled once. The thesis also restricts the left side of a
-// cut to propagate only left/down and the right side only right/down. Here the removed links
-// already keep each side's propagation on its own side; the only places where the sides still meet
-// are the intact tissue past the cut's ends and under its floor, where the direction rule would
-// leave the links between the two sides unchecked (invalid). So it is not used: both sides' drags
-// meet there, and an impossible opening is reported as conflicts.
+// How: per axis, a raising pass and then a lowering pass, each from the sponsors out. A raising
+// pass takes a moved coordinate and raises every linked neighbour that lies below the interval it
+// now allows that neighbour to that interval's edge, and queues it; the lowering pass is its
+// mirror. The queue is a ring of 64 buckets of value (Dial's buckets, as in delta-stepping), taken
+// largest value first when raising, each bucket first in, first out: a bucket spans 1/30 of the
+// largest change one link allows (compression, stretch or shear over all pairs of materials), so
+// one move reaches at most 31 buckets ahead. A coordinate raised again after it was taken (by a
+// larger value of its own bucket) is queued and taken again. So the result does not depend on the
+// order in which the queue takes its entries, but for rounding: this is a label-correcting
+// propagation (a coordinate moves only by more than 1e-9 of the spacing, so each link is met to that
+// tolerance). The tests compare it with a plain largest-violation-first ChainMail (1e-6 of the
+// spacing) and a recorded groove. Where the bounds disagree (L > H: a coordinate raised that a
+// neighbour then requires lower, or a link that would have to move a sponsor: sponsors that
+// contradict each other, a groove wider than its cut or its floor can open without tearing) the
+// step counts a conflict each time it finds one, and the larger of the two moves from where the
+// coordinate was before the step prevails (the lowering, and its propagation, only when it is the
+// larger: as largest violation first would take it, and alike for mirror-image sides, a raise
+// winning a tie); the links between the two remain invalid. conflicts == 0 means every link is
+// valid (to 1e-9 of the spacing) after a step from a valid state. A step from the invalid state a
+// conflict leaves repairs only the links its moves reach.
 //
-// Priority queue. A radix heap (Ahuja, Mehlhorn, Orlin, Tarjan 1990) of radix 16 on the violation
-// counted in quanta of a quarter of the tolerance (1e-9 of the smallest spacing): exact
-// largest-first up to that quantum, O(1) push, each entry moved at most once per hexadecimal
-// digit of the key range (a bitmask finds the next non-empty bucket). It needs monotone keys
-// (nothing pushed larger than the last pop), which holds when the step starts from a valid state:
-// a neighbour's violation cannot exceed that of the element that moved it. Equal violations (a
-// wavefront) are taken first in, first out, where they were queued when a whole bucket ties. The
-// order, and so every result, is the same as with the radix-2 heap used before (a test compares
-// against a plain reference with a std::priority_queue, bit for bit).
+// Once per step. Each coordinate of each element is counted once per step (`processed`): an
+// element pushed along one axis (a groove, a push) once, one moved diagonally at most three times.
+// Instead of Dräger's ignore-direction flags (thesis fig. 3.22), each element carries a 64-bit
+// mark: the step counter (32 bits; after 4e9 steps every mark's counter is cleared once and
+// counting starts again) above its material, its 6 link bits, and the bits of the step (raised and
+// lowered per axis, moved, sponsor, queued), so that moving a neighbour reads one word besides its
+// coordinate. The thesis also restricts the left side of a cut to propagate only left/down and the
+// right side only right/down. Here the removed links already keep each side's propagation on its
+// own side; the only places where the sides still meet are the intact tissue past the cut's ends
+// and under its floor, where the direction rule would leave the links between the two sides
+// unchecked (invalid). So it is not used: both sides' drags meet there, and an impossible opening
+// is reported as conflicts.
 //
 // Cut and groove. cut() removes every x and y link that crosses the cut surface: the polyline (x,
 // y; z ignored) swept from the lattice's top layer (largest z) down by `depth`. The elements at
@@ -71,21 +75,22 @@
 // coordinates; each brick keeps its 6 neighbour bricks, so a step never hashes). Only bricks that
 // hold a moved, queued or cut element exist; memory follows the deformed region, never the volume:
 // the same cut in a 64³ and a 4096³ lattice uses the same bytes. A brick stores its elements as
-// arrays (displacement per axis, mark, queued violation: 40 B per element, 20.6 kB per brick), so
-// settling one axis touches 16 B per element and an x-row of 8 shares a cache line. A brick whose
-// elements and halo all have one material is flagged, and its steps skip the per-neighbour
-// material lookup. Plus the heap (16 B per queued entry, the capacity of the largest step so far)
-// and the hash.
+// arrays (displacement per axis, mark, and a raised coordinate's value before the step: 40 B per
+// element, 20.5 kB per brick), so a pass over one axis touches 16 B per element (24 B where it
+// raises) and an x-row of 8 shares a cache line. A brick whose elements and
+// halo all have one material is flagged, and its passes skip the per-neighbour material lookup.
+// Plus the queue (4 B per entry, the capacity of the largest pass so far) and the hash.
 //
-// Speed: a settled coordinate is bound by its work (its 6 neighbours read, their intervals
-// intersected, the others checked and queued), not by memory; the figures, against a bare flood
-// fill in the same run, are in docs/PERFORMANCE.md (lancet-bench-chainmail).
+// Speed: the figures, against a bare flood fill in the same run, are in docs/PERFORMANCE.md
+// (lancet-bench-chainmail).
 //
 // Threads and allocation: one thread (the viz thread); not real-time safe. A step allocates when
-// the deformed region grows (new bricks) or its queue outgrows the heap's buckets of earlier steps;
+// the deformed region grows (new bricks) or its queue outgrows the buckets of earlier steps;
 // the same step repeated after reset() allocates nothing. cut() allocates its result. Invalid
 // arguments throw std::invalid_argument naming the field and value, before any state changes;
-// numerical trouble in a step is counted (conflicts), never thrown. Deterministic.
+// numerical trouble in a step is counted (conflicts), never thrown. Deterministic: one thread, one
+// order, so the same steps on the same lattice give the same displacements bit for bit (replays
+// rely on it).
 
 #include <array>
 #include <cstddef>
@@ -138,9 +143,9 @@ struct ChainMailSponsor {
 
 /// What one step did.
 struct ChainMailStepResult {
-  std::uint64_t processed = 0;     ///< coordinates settled from the queue, each with its 6 neighbours checked, plus 1 per sponsor (= elements when they move along one axis)
+  std::uint64_t processed = 0;     ///< coordinates the step moved (each once, however often the queue took it), plus 1 per sponsor (= elements when they move along one axis)
   std::uint64_t moved = 0;         ///< elements whose position changed
-  std::uint64_t conflicts = 0;     ///< coordinates (or sponsors) whose final neighbours' intervals did not intersect (0: every link valid)
+  std::uint64_t conflicts = 0;     ///< times a link could not be made valid: a coordinate raised, then lowered, or a link that would move a sponsor (0: every link valid, after a step from a valid state)
   std::uint64_t materialised = 0;  ///< elements newly materialised (whole bricks, 512 each)
 };
 
@@ -240,10 +245,12 @@ class ChainMail {
   struct AxisBox {
     double lo, hi;  // m, neighbour's displacement minus the element's, on one axis
   };
-  struct HeapEntry {
-    std::uint64_t key;  // ~(violation in quanta): larger violations first
-    std::uint32_t ref;  // brick << 11 | axis << 9 | local
+  struct Seed {
+    double value;       // m, a sponsor's displacement on the pass's axis
+    std::uint32_t ref;  // brick << 9 | local
   };
+  static constexpr std::size_t kRing = 64;  // buckets of a pass's queue
+  struct Pass;                               // what a pass keeps in registers (chainmail.cpp)
 
   [[nodiscard]] std::uint8_t material_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
   [[nodiscard]] bool present_at(std::int64_t i, std::int64_t j, std::int64_t k) const noexcept;
@@ -254,25 +261,26 @@ class ChainMail {
   /// Removes the link between e and its neighbour n = e + 1 along axis (both sides of it).
   void unlink(const Index& e, const Index& n, int axis);
   void check_element(const Index& e, const char* what) const;
-  struct Hot;
-  void push(std::uint64_t key, std::uint32_t ref, std::uint64_t last, std::size_t ties);
-  [[nodiscard]] bool refill();
-  void drain(ChainMailStepResult& r);
-  [[nodiscard]] std::size_t heap_capacity_bytes() const noexcept;
-  template <int A>
-  void check_neighbour(std::int32_t nb, std::uint32_t nl, std::int32_t from_brick, int d, double lo, double hi, double un,
-                       ChainMailStepResult& r);
-  template <int A, bool Uniform>
-  void settle(Hot& h, Brick& brick, std::uint32_t b, std::uint32_t local, ChainMailStepResult& r);
+  [[nodiscard]] std::size_t ring_capacity_bytes() const noexcept;
   void place_sponsor(std::uint32_t brick, std::uint32_t local, Vec3 u, ChainMailStepResult& r);
+  template <int A, bool Up>
+  void pass(ChainMailStepResult& r);
+  template <int A, bool Up>
+  void relax_ref(Pass& p, std::uint32_t ref, ChainMailStepResult& r);
+  template <int A, bool Up, bool Uniform>
+  void relax(Pass& p, Brick& brick, std::uint32_t b, std::uint32_t local, ChainMailStepResult& r);
+  template <int A, bool Up>
+  void move_to(Pass& p, Brick& n, std::uint32_t nb, std::uint32_t nl, double v, double before);
+  template <int A, bool Up>
+  bool unmaterialised_moves(std::uint32_t b, std::uint32_t l, int d, double ue, double& v) const;
 
   ChainMailLattice lattice_;
   std::vector<ChainMailMaterial> materials_;
   std::span<const std::uint8_t> ids_;
   std::size_t n_materials_ = 0;
   std::array<std::vector<AxisBox>, 3> axis_boxes_;  // per axis: (m1 · n + m2) · 6 + direction
-  double eps_ = 0;          // m, tolerance for violations and conflicts
-  double inv_quantum_ = 0;  // 1/m, heap keys count violations in eps_/4
+  double eps_ = 0;        // m, tolerance for violations and conflicts
+  double inv_delta_ = 0;  // 1/m, buckets of a pass per m of displacement
 
   std::vector<std::unique_ptr<Brick>> bricks_;
   std::vector<std::uint64_t> hash_keys_;  // open addressing, all ones = empty
@@ -283,11 +291,8 @@ class ChainMail {
   std::vector<std::uint32_t> step_refs_;           // scratch: the sponsors' elements
   std::vector<std::uint64_t> step_linear_;         // scratch: duplicate check
   std::vector<ChainMailSponsor> groove_sponsors_;  // scratch of open_groove()
-  std::array<std::vector<HeapEntry>, 257> heap_;   // radix heap buckets (radix 16)
-  std::array<std::uint64_t, 5> heap_nonempty_{};   // bit b: heap_[b] may hold entries (the ties' bit is clear)
-  std::uint64_t heap_last_ = 0;                    // the last popped key
-  std::size_t heap_ties_ = 0;                      // the bucket of the keys equal to heap_last_
-  std::size_t heap_head_ = 0;                      // next entry of heap_[heap_ties_] (first in, first out)
+  std::vector<Seed> seeds_;                        // scratch of a pass: the sponsors in the order their values come up
+  std::array<std::vector<std::uint32_t>, kRing> ring_;  // a pass's queue: buckets of refs (brick << 9 | local)
 };
 
 }  // namespace lancet::volume

@@ -11,7 +11,7 @@
 //   pushed 5 mm (10 spacings) down; one step.
 // Each is timed cold (a fresh object: bricks are allocated as the region grows) and warm (the same
 // step again after reset(), which keeps the bricks: no allocation), warm as the median of several
-// repetitions. "processed" = coordinates settled (an element's neighbours checked), as
+// repetitions. "processed" = coordinates moved (each once, whatever the queue's work), as
 // ChainMailStepResult counts them; both workloads move elements along one axis, so that is
 // elements. --quick: half the lattice and one repetition. --reps N: N warm repetitions (default 5;
 // more for a profile).

@@ -2,15 +2,18 @@
 // (compression, stretch, shear, pushed at an end and in the middle), every link valid after every
 // step (checked here from positions and the material table, not by the module), anisotropy, each
 // element processed once per step, groove width and V profile, memory that follows the deformed
-// region (64³ = 512³ = 4096³ lattices), bounded large pushes, reset, air, bad arguments, the
-// same displacements, bit for bit, as a straightforward reference implementation (random steps,
-// grooves), and as a ChainMail whose step counter did not wrap.
+// region (64³ = 512³ = 4096³ lattices), bounded large pushes, reset, air, bad arguments, the same
+// links valid, moved elements and displacements (to 1e-6 of the spacing) as a straightforward
+// reference implementation (random steps, grooves), a recorded groove, and the same displacements,
+// bit for bit, as a ChainMail whose step counter did not wrap (the same input, the same output).
 
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <functional>
 #include <limits>
 #include <queue>
 #include <utility>
@@ -19,6 +22,7 @@
 #include <vector>
 
 #include "volume/chainmail.hpp"
+#include "chainmail_reference.hpp"
 
 namespace lancet::volume {
 namespace {
@@ -326,197 +330,111 @@ TEST(ChainMail, LargePushStaysBounded) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Against a straightforward reference: the same Enhanced ChainMail written plainly (dense arrays,
-// a std::priority_queue of every check that finds a violation, no bricks, no marks), run on the
-// same lattice (its links read from the ChainMail under test, so cuts count) with the same
-// sponsors. The step's rules, as the header states them: sponsors placed in order, a conflict when
-// a neighbour already final on an axis disagrees; then (element, axis) candidates taken largest
-// violation first in quanta of eps/4 (ties first in, first out), each settled once to the nearest
-// point of the intersection of its final neighbours' intervals (their middle when empty: a
-// conflict), then its other neighbours checked. Displacements must be bit for bit the same, and
-// so must processed, moved and conflicts.
+// Against a straightforward reference (chainmail_reference.hpp), run from the same state.
+//
+// These tests compared displacements bit for bit, which held the order in which ChainMail takes
+// its candidates fixed (largest violation first, exact to 1e-9 of the spacing, ties first in,
+// first out). That order is a means, not what Enhanced ChainMail promises, and it ruled out the
+// faster ways to reach the same result (a bucketed queue, settling several candidates at once). So
+// a step is compared by what ChainMail must guarantee:
+// - conflicts reported when, and only when, the reference reports them;
+// - without conflicts: every link within its materials' compression, stretch and shear bounds (to
+//   kTol, 1e-9 of the spacing: the module's tolerance), the same set of moved elements (an
+//   element that one of them moved by less than kNearRef may be missing from the other's), and
+//   every displacement within kNearRef of the reference's;
+// - with conflicts the result depends on the order (the middle of disagreeing bounds), so only the
+//   conflict itself is required. The same holds for a step from the invalid state a conflict
+//   leaves: the links it repairs besides those its moves reach depend on the order (the
+//   reference clamps every coordinate it takes to all its final neighbours, this implementation
+//   moves a coordinate only as far as the neighbours that moved require); so the tests compare
+//   steps from valid states, and the random steps start again from rest after a conflict.
+// The reference then takes over the state under test, so each step is compared from the same state.
+// (A recorded summary of one groove, RecordedTissueGroove below, catches a change in both.)
+constexpr double kNearRef = 1e-9;  // m: 1e-6 of the 1 mm spacing
 
-struct Reference {
-  std::array<int, 3> dims{};
-  Vec3 spacing{};
-  std::vector<ChainMailMaterial> mats;
-  std::vector<std::uint8_t> ids;   // empty: all materials[0]
-  std::vector<std::uint8_t> links;  // bit d: link in direction d (2·axis + negative)
-  std::vector<Vec3> u;              // m, displacement
-  std::uint64_t step = 0;
+double max_abs_diff(const Vec3& a, const Vec3& b) { return std::max({std::abs(a.x - b.x), std::abs(a.y - b.y), std::abs(a.z - b.z)}); }
 
-  Reference(const ChainMail& cm, std::vector<ChainMailMaterial> m, std::vector<std::uint8_t> material_ids)
-      : dims(cm.lattice().dims), spacing(cm.lattice().spacing), mats(std::move(m)), ids(std::move(material_ids)),
-        links(count(), 0), u(count()) {
-    read_links(cm);
-  }
-  std::size_t count() const { return static_cast<std::size_t>(dims[0]) * static_cast<std::size_t>(dims[1]) * static_cast<std::size_t>(dims[2]); }
-  std::size_t at(const Index& e) const { return static_cast<std::size_t>(e[0] + dims[0] * (e[1] + dims[1] * e[2])); }
-  Index index_of(std::size_t i) const {
-    const int n = static_cast<int>(i);
-    return {n % dims[0], (n / dims[0]) % dims[1], n / (dims[0] * dims[1])};
-  }
-  bool inside(const Index& e) const {
-    return e[0] >= 0 && e[1] >= 0 && e[2] >= 0 && e[0] < dims[0] && e[1] < dims[1] && e[2] < dims[2];
-  }
-  static Index neighbour(Index e, int d) {
-    e[static_cast<std::size_t>(d / 2)] += d % 2 == 0 ? 1 : -1;
-    return e;
-  }
-  void read_links(const ChainMail& cm) {  // after a cut
-    for (std::size_t i = 0; i < count(); ++i) {
-      const Index e = index_of(i);
-      links[i] = 0;
-      for (int d = 0; d < 6; ++d) {
-        const Index n = neighbour(e, d);
-        const bool live = d % 2 == 0 ? cm.linked(e, d / 2) : inside(n) && cm.linked(n, d / 2);
-        if (live) links[i] = static_cast<std::uint8_t>(links[i] | (1u << d));
-      }
-    }
-  }
-  const ChainMailMaterial& mat(std::size_t i) const { return mats[ids.empty() ? 0 : ids[i]]; }
-  // The interval of (neighbour − element) displacement on axis b for the link in direction d.
-  std::pair<double, double> box(std::size_t e, std::size_t n, int d, int b) const {
-    const int a = d / 2;
-    const ChainMailAxisLimits& A = mat(e).axis[static_cast<std::size_t>(a)];
-    const ChainMailAxisLimits& B = mat(n).axis[static_cast<std::size_t>(a)];
-    if (b != a) {
-      const double shear = 0.5 * (A.max_shear + B.max_shear);
-      return {-shear, shear};
-    }
-    const double s = axis_of(spacing, a);
-    const double dlo = 0.5 * (A.min_length + B.min_length) - s, dhi = 0.5 * (A.max_length + B.max_length) - s;
-    return d % 2 == 0 ? std::pair{dlo, dhi} : std::pair{-dhi, -dlo};
-  }
-  static double& comp(Vec3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
-
-  ChainMailStepResult move(const std::vector<ChainMailSponsor>& sponsors, const ChainMail& cm) {
-    const double eps = 1e-9 * std::min({spacing.x, spacing.y, spacing.z}), inv_quantum = 4 / eps;
-    ++step;
-    std::vector<std::array<bool, 3>> final_on(count(), {false, false, false});
-    std::vector<bool> sponsor(count(), false), moved(count(), false);
-    struct Entry {
-      std::uint64_t key, seq;
-      std::size_t element;
-      int axis;
-      bool operator<(const Entry& o) const { return key != o.key ? key > o.key : seq > o.seq; }  // smallest key, then oldest, on top
-    };
-    std::priority_queue<Entry> queue;
-    std::uint64_t seq = 0, last = 0;
-    ChainMailStepResult r;
-    const auto check = [&](std::size_t e, int d, int b) {  // queue neighbour n of e on axis b when outside e's box
-      const std::size_t n = at(neighbour(index_of(e), d));
-      if (final_on[n][static_cast<std::size_t>(b)] || sponsor[n]) return;
-      const auto [lo, hi] = box(e, n, d, b);
-      const double ue = comp(u[e], b), un = comp(u[n], b);
-      const double violation = std::max(ue + lo - un, un - (ue + hi));
-      if (!(violation > eps)) return;
-      const std::uint64_t key = std::max(~static_cast<std::uint64_t>(std::min(violation * inv_quantum, 0x1p62)), last);
-      queue.push({key, seq++, n, b});
-    };
-    for (const ChainMailSponsor& s : sponsors) sponsor[at(s.element)] = true;
-    for (const ChainMailSponsor& s : sponsors) {
-      const std::size_t e = at(s.element);
-      Vec3 target = s.position - cm.rest_position(s.element);
-      bool conflict = false;
-      for (int d = 0; d < 6; ++d) {
-        if (((links[e] >> d) & 1u) == 0) continue;
-        const std::size_t n = at(neighbour(index_of(e), d));
-        for (int b = 0; b < 3; ++b) {
-          if (!final_on[n][static_cast<std::size_t>(b)]) continue;
-          const auto [lo, hi] = box(e, n, d, b);
-          const double rel = comp(u[n], b) - comp(target, b);
-          if (rel < lo - eps || rel > hi + eps) conflict = true;
-        }
-      }
-      r.conflicts += conflict ? 1u : 0u;
-      if (!(target == u[e])) {
-        u[e] = target;
-        moved[e] = true;
-        ++r.moved;
-      }
-      final_on[e] = {true, true, true};
-      ++r.processed;
-      for (int d = 0; d < 6; ++d)
-        if (((links[e] >> d) & 1u) != 0)
-          for (int b = 0; b < 3; ++b) check(e, d, b);
-    }
-    while (!queue.empty()) {
-      const Entry top = queue.top();
-      queue.pop();
-      last = top.key;
-      const std::size_t e = top.element;
-      const int a = top.axis;
-      if (final_on[e][static_cast<std::size_t>(a)]) continue;
-      double lo = -std::numeric_limits<double>::infinity(), hi = std::numeric_limits<double>::infinity();
-      for (int d = 0; d < 6; ++d) {
-        if (((links[e] >> d) & 1u) == 0) continue;
-        const std::size_t n = at(neighbour(index_of(e), d));
-        if (!final_on[n][static_cast<std::size_t>(a)]) continue;
-        const auto [blo, bhi] = box(e, n, d, a);
-        lo = std::max(lo, comp(u[n], a) - bhi);
-        hi = std::min(hi, comp(u[n], a) - blo);
-      }
-      const double before = comp(u[e], a);
-      double v = std::min(std::max(before, lo), hi);
-      if (lo > hi) {
-        if (lo - hi > eps) ++r.conflicts;
-        v = 0.5 * (lo + hi);
-      }
-      if (v != before) {
-        comp(u[e], a) = v;
-        if (!moved[e]) ++r.moved;
-        moved[e] = true;
-      }
-      final_on[e][static_cast<std::size_t>(a)] = true;
-      ++r.processed;
-      for (int d = 0; d < 6; ++d)
-        if (((links[e] >> d) & 1u) != 0) check(e, d, a);
-    }
-    return r;
-  }
-
-  // open_groove's sponsors, as its doc says.
-  std::vector<ChainMailSponsor> groove(const ChainMail& cm, const ChainMailCut& cut, double width, const ChainMailRetractor& ret) const {
-    std::vector<ChainMailSponsor> s;
-    for (const ChainMailCutFace& f : cut.faces) {
-      if (f.arc < ret.from || f.arc > ret.to || f.depth > ret.depth + 1e-9 * spacing.z || (f.away.x == 0 && f.away.y == 0)) continue;
-      s.push_back({f.element, cm.rest_position(f.element) + (0.5 * width) * f.away});
-    }
-    return s;
-  }
-};
-
-// Same displacements (bit for bit) and counts; returns the number of elements that moved.
-std::size_t expect_same(const ChainMail& cm, const Reference& ref, const ChainMailStepResult& got, const ChainMailStepResult& want,
-                        const std::string& what) {
-  EXPECT_EQ(got.processed, want.processed) << what;
-  EXPECT_EQ(got.moved, want.moved) << what;
-  EXPECT_EQ(got.conflicts, want.conflicts) << what;
-  std::size_t displaced = 0, differ = 0;
+// Returns the number of elements displaced from rest after the step (by the reference).
+std::size_t expect_equivalent(const ChainMail& cm, ChainMailReference& ref, const std::vector<Vec3>& before,
+                              const ChainMailStepResult& got, const ChainMailStepResult& want, const std::string& what) {
+  EXPECT_EQ(got.conflicts > 0, want.conflicts > 0) << what << ": conflicts " << got.conflicts << ", reference " << want.conflicts;
+  std::size_t displaced = 0, differ = 0, moved_differ = 0, moved = 0;
+  double worst = 0;
   for (std::size_t i = 0; i < ref.count(); ++i) {
     const Index e = ref.index_of(i);
     const Vec3 d = cm.displacement(e);
-    if (!(d == ref.u[i]) && ++differ <= 3)
+    displaced += ref.u[i] == Vec3{} ? 0u : 1u;
+    moved += d == before[i] ? 0u : 1u;
+    if (want.conflicts > 0 || !ref.valid) continue;
+    const double diff = max_abs_diff(d, ref.u[i]);
+    worst = std::max(worst, diff);
+    if (diff > kNearRef && ++differ <= 3)
       ADD_FAILURE() << what << ": element (" << e[0] << "," << e[1] << "," << e[2] << ") at (" << d.x << "," << d.y << "," << d.z
                     << "), reference (" << ref.u[i].x << "," << ref.u[i].y << "," << ref.u[i].z << ")";
-    displaced += ref.u[i] == Vec3{} ? 0u : 1u;
+    const bool moved_here = !(d == before[i]), moved_there = !(ref.u[i] == before[i]);
+    const bool tiny = std::max(max_abs_diff(d, before[i]), max_abs_diff(ref.u[i], before[i])) <= kNearRef;
+    if (moved_here != moved_there && !tiny && ++moved_differ <= 3)
+      ADD_FAILURE() << what << ": element (" << e[0] << "," << e[1] << "," << e[2] << ") moved " << moved_here << ", reference "
+                    << moved_there;
   }
-  EXPECT_EQ(differ, 0u) << what;
+  EXPECT_EQ(got.moved, moved) << what << ": the step's count of moved elements";
+  if (want.conflicts == 0 && ref.valid) {
+    EXPECT_EQ(differ, 0u) << what << ": worst difference " << worst << " m";
+    EXPECT_EQ(moved_differ, 0u) << what;
+    std::string where;
+    EXPECT_LE(worst_link(cm, ref.mats, ref.ids, &where), kTol) << what << ": " << where;
+  }
+  ref.valid = ref.valid && want.conflicts == 0;  // a conflict leaves links invalid, and later steps start from them
+  ref.sync(cm);
   return displaced;
 }
+
+// One step of both, from the same state: the reference moves `sponsors`, the ChainMail under
+// test makes `step` (by default the same move; open_groove for a groove, whose sponsors are the
+// reference's `groove`).
+std::size_t step_both(ChainMail& cm, ChainMailReference& ref, const std::vector<ChainMailSponsor>& sponsors, const std::string& what,
+                      const std::function<ChainMailStepResult()>& step = {}) {
+  const std::vector<Vec3> before = ref.u;
+  const ChainMailStepResult want = ref.move(sponsors, cm);
+  const ChainMailStepResult got = step ? step() : cm.move(sponsors);
+  return expect_equivalent(cm, ref, before, got, want, what);
+}
+
+// Layered tissue (air, skin, fat, an anisotropic muscle) cut along a bent line and opened 4 mm, as
+// the tissue scene cuts it.
+struct TissueGroove {
+  static constexpr double kWidth = 4e-3;  // m
+  std::vector<ChainMailMaterial> mats{
+      ChainMailMaterial::air(), ChainMailMaterial::relative({kS, kS, kS}, 0.2, 0.3, 0.3),
+      ChainMailMaterial::relative({kS, kS, kS}, 0.4, 0.4, 0.4),
+      ChainMailMaterial{true, {{{0.9 * kS, 1.1 * kS, 0.25 * kS}, {0.7 * kS, 1.3 * kS, 0.3 * kS}, {0.7 * kS, 1.3 * kS, 0.3 * kS}}}}};
+  std::vector<std::uint8_t> ids = layers();
+  ChainMail cm{lattice(48, 48, 24), mats, ids};
+  ChainMailCut cut = cm.cut(line(cm.rest_position({0, 0, 0})), 12 * kS);
+  ChainMailRetractor held{8 * kS, cut.length - 8 * kS, 0};
+
+  static std::vector<std::uint8_t> layers() {
+    std::vector<std::uint8_t> v(48u * 48u * 24u);
+    for (int k = 0; k < 24; ++k)
+      for (std::size_t p = 0; p < 48u * 48u; ++p)
+        v[static_cast<std::size_t>(k) * 48u * 48u + p] = static_cast<std::uint8_t>(k > 20 ? 0 : (k > 18 ? 1 : (k > 12 ? 2 : 3)));
+    return v;
+  }
+  static std::vector<Vec3> line(Vec3 o) { return {o + Vec3{6.3e-3, 20.2e-3, 0}, o + Vec3{24.1e-3, 27.4e-3, 0}, o + Vec3{41.5e-3, 22.2e-3, 0}}; }
+};
 
 TEST(ChainMail, MatchesAStraightforwardReferenceOnRandomSteps) {
   for (int seed = 1; seed <= 4; ++seed) {
     const int n = seed % 2 == 1 ? 24 : 29;
     Block b(n);
-    Reference ref(b.cm, b.mats, b.ids);
+    ChainMailReference ref(b.cm, b.mats, b.ids);
     std::uint64_t state = 977u * static_cast<std::uint64_t>(seed);
     const auto next = [&]() {
       state = state * 6364136223846793005ull + 1442695040888963407ull;
       return static_cast<double>(state >> 11) * 0x1.0p-53;
     };
     std::size_t displaced = 0;
+    int compared = 0, conflicted = 0;
     for (int s = 0; s < 25; ++s) {
       std::vector<ChainMailSponsor> sponsors;
       const int count = s % 4 == 3 ? 4 : 1;  // some steps with several sponsors (which may conflict)
@@ -528,17 +446,26 @@ TEST(ChainMail, MatchesAStraightforwardReferenceOnRandomSteps) {
         if (b.cm.present(e) && !dup) sponsors.push_back({e, b.cm.rest_position(e) + d});
       }
       if (sponsors.empty()) continue;
-      const ChainMailStepResult want = ref.move(sponsors, b.cm);
-      const ChainMailStepResult got = b.cm.move(sponsors);
-      displaced = expect_same(b.cm, ref, got, want, "seed " + std::to_string(seed) + " step " + std::to_string(s));
+      compared += ref.valid ? 1 : 0;
+      displaced = step_both(b.cm, ref, sponsors, "seed " + std::to_string(seed) + " step " + std::to_string(s));
       if (HasFailure()) return;
+      if (!ref.valid) {  // a conflict: start again from rest
+        b.cm.reset();
+        ref.sync(b.cm);
+        ref.valid = true;
+        ++conflicted;
+      }
     }
     EXPECT_GT(displaced, 100u);
+    EXPECT_GT(compared, 20) << "seed " << seed;
+    EXPECT_GT(conflicted + compared, 0);
+    std::printf("seed %d: %d compared, %d conflicts\n", seed, compared, conflicted);
   }
 }
 
 TEST(ChainMail, GroovesMatchAStraightforwardReference) {
   const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.3, 0.3, 0.3)};
+  int conflicted = 0;
   for (int variant = 0; variant < 3; ++variant) {
     ChainMail cm(lattice(64, 64, 16), mats);
     const Vec3 o = cm.rest_position({0, 0, 0});
@@ -547,33 +474,58 @@ TEST(ChainMail, GroovesMatchAStraightforwardReference) {
     if (variant == 1) line = {o + Vec3{8.3e-3, 10.2e-3, 0}, o + Vec3{8.3e-3, 10.2e-3, 0} + 50 * kS * normalized(Vec3{std::cos(0.5), std::sin(0.5), 0})};
     if (variant == 2) line = {o + Vec3{8.5e-3, 50.5e-3, 0}, o + Vec3{30.5e-3, 10.3e-3, 0}, o + Vec3{52.5e-3, 40.1e-3, 0}, o + Vec3{40.2e-3, 60.1e-3, 0}};
     const ChainMailCut cut = cm.cut(line, 9 * kS);
-    Reference ref(cm, mats, {});
+    ChainMailReference ref(cm, mats, {});
     const std::string what = "variant " + std::to_string(variant);
-    // Open, widen, hold deeper (a wider groove than the floor allows: conflicts), then a push.
+    // Open, widen, a push, then hold deeper (a wider groove than the floor allows: conflicts, but
+    // for the straight cut of variant 1).
     const ChainMailRetractor first{10 * kS, cut.length - 10 * kS, 0}, deeper{5 * kS, cut.length - 5 * kS, 3 * kS};
-    expect_same(cm, ref, cm.open_groove(cut, 2e-3, first), ref.move(ref.groove(cm, cut, 2e-3, first), cm), what + " open");
-    expect_same(cm, ref, cm.open_groove(cut, 3.5e-3, first), ref.move(ref.groove(cm, cut, 3.5e-3, first), cm), what + " widen");
-    expect_same(cm, ref, cm.open_groove(cut, 5e-3, deeper), ref.move(ref.groove(cm, cut, 5e-3, deeper), cm), what + " deeper");
+    const auto groove = [&](double width, const ChainMailRetractor& r, const std::string& name) {
+      step_both(cm, ref, ref.groove(cm, cut, width, r), what + " " + name, [&] { return cm.open_groove(cut, width, r); });
+    };
+    groove(2e-3, first, "open");
+    groove(3.5e-3, first, "widen");
     const std::vector<ChainMailSponsor> push{{{30, 30, 15}, cm.rest_position({30, 30, 15}) + Vec3{1e-3, -2e-3, -3e-3}}};
-    expect_same(cm, ref, cm.move(push), ref.move(push, cm), what + " push");
+    step_both(cm, ref, push, what + " push");
+    groove(5e-3, deeper, "deeper");
+    conflicted += ref.valid ? 0 : 1;
   }
-  // Layered tissue with an anisotropic muscle, as the tissue scene cuts it.
-  const double s = 1e-3;
-  const std::vector<ChainMailMaterial> tissue{
-      ChainMailMaterial::air(), ChainMailMaterial::relative({s, s, s}, 0.2, 0.3, 0.3), ChainMailMaterial::relative({s, s, s}, 0.4, 0.4, 0.4),
-      ChainMailMaterial{true, {{{0.9 * s, 1.1 * s, 0.25 * s}, {0.7 * s, 1.3 * s, 0.3 * s}, {0.7 * s, 1.3 * s, 0.3 * s}}}}};
-  std::vector<std::uint8_t> ids(48u * 48u * 24u);
-  for (int k = 0; k < 24; ++k)
-    for (std::size_t p = 0; p < 48u * 48u; ++p)
-      ids[static_cast<std::size_t>(k) * 48u * 48u + p] = static_cast<std::uint8_t>(k > 20 ? 0 : (k > 18 ? 1 : (k > 12 ? 2 : 3)));
-  ChainMail cm(lattice(48, 48, 24), tissue, ids);
-  const Vec3 o = cm.rest_position({0, 0, 0});
-  const ChainMailCut cut = cm.cut(std::vector<Vec3>{o + Vec3{6.3e-3, 20.2e-3, 0}, o + Vec3{24.1e-3, 27.4e-3, 0}, o + Vec3{41.5e-3, 22.2e-3, 0}}, 12 * kS);
-  Reference ref(cm, tissue, ids);
-  const ChainMailRetractor held{8 * kS, cut.length - 8 * kS, 0};
-  const std::size_t displaced =
-      expect_same(cm, ref, cm.open_groove(cut, 4e-3, held), ref.move(ref.groove(cm, cut, 4e-3, held), cm), "tissue groove");
+  EXPECT_EQ(conflicted, 2);
+  TissueGroove t;
+  ChainMailReference ref(t.cm, t.mats, t.ids);
+  const std::size_t displaced = step_both(t.cm, ref, ref.groove(t.cm, t.cut, t.kWidth, t.held), "tissue groove",
+                                          [&] { return t.cm.open_groove(t.cut, t.kWidth, t.held); });
   EXPECT_GT(displaced, 1000u);
+}
+
+// A recorded summary of the tissue groove (made with the exact-order implementation of
+// 2026-11-26, which matched the reference bit for bit): a change that moves the groove shows here
+// even when the reference changes with it. Sums are over every element of the lattice; each
+// displacement may drift by kNearRef (the tolerance of the reference tests), the sums by that
+// times the elements moved. Update these figures only for a deliberate change of the result, and
+// say why in the commit.
+TEST(ChainMail, RecordedTissueGroove) {
+  TissueGroove t;
+  const ChainMailStepResult r = t.cm.open_groove(t.cut, t.kWidth, t.held);
+  Vec3 sum{};
+  double l1 = 0;
+  for (int k = 0; k < 24; ++k)
+    for (int j = 0; j < 48; ++j)
+      for (int i = 0; i < 48; ++i) {
+        const Vec3 u = t.cm.displacement({i, j, k});
+        sum = sum + u;
+        l1 += std::abs(u.x) + std::abs(u.y) + std::abs(u.z);
+      }
+  EXPECT_EQ(r.conflicts, 0u);
+  EXPECT_EQ(r.moved, 1689u);
+  const double drift = static_cast<double>(r.moved) * kNearRef;
+  EXPECT_NEAR(sum.x, -0.0024319286597655281, drift);  // m
+  EXPECT_NEAR(sum.y, 0.045473076197679915, drift);
+  EXPECT_EQ(sum.z, 0.0);  // the groove opens in x-y only
+  EXPECT_NEAR(l1, 1.2490525014981413, drift);
+  // A face at the top (the opening, 2 mm a side) and one in the fat five layers below it (the
+  // groove narrowing with depth).
+  EXPECT_LE(max_abs_diff(t.cm.displacement({24, 28, 20}), Vec3{-0.00010727747609580972, 0.0021140272724119377, 0}), kNearRef);
+  EXPECT_LE(max_abs_diff(t.cm.displacement({24, 27, 15}), Vec3{0, -0.00025013652270698439, 0}), kNearRef);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -749,6 +701,38 @@ TEST(ChainMail, TooWideAGrooveReportsConflicts) {
   const ChainMailCut cut = g.cm.cut(g.line(), 3 * kS);  // shallow: the floor must open too
   const ChainMailStepResult r = g.cm.open_groove(cut, 6e-3);  // held to the very ends
   EXPECT_GT(r.conflicts, 0u);
+}
+
+// A groove held to the very ends of its cut cannot open there without tearing: the elements past
+// each end are pulled both ways (conflicts). How a conflict is settled depends on the order (see
+// the reference tests above), but it must stay where the bounds disagree: the rest of the groove is
+// the reference's, and the two sides, mirror images, are treated alike.
+TEST(ChainMail, ConflictsAtAGroovesEndsStayThere) {
+  const std::vector<ChainMailMaterial> mats{ChainMailMaterial::relative({kS, kS, kS}, 0.6, 1.5, 0.6)};  // the tissue scene's
+  ChainMail cm(lattice(64, 40, 20), mats);
+  const double y = cm.rest_position({0, 19, 0}).y + 0.5 * kS;  // between rows 19 and 20: the mirror of row j is 39 − j
+  const std::vector<Vec3> line{{cm.rest_position({10, 0, 0}).x + 0.5 * kS, y, 0}, {cm.rest_position({50, 0, 0}).x + 0.5 * kS, y, 0}};
+  const ChainMailCut cut = cm.cut(line, 6 * kS);
+  ChainMailReference ref(cm, mats, {});
+  const ChainMailStepResult want = ref.move(ref.groove(cm, cut, 4e-3, {}), cm), got = cm.open_groove(cut, 4e-3);
+  EXPECT_GT(want.conflicts, 0u);
+  EXPECT_GT(got.conflicts, 0u);
+  double asymmetry = 0;
+  std::size_t differ = 0, differ_inside = 0;
+  for (int k = 0; k < 20; ++k)
+    for (int i = 0; i < 64; ++i)
+      for (int j = 0; j < 20; ++j) {
+        const Vec3 a = cm.displacement({i, j, k}), b = cm.displacement({i, 39 - j, k});
+        asymmetry = std::max({asymmetry, std::abs(a.x - b.x), std::abs(a.y + b.y), std::abs(a.z - b.z)});
+        for (const Index& e : {Index{i, j, k}, Index{i, 39 - j, k}}) {
+          if (max_abs_diff(cm.displacement(e), ref.u[ref.at(e)]) <= kNearRef) continue;
+          ++differ;
+          if (i >= 15 && i <= 45) ++differ_inside;  // 5 elements in from either end of the cut
+        }
+      }
+  EXPECT_LE(asymmetry, kTol);
+  EXPECT_EQ(differ_inside, 0u);
+  EXPECT_LT(differ, 100u);  // of 51 200 elements, ~3 200 displaced
 }
 
 // ---------------------------------------------------------------------------------------------
