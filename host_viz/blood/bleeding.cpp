@@ -287,7 +287,7 @@ void Bleeding::advance(const TissueScene& scene, double dt) {
   automaton_.set_sources(source_rate_);
   automaton_.set_sinks(sink_rate_);
   for (int s = 0; s < steps; ++s) {
-    automaton_.step();
+    automaton_.step(p_.threads);
     swabbed_ += automaton_.last_sink_volume();
   }
   time_ += simulated;

@@ -49,6 +49,7 @@ struct BleedingParams {
   double swab_rate = 25;             ///< 1/s, the fraction per second a swab takes from a cell it touches
   double max_frame = 0.1;            ///< s: a longer frame is simulated as this long (the viz stalled)
   double rebuild_interval = 0.5;    ///< s of scene time between two rebuilds of the network (topology changes)
+  int threads = 2;                   ///< the automaton's threads (a pool made once; the blood does not depend on it)
 };
 
 /// One source of blood loss, for the panel and the training metrics.
