@@ -52,6 +52,27 @@ void SceneSim::apply(std::span<const ToolSample> samples) {
 
 std::size_t SceneSim::export_patch(Vec3 at, TissuePatch& patch) { return scene_->export_patch(at, patch); }
 
+std::array<std::size_t, kHandCount> SceneSim::export_patches(const std::array<TissuePatch*, kHandCount>& patches,
+                                                             const std::array<Vec3, kHandCount>& centres) {
+  std::array<std::size_t, kHandCount> found{};
+  const tissue::TissueScene& scene = *scene_;
+  // What TissueScene::export_patch does, with the hand's own scratch.
+  const auto one = [&](std::size_t h) {
+    found[h] = tissue::export_patch(scene.surface(), centres[h], scene.description().patch, patch_scratch_[h], *patches[h],
+                                    [&scene](Vec3 c, VoxelBrick& brick) { tissue::fill_brick(scene.volume(), scene.placement(), c, brick); });
+  };
+  static_assert(kHandCount == 2);
+  if (patches[0] != nullptr && patches[1] != nullptr) {
+    if (!pool_) pool_ = std::make_unique<blood::WorkerPool>(2);
+    auto job = [&](int w) { one(static_cast<std::size_t>(w)); };
+    pool_->run(job);
+  } else {
+    for (std::size_t h = 0; h < kHandCount; ++h)
+      if (patches[h] != nullptr) one(h);
+  }
+  return found;
+}
+
 void SceneSim::advance_blood(double dt) {
   if (bleeding_) bleeding_->advance(*scene_, dt);
 }

@@ -6,6 +6,7 @@
 // drawn surface, the blood on it and the task's figures, so a replay can check it frame by frame.
 // No OpenGL: tested headless.
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -14,6 +15,7 @@
 #include <vector>
 
 #include "blood/bleeding.hpp"
+#include "blood/worker_pool.hpp"
 #include "score/task_monitor.hpp"
 #include "tissue/scenario_scene.hpp"
 #include "tissue/tissue_scene.hpp"
@@ -42,6 +44,11 @@ class SceneSim {
   /// The patch around `at` (m); returns its triangle count. Leaves the header (seq, t_ns,
   /// samples_applied) to the caller.
   std::size_t export_patch(Vec3 at, TissuePatch& patch);
+  /// Each hand's patch where patches[h] is not null, around centres[h], as export_patch; at [h]
+  /// its triangle count. Two hands' patches are made at once on two threads (each its own
+  /// scratch; the scene is only read), each the same as export_patch would make it.
+  std::array<std::size_t, kHandCount> export_patches(const std::array<TissuePatch*, kHandCount>& patches,
+                                                     const std::array<Vec3, kHandCount>& centres);
   /// Simulates the blood for dt seconds (nothing without blood).
   void advance_blood(double dt);
   /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
@@ -68,6 +75,8 @@ class SceneSim {
   std::unique_ptr<tissue::TissueScene> scene_;
   std::unique_ptr<blood::Bleeding> bleeding_;
   std::optional<score::TaskMonitor> task_;
+  std::array<tissue::PatchExportScratch, kHandCount> patch_scratch_;  // by hand
+  std::unique_ptr<blood::WorkerPool> pool_;  // the two hands' patches
   // What take_events has reported.
   std::size_t sources_seen_ = 0;
   std::vector<bool> stopped_seen_, damaged_seen_;

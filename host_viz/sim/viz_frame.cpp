@@ -22,14 +22,21 @@ Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
   // the header that says which frame and tick it reflects; published before the blood steps, so
   // the servo never waits for the blood (the blood changes nothing a patch holds).
   t0 = Clock::now();
+  std::array<TissuePatch*, kHandCount> into{};
+  std::array<Vec3, kHandCount> centres{};
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    into[h] = b.patches[h].patch;
+    centres[h] = b.patches[h].centre;
+    if (into[h] == nullptr) continue;
+    into[h]->n_triangles = 0;
+    into[h]->brick.valid = 0;
+  }
+  r.triangles = sim.export_patches(into, centres);
   std::array<const TissuePatch*, kHandCount> out{};
   for (std::size_t h = 0; h < kHandCount; ++h) {
     const HandPatch& hp = b.patches[h];
     if (hp.patch == nullptr) continue;
     TissuePatch& p = *hp.patch;
-    p.n_triangles = 0;
-    p.brick.valid = 0;
-    r.triangles[h] = sim.export_patch(hp.centre, p);
     p.hand = static_cast<Hand>(h);
     p.seq = hp.header.seq;
     p.t_ns = hp.header.t_ns;

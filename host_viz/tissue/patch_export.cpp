@@ -68,30 +68,55 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   auto& near = scratch.faces;
   // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
   // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
-  // exact distance to the haptic triangles.
+  // distance to the haptic triangles.
   const double reach = params.radius + model.params().deform_max_depth;
-  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(reach), near, /*tree_order=*/true);
+  const Vec3f at = to_vec3f(centre);
+  model.bvh().faces_within(view, at, static_cast<float>(reach), near, /*tree_order=*/true);
   auto& cand = scratch.candidates;
+  auto& corners = scratch.corners;
   cand.clear();
-  const auto corner = [&](std::uint32_t v) { return to_vec3f(model.haptic_position(v)); };
+  corners.clear();
   const double r2 = params.radius * params.radius;
+  // A triangle with a corner within the radius is within it (its distance is at most that
+  // corner's), so only the rest need the exact point–triangle distance. The corner test keeps a
+  // hair (1e-9 of r²) inside the radius, far more than the exact test's rounding (about 1e-18 m²
+  // here), so it never admits a triangle that the exact test would turn away: the set is the
+  // exact test's. A candidate admitted by a corner gets its exact distance only if the patch
+  // overflows and the nearest must be chosen.
+  const double surely = r2 * (1 - 1e-9);
+  const Vec3 q = to_vec3(at);
+  const auto corner_d2 = [&](Vec3f c) {
+    const Vec3 e = q - to_vec3(c);
+    return dot(e, e);
+  };
+  constexpr double kNotMeasured = -1;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
-    const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
-    if (d2 <= r2) cand.emplace_back(d2, f);
+    const std::array<Vec3f, 3> c = {to_vec3f(model.haptic_position(t[0])), to_vec3f(model.haptic_position(t[1])),
+                                    to_vec3f(model.haptic_position(t[2]))};
+    double d2 = kNotMeasured;
+    if (!(corner_d2(c[0]) <= surely || corner_d2(c[1]) <= surely || corner_d2(c[2]) <= surely)) {
+      d2 = surface::point_triangle_distance_squared(at, c[0], c[1], c[2]);
+      if (!(d2 <= r2)) continue;
+    }
+    cand.emplace_back(d2, static_cast<std::uint32_t>(corners.size()));
+    corners.push_back({c, f});
   }
   const std::size_t found = cand.size();
-  keep_nearest_in_order(cand, scratch.distances);
+  if (found > kPatchCapacity) {
+    for (auto& [d2, i] : cand)
+      if (d2 == kNotMeasured) d2 = surface::point_triangle_distance_squared(at, corners[i].v[0], corners[i].v[1], corners[i].v[2]);
+    keep_nearest_in_order(cand, scratch.distances);
+  }
   const std::size_t keep = cand.size();
   for (std::size_t i = 0; i < keep; ++i) {
-    const std::uint32_t f = cand[i].second;
-    const auto& t = view.faces[f];
+    const PatchExportScratch::Corners& c = corners[cand[i].second];
     PatchTriangle& pt = out.triangles[i];
-    for (int k = 0; k < 3; ++k) pt.v[k] = corner(t[static_cast<std::size_t>(k)]);
-    pt.material = model.face_material(f);
+    for (int k = 0; k < 3; ++k) pt.v[k] = c.v[static_cast<std::size_t>(k)];
+    pt.material = model.face_material(c.face);
     pt.flags = 0;
-    pt.id = f;
-    for (auto h : mesh.fh_range(model.face_handle(f)))
+    pt.id = c.face;
+    for (auto h : mesh.fh_range(model.face_handle(c.face)))
       if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
   }
   out.n_triangles = static_cast<std::uint32_t>(keep);
