@@ -180,6 +180,7 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   tile_removed_.assign(net_.tiles(), 0.0);
   tile_volume_.assign(net_.tiles(), 0.0);
   tile_has_rate_.assign(net_.tiles(), 0);
+  tile_flowing_.assign(net_.tiles(), 0);
   candidate_.assign(net_.tiles(), 1);
   ledger_.sinks += lost;
   double now = 0;
@@ -252,11 +253,9 @@ bool Automaton::tile_is_active(std::size_t t) const {
   if (!p_.skip_idle_tiles) return true;
   if (candidate_[t] == 0) return false;
   const std::size_t n = net_.cells();
-  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
+  if (tile_flowing_[t] != 0) return true;  // some pipe of the tile still sends
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i)
     if (s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f)) return true;
-    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k)
-      if (s_.flux[k] > 0.0f) return true;
-  }
   return false;
 }
 
@@ -299,39 +298,51 @@ void Automaton::fluxes(std::size_t t) {
   const std::size_t n = net_.cells();
   const float dt = p_.dt;
   const float keep = std::pow(p_.damping, dt);
+  const float mobility = p_.mobility, ref_depth = p_.ref_depth;
+  // Plain pointers: the flux stores could otherwise alias every float the loop reads.
+  const float* const head = head_.data();
+  const float* const conductance = net_.conductance.data();
+  const std::uint32_t* const to = net_.to.data();
+  float* const flux = s_.flux.data();
+  bool flowing = false;
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     const float v = s_.volume[i], a = net_.area[i];
-    const float head = head_[i];
     const float mobile = std::max(0.0f, v - net_.film[i]);
-    const float d = mobile / a / p_.ref_depth;
+    const float d = mobile / a / ref_depth;
     const float m = std::min(1.0f, d * d);
+    const std::uint32_t first = net_.first[i], last = net_.first[i + 1];
     float sum = 0.0f;
-    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
-      const std::uint32_t j = net_.to[k];
-      const float head_j = head_[j];
-      const float f = std::max(0.0f, keep * s_.flux[k] + dt * (p_.mobility * net_.conductance[k]) * m * (head - head_j));
-      s_.flux[k] = f;
+    for (std::uint32_t k = first; k < last; ++k) {
+      const float f = std::max(0.0f, keep * flux[k] + dt * (mobility * conductance[k]) * m * (head[i] - head[to[k]]));
+      flux[k] = f;
       sum += f;
     }
     const float out = sum * dt;
     if (out > mobile) {
       const float scale = out > 0.0f ? 0.999999f * mobile / out : 0.0f;
-      for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) s_.flux[k] *= scale;
+      for (std::uint32_t k = first; k < last; ++k) flux[k] *= scale;
     }
+    if (sum > 0.0f)
+      for (std::uint32_t k = first; k < last && !flowing; ++k) flowing = flux[k] > 0.0f;
     s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
   }
+  tile_flowing_[t] = flowing ? 1 : 0;
 }
 
 void Automaton::volumes(std::size_t t) {
   const std::size_t n = net_.cells();
   const float dt = p_.dt;
+  const float* const flux = s_.flux.data();
+  const float* const conc = s_.conc.data();
+  const std::uint32_t* const twin = net_.twin.data();
+  const std::uint32_t* const to = net_.to.data();
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     float in = 0.0f, out = 0.0f, born_in = 0.0f;
     for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
-      const float f_in = s_.flux[net_.twin[k]];
+      const float f_in = flux[twin[k]];
       in += f_in;
-      born_in += f_in * s_.conc[net_.to[k]];
-      out += s_.flux[k];
+      born_in += f_in * conc[to[k]];
+      out += flux[k];
     }
     if (in == 0.0f && out == 0.0f) continue;
     const float v = s_.volume[i] + dt * in - dt * out;

@@ -182,6 +182,7 @@ class Automaton {
   std::vector<double> tile_added_, tile_removed_;  // per tile, this step
   std::vector<double> tile_volume_;                // per tile, as of the last step that touched it
   std::vector<std::uint8_t> tile_has_rate_, candidate_;  // a source or sink; may be active next step
+  std::vector<std::uint8_t> tile_flowing_;  // some pipe of the tile sends (flux > 0), as its last fluxes pass left it
   Ledger ledger_;
   std::uint64_t steps_ = 0;
   std::size_t active_count_ = 0;
