@@ -14,6 +14,13 @@ std::uint32_t NetworkBuilder::add_cell(float area, float elevation, float film) 
   return static_cast<std::uint32_t>(area_.size() - 1);
 }
 
+void NetworkBuilder::reserve(std::size_t more_cells, std::size_t more_pipes) {
+  area_.reserve(area_.size() + more_cells);
+  elevation_.reserve(elevation_.size() + more_cells);
+  film_.reserve(film_.size() + more_cells);
+  pipes_.reserve(pipes_.size() + more_pipes);
+}
+
 void NetworkBuilder::add_pipe(std::uint32_t a, std::uint32_t b, float width, float length) {
   if (a == b || a >= area_.size() || b >= area_.size() || !(width > 0.0f) || !(length > 0.0f)) return;
   pipes_.push_back({a, b, width / length});
@@ -46,7 +53,14 @@ Network NetworkBuilder::build() const {
   // faces, so the bucket holds each half-edge twice: sized by it, they were twice too long).
   for (std::size_t i = 0; i < cells; ++i) {
     const auto b = bucket.begin() + start[i], e = bucket.begin() + start[i + 1];
-    std::stable_sort(b, e, [](const Half& x, const Half& y) { return x.to < y.to; });
+    // An insertion sort: stable, and a cell has a dozen entries (std::stable_sort would take a
+    // buffer from the heap for each cell).
+    for (auto it = b + (b != e ? 1 : 0); it < e; ++it) {
+      const Half x = *it;
+      auto at = it;
+      for (; at != b && (at - 1)->to > x.to; --at) *at = *(at - 1);
+      *at = x;
+    }
     auto w = b;
     for (auto it = b; it != e; ++it) {
       if (w != b && (w - 1)->to == it->to)
@@ -103,6 +117,7 @@ void add_mesh(NetworkBuilder& nb, std::span<const float> xyz, std::span<const st
               float film_depth) {
   const auto first = static_cast<std::uint32_t>(nb.cells());
   const std::size_t nv = xyz.size() / 3;
+  nb.reserve(nv, triangles.size());
   const auto p = [&](std::uint32_t v) { return std::array<double, 3>{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
   const double gl = std::sqrt(gravity_dir[0] * gravity_dir[0] + gravity_dir[1] * gravity_dir[1] + gravity_dir[2] * gravity_dir[2]);
   const double g[3] = {gravity_dir[0] / gl, gravity_dir[1] / gl, gravity_dir[2] / gl};

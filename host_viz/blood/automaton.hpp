@@ -68,6 +68,8 @@ class NetworkBuilder {
   /// multiplies it by Params::mobility).
   void add_pipe(std::uint32_t a, std::uint32_t b, float width, float length);
   [[nodiscard]] Network build() const;
+  /// Room for this many more cells and pipes (the builder grows as needed without it).
+  void reserve(std::size_t more_cells, std::size_t more_pipes);
   [[nodiscard]] std::size_t cells() const noexcept { return area_.size(); }
 
  private:
