@@ -77,25 +77,28 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   cand.clear();
   corners.clear();
   const double r2 = params.radius * params.radius;
-  // A triangle with a corner within the radius is within it (its distance is at most that
-  // corner's), so only the rest need the exact point–triangle distance. The corner test keeps a
-  // hair (1e-9 of r²) inside the radius, far more than the exact test's rounding (about 1e-18 m²
-  // here), so it never admits a triangle that the exact test would turn away: the set is the
-  // exact test's. A candidate admitted by a corner gets its exact distance only if the patch
-  // overflows and the nearest must be chosen.
-  const double surely = r2 * (1 - 1e-9);
+  // Only triangles near the rim need the exact point–triangle distance: one with a corner
+  // within the radius is within it (its distance is at most that corner's), and one whose nearest
+  // corner is farther than the radius by more than its longest edge is outside (every point of a
+  // triangle lies within its longest edge of each corner). Both tests keep a hair (1e-9 of the
+  // radius) to spare, far more than the exact test's rounding (about 1e-18 m² here), so neither
+  // decides a triangle the other way from the exact test: the set is the exact test's. A
+  // candidate admitted by a corner gets its exact distance only if the patch overflows and the
+  // nearest must be chosen.
+  const double surely = r2 * (1 - 1e-9), beyond = params.radius * (1 + 1e-9) + 1e-12;
   const Vec3 q = to_vec3(at);
-  const auto corner_d2 = [&](Vec3f c) {
-    const Vec3 e = q - to_vec3(c);
-    return dot(e, e);
-  };
+  const auto dist2 = [](Vec3 a, Vec3 b) { return dot(a - b, a - b); };
   constexpr double kNotMeasured = -1;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
     const std::array<Vec3f, 3> c = {to_vec3f(model.haptic_position(t[0])), to_vec3f(model.haptic_position(t[1])),
                                     to_vec3f(model.haptic_position(t[2]))};
+    const Vec3 a = to_vec3(c[0]), b = to_vec3(c[1]), e = to_vec3(c[2]);
+    const double nearest = std::min({dist2(q, a), dist2(q, b), dist2(q, e)});
     double d2 = kNotMeasured;
-    if (!(corner_d2(c[0]) <= surely || corner_d2(c[1]) <= surely || corner_d2(c[2]) <= surely)) {
+    if (!(nearest <= surely)) {
+      const double longest = std::max({dist2(a, b), dist2(b, e), dist2(e, a)});
+      if (std::sqrt(nearest) - std::sqrt(longest) > beyond) continue;
       d2 = surface::point_triangle_distance_squared(at, c[0], c[1], c[2]);
       if (!(d2 <= r2)) continue;
     }
