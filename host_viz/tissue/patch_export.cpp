@@ -88,11 +88,18 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   const double surely = r2 * (1 - 1e-9), beyond = params.radius * (1 + 1e-9) + 1e-12;
   const Vec3 q = to_vec3(at);
   const auto dist2 = [](Vec3 a, Vec3 b) { return dot(a - b, a - b); };
+  // Each vertex's haptic position once per export (a vertex has about six triangles).
+  const std::size_t nv = model.mesh().n_vertices();
+  if (scratch.stamp.size() < nv) scratch.stamp.resize(nv, 0), scratch.haptic.resize(nv);
+  if (++scratch.epoch == 0) std::fill(scratch.stamp.begin(), scratch.stamp.end(), 0), scratch.epoch = 1;
+  const auto haptic = [&](std::uint32_t v) {
+    if (scratch.stamp[v] != scratch.epoch) scratch.stamp[v] = scratch.epoch, scratch.haptic[v] = to_vec3f(model.haptic_position(v));
+    return scratch.haptic[v];
+  };
   constexpr double kNotMeasured = -1;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
-    const std::array<Vec3f, 3> c = {to_vec3f(model.haptic_position(t[0])), to_vec3f(model.haptic_position(t[1])),
-                                    to_vec3f(model.haptic_position(t[2]))};
+    const std::array<Vec3f, 3> c = {haptic(t[0]), haptic(t[1]), haptic(t[2])};
     const Vec3 a = to_vec3(c[0]), b = to_vec3(c[1]), e = to_vec3(c[2]);
     const double nearest = std::min({dist2(q, a), dist2(q, b), dist2(q, e)});
     double d2 = kNotMeasured;
