@@ -30,7 +30,7 @@ struct SceneSetup {
   std::string scenario_toml;      ///< with a scenario: its text ...
   std::string scenario_file;      ///< ... and where it came from (relative tissue paths resolve against it)
   std::string volume_path;        ///< --volume ("" when none)
-  double patch_radius = 0.03;     ///< m
+  double patch_radius = 0.04;     ///< m (lancet-viz's --patch-radius-mm; a recording keeps its own)
 };
 
 class SceneSim {
