@@ -2,8 +2,9 @@
 // SceneSim: what lancet-viz simulates — the tissue scene, its blood and the task's monitor — built
 // the same way live and in a replay, and stepped the same way by the one frame function
 // (sim/viz_frame.hpp): the frame's samples (apply), the patch around the newest tool position
-// (export_patch), the blood advanced by the frame's time (advance_blood). Its hash() covers the
-// drawn surface, the blood on it and the task's figures, so a replay can check it frame by frame.
+// and the blood's preparation beside it (export_patches_and_prepare_blood), the blood stepped by the
+// frame's time (step_blood). Its hash() covers the drawn surface, the blood on it and the task's
+// figures, so a replay can check it frame by frame.
 // No OpenGL: tested headless.
 
 #include <array>
@@ -44,13 +45,15 @@ class SceneSim {
   /// The patch around `at` (m); returns its triangle count. Leaves the header (seq, t_ns,
   /// samples_applied) to the caller.
   std::size_t export_patch(Vec3 at, TissuePatch& patch);
-  /// Each hand's patch where patches[h] is not null, around centres[h], as export_patch; at [h]
-  /// its triangle count. Two hands' patches are made at once on two threads (each its own
-  /// scratch; the scene is only read), each the same as export_patch would make it.
-  std::array<std::size_t, kHandCount> export_patches(const std::array<TissuePatch*, kHandCount>& patches,
-                                                     const std::array<Vec3, kHandCount>& centres);
-  /// Simulates the blood for dt seconds (nothing without blood).
-  void advance_blood(double dt);
+  /// What a frame reads from the scene once it has applied its samples: each hand's patch where
+  /// patches[h] is not null, around centres[h], as export_patch (at [h] its triangle count), and
+  /// the blood's preparation for blood_dt s (Bleeding::prepare; step_blood then steps it). They
+  /// only read the scene, so they run at once on two threads (each patch with its own scratch),
+  /// and each comes out as it would alone.
+  std::array<std::size_t, kHandCount> export_patches_and_prepare_blood(const std::array<TissuePatch*, kHandCount>& patches,
+                                                                       const std::array<Vec3, kHandCount>& centres, double blood_dt);
+  /// Steps the blood that export_patches_and_prepare_blood prepared (nothing without blood).
+  void step_blood();
   /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
   void figures(record::FrameRecord& f) const;
   /// The tissue's events since the last call, appended to `out` (blood sources that began, vessels
@@ -76,7 +79,7 @@ class SceneSim {
   std::unique_ptr<blood::Bleeding> bleeding_;
   std::optional<score::TaskMonitor> task_;
   std::array<tissue::PatchExportScratch, kHandCount> patch_scratch_;  // by hand
-  std::unique_ptr<blood::WorkerPool> pool_;  // the two hands' patches
+  std::unique_ptr<blood::WorkerPool> pool_;  // the patches and the blood's preparation
   // What take_events has reported.
   std::size_t sources_seen_ = 0;
   std::vector<bool> stopped_seen_, damaged_seen_;
