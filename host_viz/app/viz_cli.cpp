@@ -29,7 +29,7 @@ std::optional<int> parse_viz_cli(int argc, char** argv, VizOptions& o) {
   cli.add_option("--stats", o.stats, "write a JSON summary here on exit");
   cli.add_option("--width", o.width, "image width in pixels")->check(CLI::Range(64, 8192))->capture_default_str();
   cli.add_option("--height", o.height, "image height in pixels")->check(CLI::Range(64, 8192))->capture_default_str();
-  cli.add_option("--patch-radius-mm", o.patch_radius_mm, "radius of the tissue patch sent to lancet-rt")
+  cli.add_option("--patch-radius-mm", o.patch_radius_mm, "radius of the tissue patch sent to lancet-rt (a replay uses the recording's)")
       ->check(CLI::Range(1.0, 200.0))->capture_default_str();
   cli.add_option("--fps", o.fps, "frame-rate cap")->check(CLI::Range(1.0, 1000.0))->capture_default_str();
   auto* scenario_opt = cli.add_option("--scenario", o.scenario_path,

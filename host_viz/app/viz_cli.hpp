@@ -19,7 +19,7 @@ struct VizOptions {
   std::string screenshot;             ///< PNG of the last frame, written on exit ("" none)
   std::string stats;                  ///< JSON summary, written on exit ("" none)
   int width = 1280, height = 720;     ///< pixels
-  double patch_radius_mm = 30;        ///< radius of the tissue patch sent to lancet-rt
+  double patch_radius_mm = 40;        ///< radius of the tissue patch sent to lancet-rt (a replay uses the recording's)
   double fps = 60;                    ///< frame-rate cap
   std::string scenario_path;          ///< --scenario ("" none)
   std::string volume_path;            ///< --volume ("" none)

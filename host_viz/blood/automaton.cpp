@@ -1,9 +1,7 @@
 #include "blood/automaton.hpp"
 
 #include <algorithm>
-#include <barrier>
 #include <cmath>
-#include <thread>
 
 namespace lancet::blood {
 
@@ -14,6 +12,13 @@ std::uint32_t NetworkBuilder::add_cell(float area, float elevation, float film) 
   elevation_.push_back(elevation);
   film_.push_back(std::max(film, 0.0f));
   return static_cast<std::uint32_t>(area_.size() - 1);
+}
+
+void NetworkBuilder::reserve(std::size_t more_cells, std::size_t more_pipes) {
+  area_.reserve(area_.size() + more_cells);
+  elevation_.reserve(elevation_.size() + more_cells);
+  film_.reserve(film_.size() + more_cells);
+  pipes_.reserve(pipes_.size() + more_pipes);
 }
 
 void NetworkBuilder::add_pipe(std::uint32_t a, std::uint32_t b, float width, float length) {
@@ -48,7 +53,14 @@ Network NetworkBuilder::build() const {
   // faces, so the bucket holds each half-edge twice: sized by it, they were twice too long).
   for (std::size_t i = 0; i < cells; ++i) {
     const auto b = bucket.begin() + start[i], e = bucket.begin() + start[i + 1];
-    std::stable_sort(b, e, [](const Half& x, const Half& y) { return x.to < y.to; });
+    // An insertion sort: stable, and a cell has a dozen entries (std::stable_sort would take a
+    // buffer from the heap for each cell).
+    for (auto it = b + (b != e ? 1 : 0); it < e; ++it) {
+      const Half x = *it;
+      auto at = it;
+      for (; at != b && (at - 1)->to > x.to; --at) *at = *(at - 1);
+      *at = x;
+    }
     auto w = b;
     for (auto it = b; it != e; ++it) {
       if (w != b && (w - 1)->to == it->to)
@@ -105,6 +117,7 @@ void add_mesh(NetworkBuilder& nb, std::span<const float> xyz, std::span<const st
               float film_depth) {
   const auto first = static_cast<std::uint32_t>(nb.cells());
   const std::size_t nv = xyz.size() / 3;
+  nb.reserve(nv, triangles.size());
   const auto p = [&](std::uint32_t v) { return std::array<double, 3>{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
   const double gl = std::sqrt(gravity_dir[0] * gravity_dir[0] + gravity_dir[1] * gravity_dir[1] + gravity_dir[2] * gravity_dir[2]);
   const double g[3] = {gravity_dir[0] / gl, gravity_dir[1] / gl, gravity_dir[2] / gl};
@@ -182,6 +195,7 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   tile_removed_.assign(net_.tiles(), 0.0);
   tile_volume_.assign(net_.tiles(), 0.0);
   tile_has_rate_.assign(net_.tiles(), 0);
+  tile_flowing_.assign(net_.tiles(), 0);
   candidate_.assign(net_.tiles(), 1);
   ledger_.sinks += lost;
   double now = 0;
@@ -190,6 +204,8 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
     now += s_.volume[i];
   }
   ledger_.now = now;
+  head_.resize(n);
+  update_heads(0, n);
 }
 
 void Automaton::set_geometry(std::span<const float> elevation, std::span<const float> area) {
@@ -197,12 +213,14 @@ void Automaton::set_geometry(std::span<const float> elevation, std::span<const f
   if (elevation.size() == net_.elevation.size()) std::copy(elevation.begin(), elevation.end(), net_.elevation.begin());
   if (area.size() == net_.area.size())
     for (std::size_t i = 0; i < area.size(); ++i) net_.area[i] = std::max(area[i], 1e-12f);
+  update_heads(0, net_.cells());
 }
 
 void Automaton::place(std::uint32_t i, float v) {
   if (i >= s_.volume.size() || !(v > 0.0f)) return;
   s_.volume[i] += v;
   s_.born[i] += v * static_cast<float>(s_.time);
+  update_heads(i, i + 1);
   ledger_.initial += v;
   ledger_.now += v;
   tile_volume_[i / kTile] += v;
@@ -243,28 +261,28 @@ void Automaton::mark_rates() {
   }
 }
 
-void Automaton::plan() {
+bool Automaton::tile_is_active(std::size_t t) const {
   // Only tiles that the last step touched (worked on or sent to), or that hold a source or a
   // sink, can be active now: an untouched idle tile has no mobile blood and no flux, and nothing
   // changed it. reshape, place and set_geometry mark every tile.
+  if (!p_.skip_idle_tiles) return true;
+  if (candidate_[t] == 0) return false;
   const std::size_t n = net_.cells();
-  active_count_ = 0;
-  for (std::size_t t = 0; t < net_.tiles(); ++t) {
-    bool on = false;
-    if (candidate_[t] != 0 || !p_.skip_idle_tiles) {
-      for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile) && !on; ++i) {
-        on = s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f);
-        for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1] && !on; ++k) on = s_.flux[k] > 0.0f;
-      }
-    }
-    if (!p_.skip_idle_tiles) on = true;
-    active_[t] = on ? 1 : 0;
-    active_count_ += on ? 1 : 0;
-  }
-  std::fill(receive_.begin(), receive_.end(), 0);
-  for (std::size_t t = 0; t < net_.tiles(); ++t)
-    if (active_[t])
-      for (std::uint32_t l = net_.tile_first[t]; l < net_.tile_first[t + 1]; ++l) receive_[net_.tile_links[l]] = 1;
+  if (tile_flowing_[t] != 0) return true;  // some pipe of the tile still sends
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i)
+    if (s_.volume[i] > net_.film[i] || source_[i] > 0.0f || (sink_[i] > 0.0f && s_.volume[i] > 0.0f)) return true;
+  return false;
+}
+
+bool Automaton::tile_receives(std::size_t t) const {
+  // Pipes go both ways, so the tiles that send to t are the tiles t sends to (t among them).
+  for (std::uint32_t l = net_.tile_first[t]; l < net_.tile_first[t + 1]; ++l)
+    if (active_[net_.tile_links[l]] != 0) return true;
+  return false;
+}
+
+void Automaton::update_heads(std::size_t from, std::size_t to) {
+  for (std::size_t i = from; i < to; ++i) head_[i] = net_.elevation[i] + s_.volume[i] / net_.area[i];
 }
 
 void Automaton::mark_all() { std::fill(candidate_.begin(), candidate_.end(), 1); }
@@ -288,97 +306,112 @@ void Automaton::sources_and_sinks(std::size_t t, double& added, double& removed)
       s_.born[i] -= s_.born[i] * f;
     }
   }
+  update_heads(t * kTile, std::min(n, (t + 1) * kTile));
 }
 
 void Automaton::fluxes(std::size_t t) {
   const std::size_t n = net_.cells();
   const float dt = p_.dt;
   const float keep = std::pow(p_.damping, dt);
+  const float mobility = p_.mobility, ref_depth = p_.ref_depth;
+  // Plain pointers: the flux stores could otherwise alias every float the loop reads.
+  const float* const head = head_.data();
+  const float* const conductance = net_.conductance.data();
+  const std::uint32_t* const to = net_.to.data();
+  float* const flux = s_.flux.data();
+  bool flowing = false;
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     const float v = s_.volume[i], a = net_.area[i];
-    const float head = net_.elevation[i] + v / a;
     const float mobile = std::max(0.0f, v - net_.film[i]);
-    const float d = mobile / a / p_.ref_depth;
+    const float d = mobile / a / ref_depth;
     const float m = std::min(1.0f, d * d);
+    const std::uint32_t first = net_.first[i], last = net_.first[i + 1];
     float sum = 0.0f;
-    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
-      const std::uint32_t j = net_.to[k];
-      const float head_j = net_.elevation[j] + s_.volume[j] / net_.area[j];
-      const float f = std::max(0.0f, keep * s_.flux[k] + dt * (p_.mobility * net_.conductance[k]) * m * (head - head_j));
-      s_.flux[k] = f;
+    for (std::uint32_t k = first; k < last; ++k) {
+      const float f = std::max(0.0f, keep * flux[k] + dt * (mobility * conductance[k]) * m * (head[i] - head[to[k]]));
+      flux[k] = f;
       sum += f;
     }
     const float out = sum * dt;
     if (out > mobile) {
       const float scale = out > 0.0f ? 0.999999f * mobile / out : 0.0f;
-      for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) s_.flux[k] *= scale;
+      for (std::uint32_t k = first; k < last; ++k) flux[k] *= scale;
     }
+    if (sum > 0.0f)
+      for (std::uint32_t k = first; k < last && !flowing; ++k) flowing = flux[k] > 0.0f;
     s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
   }
+  tile_flowing_[t] = flowing ? 1 : 0;
 }
 
 void Automaton::volumes(std::size_t t) {
   const std::size_t n = net_.cells();
   const float dt = p_.dt;
+  const float* const flux = s_.flux.data();
+  const float* const conc = s_.conc.data();
+  const std::uint32_t* const twin = net_.twin.data();
+  const std::uint32_t* const to = net_.to.data();
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     float in = 0.0f, out = 0.0f, born_in = 0.0f;
     for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
-      const float f_in = s_.flux[net_.twin[k]];
+      const float f_in = flux[twin[k]];
       in += f_in;
-      born_in += f_in * s_.conc[net_.to[k]];
-      out += s_.flux[k];
+      born_in += f_in * conc[to[k]];
+      out += flux[k];
     }
     if (in == 0.0f && out == 0.0f) continue;
     const float v = s_.volume[i] + dt * in - dt * out;
     const float b = s_.born[i] + dt * born_in - dt * out * s_.conc[i];
     s_.volume[i] = std::max(v, 0.0f);
     s_.born[i] = std::max(b, 0.0f);
+    head_[i] = net_.elevation[i] + s_.volume[i] / net_.area[i];
   }
-}
-
-template <class F>
-void Automaton::for_tiles(const std::vector<std::uint8_t>& mask, int threads, F&& f) {
-  const std::size_t tiles = mask.size();
-  if (threads <= 1 || tiles < 2) {
-    for (std::size_t t = 0; t < tiles; ++t)
-      if (mask[t]) f(t);
-    return;
-  }
-  std::vector<std::jthread> pool;
-  for (int w = 1; w < threads; ++w)
-    pool.emplace_back([&, w] {
-      for (std::size_t t = static_cast<std::size_t>(w); t < tiles; t += static_cast<std::size_t>(threads))
-        if (mask[t]) f(t);
-    });
-  for (std::size_t t = 0; t < tiles; t += static_cast<std::size_t>(threads))
-    if (mask[t]) f(t);
+  double sum = 0;
+  for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) sum += s_.volume[i];
+  tile_volume_[t] = sum;
 }
 
 void Automaton::step(int threads) {
-  plan();
-  // 1. Sources and sinks (each tile's own cells), 2. fluxes (reading the neighbours' volumes
-  // after 1), 3. volumes (reading the fluxes after 2): each pass completes before the next.
-  for_tiles(active_, threads, [&](std::size_t t) { sources_and_sinks(t, tile_added_[t], tile_removed_[t]); });
-  for_tiles(active_, threads, [&](std::size_t t) { fluxes(t); });
-  for_tiles(receive_, threads, [&](std::size_t t) { volumes(t); });
-  double added = 0, removed = 0;
-  for (std::size_t t = 0; t < active_.size(); ++t)
-    if (active_[t]) added += tile_added_[t], removed += tile_removed_[t];
-  ledger_.sources += added;
-  ledger_.sinks += removed;
-  last_sink_ = removed;
-  // The mass now: every tile's volume, summed afresh in the tiles this step changed.
-  const std::size_t n = net_.cells();
-  double now = 0;
-  for (std::size_t t = 0; t < active_.size(); ++t) {
-    if (active_[t] || receive_[t]) {
-      double sum = 0;
-      for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) sum += s_.volume[i];
-      tile_volume_[t] = sum;
+  const std::size_t tiles = net_.tiles();
+  threads = std::max(1, std::min(threads, static_cast<int>(tiles)));
+  if (threads > 1 && (!pool_ || pool_->threads() != threads)) pool_ = std::make_unique<WorkerPool>(threads);
+  // Three passes over the tiles, each complete before the next starts: 1. which tiles work this
+  // step, and their sources and sinks (a tile's own cells); 2. fluxes (reading the neighbours'
+  // volumes after 1); 3. volumes (reading the fluxes after 2) in the tiles an active tile sends
+  // to, and those tiles' volume summed afresh. Every pass writes only its tile's cells and
+  // pipes, and the tiles are dealt to the threads in a fixed pattern, so the result is the same
+  // for any thread count.
+  auto job = [&](int w) {
+    const auto stride = static_cast<std::size_t>(threads);
+    for (std::size_t t = static_cast<std::size_t>(w); t < tiles; t += stride) {
+      active_[t] = tile_is_active(t) ? 1 : 0;
+      if (active_[t]) sources_and_sinks(t, tile_added_[t], tile_removed_[t]);
     }
+    if (threads > 1) pool_->sync();
+    for (std::size_t t = static_cast<std::size_t>(w); t < tiles; t += stride)
+      if (active_[t]) fluxes(t);
+    if (threads > 1) pool_->sync();
+    for (std::size_t t = static_cast<std::size_t>(w); t < tiles; t += stride) {
+      receive_[t] = tile_receives(t) ? 1 : 0;
+      if (receive_[t]) volumes(t);
+    }
+  };
+  if (threads > 1)
+    pool_->run(job);
+  else
+    job(0);
+  // The ledger, in tile order: what the active tiles added and removed, and the mass now (every
+  // tile's volume, as of the last step that touched it).
+  double added = 0, removed = 0, now = 0;
+  active_count_ = 0;
+  for (std::size_t t = 0; t < tiles; ++t) {
+    if (active_[t]) added += tile_added_[t], removed += tile_removed_[t], ++active_count_;
     now += tile_volume_[t];
     candidate_[t] = active_[t] || receive_[t] || tile_has_rate_[t] ? 1 : 0;
   }
+  ledger_.sources += added;
+  ledger_.sinks += removed;
+  last_sink_ = removed;
   ledger_.now = now;
   s_.time += p_.dt;
   ++steps_;

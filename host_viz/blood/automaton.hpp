@@ -33,8 +33,11 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
+
+#include "blood/worker_pool.hpp"
 
 namespace lancet::blood {
 
@@ -65,6 +68,8 @@ class NetworkBuilder {
   /// multiplies it by Params::mobility).
   void add_pipe(std::uint32_t a, std::uint32_t b, float width, float length);
   [[nodiscard]] Network build() const;
+  /// Room for this many more cells and pipes (the builder grows as needed without it).
+  void reserve(std::size_t more_cells, std::size_t more_pipes);
   [[nodiscard]] std::size_t cells() const noexcept { return area_.size(); }
 
  private:
@@ -131,7 +136,9 @@ class Automaton {
   [[nodiscard]] std::span<const float> sources() const noexcept { return source_; }
   [[nodiscard]] std::span<const float> sinks() const noexcept { return sink_; }
 
-  /// One step (threads: 1 or more workers over the tiles; the result does not depend on it).
+  /// One step (threads: 1 or more threads over the tiles; the result does not depend on it). The
+  /// first step with more than one thread starts a WorkerPool that later steps reuse (another
+  /// count starts another); a step itself never allocates.
   void step(int threads = 1);
   /// Steps run; tiles stepped in the last one.
   [[nodiscard]] std::uint64_t steps() const noexcept { return steps_; }
@@ -159,26 +166,30 @@ class Automaton {
   void set_geometry(std::span<const float> elevation, std::span<const float> area);
 
  private:
+  // The passes of a step, each over one tile's cells.
+  [[nodiscard]] bool tile_is_active(std::size_t t) const;  // works this step
+  [[nodiscard]] bool tile_receives(std::size_t t) const;   // an active tile sends to it (itself included)
   void sources_and_sinks(std::size_t t, double& added, double& removed);
   void fluxes(std::size_t t);
-  void volumes(std::size_t t);
-  void plan();  // which tiles this step works on
+  void volumes(std::size_t t);  // and the tile's volume summed afresh
+  void update_heads(std::size_t from, std::size_t to);  // head_ of cells [from, to) from their volumes
   void mark_all();    // every tile may be active
   void mark_rates();  // the tiles with sources or sinks
-  template <class F>
-  void for_tiles(const std::vector<std::uint8_t>& mask, int threads, F&& f);
   Network net_;
   Params p_;
   State s_;
   std::vector<float> source_, sink_;
+  std::vector<float> head_;  // m per cell: elevation + volume / area, kept as the volumes change
   std::vector<std::uint8_t> active_, receive_;
   std::vector<double> tile_added_, tile_removed_;  // per tile, this step
   std::vector<double> tile_volume_;                // per tile, as of the last step that touched it
   std::vector<std::uint8_t> tile_has_rate_, candidate_;  // a source or sink; may be active next step
+  std::vector<std::uint8_t> tile_flowing_;  // some pipe of the tile sends (flux > 0), as its last fluxes pass left it
   Ledger ledger_;
   std::uint64_t steps_ = 0;
   std::size_t active_count_ = 0;
   double last_sink_ = 0;
+  std::unique_ptr<WorkerPool> pool_;  // made by the first step with more than one thread
 };
 
 }  // namespace lancet::blood

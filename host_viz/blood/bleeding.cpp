@@ -266,6 +266,12 @@ void Bleeding::set_rates(const TissueScene& scene, double dt) {
 }
 
 void Bleeding::advance(const TissueScene& scene, double dt) {
+  prepare(scene, dt);
+  step();
+}
+
+void Bleeding::prepare(const TissueScene& scene, double dt) {
+  prepared_steps_ = 0;
   dt = std::clamp(dt, 0.0, p_.max_frame);
   const surface::SurfaceModel& surf = scene.surface();
   std::size_t pairs_total = 0;
@@ -286,11 +292,16 @@ void Bleeding::advance(const TissueScene& scene, double dt) {
   set_rates(scene, simulated);
   automaton_.set_sources(source_rate_);
   automaton_.set_sinks(sink_rate_);
-  for (int s = 0; s < steps; ++s) {
-    automaton_.step();
+  prepared_steps_ = steps;
+}
+
+void Bleeding::step() {
+  for (int s = 0; s < prepared_steps_; ++s) {
+    automaton_.step(p_.threads);
     swabbed_ += automaton_.last_sink_volume();
   }
-  time_ += simulated;
+  time_ += prepared_steps_ * static_cast<double>(p_.automaton.dt);
+  prepared_steps_ = 0;
 }
 
 void Bleeding::vertex_blood(const surface::TriangleMesh& drawn, std::vector<float>& depth, std::vector<float>& age) const {

@@ -49,6 +49,7 @@ struct BleedingParams {
   double swab_rate = 25;             ///< 1/s, the fraction per second a swab takes from a cell it touches
   double max_frame = 0.1;            ///< s: a longer frame is simulated as this long (the viz stalled)
   double rebuild_interval = 0.5;    ///< s of scene time between two rebuilds of the network (topology changes)
+  int threads = 2;                   ///< the automaton's threads (a pool made once; the blood does not depend on it)
 };
 
 /// One source of blood loss, for the panel and the training metrics.
@@ -85,6 +86,11 @@ class Bleeding {
   /// the network when the surface's topology changed, refreshes elevations when it moved, sets the
   /// sources and the swab, and steps the automaton.
   void advance(const TissueScene& scene, double dt);
+  /// advance() in two halves: prepare() does all that reads the scene (the network, the elevations,
+  /// the sources and the swab) and may run beside other readers of the scene (the patch export);
+  /// step() then steps the automaton, without the scene.
+  void prepare(const TissueScene& scene, double dt);
+  void step();
 
   /// Per vertex of `drawn` (the scene's draw_mesh: the surface's vertices first, then the
   /// grooves' walls and floors): blood depth (m) and mean age (s). Wall vertices under a groove's
@@ -131,6 +137,7 @@ class Bleeding {
   std::size_t faces_seen_ = 0, vertices_seen_ = 0, groove_pairs_seen_ = 0;
   std::uint64_t revision_seen_ = 0, rebuilds_ = 0;
   double time_ = 0, rebuilt_at_ = -1e9;
+  int prepared_steps_ = 0;  // by prepare(), for step()
   double swabbed_ = 0;
   // The tool, from the newest sample.
   /// Each hand's tool as its newest sample left it (a vessel is pressed, or blood swabbed, by either hand).

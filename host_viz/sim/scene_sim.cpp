@@ -1,6 +1,7 @@
 #include "sim/scene_sim.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cstdio>
 
 #include "lancet/shared_model/word_hasher.hpp"
@@ -52,8 +53,41 @@ void SceneSim::apply(std::span<const ToolSample> samples) {
 
 std::size_t SceneSim::export_patch(Vec3 at, TissuePatch& patch) { return scene_->export_patch(at, patch); }
 
-void SceneSim::advance_blood(double dt) {
-  if (bleeding_) bleeding_->advance(*scene_, dt);
+std::array<std::size_t, kHandCount> SceneSim::export_patches_and_prepare_blood(const std::array<TissuePatch*, kHandCount>& patches,
+                                                                               const std::array<Vec3, kHandCount>& centres,
+                                                                               double blood_dt) {
+  std::array<std::size_t, kHandCount> found{};
+  const tissue::TissueScene& scene = *scene_;
+  // Up to three tasks that only read the scene: a patch per hand (what TissueScene::export_patch
+  // does, with the hand's own scratch) and the blood's preparation.
+  std::array<std::size_t, kHandCount + 1> tasks{};
+  std::size_t n = 0;
+  for (std::size_t h = 0; h < kHandCount; ++h)
+    if (patches[h] != nullptr) tasks[n++] = h;
+  if (bleeding_) tasks[n++] = kHandCount;
+  const auto run = [&](std::size_t task) {
+    if (task == kHandCount) {
+      bleeding_->prepare(scene, blood_dt);
+      return;
+    }
+    found[task] = tissue::export_patch(scene.surface(), centres[task], scene.description().patch, patch_scratch_[task], *patches[task],
+                                       [&scene](Vec3 c, VoxelBrick& brick) { tissue::fill_brick(scene.volume(), scene.placement(), c, brick); });
+  };
+  if (n <= 1) {
+    for (std::size_t i = 0; i < n; ++i) run(tasks[i]);
+    return found;
+  }
+  if (!pool_) pool_ = std::make_unique<blood::WorkerPool>(2);
+  std::atomic<std::size_t> next{0};
+  auto job = [&](int) {
+    for (std::size_t i = next.fetch_add(1); i < n; i = next.fetch_add(1)) run(tasks[i]);
+  };
+  pool_->run(job);
+  return found;
+}
+
+void SceneSim::step_blood() {
+  if (bleeding_) bleeding_->step();
 }
 
 void SceneSim::figures(record::FrameRecord& f) const {

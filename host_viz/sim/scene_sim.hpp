@@ -2,10 +2,12 @@
 // SceneSim: what lancet-viz simulates — the tissue scene, its blood and the task's monitor — built
 // the same way live and in a replay, and stepped the same way by the one frame function
 // (sim/viz_frame.hpp): the frame's samples (apply), the patch around the newest tool position
-// (export_patch), the blood advanced by the frame's time (advance_blood). Its hash() covers the
-// drawn surface, the blood on it and the task's figures, so a replay can check it frame by frame.
+// and the blood's preparation beside it (export_patches_and_prepare_blood), the blood stepped by the
+// frame's time (step_blood). Its hash() covers the drawn surface, the blood on it and the task's
+// figures, so a replay can check it frame by frame.
 // No OpenGL: tested headless.
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -14,6 +16,7 @@
 #include <vector>
 
 #include "blood/bleeding.hpp"
+#include "blood/worker_pool.hpp"
 #include "score/task_monitor.hpp"
 #include "tissue/scenario_scene.hpp"
 #include "tissue/tissue_scene.hpp"
@@ -28,7 +31,7 @@ struct SceneSetup {
   std::string scenario_toml;      ///< with a scenario: its text ...
   std::string scenario_file;      ///< ... and where it came from (relative tissue paths resolve against it)
   std::string volume_path;        ///< --volume ("" when none)
-  double patch_radius = 0.03;     ///< m
+  double patch_radius = 0.04;     ///< m (lancet-viz's --patch-radius-mm; a recording keeps its own)
 };
 
 class SceneSim {
@@ -42,8 +45,15 @@ class SceneSim {
   /// The patch around `at` (m); returns its triangle count. Leaves the header (seq, t_ns,
   /// samples_applied) to the caller.
   std::size_t export_patch(Vec3 at, TissuePatch& patch);
-  /// Simulates the blood for dt seconds (nothing without blood).
-  void advance_blood(double dt);
+  /// What a frame reads from the scene once it has applied its samples: each hand's patch where
+  /// patches[h] is not null, around centres[h], as export_patch (at [h] its triangle count), and
+  /// the blood's preparation for blood_dt s (Bleeding::prepare; step_blood then steps it). They
+  /// only read the scene, so they run at once on two threads (each patch with its own scratch),
+  /// and each comes out as it would alone.
+  std::array<std::size_t, kHandCount> export_patches_and_prepare_blood(const std::array<TissuePatch*, kHandCount>& patches,
+                                                                       const std::array<Vec3, kHandCount>& centres, double blood_dt);
+  /// Steps the blood that export_patches_and_prepare_blood prepared (nothing without blood).
+  void step_blood();
   /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
   void figures(record::FrameRecord& f) const;
   /// The tissue's events since the last call, appended to `out` (blood sources that began, vessels
@@ -68,6 +78,8 @@ class SceneSim {
   std::unique_ptr<tissue::TissueScene> scene_;
   std::unique_ptr<blood::Bleeding> bleeding_;
   std::optional<score::TaskMonitor> task_;
+  std::array<tissue::PatchExportScratch, kHandCount> patch_scratch_;  // by hand
+  std::unique_ptr<blood::WorkerPool> pool_;  // the patches and the blood's preparation
   // What take_events has reported.
   std::size_t sources_seen_ = 0;
   std::vector<bool> stopped_seen_, damaged_seen_;

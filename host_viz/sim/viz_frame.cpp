@@ -20,16 +20,24 @@ Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
 
   // The patch around the newest tool position, from an empty one (no triangles, no brick), and
   // the header that says which frame and tick it reflects; published before the blood steps, so
-  // the servo never waits for the blood (the blood changes nothing a patch holds).
+  // the servo never waits for the blood (the blood changes nothing a patch holds). The blood's
+  // preparation (what it reads of the scene) runs beside the patches.
   t0 = Clock::now();
+  std::array<TissuePatch*, kHandCount> into{};
+  std::array<Vec3, kHandCount> centres{};
+  for (std::size_t h = 0; h < kHandCount; ++h) {
+    into[h] = b.patches[h].patch;
+    centres[h] = b.patches[h].centre;
+    if (into[h] == nullptr) continue;
+    into[h]->n_triangles = 0;
+    into[h]->brick.valid = 0;
+  }
+  r.triangles = sim.export_patches_and_prepare_blood(into, centres, b.blood_dt);
   std::array<const TissuePatch*, kHandCount> out{};
   for (std::size_t h = 0; h < kHandCount; ++h) {
     const HandPatch& hp = b.patches[h];
     if (hp.patch == nullptr) continue;
     TissuePatch& p = *hp.patch;
-    p.n_triangles = 0;
-    p.brick.valid = 0;
-    r.triangles[h] = sim.export_patch(hp.centre, p);
     p.hand = static_cast<Hand>(h);
     p.seq = hp.header.seq;
     p.t_ns = hp.header.t_ns;
@@ -41,7 +49,7 @@ Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io) {
   r.patch_s = since(t0);
 
   t0 = Clock::now();
-  sim.advance_blood(b.blood_dt);
+  sim.step_blood();
   r.blood_s = since(t0);
   return r;
 }

@@ -48,7 +48,7 @@ struct FrameResult {
   double blood_dt = 0;         ///< s of blood simulated
   std::array<bool, kHandCount> patch{};  ///< by Hand: a patch was exported and handed to publish()
   std::array<std::size_t, kHandCount> triangles{};  ///< by Hand: its patch's triangle count
-  double scene_s = 0, patch_s = 0, blood_s = 0;  ///< s spent applying, exporting and publishing, on the blood
+  double scene_s = 0, patch_s = 0, blood_s = 0;  ///< s spent applying; exporting (with the blood's preparation beside it) and publishing; stepping the blood
 };
 
 /// The two ends of a frame: where its samples come from, where its patch goes.
@@ -65,7 +65,7 @@ class FrameIo {
 };
 
 /// One visualizer frame: io.drain(), sim.apply(samples), each hand's patch (cleared, exported
-/// around its centre, its header set), io.publish(), sim.advance_blood(blood_dt). Not real-time; it
+/// around its centre, its header set; the blood prepared meanwhile), io.publish(), sim.step_blood(). Not real-time; it
 /// allocates only as the scene does. Returns drain()'s error, if any, with nothing stepped.
 [[nodiscard]] Result<FrameResult> run_frame(SceneSim& sim, FrameIo& io);
 

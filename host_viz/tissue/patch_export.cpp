@@ -68,30 +68,65 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   auto& near = scratch.faces;
   // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
   // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
-  // exact distance to the haptic triangles.
+  // distance to the haptic triangles.
   const double reach = params.radius + model.params().deform_max_depth;
-  model.bvh().faces_within(view, to_vec3f(centre), static_cast<float>(reach), near, /*tree_order=*/true);
+  const Vec3f at = to_vec3f(centre);
+  model.bvh().faces_within(view, at, static_cast<float>(reach), near, /*tree_order=*/true);
   auto& cand = scratch.candidates;
+  auto& corners = scratch.corners;
   cand.clear();
-  const auto corner = [&](std::uint32_t v) { return to_vec3f(model.haptic_position(v)); };
+  corners.clear();
   const double r2 = params.radius * params.radius;
+  // Only triangles near the rim need the exact point–triangle distance: one with a corner
+  // within the radius is within it (its distance is at most that corner's), and one whose nearest
+  // corner is farther than the radius by more than its longest edge is outside (every point of a
+  // triangle lies within its longest edge of each corner). Both tests keep a hair (1e-9 of the
+  // radius) to spare, far more than the exact test's rounding (about 1e-18 m² here), so neither
+  // decides a triangle the other way from the exact test: the set is the exact test's. A
+  // candidate admitted by a corner gets its exact distance only if the patch overflows and the
+  // nearest must be chosen.
+  const double surely = r2 * (1 - 1e-9), beyond = params.radius * (1 + 1e-9) + 1e-12;
+  const Vec3 q = to_vec3(at);
+  const auto dist2 = [](Vec3 a, Vec3 b) { return dot(a - b, a - b); };
+  // Each vertex's haptic position once per export (a vertex has about six triangles).
+  const std::size_t nv = model.mesh().n_vertices();
+  if (scratch.stamp.size() < nv) scratch.stamp.resize(nv, 0), scratch.haptic.resize(nv);
+  if (++scratch.epoch == 0) std::fill(scratch.stamp.begin(), scratch.stamp.end(), 0), scratch.epoch = 1;
+  const auto haptic = [&](std::uint32_t v) {
+    if (scratch.stamp[v] != scratch.epoch) scratch.stamp[v] = scratch.epoch, scratch.haptic[v] = to_vec3f(model.haptic_position(v));
+    return scratch.haptic[v];
+  };
+  constexpr double kNotMeasured = -1;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
-    const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
-    if (d2 <= r2) cand.emplace_back(d2, f);
+    const std::array<Vec3f, 3> c = {haptic(t[0]), haptic(t[1]), haptic(t[2])};
+    const Vec3 a = to_vec3(c[0]), b = to_vec3(c[1]), e = to_vec3(c[2]);
+    const double nearest = std::min({dist2(q, a), dist2(q, b), dist2(q, e)});
+    double d2 = kNotMeasured;
+    if (!(nearest <= surely)) {
+      const double longest = std::max({dist2(a, b), dist2(b, e), dist2(e, a)});
+      if (std::sqrt(nearest) - std::sqrt(longest) > beyond) continue;
+      d2 = surface::point_triangle_distance_squared(at, c[0], c[1], c[2]);
+      if (!(d2 <= r2)) continue;
+    }
+    cand.emplace_back(d2, static_cast<std::uint32_t>(corners.size()));
+    corners.push_back({c, f});
   }
   const std::size_t found = cand.size();
-  keep_nearest_in_order(cand, scratch.distances);
+  if (found > kPatchCapacity) {
+    for (auto& [d2, i] : cand)
+      if (d2 == kNotMeasured) d2 = surface::point_triangle_distance_squared(at, corners[i].v[0], corners[i].v[1], corners[i].v[2]);
+    keep_nearest_in_order(cand, scratch.distances);
+  }
   const std::size_t keep = cand.size();
   for (std::size_t i = 0; i < keep; ++i) {
-    const std::uint32_t f = cand[i].second;
-    const auto& t = view.faces[f];
+    const PatchExportScratch::Corners& c = corners[cand[i].second];
     PatchTriangle& pt = out.triangles[i];
-    for (int k = 0; k < 3; ++k) pt.v[k] = corner(t[static_cast<std::size_t>(k)]);
-    pt.material = model.face_material(f);
+    for (int k = 0; k < 3; ++k) pt.v[k] = c.v[static_cast<std::size_t>(k)];
+    pt.material = model.face_material(c.face);
     pt.flags = 0;
-    pt.id = f;
-    for (auto h : mesh.fh_range(model.face_handle(f)))
+    pt.id = c.face;
+    for (auto h : mesh.fh_range(model.face_handle(c.face)))
       if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
   }
   out.n_triangles = static_cast<std::uint32_t>(keep);

@@ -6,6 +6,7 @@
 // lancet-rt's search tree groups runs of eight into its leaves. Each carries its face index as
 // its id, which the proxy follows from patch to patch.
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -24,7 +25,16 @@ struct PatchExportParams {
 
 /// Scratch reused across frames so export allocates only while it grows.
 struct PatchExportScratch {
-  std::vector<std::pair<double, std::uint32_t>> candidates;  ///< (distance², triangle index)
+  /// (distance², triangle index; from a SurfaceModel: distance² or −1 when not measured, index into corners)
+  std::vector<std::pair<double, std::uint32_t>> candidates;
+  struct Corners {
+    std::array<Vec3f, 3> v;  ///< haptic positions, m
+    std::uint32_t face;
+  };
+  std::vector<Corners> corners;                              ///< SurfaceModel export: each candidate's triangle
+  std::vector<Vec3f> haptic;          ///< SurfaceModel export: haptic position per vertex, valid where stamp == epoch
+  std::vector<std::uint32_t> stamp;   ///< per vertex: the export that filled haptic
+  std::uint32_t epoch = 0;
   std::vector<std::uint32_t> faces;                          ///< BVH query result
   std::vector<double> distances;                             ///< for the cut-off when too many
 };

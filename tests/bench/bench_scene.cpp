@@ -5,7 +5,9 @@
 // exported around the tool with the voxel brick and written to the segment; then, apart, the
 // mesh for drawing (surface and groove walls) that follows a change of shape. On the phantom's skin and on a
 // 1M-triangle sheet. The target: p99 < 4 ms for the update (docs/PERFORMANCE.md). Prints one JSON object.
-//   lancet-bench-scene [--quick]
+//   lancet-bench-scene [--quick] [--patch-radius-mm R]
+// R: the patch's radius (default the TissueScene's, 30 mm; lancet-viz's is 40 mm). With LANCET_BENCH_SCENE_PULLS
+// set, each pull frame's µs go to stderr.
 
 #include <unistd.h>
 
@@ -13,6 +15,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <functional>
 #include <memory>
@@ -46,10 +49,12 @@ struct Tissue {
   std::function<double(double, double)> height;  ///< surface height at (x, y), m
 };
 
-Tissue phantom_tissue() {
+Tissue phantom_tissue(double patch_radius) {
   Tissue t;
   t.name = "phantom skin";
-  t.scene = std::move(tissue::TissueScene::create({}).value());
+  tissue::SceneDescription d;
+  d.patch.radius = patch_radius;
+  t.scene = std::move(tissue::TissueScene::create(std::move(d)).value());
   surface::TriangleMesh mesh;
   t.scene->surface().to_triangle_mesh(mesh);
   // The skin's top along x near y = 0 (where the tool works): the highest vertex in each 1 mm
@@ -67,10 +72,11 @@ Tissue phantom_tissue() {
   return t;
 }
 
-Tissue sheet_tissue() {
+Tissue sheet_tissue(double patch_radius) {
   Tissue t;
   t.name = "sheet 1M triangles";
   tissue::SceneDescription d;
+  d.patch.radius = patch_radius;
   d.source = tissue::SceneSource::kBlock;
   d.block.cells = 707;  // 2 · 707² ≈ 1.0M triangles of 1 mm cells, 0.71 m across
   d.block.half_extent = 0.0005 * d.block.cells;
@@ -83,12 +89,23 @@ Tissue sheet_tissue() {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  bool quick = false;
+  double patch_radius = tissue::PatchExportParams{}.radius;
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--quick") == 0) {
+      quick = true;
+    } else if (std::strcmp(argv[i], "--patch-radius-mm") == 0 && i + 1 < argc) {
+      patch_radius = std::atof(argv[++i]) * 1e-3;
+    } else {
+      std::fprintf(stderr, "usage: lancet-bench-scene [--quick] [--patch-radius-mm R]\n");
+      return 2;
+    }
+  }
   const int press_frames = quick ? 30 : 60, cut_frames = quick ? 60 : 150, pull_frames = quick ? 30 : 60;
   constexpr int kSamplesPerFrame = 16;
   std::printf("{\n  \"samples_per_frame\": %d,\n  \"frames\": {\"press\": %d, \"cut\": %d, \"pull\": %d},\n  \"tissues\": [\n",
               kSamplesPerFrame, press_frames, cut_frames, pull_frames);
-  Tissue tissues[2] = {phantom_tissue(), sheet_tissue()};
+  Tissue tissues[2] = {phantom_tissue(patch_radius), sheet_tissue(patch_radius)};
   for (int n = 0; n < 2; ++n) {
     Tissue& tissue = tissues[n];
     tissue::TissueScene& scene = *tissue.scene;
@@ -191,6 +208,8 @@ int main(int argc, char** argv) {
         draw_us.push_back(us_since(t1));
       }
     }
+    if (std::getenv("LANCET_BENCH_SCENE_PULLS") != nullptr)
+      for (double u : pull_us) std::fprintf(stderr, "%.0f ", u);
     const auto pr = percentiles(press_us), cu = percentiles(cut_us), pu = percentiles(pull_us), dr = percentiles(draw_us);
     std::vector<double> all = press_us;
     all.insert(all.end(), cut_us.begin(), cut_us.end());
@@ -201,14 +220,15 @@ int main(int argc, char** argv) {
     std::printf("    {\"tissue\": \"%s\", \"triangles\": %zu, \"brick\": %s, \"cuts\": %zu, \"groove_width_mm\": %.2f,"
                 " \"groove_depth_mm\": %.2f, \"groove_conflicts\": %llu,\n"
                 "     \"update_us\": {\"all\": {\"p50\": %.0f, \"p99\": %.0f, \"max\": %.0f}, \"press\": {\"p50\": %.0f, \"p99\": %.0f},"
-                " \"cut\": {\"p50\": %.0f, \"p99\": %.0f}, \"pull\": {\"p50\": %.0f, \"p99\": %.0f}},\n"
+                " \"cut\": {\"p50\": %.0f, \"p99\": %.0f}, \"pull\": {\"p50\": %.0f, \"p99\": %.0f, \"first\": %.0f, \"max_after_first\": %.0f}},\n"
                 "     \"mesh_copy_for_drawing_us\": {\"p50\": %.0f, \"p99\": %.0f, \"count\": %zu},\n"
                 "     \"patch\": {\"radius_mm\": %.0f, \"triangles_mean\": %.0f, \"triangles_max\": %llu, \"export_us_p50\": %.0f, \"export_us_p99\": %.0f}}%s\n",
                 tissue.name.c_str(), scene.surface().n_faces(), brick ? "true" : "false", scene.surface().cuts().size(),
                 grooves.empty() ? 0.0 : grooves[0].top_gap * 1e3, grooves.empty() ? 0.0 : grooves[0].depth * 1e3,
                 grooves.empty() ? 0ull : static_cast<unsigned long long>(grooves[0].conflicts), al.p50,
-                al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, dr.p50, dr.p99, draw_us.size(),
-                tissue::PatchExportParams{}.radius * 1e3, export_us.empty() ? 0.0 : static_cast<double>(patch_sum) / static_cast<double>(export_us.size()),
+                al.p99, al.max, pr.p50, pr.p99, cu.p50, cu.p99, pu.p50, pu.p99, pull_us.empty() ? 0.0 : pull_us.front(),
+                pull_us.size() < 2 ? 0.0 : *std::max_element(pull_us.begin() + 1, pull_us.end()), dr.p50, dr.p99, draw_us.size(),
+                patch_radius * 1e3, export_us.empty() ? 0.0 : static_cast<double>(patch_sum) / static_cast<double>(export_us.size()),
                 static_cast<unsigned long long>(patch_max), ex.p50, ex.p99, n == 0 ? "," : "");
   }
   std::printf("  ]\n}\n");

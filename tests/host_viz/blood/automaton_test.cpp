@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <numeric>
+#include <string>
 
 #include "blood_support.hpp"
 
@@ -170,25 +171,45 @@ TEST(BloodAutomaton, BloodCrossesACutThroughTheGrooveWithoutLoss) {
 }
 
 TEST(BloodAutomaton, ThreadsAndSkippedIdleTilesChangeNothing) {
+  // One run per thread count (1 to 4, the pool made by the first step and reused), and one on a
+  // thread that steps every tile; halfway, every run's network is rebuilt (the mesh changed) and
+  // the two-thread run changes its count, as the viz's settings may.
   const auto g = grid(64, 40, kH, [](float x, float y) { return -0.2f * x + 0.05f * std::sin(400.0f * y); });
+  constexpr int kRuns = 5;
+  const int threads[kRuns] = {1, 2, 3, 4, 1};
   std::vector<Automaton> runs;
-  for (int variant = 0; variant < 3; ++variant) {
-    Params p;
-    p.skip_idle_tiles = variant != 2;
-    runs.emplace_back(mesh_network(g.xyz, g.tri, kDown, 2e-5f), p);
-    std::vector<float> src(runs.back().network().cells(), 0.0f);
+  const auto set_rates = [&](Automaton& a) {
+    std::vector<float> src(a.network().cells(), 0.0f), sink(a.network().cells(), 0.0f);
     src[g.at(3, 20)] = 3e-8f;
-    runs.back().set_sources(src);
+    sink[g.at(4, 20)] = 2.0f;
+    a.set_sources(src);
+    a.set_sinks(sink);
+  };
+  for (int variant = 0; variant < kRuns; ++variant) {
+    Params p;
+    p.skip_idle_tiles = variant != kRuns - 1;
+    runs.emplace_back(mesh_network(g.xyz, g.tri, kDown, 2e-5f), p);
+    set_rates(runs.back());
   }
   for (int s = 0; s < 1500; ++s) {
-    runs[0].step(1);
-    runs[1].step(2);
-    runs[2].step(1);
+    if (s == 750)
+      for (auto& r : runs) r.reshape(mesh_network(g.xyz, g.tri, kDown, 2e-5f)), set_rates(r);
+    for (int v = 0; v < kRuns; ++v) runs[static_cast<std::size_t>(v)].step(v == 1 && s >= 750 ? 3 : threads[v]);
   }
   EXPECT_LT(runs[0].active_tiles(), runs[0].network().tiles()) << "the blood has not reached every tile";
-  EXPECT_EQ(runs[0].state().volume, runs[1].state().volume) << "two threads";
-  EXPECT_EQ(runs[0].state().volume, runs[2].state().volume) << "every tile stepped";
-  EXPECT_EQ(runs[0].state().born, runs[2].state().born);
+  EXPECT_GT(runs[0].ledger().sinks, 0.0);
+  for (std::size_t v = 1; v < kRuns; ++v) {
+    SCOPED_TRACE(v + 1 < kRuns ? std::to_string(threads[v]) + " threads" : std::string("every tile stepped"));
+    EXPECT_EQ(runs[0].state().volume, runs[v].state().volume);
+    EXPECT_EQ(runs[0].state().born, runs[v].state().born);
+    EXPECT_EQ(runs[0].state().flux, runs[v].state().flux);
+    EXPECT_EQ(runs[0].ledger().now, runs[v].ledger().now);
+    EXPECT_EQ(runs[0].ledger().sources, runs[v].ledger().sources);
+    EXPECT_EQ(runs[0].ledger().sinks, runs[v].ledger().sinks);
+    if (v + 1 < kRuns) {
+      EXPECT_EQ(runs[0].active_tiles(), runs[v].active_tiles());
+    }
+  }
 }
 
 }  // namespace

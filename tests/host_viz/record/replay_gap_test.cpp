@@ -32,17 +32,19 @@ struct Live {
   Recording rec;
   std::uint64_t lost = 0;
   std::uint64_t gap_seq = 0;  ///< the first tick delivered after the gap
+  std::uint32_t last_patch_triangles = 0;  ///< in the last patch the live frames published
 };
 
 // 40 frames of a probe pressing into the block and sliding; the ticks of frames [gap_from,
 // gap_from + 3) are stepped but never delivered (nor recorded). gap_from < 0: none lost.
 // hold_from >= 0: the ticks of that frame reach the viz twelve frames later (a tick held in the
 // device's I/O: it took its patch, then waited), the frames between get none and keep publishing.
-Live run_live(int gap_from, int hold_from = -1) {
+Live run_live(int gap_from, int hold_from = -1, double patch_radius = sim::SceneSetup{}.patch_radius) {
   Live live;
   Recording& rec = live.rec;
   sim::SceneSetup setup;
   setup.tissue = "block";
+  setup.patch_radius = patch_radius;
   auto made = sim::SceneSim::create(setup);
   EXPECT_TRUE(made.ok());
   auto sim = std::move(made).value();
@@ -112,6 +114,7 @@ Live run_live(int gap_from, int hold_from = -1) {
     sim->figures(f);
     f.scene_hash = sim->hash();
     rec.frames.push_back(f);
+    live.last_patch_triangles = patch->n_triangles;
   }
   for (std::size_t i = 1; i < rec.samples.size(); ++i)
     if (rec.samples[i].seq != rec.samples[i - 1].seq + 1) ++rec.gaps, rec.samples_lost += rec.samples[i].seq - rec.samples[i - 1].seq - 1;
@@ -160,6 +163,26 @@ TEST(ReplayGap, ATickHeldForTwelveFramesStillFindsItsPatch) {
   ASSERT_TRUE(ck.ok()) << ck.error().message;
   EXPECT_TRUE(ck.value().exact());
   EXPECT_EQ(ck.value().ticks, live.rec.samples.size());
+}
+
+// A recording made at another patch radius than this build's default (the default grew from 30 to
+// 40 mm) replays at its own: the same patches, the same servo, exactly.
+TEST(ReplayGap, ARecordingReplaysAtItsOwnPatchRadiusNotTheDefault) {
+  const double recorded = 0.03;
+  ASSERT_NE(recorded, sim::SceneSetup{}.patch_radius);
+  const Live live = run_live(-1, -1, recorded);
+  ASSERT_EQ(live.rec.patch_radius, recorded);
+  auto replay = Replay::create(live.rec);
+  ASSERT_TRUE(replay.ok()) << replay.error().message;
+  EXPECT_EQ(replay.value()->sim().setup().patch_radius, recorded);
+  auto ck = replay.value()->run();
+  ASSERT_TRUE(ck.ok()) << ck.error().message;
+  EXPECT_TRUE(ck.value().exact());
+  ASSERT_NE(replay.value()->patch(Hand::kRight), nullptr);
+  EXPECT_EQ(replay.value()->patch(Hand::kRight)->n_triangles, live.last_patch_triangles);
+  // And the default's patch would have been another (larger) one.
+  const Live wider = run_live(-1);
+  EXPECT_GT(wider.last_patch_triangles, live.last_patch_triangles);
 }
 
 // What the checks are worth: a scene that does not match after the gap is caught.

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstring>
+#include <string>
 #include <memory>
 #include <vector>
 
@@ -194,6 +196,90 @@ TEST(SurfacePatchExport, FlagsTheTrianglesOnACutsLipsAndCarriesTheBrick) {
   s->end_cut();
   export_patch(*s, tip, PatchExportParams{0.005}, scratch, *patch);
   EXPECT_EQ(patch->brick.valid, 0u);
+}
+
+// The export as it was before it skipped the exact distance for triangles with a corner inside
+// the radius: the BVH's faces within the radius plus the dent's depth (drawn surface), each kept
+// by its exact distance to its haptic triangle, the nearest kPatchCapacity in BVH order (ties at
+// the cut-off to the earlier ones), the cut-edge flag from the half-edges.
+struct Reference {
+  std::size_t found = 0;
+  std::vector<PatchTriangle> triangles;
+};
+Reference two_distance_export(const surface::SurfaceModel& s, Vec3 centre, double radius) {
+  std::vector<std::uint32_t> near;
+  s.bvh().faces_within(s.view(), to_vec3f(centre), static_cast<float>(radius + s.params().deform_max_depth), near, true);
+  const auto corner = [&](std::uint32_t v) { return to_vec3f(s.haptic_position(v)); };
+  std::vector<std::pair<double, std::uint32_t>> cand;
+  for (std::uint32_t f : near) {
+    const auto& t = s.faces()[f];
+    const double d2 = surface::point_triangle_distance_squared(to_vec3f(centre), corner(t[0]), corner(t[1]), corner(t[2]));
+    if (d2 <= radius * radius) cand.emplace_back(d2, f);
+  }
+  Reference r;
+  r.found = cand.size();
+  if (cand.size() > kPatchCapacity) {
+    std::vector<double> d;
+    for (const auto& c : cand) d.push_back(c.first);
+    std::nth_element(d.begin(), d.begin() + (kPatchCapacity - 1), d.end());
+    const double limit = d[kPatchCapacity - 1];
+    std::size_t ties = kPatchCapacity;
+    for (const auto& c : cand) ties -= c.first < limit ? 1 : 0;
+    std::vector<std::pair<double, std::uint32_t>> kept;
+    for (const auto& c : cand)
+      if (c.first < limit || (c.first == limit && ties > 0 && ties--)) kept.push_back(c);
+    cand = kept;
+  }
+  const auto& mesh = s.mesh();
+  for (const auto& [d2, f] : cand) {
+    PatchTriangle pt{};
+    const auto& t = s.faces()[f];
+    for (int k = 0; k < 3; ++k) pt.v[k] = corner(t[static_cast<std::size_t>(k)]);
+    pt.material = s.face_material(f);
+    pt.id = f;
+    for (auto h : mesh.fh_range(s.face_handle(f)))
+      if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
+    r.triangles.push_back(pt);
+  }
+  return r;
+}
+
+void expect_same_patch(const Reference& want, std::size_t found, const TissuePatch& got) {
+  ASSERT_EQ(found, want.found);
+  ASSERT_EQ(got.n_triangles, want.triangles.size());
+  for (std::size_t i = 0; i < want.triangles.size(); ++i) {
+    const PatchTriangle &a = want.triangles[i], &b = got.triangles[i];
+    ASSERT_EQ(b.id, a.id) << "triangle " << i;
+    ASSERT_EQ(b.flags, a.flags) << "triangle " << i;
+    ASSERT_EQ(b.material, a.material) << "triangle " << i;
+    for (int k = 0; k < 3; ++k) ASSERT_EQ(std::memcmp(&b.v[k], &a.v[k], sizeof a.v[k]), 0) << "triangle " << i << " corner " << k;
+  }
+}
+
+TEST(SurfacePatchExport, IsTheTwoDistanceExportOnADentedCutSurfaceAndWhenItOverflows) {
+  // 2·200² = 80 000 triangles 6 cm across: a 30 mm radius finds far more than the capacity.
+  auto s = model(200);
+  const auto h = [](double x, double y) { return surface::tissue_block_height({}, x, y); };
+  const Vec3 contact{0.004, -0.003, h(0.004, -0.003)};
+  for (int i = 0; i < 10; ++i) s->update_contact(surface::Contact{contact, {0, 0, -1}, 0.003}, 0.016);
+  ASSERT_TRUE(s->begin_cut({-0.012, 0.0011, h(-0.012, 0.0011)}));
+  for (int i = 1; i <= 16; ++i) (void)s->cut_to({-0.012 + 0.001 * i, 0.0011, h(-0.012 + 0.001 * i, 0.0011)});
+  auto patch = std::make_unique<TissuePatch>();
+  PatchExportScratch scratch;
+  const Vec3 tool = contact - Vec3{0, 0, 0.002};
+  bool overflowed = false, flagged = false;
+  for (const double radius : {0.004, 0.0125, 0.03}) {
+    for (const Vec3 at : {tool, Vec3{0.0, 0.0011, h(0.0, 0.0011)}, Vec3{-0.027, 0.02, 0.003}}) {
+      SCOPED_TRACE("radius " + std::to_string(radius));
+      const std::size_t found = export_patch(*s, at, PatchExportParams{radius}, scratch, *patch);
+      const Reference want = two_distance_export(*s, at, radius);
+      expect_same_patch(want, found, *patch);
+      overflowed = overflowed || found > kPatchCapacity;
+      for (const auto& t : want.triangles) flagged = flagged || t.flags != 0;
+    }
+  }
+  EXPECT_TRUE(overflowed) << "a patch past the capacity was chosen from";
+  EXPECT_TRUE(flagged) << "triangles on the cut were flagged";
 }
 
 }  // namespace
