@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <thread>
 
 namespace lancet::volume {
 namespace {
@@ -55,7 +56,9 @@ LabelledVolume make_phantom(const PhantomParams& p) {
   v.data.resize(v.voxel_count());
   ph.material.resize(v.voxel_count());
   const double half_len = 0.5 * (p.dims[2] - 1) * p.spacing;
-  for (int k = 0; k < p.dims[2]; ++k) {
+  // Slice k depends on nothing but k, so the slices are shared between two threads (the same
+  // numbers either way).
+  const auto slice = [&](int k) {
     const Vec3 c = v.position(0, 0, k);
     const double zn = half_len > 0 ? c.z / half_len : 0;  // −1 … 1 along the limb
     // Cross-section: slightly elliptical, tapering toward +z.
@@ -104,6 +107,16 @@ LabelledVolume make_phantom(const PhantomParams& p) {
         v.data[idx] = static_cast<float>(hu + p.noise_hu * gaussian(p.seed, idx));
       }
     }
+  };
+  const int nz = p.dims[2], half = nz / 2;
+  if (p.threads < 2 || v.voxel_count() < (std::size_t{1} << 16)) {
+    for (int k = 0; k < nz; ++k) slice(k);
+  } else {
+    std::thread upper([&] {
+      for (int k = half; k < nz; ++k) slice(k);
+    });
+    for (int k = 0; k < half; ++k) slice(k);
+    upper.join();
   }
   return ph;
 }

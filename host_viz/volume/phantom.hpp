@@ -35,6 +35,9 @@ struct PhantomParams {
   /// takes its material's HU (hard labels). The material labels are hard either way (by centre).
   bool partial_volume = true;
   std::uint64_t seed = 1;
+  /// Threads that make it (1 or 2; a volume under 65 536 voxels takes one). The voxels are the
+  /// same numbers either way: each slice depends on its own index alone.
+  int threads = 2;
 };
 
 /// Nominal HU of each material (before noise).

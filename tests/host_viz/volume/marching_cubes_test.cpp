@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <numbers>
 #include <optional>
 #include <random>
@@ -213,6 +214,17 @@ TEST(MarchingCubes, MaterialsComeFromLabelsOrThresholdsOnTheInside) {
   const IsoSurface bone = extract(ph.volume, opt(400, false, {}, 0, {{-1000, 9}, {300, 4}}));
   ASSERT_FALSE(bone.material.empty());
   for (auto m : bone.material) EXPECT_EQ(m, 4);
+}
+
+// The built-in phantom is made slice by slice on two threads: the same voxels and materials as
+// one thread makes, bit for bit.
+TEST(Phantom, TwoThreadsMakeTheOneThreadPhantomBitForBit) {
+  PhantomParams one;
+  one.threads = 1;
+  const LabelledVolume a = make_phantom(one), b = make_phantom(PhantomParams{});
+  ASSERT_EQ(a.volume.data.size(), b.volume.data.size());
+  EXPECT_EQ(std::memcmp(a.volume.data.data(), b.volume.data.data(), a.volume.data.size() * sizeof(float)), 0);
+  EXPECT_EQ(a.material, b.material);
 }
 
 TEST(MarchingCubes, PhantomSkinIsClosedWithPadding) {
