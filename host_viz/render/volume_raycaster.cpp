@@ -231,6 +231,19 @@ GLuint new_buffer() {
   return b;
 }
 
+// A 3-D texture of one level (dims: texels on each axis, at least 1), clamped at its edges, with
+// the given filter (GL_LINEAR: the texture unit interpolates; GL_NEAREST: texelFetch only).
+Texture new_texture_3d(GLenum format, std::array<int, 3> dims, GLint filter) {
+  GLuint t = 0;
+  glCreateTextures(GL_TEXTURE_3D, 1, &t);
+  Texture texture(t);
+  glTextureStorage3D(t, 1, format, std::max(dims[0], 1), std::max(dims[1], 1), std::max(dims[2], 1));
+  glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, filter);
+  glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, filter);
+  for (GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTextureParameteri(t, wrap, GL_CLAMP_TO_EDGE);
+  return texture;
+}
+
 }  // namespace
 
 VolumeRaycaster::VolumeRaycaster() {
@@ -249,13 +262,8 @@ void VolumeRaycaster::set_volume(const volume::Volume& v) {
   origin_ = v.origin;
   spacing_ = v.spacing;
   reference_ = volume::reference_step(v);
-  GLuint t = 0;
-  glCreateTextures(GL_TEXTURE_3D, 1, &t);
-  voxels_ = Texture(t);
-  glTextureStorage3D(t, 1, GL_R32F, std::max(dims_[0], 1), std::max(dims_[1], 1), std::max(dims_[2], 1));
-  glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-  glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-  for (GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R}) glTextureParameteri(t, wrap, GL_CLAMP_TO_EDGE);
+  voxels_ = new_texture_3d(GL_R32F, dims_, GL_LINEAR);
+  const GLuint t = voxels_.get();
   if (!v.data.empty()) {
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
     glTextureSubImage3D(t, 0, 0, 0, 0, dims_[0], dims_[1], dims_[2], GL_RED, GL_FLOAT, v.data.data());
@@ -295,12 +303,7 @@ void VolumeRaycaster::upload_mask() {
 void VolumeRaycaster::upload_brick_range() {
   const auto bricks = grid_.dims();
   if (bricks != brick_range_dims_) {
-    GLuint t = 0;
-    glCreateTextures(GL_TEXTURE_3D, 1, &t);
-    brick_range_ = Texture(t);
-    glTextureStorage3D(t, 1, GL_RG32F, std::max(bricks[0], 1), std::max(bricks[1], 1), std::max(bricks[2], 1));
-    glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-    glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    brick_range_ = new_texture_3d(GL_RG32F, bricks, GL_NEAREST);
     brick_range_dims_ = bricks;
   }
   const auto lo = grid_.min(), hi = grid_.max();

@@ -290,7 +290,8 @@ def mesh_stats(poly, ref, full=True):
     return out
 
 
-def run_filter(cls, img, iso, normals, repeat, voxels, ref, full):
+def contour_filter(cls, img, iso, normals):
+    """A vtkMarchingCubes / vtkFlyingEdges3D set up as every run here uses it."""
     f = cls()
     f.SetInputData(img)
     f.SetNumberOfContours(1)
@@ -298,6 +299,11 @@ def run_filter(cls, img, iso, normals, repeat, voxels, ref, full):
     f.SetComputeNormals(normals)
     f.SetComputeGradients(False)
     f.SetComputeScalars(False)
+    return f
+
+
+def run_filter(cls, img, iso, normals, repeat, voxels, ref, full):
+    f = contour_filter(cls, img, iso, normals)
     best = float("inf")
     for _ in range(repeat):
         f.Modified()
@@ -338,13 +344,7 @@ def same_job(path, iso, repeat):
     t_read, img = best(read)
 
     def extract():
-        f = vtkFlyingEdges3D()
-        f.SetInputData(img)
-        f.SetNumberOfContours(1)
-        f.SetValue(0, iso)
-        f.SetComputeNormals(True)
-        f.SetComputeGradients(False)
-        f.SetComputeScalars(False)
+        f = contour_filter(vtkFlyingEdges3D, img, iso, True)
         f.Update()
         return f.GetOutput()
 
