@@ -499,12 +499,9 @@ void TriangleBvh::refit_faces(const MeshView& m, std::span<const std::uint32_t> 
 // Queries. Each keeps a fixed stack on the C++ stack: a pop pushes at most two children, so it
 // never holds more than depth + 1 entries.
 
-void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order) const {
-  out.clear();
-  if (nodes_.empty() || !(r >= 0)) return;
-  const Vec3 q = to_vec3(p);
-  const double r2 = double{r} * double{r};
-  // Boxes are culled with a hair of slack; the exact test on each face decides.
+template <class Leaf>
+void TriangleBvh::walk_boxes_within(Vec3 q, double r2, Leaf&& leaf) const {
+  // Boxes are culled with a hair of slack; the caller's test on each face decides.
   const double cull = r2 * (1 + 1e-9) + 1e-30;
   std::uint32_t stack[kMaxDepth + 2];
   std::size_t top = 0;
@@ -513,16 +510,34 @@ void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<
     const Node& node = nodes_[stack[--top]];
     if (box_distance2(node.lo, node.hi, q) > cull) continue;
     if (node.count > 0) {
-      for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
-        const std::uint32_t f = order_[i];
-        if (closest_on_face(m, f, q).d2 <= r2) out.push_back(f);
-      }
+      leaf(node);
     } else {
       stack[top++] = node.first + 1;
       stack[top++] = node.first;
     }
   }
+}
+
+void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order) const {
+  out.clear();
+  if (nodes_.empty() || !(r >= 0)) return;
+  const Vec3 q = to_vec3(p);
+  const double r2 = double{r} * double{r};
+  walk_boxes_within(q, r2, [&](const Node& node) {
+    for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
+      const std::uint32_t f = order_[i];
+      if (closest_on_face(m, f, q).d2 <= r2) out.push_back(f);
+    }
+  });
   if (!tree_order) std::sort(out.begin(), out.end());
+}
+
+void TriangleBvh::faces_in_boxes_within(Vec3f p, float r, std::vector<std::uint32_t>& out) const {
+  out.clear();
+  if (nodes_.empty() || !(r >= 0)) return;
+  walk_boxes_within(to_vec3(p), double{r} * double{r}, [&](const Node& node) {
+    out.insert(out.end(), order_.begin() + node.first, order_.begin() + node.first + node.count);
+  });
 }
 
 std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, float max_distance) const {

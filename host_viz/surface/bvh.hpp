@@ -86,6 +86,11 @@ class TriangleBvh {
   /// same tree). out is cleared first; no allocation when it has capacity for the result.
   void faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order = false) const;
 
+  /// Every face of a leaf whose box lies within r of p (metres), in the tree's leaf order: a
+  /// superset of faces_within's answer, without a distance per face, for a caller that tests the
+  /// faces its own way. out is cleared first; no allocation when it has capacity.
+  void faces_in_boxes_within(Vec3f p, float r, std::vector<std::uint32_t>& out) const;
+
   /// The closest point of the mesh to p, if one lies within max_distance (metres); of faces
   /// equally near, the lowest index (so the answer does not depend on the tree). No allocation.
   [[nodiscard]] std::optional<PointHit> closest_point(
@@ -128,6 +133,8 @@ class TriangleBvh {
   };
 
   void refit_leaf(const MeshView& m, Node& node) const;
+  template <class Leaf>
+  void walk_boxes_within(Vec3 q, double r2, Leaf&& leaf) const;  // leaf(node) for every leaf within sqrt(r2) of q
   void refit_internal();  // every internal box from its children's, bottom up
 
   std::vector<Node> nodes_;             // #nodes, root at 0, children after their parent

@@ -68,10 +68,12 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   auto& near = scratch.faces;
   // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
   // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
-  // distance to the haptic triangles.
+  // distance to the haptic triangles. The search takes every face of the leaves whose boxes reach
+  // (no drawn distance per face: the haptic test below decides every face anyway, and a face
+  // within the radius of the haptic surface is within the reach of the drawn one).
   const double reach = params.radius + model.params().deform_max_depth;
   const Vec3f at = to_vec3f(centre);
-  model.bvh().faces_within(view, at, static_cast<float>(reach), near, /*tree_order=*/true);
+  model.bvh().faces_in_boxes_within(at, static_cast<float>(reach), near);
   auto& cand = scratch.candidates;
   auto& corners = scratch.corners;
   cand.clear();

@@ -499,6 +499,34 @@ TEST(TriangleBvh, TiesGoToTheLowestFaceWhateverTheTree) {
   EXPECT_GT(ties, 10);  // the test is about ties: there must be some
 }
 
+// faces_in_boxes_within: every face of the leaves whose boxes reach, so a superset of
+// faces_within's answer, and in the same (leaf) order once filtered by the exact distance.
+TEST(TriangleBvh, FacesInBoxesHoldEveryFaceWithinInTreeOrder) {
+  const Mesh m = wavy_grid(60);
+  TriangleBvh bvh;
+  bvh.build(m.view());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-0.1f, 0.1f), radius(0.0f, 0.03f);
+  std::vector<std::uint32_t> within, boxes, filtered;
+  for (int q = 0; q < 200; ++q) {
+    const Vec3f p{u(rng), u(rng), 0.2f * u(rng)};
+    const float r = radius(rng);
+    bvh.faces_within(m.view(), p, r, within, /*tree_order=*/true);
+    bvh.faces_in_boxes_within(p, r, boxes);
+    filtered.clear();
+    for (std::uint32_t f : boxes) {
+      const auto c = m.corners(f);
+      if (point_triangle_distance_squared(p, c[0], c[1], c[2]) <= double{r} * double{r}) filtered.push_back(f);
+    }
+    EXPECT_EQ(filtered, within) << "query " << q;
+    EXPECT_GE(boxes.size(), within.size());
+    // Each face at most once (a face sits in one leaf).
+    std::vector<std::uint32_t> sorted = boxes;
+    std::sort(sorted.begin(), sorted.end());
+    EXPECT_TRUE(std::adjacent_find(sorted.begin(), sorted.end()) == sorted.end()) << "query " << q;
+  }
+}
+
 TEST(TriangleBvh, QueriesMatchBruteForceOnATriangleSoup) {
   const Mesh m = soup(3000, 5);
   TriangleBvh bvh;
