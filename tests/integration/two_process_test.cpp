@@ -496,11 +496,16 @@ TEST_F(TwoProcess, TheTwoHandedDemoHoldsTheIncisionOpenWhileTheOtherHandCuts) {
   std::printf("[ info     ] two hands: %zu ruptures, %zu ticks cutting, %zu of them while the left hand held, %zu left pulls; "
               "viz: %s\n",
               ruptures, cutting, cutting_while_held, left_pulls, stats.substr(stats.find("\"cut_widths_mm\"")).c_str());
-  EXPECT_EQ(ruptures, 2u) << "the right hand opens the skin twice: the line's two halves";
+  // At least twice. Once in about thirty runs (a CI run, 2026-11-27) the blade opened the skin a third
+  // time: this is a live run, and where the viz applies a cut later than the scripted blade moves,
+  // the blade can meet unopened skin again (its extra cut stays 0 wide). The count is exact in
+  // the replays (`RecordReplay.*`); here it depends on the scheduler, which a test must not.
+  EXPECT_GE(ruptures, 2u) << "the right hand opens the skin at least twice: the line's two halves";
+  EXPECT_LE(ruptures, 3u) << "and at most once more where the blade met unopened skin again";
   EXPECT_GT(cutting_while_held, 1000u) << "the second half is cut under the held incision";
   EXPECT_GT(left_pulls, 5u);
   EXPECT_EQ(json_number(stats, "hands").value_or(0), 2) << stats;
-  EXPECT_EQ(json_number(stats, "cuts").value_or(-1), 2) << stats;
+  EXPECT_EQ(json_number(stats, "cuts").value_or(-1), static_cast<double>(ruptures)) << "a cut per rupture" << stats;
   // The held incision was open (its D) at the end, the one cut under it not pulled by the left hand.
   const std::size_t w = stats.find("\"cut_widths_mm\": [");
   ASSERT_NE(w, std::string::npos) << stats;
