@@ -498,8 +498,9 @@ TEST_F(TwoProcess, TheTwoHandedDemoHoldsTheIncisionOpenWhileTheOtherHandCuts) {
               ruptures, cutting, cutting_while_held, left_pulls, stats.substr(stats.find("\"cut_widths_mm\"")).c_str());
   // At least twice. Once in about thirty runs (a CI run, 2026-11-27) the blade opened the skin a third
   // time: this is a live run, and where the viz applies a cut later than the scripted blade moves,
-  // the blade can meet unopened skin again (its extra cut stays 0 wide). The count is exact in
-  // the replays (`RecordReplay.*`); here it depends on the scheduler, which a test must not.
+  // the blade can meet unopened skin again (its extra cut stays 0 wide). A replay reproduces
+  // whatever its recording did, bit for bit (`RecordReplay.*`); a live count depends on the
+  // scheduler, which a test must not.
   EXPECT_GE(ruptures, 2u) << "the right hand opens the skin at least twice: the line's two halves";
   EXPECT_LE(ruptures, 3u) << "and at most once more where the blade met unopened skin again";
   EXPECT_GT(cutting_while_held, 1000u) << "the second half is cut under the held incision";
