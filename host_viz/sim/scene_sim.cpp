@@ -58,8 +58,8 @@ std::array<std::size_t, kHandCount> SceneSim::export_patches_and_prepare_blood(c
                                                                                double blood_dt) {
   std::array<std::size_t, kHandCount> found{};
   const tissue::TissueScene& scene = *scene_;
-  // Up to three tasks that only read the scene: a patch per hand (what TissueScene::export_patch
-  // does, with the hand's own scratch) and the blood's preparation.
+  // Up to three tasks that only read the scene: a patch per hand (with the hand's own scratch) and
+  // the blood's preparation.
   std::array<std::size_t, kHandCount + 1> tasks{};
   std::size_t n = 0;
   for (std::size_t h = 0; h < kHandCount; ++h)
@@ -70,8 +70,7 @@ std::array<std::size_t, kHandCount> SceneSim::export_patches_and_prepare_blood(c
       bleeding_->prepare(scene, blood_dt);
       return;
     }
-    found[task] = tissue::export_patch(scene.surface(), centres[task], scene.description().patch, patch_scratch_[task], *patches[task],
-                                       [&scene](Vec3 c, VoxelBrick& brick) { tissue::fill_brick(scene.volume(), scene.placement(), c, brick); });
+    found[task] = scene.export_patch(centres[task], patch_scratch_[task], *patches[task]);
   };
   if (n <= 1) {
     for (std::size_t i = 0; i < n; ++i) run(tasks[i]);

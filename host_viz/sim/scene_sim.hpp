@@ -46,7 +46,8 @@ class SceneSim {
   /// samples_applied) to the caller.
   std::size_t export_patch(Vec3 at, TissuePatch& patch);
   /// What a frame reads from the scene once it has applied its samples: each hand's patch where
-  /// patches[h] is not null, around centres[h], as export_patch (at [h] its triangle count), and
+  /// patches[h] is not null, around centres[h] (m), as TissueScene::export_patch makes it (at [h]
+  /// its triangle count; the header, seq, t_ns and samples_applied, is the caller's), and
   /// the blood's preparation for blood_dt s (Bleeding::prepare; step_blood then steps it). They
   /// only read the scene, so they run at once on two threads (each patch with its own scratch),
   /// and each comes out as it would alone.

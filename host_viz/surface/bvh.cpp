@@ -1,5 +1,7 @@
 #include "surface/bvh.hpp"
 
+#include "volume/in_two_halves.hpp"
+
 #include <algorithm>
 #include <bit>
 #include <cassert>
@@ -13,8 +15,6 @@ namespace {
 constexpr std::uint32_t kNone = 0xffffffffu;
 // Cells a side of the Morton grid (10 bits an axis: 30-bit codes).
 constexpr std::uint32_t kMortonCells = 1024;
-// A mesh this large computes its Morton codes and its boxes on two threads.
-constexpr std::size_t kParallelFaces = 1u << 16;
 // A triangle whose |ab × ac|² is below this fraction of (longest edge)⁴ is treated as its edges.
 constexpr double kDegenerate = 1e-14;
 
@@ -341,27 +341,14 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   order_.resize(n);
   leaf_of_.assign(n, kNone);
   if (n == 0) return;
-  const bool two = threads && n >= kParallelFaces && std::thread::hardware_concurrency() > 1;
-  // work(begin, end, half) over [0, count): the two halves (half 0 and 1) on two threads when
-  // `two`, else both in turn on this one.
-  const auto in_halves = [&](std::size_t count, auto&& work) {
-    const auto mid = static_cast<std::uint32_t>(count / 2), all = static_cast<std::uint32_t>(count);
-    if (!two) {
-      work(std::uint32_t{0}, mid, 0);
-      work(mid, all, 1);
-      return;
-    }
-    std::thread worker([&] { work(mid, all, 1); });
-    work(std::uint32_t{0}, mid, 0);
-    worker.join();
-  };
+  const bool two = threads && volume::worth_two_threads(n);
 
   // 1. Every face's Morton code (its box centre in the box of all centres) and the faces sorted
   //    by it, stably: neighbours in space become neighbours in order_.
   Box half_boxes[2];
-  in_halves(n, [&](std::uint32_t begin, std::uint32_t end, int half) {
+  volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
     Box& cb = half_boxes[half];
-    for (std::uint32_t f = begin; f < end; ++f) {
+    for (auto f = static_cast<std::uint32_t>(begin); f < end; ++f) {
       const Box b = face_box(m, f);
       cb.grow(Vec3f{0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)});
     }
@@ -374,7 +361,9 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   const double cells = longest > 0 ? kMortonCells / longest : 0.0;
   const double scale[3] = {cells, cells, cells};
   std::vector<std::uint32_t> code(n), tmp_code(n), tmp_face(n);
-  in_halves(n, [&](std::uint32_t begin, std::uint32_t end, int) { morton_codes(m, cbox.lo, scale, begin, end, code.data()); });
+  volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int) {
+    morton_codes(m, cbox.lo, scale, static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end), code.data());
+  });
   for (std::uint32_t f = 0; f < n; ++f) order_[f] = f;
   radix_sort(code, order_, tmp_code, tmp_face);
 
@@ -424,8 +413,8 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
 
   // 3. The boxes, bottom up: the leaves from their faces (two threads for a large mesh), then the
   //    internal nodes from their children.
-  in_halves(nodes_.size(), [&](std::uint32_t begin, std::uint32_t end, int) {
-    for (std::uint32_t i = begin; i < end; ++i)
+  volume::in_two_halves(nodes_.size(), two, [&](std::size_t begin, std::size_t end, int) {
+    for (std::size_t i = begin; i < end; ++i)
       if (nodes_[i].count > 0) refit_leaf(m, nodes_[i]);
   });
   refit_internal();

@@ -1,6 +1,7 @@
 #include "surface/surface_model.hpp"
 
 #include "volume/halfedge_build.hpp"
+#include "volume/in_two_halves.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -26,17 +27,6 @@ std::uint32_t idx(VH v) { return static_cast<std::uint32_t>(v.idx()); }
 constexpr double kMinArea = 1e-14;  // m²: below this a face counts as degenerate
 constexpr int kMaxWalkSteps = 4096;
 constexpr double kCutReach = 0.02;  // m: a blade tip this close to the surface cuts the point over it
-constexpr std::size_t kParallelElements = 1u << 16;  // create() shares loops this long between two threads
-
-// work(begin, end) over [0, count): for a large count the two halves on two threads, else all on
-// this one. The work must write disjoint elements for disjoint ranges.
-template <class F>
-void in_two_halves(std::size_t count, F&& work) {
-  if (count < kParallelElements || std::thread::hardware_concurrency() < 2) return work(std::size_t{0}, count);
-  std::thread worker([&] { work(count / 2, count); });
-  work(std::size_t{0}, count / 2);
-  worker.join();
-}
 
 }  // namespace
 
@@ -129,10 +119,10 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
   // Each vertex and face is written by one thread only.)
   m->rest_normal_.resize(triangles.size());
-  in_two_halves(triangles.size(), [&](std::size_t begin, std::size_t end) {
+  volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t f = begin; f < end; ++f) m->rest_normal_[f] = m->face_cross(static_cast<std::uint32_t>(f), true);
   });
-  in_two_halves(nv, [&](std::size_t begin, std::size_t end) {
+  volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i) {
       P n(0, 0, 0);
       for (auto f : mesh.vf_range(vh(static_cast<std::uint32_t>(i)))) n += m->rest_normal_[m->stable_of(f)];
@@ -140,7 +130,7 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
       mesh.set_normal(vh(static_cast<std::uint32_t>(i)), len > 0 ? n / len : P(0, 0, 1));
     }
   });
-  in_two_halves(triangles.size(), [&](std::size_t begin, std::size_t end) {
+  volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t f = begin; f < end; ++f) {
       P& n = m->rest_normal_[f];
       const float len = n.norm();

@@ -594,8 +594,10 @@ std::vector<GrooveFigures> TissueScene::grooves() const {
 
 // ---- export -------------------------------------------------------------------------------------
 
-std::size_t TissueScene::export_patch(Vec3 centre, TissuePatch& out) {
-  return tissue::export_patch(*surface_, centre, desc_.patch, scratch_, out, [this](Vec3 c, VoxelBrick& brick) {
+std::size_t TissueScene::export_patch(Vec3 centre, TissuePatch& out) { return export_patch(centre, scratch_, out); }
+
+std::size_t TissueScene::export_patch(Vec3 centre, PatchExportScratch& scratch, TissuePatch& out) const {
+  return tissue::export_patch(*surface_, centre, desc_.patch, scratch, out, [this](Vec3 c, VoxelBrick& brick) {
     fill_brick(tissue_.volume, placement_, c, brick);
   });
 }

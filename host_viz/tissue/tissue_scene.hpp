@@ -121,6 +121,9 @@ class TissueScene {
   /// The TissuePatch around centre: the surface's triangles (haptic positions) and the brick.
   /// Leaves seq, t_ns and samples_applied to the caller.
   std::size_t export_patch(Vec3 centre, TissuePatch& out);
+  /// The same with the caller's scratch: it only reads the scene, so patches for two hands can be
+  /// made at once on two threads, a scratch each.
+  std::size_t export_patch(Vec3 centre, PatchExportScratch& scratch, TissuePatch& out) const;
 
   /// The mesh to draw (world frame): the surface with the grooves' walls and floors (walls false:
   /// without them, when the volume is drawn beneath), or the live bone surface on exposed bone.

@@ -24,8 +24,9 @@
 #include <array>
 #include <cstdint>
 #include <span>
-#include <thread>
 #include <vector>
+
+#include "volume/in_two_halves.hpp"
 
 namespace lancet::volume {
 
@@ -122,20 +123,11 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
       return seen == count[v];
     };
     // The walks read only; a large mesh shares them between two threads.
-    const auto all_fans = [&](std::size_t begin, std::size_t end) {
-      for (std::size_t v = begin; v < end; ++v)
-        if (!one_fan(v)) return false;
-      return true;
-    };
-    if (nv < (1u << 16)) {
-      if (!all_fans(0, nv)) return false;
-    } else {
-      bool upper = true;
-      std::thread worker([&] { upper = all_fans(nv / 2, nv); });
-      const bool lower = all_fans(0, nv / 2);
-      worker.join();
-      if (!lower || !upper) return false;
-    }
+    bool fans[2] = {true, true};
+    in_two_halves(nv, worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int half) {
+      for (std::size_t v = begin; v < end && fans[half]; ++v) fans[half] = one_fan(v);
+    });
+    if (!fans[0] || !fans[1]) return false;
   }
 
   // 2. Edges, faces and their half-edge cycles. The edge count is known now (a paired corner

@@ -1,9 +1,10 @@
 #include "volume/phantom.hpp"
 
+#include "volume/in_two_halves.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <numbers>
-#include <thread>
 
 namespace lancet::volume {
 namespace {
@@ -108,16 +109,10 @@ LabelledVolume make_phantom(const PhantomParams& p) {
       }
     }
   };
-  const int nz = p.dims[2], half = nz / 2;
-  if (p.threads < 2 || v.voxel_count() < (std::size_t{1} << 16)) {
-    for (int k = 0; k < nz; ++k) slice(k);
-  } else {
-    std::thread upper([&] {
-      for (int k = half; k < nz; ++k) slice(k);
-    });
-    for (int k = 0; k < half; ++k) slice(k);
-    upper.join();
-  }
+  in_two_halves(static_cast<std::size_t>(p.dims[2]), p.threads >= 2 && v.voxel_count() >= (std::size_t{1} << 16),
+                [&](std::size_t begin, std::size_t end, int) {
+                  for (std::size_t k = begin; k < end; ++k) slice(static_cast<int>(k));
+                });
   return ph;
 }
 
