@@ -529,6 +529,43 @@ void TriangleBvh::faces_in_boxes_within(Vec3f p, float r, std::vector<std::uint3
   });
 }
 
+void TriangleBvh::faces_within_any(const MeshView& m, std::span<const Vec3f> points, float r,
+                                   std::vector<std::uint32_t>& out, std::vector<std::uint32_t>& scratch) const {
+  out.clear();
+  scratch.clear();
+  if (nodes_.empty() || !(r >= 0) || points.empty()) return;
+  const double r2 = double{r} * double{r};
+  const double cull = r2 * (1 + 1e-9) + 1e-30;  // as walk_boxes_within: the face test decides
+  for (std::uint32_t i = 0; i < points.size(); ++i) scratch.push_back(i);
+  // Each level appends the points of its range that reach the node's box, visits with them, and
+  // drops them again: scratch stays within depth × #points.
+  const auto visit = [&](const auto& self, std::uint32_t at, std::size_t begin, std::size_t end) -> void {
+    const Node& node = nodes_[at];
+    const std::size_t mine = scratch.size();
+    for (std::size_t k = begin; k < end; ++k)
+      if (box_distance2(node.lo, node.hi, to_vec3(points[scratch[k]])) <= cull) scratch.push_back(scratch[k]);
+    const std::size_t mine_end = scratch.size();
+    if (mine_end > mine) {
+      if (node.count == 0) {
+        self(self, node.first, mine, mine_end);
+        self(self, node.first + 1, mine, mine_end);
+      } else {
+        for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
+          const std::uint32_t f = order_[i];
+          for (std::size_t k = mine; k < mine_end; ++k)
+            if (closest_on_face(m, f, to_vec3(points[scratch[k]])).d2 <= r2) {
+              out.push_back(f);
+              break;
+            }
+        }
+      }
+    }
+    scratch.resize(mine);
+  };
+  visit(visit, 0, 0, points.size());
+  std::sort(out.begin(), out.end());
+}
+
 std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, float max_distance) const {
   if (nodes_.empty() || !(max_distance >= 0)) return std::nullopt;
   const Vec3 q = to_vec3(p);

@@ -86,6 +86,15 @@ class TriangleBvh {
   /// same tree). out is cleared first; no allocation when it has capacity for the result.
   void faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order = false) const;
 
+  /// Every face whose exact distance to at least one of `points` is <= r (metres), in ascending
+  /// face order: the union of faces_within() over the points, each face once, found in one walk
+  /// that carries down only the points still within r of a node's box. For many overlapping
+  /// spheres (a cut's pairs) it visits each face once instead of once a sphere. out is cleared
+  /// first; `scratch` holds the points' indices on the way down; no allocation when both have
+  /// capacity.
+  void faces_within_any(const MeshView& m, std::span<const Vec3f> points, float r, std::vector<std::uint32_t>& out,
+                        std::vector<std::uint32_t>& scratch) const;
+
   /// Every face of a leaf whose box lies within r of p (metres), in the tree's leaf order: a
   /// superset of faces_within's answer, without a distance per face, for a caller that tests the
   /// faces its own way. out is cleared first; no allocation when it has capacity.

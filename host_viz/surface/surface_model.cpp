@@ -621,6 +621,22 @@ void SurfaceModel::apply_opening(Cut& cut) {
   refresh(scratch_touched_);
 }
 
+// The vertices of every face within r (now) of one of the cut's pairs' left vertices, unmarked
+// ones only, each marked 1 and appended to `out` (cleared first) in face order: one walk of the
+// tree for all pairs (their spheres overlap almost entirely) rather than one a pair.
+void SurfaceModel::gather_around_pairs(const Cut& cut, float r, std::vector<std::uint32_t>& out) {
+  out.clear();
+  scratch_points_.clear();
+  for (const auto& pr : cut.pairs) scratch_points_.push_back(to_vec3f(position(pr.left)));
+  bvh_.faces_within_any(view(), scratch_points_, r, scratch_faces_, scratch_indices_);
+  for (std::uint32_t f : scratch_faces_)
+    for (std::uint32_t v : faces_[f])
+      if (mark_[v] == 0) {
+        mark_[v] = 1;
+        out.push_back(v);
+      }
+}
+
 // Every vertex within open_spread (at rest) of the cut's pairs, with its nearest pair and signed
 // falloff. Gathered through the BVH around the pairs' current positions with room for the widest
 // opening, so it does not depend on how open the cut is now.
@@ -631,16 +647,7 @@ void SurfaceModel::build_spread_map(Cut& cut) {
   const double spread = params_.open_spread;
   if (n == 0 || !(spread > 0)) return;
   for (const auto& pr : cut.pairs) mark_[pr.left] = mark_[pr.right] = 2;  // the pairs themselves move in full
-  scratch_vertices_.clear();
-  for (const auto& pr : cut.pairs) {
-    bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(spread + params_.open_limit), scratch_faces_);
-    for (std::uint32_t f : scratch_faces_)
-      for (std::uint32_t v : faces_[f])
-        if (mark_[v] == 0) {
-          mark_[v] = 1;
-          scratch_vertices_.push_back(v);
-        }
-  }
+  gather_around_pairs(cut, static_cast<float>(spread + params_.open_limit), scratch_vertices_);
   for (std::uint32_t v : scratch_vertices_) {
     mark_[v] = 0;
     const Vec3 p = rest_position(v);
@@ -673,10 +680,12 @@ double SurfaceModel::pull(std::size_t c, double displacement) {
   if (c >= cuts_.size() || !std::isfinite(displacement)) return 0;
   const double width = set_opening(c, displacement);
   // The wrinkle: skin beside the cut buckles along its normal. Where, and its profile, follow
-  // from the cut's rest geometry alone: built once per cut and pair count, then each pull only
-  // rescales it.
-  if (wrinkled_.empty() || wrinkle_cut_ != c || wrinkle_pairs_ != cuts_[c].pairs.size()) build_wrinkle_map(c);
+  // from the cut's rest geometry alone: built once per cut, pair count and vertex count (kept
+  // while the wrinkle dies away between pulls), then each pull only rescales it.
+  if (wrinkle_cut_ != c || wrinkle_pairs_ != cuts_[c].pairs.size() || wrinkle_vertices_ != mesh_.n_vertices())
+    build_wrinkle_map(c);
   wrinkle_level_ = 0.25 * width;
+  wrinkle_live_ = true;
   relax(0);
   return width;
 }
@@ -687,19 +696,11 @@ void SurfaceModel::build_wrinkle_map(std::size_t c) {
   const Cut& cut = cuts_[c];
   wrinkle_cut_ = c;
   wrinkle_pairs_ = cut.pairs.size();
+  wrinkle_vertices_ = mesh_.n_vertices();
   for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0);
   wrinkled_.clear();
   wrinkle_amp_.clear();
-  scratch_touched_.clear();
-  for (const auto& pr : cut.pairs) {
-    bvh_.faces_within(view(), to_vec3f(position(pr.left)), static_cast<float>(params_.wrinkle_reach), scratch_faces_);
-    for (std::uint32_t f : scratch_faces_)
-      for (std::uint32_t v : faces_[f])
-        if (mark_[v] == 0) {
-          mark_[v] = 1;
-          scratch_touched_.push_back(v);
-        }
-  }
+  gather_around_pairs(cut, static_cast<float>(params_.wrinkle_reach), scratch_touched_);
   for (std::uint32_t v : scratch_touched_) {
     mark_[v] = 0;
     double dmin = std::numeric_limits<double>::infinity();
@@ -713,7 +714,7 @@ void SurfaceModel::build_wrinkle_map(std::size_t c) {
 }
 
 void SurfaceModel::relax(double dt) {
-  if (wrinkled_.empty()) return;
+  if (!wrinkle_live_ || wrinkled_.empty()) return;
   wrinkle_level_ *= std::exp(-std::max(dt, 0.0) / params_.wrinkle_tau);
   const bool gone = wrinkle_level_ < 1e-7;
   if (gone) wrinkle_level_ = 0;
@@ -723,10 +724,7 @@ void SurfaceModel::relax(double dt) {
     set_current(v);
   }
   refresh(wrinkled_);
-  if (gone) {
-    wrinkled_.clear();
-    wrinkle_amp_.clear();
-  }
+  if (gone) wrinkle_live_ = false;  // flat again; the map stays for the next pull
 }
 
 void SurfaceModel::to_triangle_mesh(TriangleMesh& out) const {

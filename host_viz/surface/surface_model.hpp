@@ -22,6 +22,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <span>
@@ -193,6 +194,7 @@ class SurfaceModel {
   void apply_opening(Cut& cut);
   void build_spread_map(Cut& cut);
   void build_wrinkle_map(std::size_t cut);
+  void gather_around_pairs(const Cut& cut, float r, std::vector<std::uint32_t>& out);
 
   SurfaceParams params_;
   SurfaceMesh mesh_;
@@ -209,7 +211,9 @@ class SurfaceModel {
   std::vector<std::uint32_t> wrinkled_;
   std::vector<float> wrinkle_amp_;                 ///< per vertex in wrinkled_: its profile
   double wrinkle_level_ = 0;                       ///< current wrinkle amplitude (m)
-  std::size_t wrinkle_cut_ = 0, wrinkle_pairs_ = 0; ///< the cut (and its pair count) wrinkled_ was made for
+  /// The cut, its pair count and the mesh's vertex count wrinkled_ was made for (none yet).
+  std::size_t wrinkle_cut_ = std::numeric_limits<std::size_t>::max(), wrinkle_pairs_ = 0, wrinkle_vertices_ = 0;
+  bool wrinkle_live_ = false;  ///< a pull's wrinkle still dying away (relax has work to do)
   TriangleBvh bvh_;
   std::uint64_t revision_ = 0;
   std::vector<Cut> cuts_;
@@ -217,6 +221,8 @@ class SurfaceModel {
   Vec3 walk_point_{};
   // Scratch (reused, so steady-state steps do not allocate).
   std::vector<std::uint32_t> scratch_faces_, scratch_vertices_, scratch_touched_;
+  std::vector<std::uint32_t> scratch_indices_;  ///< faces_within_any's points on the way down
+  std::vector<Vec3f> scratch_points_;
   std::vector<std::uint8_t> mark_;
 };
 

@@ -527,6 +527,37 @@ TEST(TriangleBvh, FacesInBoxesHoldEveryFaceWithinInTreeOrder) {
   }
 }
 
+// faces_within_any: exactly the union of faces_within over its points, ascending, each face once;
+// for a cut-like chain of close points (spheres overlapping almost entirely), scattered points, one
+// point, none, and on a soup where boxes overlap.
+TEST(TriangleBvh, FacesWithinAnyIsTheUnionOfFacesWithin) {
+  const Mesh grid = wavy_grid(60), junk = soup(3000, 9);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-0.1f, 0.1f), radius(0.0f, 0.03f);
+  std::vector<std::uint32_t> any, one, scratch;
+  std::vector<Vec3f> points;
+  for (const Mesh* m : {&grid, &junk}) {
+    TriangleBvh bvh;
+    bvh.build(m->view());
+    for (int q = 0; q < 120; ++q) {
+      points.clear();
+      const int n = q % 40;  // 0 .. 39 points
+      const Vec3f start{u(rng), u(rng), 0.2f * u(rng)};
+      for (int i = 0; i < n; ++i)
+        points.push_back(q % 2 == 0 ? add(start, Vec3f{0.0005f * static_cast<float>(i), 0.0002f * static_cast<float>(i), 0})  // a chain
+                                    : Vec3f{u(rng), u(rng), 0.2f * u(rng)});                                                  // scattered
+      const float r = radius(rng);
+      std::set<std::uint32_t> expected;
+      for (const Vec3f& p : points) {
+        bvh.faces_within(m->view(), p, r, one);
+        expected.insert(one.begin(), one.end());
+      }
+      bvh.faces_within_any(m->view(), points, r, any, scratch);
+      EXPECT_EQ(any, std::vector<std::uint32_t>(expected.begin(), expected.end())) << "query " << q << ", " << n << " points";
+    }
+  }
+}
+
 TEST(TriangleBvh, QueriesMatchBruteForceOnATriangleSoup) {
   const Mesh m = soup(3000, 5);
   TriangleBvh bvh;
@@ -725,6 +756,8 @@ TEST(TriangleBvh, QueriesAndRefitsDoNotAllocate) {
   within.reserve(m.faces.size());
   hits.reserve(1024);
   touched.reserve(m.faces.size());
+  std::vector<std::uint32_t> scratch;
+  scratch.reserve(3 * (TriangleBvh::kMaxDepth + 2));
   std::size_t found = 0;
   lancet::test::MallocGuard guard;
   for (int i = 0; i < 200; ++i) {
@@ -735,6 +768,9 @@ TEST(TriangleBvh, QueriesAndRefitsDoNotAllocate) {
     touched.insert(touched.end(), vf[v].begin(), vf[v].end());
     bvh.refit_faces(m.view(), touched);
     bvh.faces_within(m.view(), p, 0.01f, within);
+    found += within.size();
+    const Vec3f chain[3] = {p, add(p, Vec3f{0.002f, 0, 0}), add(p, Vec3f{0.004f, 0, 0})};
+    bvh.faces_within_any(m.view(), chain, 0.01f, within, scratch);
     found += within.size();
     found += bvh.closest_point(m.view(), add(p, Vec3f{0, 0, 0.003f})).has_value();
     found += bvh.first_hit(m.view(), add(p, Vec3f{0, 0, 0.02f}), add(p, Vec3f{0, 0, -0.02f})).has_value();

@@ -246,6 +246,52 @@ TEST(SurfaceModel, WrinkleBesideACutDecays) {
   EXPECT_EQ(s->stats().flipped_faces, 0u);
 }
 
+// The wrinkle's extent follows from the cut alone: the same pull after the last one has died away
+// gives the same skin, bit for bit (the map made at the first pull is kept, not gathered again
+// around the opened cut); a longer cut makes it anew.
+TEST(SurfaceModel, TheSamePullAfterTheWrinkleDiedGivesTheSameSkin) {
+  auto s = sheet(40);
+  ASSERT_TRUE(s->begin_cut(on_sheet(-0.01, 0.0011)));
+  for (int i = 1; i <= 20; ++i) (void)s->cut_to(on_sheet(-0.01 + 0.001 * i, 0.0011));
+  s->end_cut();
+  const auto snapshot = [&] {
+    std::vector<Vec3> p;
+    for (auto v : s->mesh().vertices()) p.push_back(s->position(static_cast<std::uint32_t>(v.idx())));
+    return p;
+  };
+  ASSERT_DOUBLE_EQ(s->pull(0, 0.0), 0.0);  // as lancet-rt's first report: pulled by nothing yet
+  ASSERT_DOUBLE_EQ(s->pull(0, 0.003), 0.003);
+  const std::vector<Vec3> first = snapshot();
+  for (int i = 0; i < 100; ++i) s->relax(0.05);  // flat again
+  ASSERT_DOUBLE_EQ(s->pull(0, 0.003), 0.003);
+  const std::vector<Vec3> again = snapshot();
+  ASSERT_EQ(first.size(), again.size());
+  std::size_t moved = 0;
+  for (std::size_t i = 0; i < first.size(); ++i) {
+    EXPECT_EQ(first[i].x, again[i].x) << "vertex " << i;
+    EXPECT_EQ(first[i].y, again[i].y) << "vertex " << i;
+    EXPECT_EQ(first[i].z, again[i].z) << "vertex " << i;
+  }
+  for (int i = 0; i < 100; ++i) s->relax(0.05);
+  ASSERT_DOUBLE_EQ(s->set_opening(0, 0.003), 0.003);
+  const std::vector<Vec3> opened = snapshot();
+  for (std::size_t i = 0; i < first.size(); ++i) moved += norm(first[i] - opened[i]) > 1e-6;
+  EXPECT_GT(moved, 20u) << "the pull wrinkled the skin beside the cut";
+  // A longer cut: its pull wrinkles the skin beside the new part too.
+  ASSERT_TRUE(s->begin_cut(on_sheet(0.0105, 0.0011)));
+  for (int i = 1; i <= 5; ++i) (void)s->cut_to(on_sheet(0.0105 + 0.001 * i, 0.0011));
+  s->end_cut();
+  ASSERT_EQ(s->cuts().size(), 2u);
+  ASSERT_DOUBLE_EQ(s->set_opening(1, 0.002), 0.002);
+  const std::vector<Vec3> second_opened = snapshot();
+  ASSERT_DOUBLE_EQ(s->pull(1, 0.002), 0.002);
+  const std::vector<Vec3> second = snapshot();
+  std::size_t near_second = 0;
+  for (std::size_t i = 0; i < second.size(); ++i)
+    if (norm(second[i] - second_opened[i]) > 1e-6 && second_opened[i].x > 0.0105) ++near_second;
+  EXPECT_GT(near_second, 5u) << "the second cut's pull wrinkles beside the second cut";
+}
+
 // On a closed, curved marching-cubes surface (a 20 mm sphere): random cuts over the top.
 TEST(SurfaceModel, RandomCutsOnAMarchingCubesSphere) {
   volume::Volume v;
