@@ -80,7 +80,20 @@ struct StatsInput {
   bool clean = true;                            ///< the servo thread stopped and the arms were deactivated
   std::size_t hands = 1;
   std::array<std::string, lancet::kHandCount> arm_name;  ///< by Hand
+  const lancet::rt::RtSetupReport* setup = nullptr;     ///< the real-time setup, as it went
 };
+
+/// The real-time setup as a JSON object: what took effect and each degradation's line.
+std::string realtime_json(const lancet::rt::RtSetupReport& r) {
+  const auto flag = [](bool b) { return std::string(b ? "true" : "false"); };
+  std::string degraded;
+  for (const auto& line : r.degraded) degraded += (degraded.empty() ? "" : ", ") + str(line);
+  return "{\"preempt_rt\": " + flag(r.preempt_rt) + ", \"fifo\": " + flag(r.fifo) + ", \"affinity\": " + flag(r.affinity) +
+         ", \"cpu_isolated\": " + flag(r.cpu_isolated) + ", \"memory_locked\": " + flag(r.memory_locked) +
+         ", \"dma_latency_held\": " + flag(r.dma_latency_held) + ", \"malloc_tuned\": " + flag(r.malloc_tuned) +
+         ",\n    \"kernel\": " + str(r.kernel) + ", \"isolated_cpus\": " + str(r.isolated_cpus) +
+         ",\n    \"degraded\": [" + degraded + "]}";
+}
 
 /// A hand's arm as a JSON object.
 std::string arm_json(const std::string& name, const lancet::HandStatus& st, const char* indent) {
@@ -105,6 +118,7 @@ bool write_stats(const std::string& path, const StatsInput& in) {
   auto field = [&j](const char* key, const std::string& value) { j += std::string("  \"") + key + "\": " + value + ",\n"; };
   field("ended_by", str(in.ended_by));
   field("clean_exit", in.clean ? "true" : "false");
+  if (in.setup != nullptr) field("realtime", realtime_json(*in.setup));
   if (in.loop != nullptr) {
     const lancet::rt::LoopStats& ls = *in.loop;
     field("ticks", num(ls.ticks));
@@ -669,6 +683,7 @@ int main(int argc, char** argv) {
 
   const Ending end = supervise(a, servo, arm_name, loop_params, loop_done);
   StatsInput stats;
+  stats.setup = &setup;
   stats.hands = a.hands;
   stats.arm_name = arm_name;
   stats.ended_by = end.by;

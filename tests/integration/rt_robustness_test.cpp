@@ -74,6 +74,11 @@ TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegme
     const std::string stats = read_file(path("rt.json"));
     EXPECT_NE(stats.find(std::string("\"ended_by\": \"") + name + "\""), std::string::npos) << stats;
     EXPECT_NE(stats.find("\"clean_exit\": true"), std::string::npos) << stats;
+    // The real-time setup as it went (--no-rt here): nothing applied, and the degradation's line.
+    EXPECT_NE(stats.find("\"realtime\": {\"preempt_rt\": "), std::string::npos) << stats;
+    EXPECT_NE(stats.find("\"fifo\": false"), std::string::npos) << stats;
+    EXPECT_NE(stats.find("\"memory_locked\": false"), std::string::npos) << stats;
+    EXPECT_NE(stats.find("\"degraded\": [\"real-time setup skipped (--no-rt)"), std::string::npos) << stats;
     EXPECT_FALSE(segment_exists()) << "the segment must be removed";
   }
 }
