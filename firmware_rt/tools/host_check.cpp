@@ -205,6 +205,7 @@ ArmBus bus_of(const arm::ArmConfig& c) {
   } else if (c.canopen) {
     b.kind = ArmBus::Kind::kCan;
     b.can_interface = c.canopen->interface_name;
+    b.can_bitrate = c.canopen->bitrate;
   }
   return b;
 }

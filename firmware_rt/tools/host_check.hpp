@@ -57,11 +57,12 @@ struct ProcessLimits {
 struct ArmBus {
   enum class Kind : std::uint8_t { kSim, kCan, kUsb, kModbusTcp, kModbusRtu };
   Kind kind = Kind::kSim;
-  std::string arm;                 ///< the config's name
-  std::string can_interface;       ///< kCan: e.g. can0
+  std::string arm{};                 ///< the config's name
+  std::string can_interface{};       ///< kCan: e.g. can0
+  int can_bitrate = 1'000'000;     ///< kCan: bit/s
   std::uint16_t vid = 0, pid = 0;  ///< kUsb
-  std::string host;                ///< kModbusTcp: address or name of the drive box
-  std::string serial_device;       ///< kModbusRtu: e.g. /dev/ttyUSB0
+  std::string host{};                ///< kModbusTcp: address or name of the drive box
+  std::string serial_device{};       ///< kModbusRtu: e.g. /dev/ttyUSB0
 };
 
 struct HostCheckInput {

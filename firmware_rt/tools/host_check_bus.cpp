@@ -24,10 +24,12 @@ struct BusDevice {
   std::string why_none;   ///< when sys_path is empty: what was found instead
   bool absent = false;    ///< not on this host at all (warn), rather than without an IRQ (skip)
   std::string how_to_find;  ///< by hand, when the IRQ cannot be told
+  std::string fix_absent;   ///< what to do when it is absent
 };
 
-BusDevice net_device(const HostFs& fs, const std::string& iface, const std::string& what) {
-  BusDevice d{what + " " + iface, "", "", false, "grep " + iface + " /proc/interrupts, or ethtool -i " + iface + " for its bus address"};
+BusDevice net_device(const HostFs& fs, const std::string& iface, const std::string& what, std::string fix_absent) {
+  BusDevice d{what + " " + iface, "", "", false, "grep " + iface + " /proc/interrupts, or ethtool -i " + iface + " for its bus address",
+              std::move(fix_absent)};
   if (!fs.exists("/sys/class/net/" + iface)) {
     d.absent = true;
     d.why_none = iface + " does not exist (ip link lists the interfaces)";
@@ -42,7 +44,9 @@ BusDevice net_device(const HostFs& fs, const std::string& iface, const std::stri
 BusDevice usb_device(const HostFs& fs, std::uint16_t vid, std::uint16_t pid) {
   char id[16];
   std::snprintf(id, sizeof id, "%04x:%04x", vid, pid);
-  BusDevice d{std::string("USB device ") + id, "", "", false, std::string("lsusb -t shows its bus; its host controller's IRQ is the xhci_hcd line in /proc/interrupts")};
+  BusDevice d{std::string("USB device ") + id, "", "", false,
+              "lsusb -t shows its bus; its host controller's IRQ is the xhci_hcd line in /proc/interrupts",
+              std::string("plug the arm in (lsusb lists ") + id + " when it is there), then run host-check again"};
   for (const auto& name : fs.list("/sys/bus/usb/devices")) {
     const std::string dir = "/sys/bus/usb/devices/" + name;
     const auto v = fs.line(dir + "/idVendor"), p = fs.line(dir + "/idProduct");
@@ -89,20 +93,24 @@ BusDevice modbus_tcp_device(const HostFs& fs, const std::string& host) {
       a = reinterpret_cast<sockaddr_in*>(res->ai_addr)->sin_addr;
       freeaddrinfo(res);
     } else {
-      return {"Modbus TCP host " + host, "", "cannot resolve " + host, true, "ip route get <its address> names the NIC"};
+      return {"Modbus TCP host " + host, "", "cannot resolve " + host, true, "", "give [bus.modbus] host as an address the host can reach"};
     }
   }
-  if ((ntohl(a.s_addr) >> 24) == 127) return {"Modbus TCP host " + host, "", host + " is on loopback (no NIC, no IRQ)", false, ""};
+  if ((ntohl(a.s_addr) >> 24) == 127) return {"Modbus TCP host " + host, "", host + " is on loopback (no NIC, no IRQ)", false, "", ""};
   const std::string iface = route_interface(fs, a.s_addr);
-  if (iface.empty()) return {"Modbus TCP host " + host, "", "no route to " + host + " in /proc/net/route", true, "ip route get " + host + " names the NIC"};
-  BusDevice d = net_device(fs, iface, "NIC");
+  if (iface.empty()) {
+    return {"Modbus TCP host " + host, "", "no route to " + host + " in /proc/net/route", true, "",
+            "bring up the NIC to the drive box (ip addr, ip route get " + host + ")"};
+  }
+  BusDevice d = net_device(fs, iface, "NIC", "bring up " + iface + " (ip link set " + iface + " up)");
   d.what = "Modbus TCP host " + host + " through NIC " + iface;
   return d;
 }
 
 BusDevice serial_device(const HostFs& fs, const std::string& dev) {
   const std::string tty = dev.substr(dev.rfind('/') + 1);
-  BusDevice d{"serial port " + dev, "", "", false, "udevadm info -q path -n " + dev + " shows its controller; find it in /proc/interrupts"};
+  BusDevice d{"serial port " + dev, "", "", false, "udevadm info -q path -n " + dev + " shows its controller; find it in /proc/interrupts",
+              "plug in the serial adapter (ls /dev/ttyUSB* /dev/ttyACM*) or fix [bus.modbus] device"};
   if (!fs.exists("/sys/class/tty/" + tty + "/device")) {
     d.absent = true;
     d.why_none = dev + " not found (no /sys/class/tty/" + tty + "/device)";
@@ -114,13 +122,16 @@ BusDevice serial_device(const HostFs& fs, const std::string& dev) {
 
 BusDevice find_device(const HostFs& fs, const ArmBus& bus) {
   switch (bus.kind) {
-    case ArmBus::Kind::kCan: return net_device(fs, bus.can_interface, "CAN interface");
+    case ArmBus::Kind::kCan:
+      return net_device(fs, bus.can_interface, "CAN interface",
+                        "connect the CAN adapter and bring it up: ip link set " + bus.can_interface + " up type can bitrate " +
+                            std::to_string(bus.can_bitrate));
     case ArmBus::Kind::kUsb: return usb_device(fs, bus.vid, bus.pid);
     case ArmBus::Kind::kModbusTcp: return modbus_tcp_device(fs, bus.host);
     case ArmBus::Kind::kModbusRtu: return serial_device(fs, bus.serial_device);
     case ArmBus::Kind::kSim: break;
   }
-  return {"simulated arm", "", "no bus", false, ""};
+  return {"simulated arm", "", "no bus", false, "", ""};
 }
 
 // The IRQs of the device or, going up the device tree, of the first controller that has any: its
@@ -219,7 +230,7 @@ std::vector<CheckResult> check_bus(const HostFs& fs, const ArmBus& bus, int cpu,
   const std::string arm = "arm '" + bus.arm + "': ";
   if (d.sys_path.empty()) {
     const std::string why = arm + d.what + ": " + d.why_none;
-    if (d.absent) return {{CheckStatus::kWarn, "bus_device", why, d.how_to_find}};
+    if (d.absent) return {{CheckStatus::kWarn, "bus_device", why, d.fix_absent}};
     return {{CheckStatus::kSkip, "bus_device", why, ""}};
   }
   std::string owner;

@@ -114,7 +114,7 @@ class HostCheck : public test::TempDirTest {
     input_.limits.euid = ::geteuid();  // the owner of the fake files; no capability
     input_.limits.memlock = ProcessLimits::kUnlimited;
     input_.limits.rtprio = 98;
-    input_.bus = ArmBus{ArmBus::Kind::kUsb, "usb-touch-3dof", "", 0x1209, 0x0001, "", ""};
+    input_.bus = ArmBus{.kind = ArmBus::Kind::kUsb, .arm = "usb-touch-3dof", .vid = 0x1209, .pid = 0x0001};
   }
 
   [[nodiscard]] HostCheckReport run() const { return run_host_check(input_); }
@@ -291,7 +291,7 @@ const std::vector<Degradation> kDegradations = {
     {"bus IRQ not threaded", [](const FakeTree& t, HostCheckInput&) {
        t.remove("/proc/200");
      }, "bus_irq_thread", CheckStatus::kWarn, "PREEMPT_RT"},
-    {"USB arm unplugged", [](const FakeTree&, HostCheckInput& in) { in.bus->pid = 0x0002; }, "bus_device", CheckStatus::kWarn, "lsusb"},
+    {"USB arm unplugged", [](const FakeTree&, HostCheckInput& in) { in.bus->pid = 0x0002; }, "bus_device", CheckStatus::kWarn, "plug the arm in"},
     {"USB device whose IRQ cannot be found", [](const FakeTree& t, HostCheckInput&) {
        t.remove(kController + "/irq");
        t.remove(kController + "/msi_irqs");
@@ -299,14 +299,14 @@ const std::vector<Degradation> kDegradations = {
     {"CAN interface on a USB adapter", [](const FakeTree& t, HostCheckInput& in) {
        t.put(kUsbDevice + "/1-2:1.0/net/can0/type", "280");
        t.link("/sys/class/net/can0/device", "../../../devices/pci0000:00/0000:00:14.0/usb1/1-2/1-2:1.0");
-       in.bus = ArmBus{ArmBus::Kind::kCan, "canopen-lap-4dof", "can0", 0, 0, "", ""};
+       in.bus = ArmBus{.kind = ArmBus::Kind::kCan, .arm = "canopen-lap-4dof", .can_interface = "can0"};
      }, "bus_irq_thread", CheckStatus::kPass, ""},
     {"CAN interface missing", [](const FakeTree&, HostCheckInput& in) {
-       in.bus = ArmBus{ArmBus::Kind::kCan, "canopen-lap-4dof", "can1", 0, 0, "", ""};
-     }, "bus_device", CheckStatus::kWarn, "can1"},
+       in.bus = ArmBus{.kind = ArmBus::Kind::kCan, .arm = "canopen-lap-4dof", .can_interface = "can1"};
+     }, "bus_device", CheckStatus::kWarn, "ip link set can1 up type can bitrate 1000000"},
     {"virtual CAN", [](const FakeTree& t, HostCheckInput& in) {
        t.put("/sys/class/net/vcan0/type", "280");
-       in.bus = ArmBus{ArmBus::Kind::kCan, "canopen-lap-4dof", "vcan0", 0, 0, "", ""};
+       in.bus = ArmBus{.kind = ArmBus::Kind::kCan, .arm = "canopen-lap-4dof", .can_interface = "vcan0"};
      }, "bus_device", CheckStatus::kSkip, ""},
     {"Modbus TCP through a NIC with its IRQ elsewhere", [](const FakeTree& t, HostCheckInput& in) {
        t.put("/proc/net/route", "Iface\tDestination\tGateway\tFlags\tRefCnt\tUse\tMetric\tMask\tMTU\tWindow\tIRTT\n"
@@ -315,15 +315,15 @@ const std::vector<Degradation> kDegradations = {
        t.put("/sys/devices/pci0000:00/0000:00:1f.6/msi_irqs/130", "msi");
        t.put("/proc/irq/130/smp_affinity_list", "0");
        t.link("/sys/class/net/eth1/device", "../../../devices/pci0000:00/0000:00:1f.6");
-       in.bus = ArmBus{ArmBus::Kind::kModbusTcp, "modbus-bench-3dof", "", 0, 0, "192.168.1.20", ""};
+       in.bus = ArmBus{.kind = ArmBus::Kind::kModbusTcp, .arm = "modbus-bench-3dof", .host = "192.168.1.20"};
      }, "bus_irq_affinity", CheckStatus::kWarn, "echo 3 > /proc/irq/130/smp_affinity_list"},
     {"Modbus TCP on loopback", [](const FakeTree&, HostCheckInput& in) {
-       in.bus = ArmBus{ArmBus::Kind::kModbusTcp, "modbus-bench-3dof", "", 0, 0, "127.0.0.1", ""};
+       in.bus = ArmBus{.kind = ArmBus::Kind::kModbusTcp, .arm = "modbus-bench-3dof", .host = "127.0.0.1"};
      }, "bus_device", CheckStatus::kSkip, ""},
     {"Modbus RTU on a USB serial adapter", [](const FakeTree& t, HostCheckInput& in) {
        t.put(kUsbDevice + "/1-2:1.0/ttyUSB0/port_number", "0");
        t.link("/sys/class/tty/ttyUSB0/device", "../../../devices/pci0000:00/0000:00:14.0/usb1/1-2/1-2:1.0/ttyUSB0");
-       in.bus = ArmBus{ArmBus::Kind::kModbusRtu, "modbus-rtu", "", 0, 0, "", "/dev/ttyUSB0"};
+       in.bus = ArmBus{.kind = ArmBus::Kind::kModbusRtu, .arm = "modbus-rtu", .serial_device = "/dev/ttyUSB0"};
      }, "bus_irq_affinity", CheckStatus::kPass, ""},
     {"simulated arm", [](const FakeTree&, HostCheckInput& in) { in.bus = ArmBus{}; }, "bus_device", CheckStatus::kSkip, ""},
     {"no config", [](const FakeTree&, HostCheckInput& in) { in.bus.reset(); }, "bus_device", CheckStatus::kSkip, "--config"},
