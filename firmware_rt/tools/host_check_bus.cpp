@@ -205,7 +205,7 @@ bool sched_of(const HostFs& fs, int pid, int& policy, int& rt_priority) {
 
 CheckResult check_threads(const HostFs& fs, const std::vector<int>& irqs, int priority) {
   const auto procs = processes(fs);
-  const int want = std::min(priority + 5, 98);
+  const int want = std::min(priority + 5, 99);
   std::string good, bad, fix;
   for (int i : irqs) {
     const std::string prefix = "irq/" + std::to_string(i) + "-";
@@ -213,9 +213,12 @@ CheckResult check_threads(const HostFs& fs, const std::vector<int>& irqs, int pr
     for (const Process& p : procs) {
       if (p.comm.rfind(prefix, 0) == 0 && sched_of(fs, p.pid, policy, prio)) pid = p.pid;
     }
-    std::string& into = pid > 0 && policy == 1 && prio > priority ? good : bad;
+    const bool realtime = policy == 1 || policy == 2;  // SCHED_FIFO or SCHED_RR
+    std::string& into = pid > 0 && realtime && prio > priority ? good : bad;
     into += (into.empty() ? "" : ", ") + std::string("IRQ ") + std::to_string(i) +
-            (pid == 0 ? ": no irq thread (hard interrupt context)" : " thread " + std::to_string(pid) + " FIFO " + std::to_string(prio));
+            (pid == 0 ? ": no irq thread (hard interrupt context)"
+                      : " thread " + std::to_string(pid) + (policy == 1 ? " FIFO " : policy == 2 ? " RR " : " policy " + std::to_string(policy) + " priority ") +
+                            std::to_string(prio));
     if (pid > 0 && &into == &bad) fix += (fix.empty() ? "" : "; ") + ("chrt -f -p " + std::to_string(want) + " " + std::to_string(pid));
   }
   if (bad.empty()) return {CheckStatus::kPass, "bus_irq_thread", good + ": above the servo's " + std::to_string(priority), ""};
