@@ -27,7 +27,7 @@ struct RtCliOptions {
     rt::RtSetupOptions o;
     o.enable = !no_rt;
     o.priority = priority;
-    o.cpu = cpu == -2 ? static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN)) - 1 : cpu;
+    o.cpu = cpu == -2 ? rt::default_rt_cpu() : cpu;
     return o;
   }
   /// The loop these options ask for (duration and windows are the caller's).

@@ -60,11 +60,17 @@ bool current_thread_is_fifo() {
   return pthread_getschedparam(pthread_self(), &policy, &sp) == 0 && policy == SCHED_FIFO;
 }
 
-bool kernel_is_preempt_rt() {
-  if (read_first_line("/sys/kernel/realtime") == "1") return true;
-  utsname u{};
-  return uname(&u) == 0 && std::strstr(u.version, "PREEMPT_RT") != nullptr;
+bool kernel_is_preempt_rt(const std::string& sys_kernel_realtime, const std::string& uname_version) {
+  return sys_kernel_realtime == "1" || uname_version.find("PREEMPT_RT") != std::string::npos ||
+         uname_version.find("PREEMPT RT") != std::string::npos;
 }
+
+bool kernel_is_preempt_rt() {
+  utsname u{};
+  return kernel_is_preempt_rt(read_first_line("/sys/kernel/realtime"), uname(&u) == 0 ? u.version : "");
+}
+
+int default_rt_cpu() { return static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN)) - 1; }
 
 std::vector<int> parse_cpu_list(const std::string& list) {
   std::vector<int> cpus;

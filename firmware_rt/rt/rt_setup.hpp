@@ -81,6 +81,13 @@ RtThread start_rt_thread(const RtSetupOptions& options, RtSetupReport& report, s
 bool current_thread_is_fifo();
 /// True when the running kernel is PREEMPT_RT (/sys/kernel/realtime or uname -v).
 bool kernel_is_preempt_rt();
+/// The same decision from what those say: `sys_kernel_realtime` is the first line of
+/// /sys/kernel/realtime ("" when there is none), `uname_version` uname's version (uname -v), which
+/// names PREEMPT_RT (or "PREEMPT RT" on older kernels) on a real-time build.
+bool kernel_is_preempt_rt(const std::string& sys_kernel_realtime, const std::string& uname_version);
+/// The CPU the servo loop is pinned to when none is given (lancet-rt, lancetctl jitter and
+/// host-check): the last online one.
+int default_rt_cpu();
 /// CPUs in a list such as "1,3-5" (the /sys cpulist format); empty on a parse error.
 std::vector<int> parse_cpu_list(const std::string& list);
 

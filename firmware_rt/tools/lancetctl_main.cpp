@@ -1,9 +1,11 @@
 // lancetctl: bring-up and test-rig command line for Lancet.
-//   lancetctl jitter   run the servo loop (and cyclictest) and report wake-up latency
+//   lancetctl jitter      run the servo loop (and cyclictest) and report wake-up latency
+//   lancetctl host-check  audit this host for 1 kHz work (kernel, CPU isolation, limits, the bus's IRQs)
 
 #include <CLI/CLI.hpp>
 
 #include "tools/bringup.hpp"
+#include "tools/host_check.hpp"
 #include "tools/validate_cmd.hpp"
 #include <cstdio>
 #include <fstream>
@@ -131,7 +133,25 @@ int main(int argc, char** argv) {
   rearm->add_option("--hand", rearm_hand, "the hand whose arm to re-arm: right, left or both (every hand lancet-rt drives)")
       ->check(CLI::IsMember({"right", "left", "both"}))->capture_default_str();
 
+  lancet::tools::HostCheckOptions ho;
+  CLI::App* host_check = cli.add_subcommand(
+      "host-check",
+      "audit this host for 1 kHz servo work: one line per check (pass / warn / fail / skip) with what was found and the "
+      "fix; exit 0 when no check fails, 1 when one does, 2 on a bad config. fail: what breaks the 1 kHz promise (not "
+      "PREEMPT_RT, RT throttling starving the servo, RLIMIT_MEMLOCK too low without CAP_IPC_LOCK, RLIMIT_RTPRIO 0 without "
+      "CAP_SYS_NICE, the servo CPU offline); warn: what degrades the latency tail (CPU not isolated, SMT sibling busy, "
+      "governor, C-states, THP always, swap, timer_migration, clocksource not tsc, irqbalance, the bus IRQ's CPU and "
+      "thread priority); skip: not applicable. Run it as the user that runs lancet-rt");
+  host_check->add_option("--config", ho.config_path, "the arm's TOML file: also check its bus (CAN interface, USB device, "
+                                                     "the NIC to the Modbus TCP drive box): IRQ affinity and thread priority");
+  host_check->add_option("--cpu", ho.cpu, "the servo CPU (default: lancet-rt's, the last online CPU)")->check(CLI::Range(0, 4095));
+  host_check->add_option("--priority", ho.priority, "the servo's SCHED_FIFO priority (lancet-rt --priority)")
+      ->check(CLI::Range(1, 98))->capture_default_str();
+  host_check->add_flag("--json", ho.json, "print the report as one JSON object (checks and a summary)");
+  host_check->add_option("--root", ho.root, "read /proc and /sys under this folder (tests)")->group("");
+
   CLI11_PARSE(cli, argc, argv);
+  if (host_check->parsed()) return lancet::tools::run_host_check_command(ho, stdout, stderr);
   if (rearm->parsed()) return lancet::tools::run_rearm_rt(rearm_shm, rearm_yes, rearm_timeout, stdin, stdout, rearm_hand);
   jo.servo_workload = workload == "servo";
   if (cli.got_subcommand("list")) return lancet::tools::run_list(stdout);
