@@ -277,9 +277,13 @@ if [ "$accel" = "probe" ]; then
   if grep -aq "=== LANCET $tag GUEST UP ===" "$log"; then
     accel=kvm
     printf 'kvm\n%s\n' "a probe boot under KVM reached its init within $deadline s" >"$verdict"
-  else
+  elif [ "$qrc" -eq 124 ]; then
     accel=tcg
     printf 'tcg\n%s\n' "a probe boot under KVM did not reach its init within $deadline s" >"$verdict"
+  else
+    accel=tcg
+    why=$(tr -d '\r' <"$log" | grep -a . | tail -n 1 | cut -c1-160)
+    printf 'tcg\n%s\n' "a probe boot under KVM failed (QEMU exit $qrc: $why)" >"$verdict"
   fi
   accel_note=" ($(sed -n 2p "$verdict"))"
 fi

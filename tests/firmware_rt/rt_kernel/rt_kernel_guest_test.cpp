@@ -111,4 +111,40 @@ TEST(RtKernelGuest, LancetRtRunsTenSecondsWithTheScriptedHandsAndSaysHowItsSetup
   }
 }
 
+// The host audit in the guest: the RT kernel with the boot line passes (warnings allowed: the
+// guest has no cpufreq, timer migration on); the stock kernel fails on PREEMPT_RT alone and names
+// the package that fixes it. Run as a newcomer would, text first, then --json.
+TEST(RtKernelGuest, HostCheckPassesTheRtGuestAndFailsTheStockOneOnPreemptRt) {
+  SKIP_OUTSIDE_A_GUEST();
+  {
+    Child text({tool("lancetctl"), "host-check"}, "/tmp/host-check.txt");
+    const auto st = text.wait_exit(std::chrono::minutes(2));
+    ASSERT_TRUE(st.has_value() && WIFEXITED(*st));
+    std::printf("%s", read_file("/tmp/host-check.txt").c_str());
+    EXPECT_EQ(WEXITSTATUS(*st), rt_expected() ? 0 : 1) << read_file("/tmp/host-check.txt");
+  }
+  Child json({tool("lancetctl"), "host-check", "--json"}, "/tmp/host-check.json");
+  const auto st = json.wait_exit(std::chrono::minutes(2));
+  ASSERT_TRUE(st.has_value() && WIFEXITED(*st));
+  const std::string report = read_file("/tmp/host-check.json");
+  EXPECT_EQ(WEXITSTATUS(*st), rt_expected() ? 0 : 1) << report;
+  const auto line_of = [&](const std::string& name) {
+    const auto at = report.find("\"name\": \"" + name + "\"");
+    if (at == std::string::npos) return std::string();
+    const auto begin = report.rfind('{', at), end = report.find('}', at);
+    return report.substr(begin, end - begin + 1);
+  };
+  for (const char* isolated : {"isolcpus", "nohz_full", "rcu_nocbs"})
+    EXPECT_NE(line_of(isolated).find("\"status\": \"pass\""), std::string::npos) << line_of(isolated);
+  const std::string preempt = line_of("preempt_rt");
+  if (rt_expected()) {
+    EXPECT_NE(preempt.find("\"status\": \"pass\""), std::string::npos) << preempt;
+    EXPECT_NE(report.find("\"fail\": 0"), std::string::npos) << report;
+  } else {
+    EXPECT_NE(preempt.find("\"status\": \"fail\""), std::string::npos) << preempt;
+    EXPECT_NE(preempt.find("linux-image-rt-amd64"), std::string::npos) << "the fix names the package: " << preempt;
+    EXPECT_NE(report.find("\"fail\": 1"), std::string::npos) << "PREEMPT_RT, and nothing else, fails: " << report;
+  }
+}
+
 }  // namespace
