@@ -282,7 +282,8 @@ if [ "$accel" = "probe" ]; then
     printf 'tcg\n%s\n' "a probe boot under KVM did not reach its init within $deadline s" >"$verdict"
   else
     accel=tcg
-    why=$(tr -d '\r' <"$log" | grep -a . | tail -n 1 | cut -c1-160)
+    why=$(tr -d '\r' <"$log" | grep -ai 'error' | head -n 1 | cut -c1-160)
+    [ -n "$why" ] || why=$(tr -d '\r' <"$log" | grep -a . | tail -n 1 | cut -c1-160)
     printf 'tcg\n%s\n' "a probe boot under KVM failed (QEMU exit $qrc: $why)" >"$verdict"
   fi
   accel_note=" ($(sed -n 2p "$verdict"))"
