@@ -181,7 +181,7 @@ root="$work/initramfs"
 rm -rf "$root"
 mkdir -p "$root/bin" "$root/proc" "$root/sys" "$root/dev" "$root/tmp" "$root/modules" "$root/test" || die "cannot create $root"
 cp "$busybox" "$root/bin/busybox"
-for tool in sh mount mkdir insmod ip poweroff dd printf echo cat sleep grep ls uname; do ln -s busybox "$root/bin/$tool"; done
+ln -s busybox "$root/bin/sh"  # the init makes the other applets' links (busybox --install)
 : >"$root/modules/order"  # loaded in the order given (a module after those it needs)
 for m in $modules; do
   cp "$kdir/$(basename "$m").ko" "$root/modules/" && echo "$(basename "$m").ko" >>"$root/modules/order"
@@ -234,7 +234,8 @@ case "$accel" in tcg | kvm | probe) ;; *) die "LANCET_QEMU_ACCEL: tcg, kvm or au
 
 cat >"$root/init" <<EOF
 #!/bin/sh
-export PATH=/bin
+/bin/busybox --install -s /bin
+export PATH=/bin:/test
 mount -t proc proc /proc
 mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
