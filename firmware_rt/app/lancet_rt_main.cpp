@@ -633,6 +633,11 @@ int main(int argc, char** argv) {
   const lancet::rt::RtSetupOptions setup_opts = a.rt.setup();
   lancet::rt::RtSetupReport setup;
   lancet::rt::RtEnvironment environment(setup_opts, setup);
+  // This thread (the supervisor) and every thread started from here on but the servo's (the
+  // devices', the patch intake's) stay off the servo's CPU: the servo wakes to an idle CPU, as
+  // cyclictest does.
+  if (setup_opts.enable && lancet::rt::keep_off_cpu(setup_opts.cpu))
+    setup.applied.push_back("other threads kept off CPU " + std::to_string(setup_opts.cpu));
   // Enable the arm as late as possible: a drive-side watchdog counts from the end of activate(),
   // so the servo's first tick follows within a period or two.
   std::array<lancet::device::Device*, lancet::kHandCount> devices{};

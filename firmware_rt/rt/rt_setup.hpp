@@ -88,6 +88,11 @@ bool kernel_is_preempt_rt(const std::string& sys_kernel_realtime, const std::str
 /// The CPU the servo loop is pinned to when none is given (lancet-rt, lancetctl jitter and
 /// host-check): the last online one.
 int default_rt_cpu();
+/// Keeps the calling thread (and the threads it starts from now on, which inherit its mask) off
+/// `cpu`, the servo's: its allowed CPUs less that one. False, and nothing changed, when cpu < 0,
+/// when the thread may not run there anyway, or when no other CPU would be left. A thread that
+/// sets its own affinity (the servo's) is not bound by it.
+bool keep_off_cpu(int cpu);
 /// CPUs in a list such as "1,3-5" (the /sys cpulist format); empty on a parse error.
 std::vector<int> parse_cpu_list(const std::string& list);
 

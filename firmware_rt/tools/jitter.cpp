@@ -193,6 +193,7 @@ JitterResult run_jitter(const JitterOptions& o) {
     std::thread publisher;
     if (o.servo_workload) {
       publisher = std::thread([&] {
+        if (setup_opts.enable) (void)rt::keep_off_cpu(setup_opts.cpu);  // as the viz: never on the servo's CPU
         while (!consumer_stop.load(std::memory_order_relaxed)) {
           std::this_thread::sleep_for(std::chrono::milliseconds(16));
           patch->t_ns = monotonic_ns();
@@ -204,6 +205,7 @@ JitterResult run_jitter(const JitterOptions& o) {
     std::thread consumer;
     if (o.compare_recording) {
       consumer = std::thread([&] {
+        if (setup_opts.enable) (void)rt::keep_off_cpu(setup_opts.cpu);
         std::vector<ToolSample> batch(4096);
         while (!consumer_stop.load(std::memory_order_relaxed)) {
           std::this_thread::sleep_for(std::chrono::milliseconds(16));

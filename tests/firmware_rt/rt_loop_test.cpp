@@ -7,6 +7,7 @@
 #include "rt/rt_loop.hpp"
 
 #include <gtest/gtest.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -358,6 +359,40 @@ TEST(RtSetup, RefusedStepsAreReportedWithARemedy) {
     EXPECT_NE(text.find("mlockall refused"), std::string::npos) << text;
     EXPECT_NE(text.find("ulimit -l"), std::string::npos) << text;
   }
+}
+
+// The servo's CPU is the servo's: a thread that keeps off it (lancet-rt's supervisor, the jitter
+// rig's viz stand-ins) loses that CPU, keeps the others, passes the mask on to the threads it
+// starts, and does not bind the servo's thread, which is pinned there by start_rt_thread.
+TEST(RtSetup, KeepOffCpuLeavesTheServoCpuToTheServo) {
+  std::thread([] {
+    cpu_set_t before;
+    ASSERT_EQ(pthread_getaffinity_np(pthread_self(), sizeof before, &before), 0);
+    if (CPU_COUNT(&before) < 2) GTEST_SKIP() << "one CPU allowed: nothing to keep off";
+    int servo = -1;
+    for (int c = 0; c < CPU_SETSIZE; ++c)
+      if (CPU_ISSET(c, &before)) servo = c;
+    EXPECT_FALSE(keep_off_cpu(-1));
+    ASSERT_TRUE(keep_off_cpu(servo));
+    cpu_set_t after;
+    ASSERT_EQ(pthread_getaffinity_np(pthread_self(), sizeof after, &after), 0);
+    EXPECT_FALSE(CPU_ISSET(servo, &after));
+    EXPECT_EQ(CPU_COUNT(&after), CPU_COUNT(&before) - 1) << "every other CPU kept";
+    EXPECT_FALSE(keep_off_cpu(servo)) << "already off it";
+    std::thread([servo] {
+      cpu_set_t inherited;
+      ASSERT_EQ(pthread_getaffinity_np(pthread_self(), sizeof inherited, &inherited), 0);
+      EXPECT_FALSE(CPU_ISSET(servo, &inherited)) << "a thread started afterwards inherits the mask";
+    }).join();
+    RtSetupOptions o;
+    o.cpu = servo;
+    RtSetupReport r;
+    int ran_on = -2;
+    RtThread t = start_rt_thread(o, r, [&] { ran_on = sched_getcpu(); });
+    t.join();
+    EXPECT_TRUE(r.affinity);
+    EXPECT_EQ(ran_on, servo) << "the servo's thread runs on the servo's CPU all the same";
+  }).join();
 }
 
 TEST(RtSetup, ParsesCpuLists) {

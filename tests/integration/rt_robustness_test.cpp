@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <sys/mman.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -18,6 +19,7 @@
 
 #include "lancet/shared_model/shared_state.hpp"
 #include "lancet/shared_model/validate.hpp"
+#include "rt/rt_setup.hpp"
 #include "process_test.hpp"  // tests/support
 #include "wait.hpp"          // tests/support
 
@@ -81,6 +83,41 @@ TEST_F(RtRobustness, SigintSigtermAndSighupEachEndItPromptlyWithStatsAndTheSegme
     EXPECT_NE(stats.find("\"degraded\": [\"real-time setup skipped (--no-rt)"), std::string::npos) << stats;
     EXPECT_FALSE(segment_exists()) << "the segment must be removed";
   }
+}
+
+// With the real-time setup on, the servo's CPU (the last online one by default) is the servo
+// thread's alone among lancet-rt's threads: the supervisor, the patch intakes and any thread a
+// device starts keep off it, so the servo wakes to a CPU none of its own process holds.
+TEST_F(RtRobustness, OnlyTheServoThreadMayRunOnTheServoCpu) {
+  const int servo_cpu = static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN)) - 1;
+  if (servo_cpu < 1) GTEST_SKIP() << "one CPU: nothing to keep off it";
+  Child rt({kRt, "--shm", shm_, "-q", "--duration", "600", "--stats", path("rt.json")}, path("rt.log"));
+  ASSERT_TRUE(test::eventually([&] { return SharedChannel::open(shm_).ok(); })) << read_file(path("rt.log"));
+  auto ch = SharedChannel::open(shm_);
+  ASSERT_TRUE(ch.ok()) << ch.error().message;
+  ASSERT_TRUE(test::eventually([&] { return tick_of(ch.value().state()) > 0; })) << "lancet-rt never ticked";
+  // Each thread's allowed CPUs, from /proc/PID/task/TID/status.
+  std::vector<std::string> on_servo_cpu, threads;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/" + std::to_string(rt.pid()) + "/task")) {
+    std::ifstream in(task.path() / "status");
+    std::string line, allowed, name;
+    while (std::getline(in, line)) {
+      if (line.rfind("Name:", 0) == 0) name = line.substr(5);
+      if (line.rfind("Cpus_allowed_list:", 0) == 0) allowed = line.substr(18);
+    }
+    const std::string what = task.path().filename().string() + name + " allowed" + allowed;
+    threads.push_back(what);
+    std::vector<int> cpus = rt::parse_cpu_list(allowed.substr(allowed.find_first_not_of(" \t")));
+    if (std::find(cpus.begin(), cpus.end(), servo_cpu) != cpus.end()) on_servo_cpu.push_back(what);
+  }
+  std::string all;
+  for (const auto& t : threads) all += "\n  " + t;
+  EXPECT_GE(threads.size(), 3u) << "the supervisor, the servo and the patch intakes" << all;
+  ASSERT_EQ(on_servo_cpu.size(), 1u) << "threads allowed on CPU " << servo_cpu << ":" << all << "\n" << read_file(path("rt.log"));
+  EXPECT_NE(on_servo_cpu[0].find("allowed\t" + std::to_string(servo_cpu)), std::string::npos)
+      << "the one thread there is pinned to it alone (the servo): " << on_servo_cpu[0];
+  rt.signal(SIGTERM);
+  ASSERT_TRUE(rt.wait_exit(60s).has_value()) << read_file(path("rt.log"));
 }
 
 TEST_F(RtRobustness, AServoThreadThatStopsTickingEndsTheProcessWithinABoundedTime) {
