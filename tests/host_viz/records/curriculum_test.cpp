@@ -1,0 +1,105 @@
+// Curriculum files: the example names the project's scenarios; bad files are errors naming the
+// line, the field and the scenario.
+
+#include <gtest/gtest.h>
+
+#include "records/content_hash.hpp"
+#include "records/curriculum.hpp"
+
+namespace lancet::records {
+namespace {
+
+const std::string kSource = std::string(LANCET_SOURCE_DIR) + "/docs/examples/here.toml";
+
+TEST(Curriculum, ExampleLoadsTheProjectsScenarios) {
+  auto c = load_curriculum(std::string(LANCET_SOURCE_DIR) + "/docs/examples/curriculum.toml");
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_EQ(c.value().name, "Lancet basics");
+  ASSERT_EQ(c.value().steps.size(), 3u);
+  EXPECT_EQ(c.value().steps[0].scenario, "skin-incision");
+  EXPECT_EQ(c.value().steps[0].required, 3);
+  EXPECT_EQ(c.value().steps[0].consecutive, 2);
+  EXPECT_EQ(c.value().steps[1].scenario, "ct-incision");
+  EXPECT_EQ(c.value().steps[2].scenario, "bone-drilling");
+  EXPECT_EQ(c.value().steps[2].consecutive, 1);
+  EXPECT_EQ(c.value().steps[0].scenario_hash.size(), 64u);
+}
+
+TEST(Curriculum, ConsecutiveDefaultsToRequired) {
+  auto c = parse_curriculum(R"(schema_version = 1
+name = "x"
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 4
+)",
+                            kSource);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_EQ(c.value().steps[0].consecutive, 4);
+}
+
+TEST(Curriculum, MissingScenarioIsNamed) {
+  auto c = parse_curriculum(R"(schema_version = 1
+name = "x"
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 1
+[[step]]
+scenario = "no_such_scenario.toml"
+required = 1
+)",
+                            kSource);
+  ASSERT_FALSE(c.ok());
+  const std::string& m = c.error().message;
+  EXPECT_NE(m.find("here.toml:7:"), std::string::npos) << m;
+  EXPECT_NE(m.find("step[1].scenario"), std::string::npos) << m;
+  EXPECT_NE(m.find("no_such_scenario.toml"), std::string::npos) << m;
+}
+
+TEST(Curriculum, BadRulesAndRepeatsAreErrors) {
+  auto c = parse_curriculum(R"(schema_version = 1
+name = "x"
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 2
+consecutive = 3
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 0
+[[step]]
+scenario = "../../host_viz/scenarios/ct_incision.toml"
+required = 1
+consecutve = 1
+)",
+                            kSource);
+  ASSERT_FALSE(c.ok());
+  const std::string& m = c.error().message;
+  EXPECT_NE(m.find("step[0].consecutive"), std::string::npos) << m;
+  EXPECT_NE(m.find("step[1].required"), std::string::npos) << m;
+  EXPECT_NE(m.find("consecutve"), std::string::npos) << m;  // unknown key, with a "did you mean"
+}
+
+TEST(Curriculum, RepeatedScenarioIsAnError) {
+  auto c = parse_curriculum(R"(schema_version = 1
+name = "x"
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 1
+[[step]]
+scenario = "../../host_viz/scenarios/skin_incision.toml"
+required = 2
+)",
+                            kSource);
+  ASSERT_FALSE(c.ok());
+  EXPECT_NE(c.error().message.find("\"skin-incision\" again"), std::string::npos) << c.error().message;
+}
+
+TEST(ContentHash, Sha256OfKnownTexts) {
+  EXPECT_EQ(sha256_hex(""), "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+  EXPECT_EQ(sha256_hex("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+  auto missing = sha256_file("/nonexistent/lancet.h5");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find("/nonexistent/lancet.h5"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace lancet::records
