@@ -33,7 +33,8 @@ namespace {
 using namespace lancet;
 using namespace lancet::records;
 
-int fail(const std::string& message) {
+int fail(std::string message) {
+  while (!message.empty() && message.back() == '\n') message.pop_back();
   std::fprintf(stderr, "lancet-records: %s\n", message.c_str());
   return 2;
 }

@@ -8,8 +8,10 @@
 // - store: N attempts (default 1,000; distinct content hashes, the scored attempt's metrics) each
 //   stored by Store::add_attempt in its own transaction, into a fresh SQLite file (WAL,
 //   synchronous=NORMAL) and into a PostgreSQL server this bench starts (initdb in /tmp, Unix
-//   socket; fsync off, as the tests' server); attempts/s and ms per attempt, and the ratio of a
-//   stored attempt to a scored one. Then the whole export's read (Store::attempts with metrics).
+//   socket; fsync off, as the tests' server, and again on a second server with fsync on, as a
+//   lab's would run: every commit waits for its WAL flush); attempts/s and ms per attempt, and the
+//   ratio of a stored attempt to a scored one. Then the whole export's read (Store::attempts with
+//   metrics).
 // PostgreSQL is left out (with the reason in the JSON) when it cannot be started.
 
 #include <algorithm>
@@ -86,7 +88,7 @@ void bench_store(const char* label, const std::string& db, const records::Attemp
   }
   const double store_s = seconds_since(t0);
   const auto t1 = Clock::now();
-  const auto all = s.value()->attempts();
+  auto all = s.value()->attempts();
   const double read_s = seconds_since(t1);
   const double ms = store_s * 1e3 / n;
   std::printf("  \"%s\": {\"attempts\": %d, \"store_s\": %.3f, \"attempts_per_s\": %.1f, \"store_ms_per_attempt\": %.3f, "
@@ -125,9 +127,15 @@ int main(int argc, char** argv) {
   lancet::test::PostgresServer& pg = lancet::test::postgres_server();
   bench_store("sqlite", dir + "/records.db", attempt, n, score_ms, false);
   if (pg.running()) {
-    bench_store("postgresql", pg.url(), attempt, n, score_ms, true);
+    bench_store("postgresql", pg.url(), attempt, n, score_ms, false);
   } else {
-    std::printf("  \"postgresql\": {\"error\": \"%s\"}\n", pg.error().c_str());
+    std::printf("  \"postgresql\": {\"error\": \"%s\"},\n", pg.error().c_str());
+  }
+  lancet::test::PostgresServer durable(true);
+  if (durable.running()) {
+    bench_store("postgresql_fsync", durable.url(), attempt, n, score_ms, true);
+  } else {
+    std::printf("  \"postgresql_fsync\": {\"error\": \"%s\"}\n", durable.error().c_str());
   }
   std::printf("}\n");
   std::error_code ec;

@@ -21,8 +21,9 @@ namespace lancet::test {
 
 class PostgresServer {
  public:
-  /// Starts a server; error() says why when it did not.
-  PostgresServer() {
+  /// Starts a server; error() says why when it did not. `durable`: fsync on, as a real server
+  /// (tests run with it off: their data need not survive a power cut).
+  explicit PostgresServer(bool durable = false) {
     const std::string bin = find_bin();
     if (bin.empty()) {
       error_ = "PostgreSQL is not installed (no /usr/lib/postgresql/*/bin/initdb; Debian package postgresql)";
@@ -53,9 +54,9 @@ class PostgresServer {
       error_ = "initdb failed (" + dir_ + "/initdb.log)";
       return;
     }
-    // fsync off: a test server's data need not survive a power cut.
     pg_ctl_ = as_user + bin + "/pg_ctl -D " + data;
-    const std::string start = pg_ctl_ + " -w -t 60 -l " + dir_ + "/server.log -o \"-k " + dir_ + " -c listen_addresses='' -c fsync=off\" start > /dev/null 2>&1";
+    const std::string start = pg_ctl_ + " -w -t 60 -l " + dir_ + "/server.log -o \"-k " + dir_ + " -c listen_addresses=''" +
+                              (durable ? "" : " -c fsync=off") + "\" start > /dev/null 2>&1";
     if (std::system(start.c_str()) != 0) {
       error_ = "pg_ctl start failed (" + dir_ + "/server.log)";
       return;

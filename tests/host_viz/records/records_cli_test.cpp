@@ -26,7 +26,7 @@ const std::string kRecords = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-
 const std::string kScenario = std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml";
 const std::string kCurriculum = std::string(LANCET_SOURCE_DIR) + "/docs/examples/curriculum.toml";
 
-struct Run {
+struct CliRun {
   int status = -1;  ///< exit status (-1: did not exit)
   std::string output;
 };
@@ -34,13 +34,13 @@ struct Run {
 class RecordsCliTest : public BackendTest {
  protected:
   // Runs lancet-records --db <db> args... and waits for it.
-  Run records(const std::vector<std::string>& args) {
+  CliRun cli(const std::vector<std::string>& args) {
     std::vector<std::string> argv{kRecords, "--db", db_};
     argv.insert(argv.end(), args.begin(), args.end());
     const std::string out = dir_ + "/out" + std::to_string(++runs_) + ".txt";
     lancet::test::Child child(argv, out);
     const auto st = child.wait_exit(std::chrono::minutes(3));
-    Run r;
+    CliRun r;
     if (st && WIFEXITED(*st)) r.status = WEXITSTATUS(*st);
     r.output = lancet::test::read_file(out);
     return r;
@@ -79,14 +79,14 @@ class RecordsCliTest : public BackendTest {
 };
 
 TEST_P(RecordsCliTest, ImportScoresAndStoresOnceByContentHash) {
-  ASSERT_EQ(records({"trainee", "add", "t1", "--name", "Al One", "--cohort", "2026a"}).status, 0);
+  ASSERT_EQ(cli({"trainee", "add", "t1", "--name", "Al One", "--cohort", "2026a"}).status, 0);
   const std::string a = recording(1), b = recording(2);
-  const Run first = records({"import", "--trainee", "t1", a, b});
+  const CliRun first = cli({"import", "--trainee", "t1", a, b});
   ASSERT_EQ(first.status, 0) << first.output;
   EXPECT_NE(first.output.find("skin-incision"), std::string::npos) << first.output;
   // The same recording again, under another name: a no-op.
   std::filesystem::copy_file(a, dir_ + "/copy.h5");
-  const Run again = records({"import", "--trainee", "t1", a, dir_ + "/copy.h5"});
+  const CliRun again = cli({"import", "--trainee", "t1", a, dir_ + "/copy.h5"});
   ASSERT_EQ(again.status, 0) << again.output;
   EXPECT_NE(again.output.find("already stored"), std::string::npos) << again.output;
 
@@ -106,30 +106,30 @@ TEST_P(RecordsCliTest, ImportScoresAndStoresOnceByContentHash) {
 }
 
 TEST_P(RecordsCliTest, TraineesCurriculumProgressAndExport) {
-  ASSERT_EQ(records({"trainee", "add", "t2", "--name", "Bea", "--cohort", "c"}).status, 0);
-  ASSERT_EQ(records({"trainee", "add", "t1", "--name", "Al"}).status, 0);
-  const Run list = records({"trainee", "list"});
+  ASSERT_EQ(cli({"trainee", "add", "t2", "--name", "Bea", "--cohort", "c"}).status, 0);
+  ASSERT_EQ(cli({"trainee", "add", "t1", "--name", "Al"}).status, 0);
+  const CliRun list = cli({"trainee", "list"});
   ASSERT_EQ(list.status, 0);
   EXPECT_EQ(list.output, "t1\tAl\t\nt2\tBea\tc\n");
-  ASSERT_EQ(records({"curriculum", "load", kCurriculum}).status, 0);
-  const Run show = records({"curriculum", "show"});
+  ASSERT_EQ(cli({"curriculum", "load", kCurriculum}).status, 0);
+  const CliRun show = cli({"curriculum", "show"});
   ASSERT_EQ(show.status, 0);
   EXPECT_NE(show.output.find("1. skin-incision: proficient on 3 attempts, 2 of them in a row"), std::string::npos) << show.output;
-  ASSERT_EQ(records({"import", "--trainee", "t1", recording(1), recording(2)}).status, 0);
-  const Run p = records({"progress", "t1"});
+  ASSERT_EQ(cli({"import", "--trainee", "t1", recording(1), recording(2)}).status, 0);
+  const CliRun p = cli({"progress", "t1"});
   ASSERT_EQ(p.status, 0) << p.output;
   EXPECT_NE(p.output.find("skin-incision"), std::string::npos) << p.output;
   EXPECT_NE(p.output.find("  2 attempts"), std::string::npos) << p.output;
   EXPECT_NE(p.output.find("next: skin-incision"), std::string::npos) << p.output;  // 3 needed, 2 made
   const std::string csv = dir_ + "/export.csv";
-  ASSERT_EQ(records({"export", "--csv", "-o", csv}).status, 0);
+  ASSERT_EQ(cli({"export", "--csv", "-o", csv}).status, 0);
   const std::string text = lancet::test::read_file(csv);
   EXPECT_EQ(text.rfind("trainee,name,cohort,", 0), 0u);
   EXPECT_NE(text.find("t1,Al,,skin-incision,"), std::string::npos);
 }
 
 TEST_P(RecordsCliTest, TenConcurrentImportersStoreEveryAttemptOnce) {
-  ASSERT_EQ(records({"trainee", "add", "t1", "--name", "Al"}).status, 0);
+  ASSERT_EQ(cli({"trainee", "add", "t1", "--name", "Al"}).status, 0);
   std::vector<std::string> files;
   for (int i = 0; i < 10; ++i) files.push_back(recording(i));
   // Ten processes at once, each importing all ten recordings, starting at a different one.
@@ -167,40 +167,40 @@ TEST_P(RecordsCliTest, CorruptOrTruncatedRecordingIsNamedAndNothingStored) {
   const std::string junk = dir_ + "/junk.h5";
   std::ofstream(junk) << "not a recording\n";
   for (const std::string& bad : {cut, junk, dir_ + "/missing.h5"}) {
-    const Run r = records({"import", bad});
+    const CliRun r = cli({"import", bad});
     EXPECT_EQ(r.status, 2) << r.output;
     EXPECT_NE(r.output.find(bad), std::string::npos) << r.output;
   }
   EXPECT_EQ(stored_attempts(), 0u);
   // A bad file among good ones: the good ones are stored, the bad one named, exit 2.
-  const Run mixed = records({"import", good, cut});
+  const CliRun mixed = cli({"import", good, cut});
   EXPECT_EQ(mixed.status, 2);
   EXPECT_NE(mixed.output.find(cut), std::string::npos) << mixed.output;
   EXPECT_EQ(stored_attempts(), 1u);
 }
 
 TEST_P(RecordsCliTest, RecordingOfAnUnknownScenarioIsNamed) {
-  ASSERT_EQ(records({"curriculum", "load", kCurriculum}).status, 0);
+  ASSERT_EQ(cli({"curriculum", "load", kCurriculum}).status, 0);
   std::string text = lancet::test::read_file(kScenario);
   const std::size_t at = text.find("name = \"skin-incision\"");
   ASSERT_NE(at, std::string::npos);
   std::string renamed = text;
   renamed.replace(at, std::string("name = \"skin-incision\"").size(), "name = \"appendectomy\"");
-  const Run r = records({"import", recording(1, renamed)});
+  const CliRun r = cli({"import", recording(1, renamed)});
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.output.find("scenario \"appendectomy\" is not in the curriculum \"Lancet basics\""), std::string::npos) << r.output;
   // A scenario this build cannot read at all.
-  const Run unreadable = records({"import", recording(2, "schema_version = 99\nname = \"future\"\n")});
+  const CliRun unreadable = cli({"import", recording(2, "schema_version = 99\nname = \"future\"\n")});
   EXPECT_EQ(unreadable.status, 2);
   EXPECT_NE(unreadable.output.find("is unknown to this build"), std::string::npos) << unreadable.output;
   EXPECT_EQ(stored_attempts(), 0u);
 }
 
 TEST_P(RecordsCliTest, CurriculumNamingAMissingScenarioChangesNothing) {
-  ASSERT_EQ(records({"curriculum", "load", kCurriculum}).status, 0);
+  ASSERT_EQ(cli({"curriculum", "load", kCurriculum}).status, 0);
   const std::string bad = dir_ + "/bad.toml";
   std::ofstream(bad) << "schema_version = 1\nname = \"bad\"\n[[step]]\nscenario = \"appendectomy.toml\"\nrequired = 1\n";
-  const Run r = records({"curriculum", "load", bad});
+  const CliRun r = cli({"curriculum", "load", bad});
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.output.find("appendectomy.toml"), std::string::npos) << r.output;
   auto s = store();
@@ -209,30 +209,30 @@ TEST_P(RecordsCliTest, CurriculumNamingAMissingScenarioChangesNothing) {
 }
 
 TEST_P(RecordsCliTest, UnknownTraineeIsNamed) {
-  const Run r = records({"import", "--trainee", "ghost", recording(1)});
+  const CliRun r = cli({"import", "--trainee", "ghost", recording(1)});
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.output.find("trainee \"ghost\" does not exist"), std::string::npos) << r.output;
-  EXPECT_EQ(records({"progress", "ghost"}).status, 2);
+  EXPECT_EQ(cli({"progress", "ghost"}).status, 2);
   EXPECT_EQ(stored_attempts(), 0u);
-  const Run dup = [&] {
-    (void)records({"trainee", "add", "t1", "--name", "Al"});
-    return records({"trainee", "add", "t1", "--name", "Al again"});
+  const CliRun dup = [&] {
+    (void)cli({"trainee", "add", "t1", "--name", "Al"});
+    return cli({"trainee", "add", "t1", "--name", "Al again"});
   }();
   EXPECT_EQ(dup.status, 2);
   EXPECT_NE(dup.output.find("trainee \"t1\" already exists"), std::string::npos) << dup.output;
 }
 
 TEST_P(RecordsCliTest, NewerSchemaIsRefused) {
-  ASSERT_EQ(records({"trainee", "add", "t1", "--name", "Al"}).status, 0);
+  ASSERT_EQ(cli({"trainee", "add", "t1", "--name", "Al"}).status, 0);
   {
     auto c = GetParam() == Backend::kSqlite ? sql::open_sqlite(db_) : sql::open_postgresql(db_);
     ASSERT_TRUE(c.ok());
     ASSERT_TRUE(c.value()->execute("INSERT INTO schema_migrations (version, applied) VALUES (?, ?)", {kSchemaVersion + 1, "2030-01-01T00:00:00Z"}).ok());
   }
-  const Run r = records({"import", "--trainee", "t1", recording(1)});
+  const CliRun r = cli({"import", "--trainee", "t1", recording(1)});
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.output.find("newer than this build's"), std::string::npos) << r.output;
-  EXPECT_EQ(records({"trainee", "list"}).status, 2);
+  EXPECT_EQ(cli({"trainee", "list"}).status, 2);
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, RecordsCliTest, ::testing::Values(Backend::kSqlite, Backend::kPostgres), backend_name);
