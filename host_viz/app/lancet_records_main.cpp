@@ -23,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "app/tool_main.hpp"
 #include "records/attempt_scoring.hpp"
 #include "records/curriculum.hpp"
 #include "records/progress.hpp"
@@ -189,13 +190,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // Errors are returned; this is the last guard for anything else, so that bad input ends with a
-  // message and exit status 2, never an abort.
-  try {
-    return run(argc, argv);
-  } catch (const std::bad_alloc&) {
-    return fail("out of memory");
-  } catch (const std::exception& e) {
-    return fail(std::string("unexpected error: ") + e.what());
-  }
+  return lancet::app::guarded_main([&] { return run(argc, argv); }, [](const std::string& m) { return fail(m); });
 }

@@ -7,6 +7,7 @@
 
 #include "recording/hdf5_io.hpp"
 #include "records/content_hash.hpp"
+#include "records/utc_time.hpp"
 #include "scenarios/scenario.hpp"
 #include "score/metrics.hpp"
 
@@ -26,11 +27,7 @@ std::string iso_plus(const std::string& started, double seconds) {
   std::tm tm{};
   const char* end = strptime(started.c_str(), "%Y-%m-%dT%H:%M:%S", &tm);
   if (end == nullptr || !std::isfinite(seconds)) return started;
-  const std::time_t t = timegm(&tm) + static_cast<std::time_t>(std::llround(seconds));
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buf;
+  return iso_utc(timegm(&tm) + static_cast<std::time_t>(std::llround(seconds)));
 }
 
 std::string scenario_names(const Curriculum& c) {

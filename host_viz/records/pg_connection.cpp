@@ -87,14 +87,6 @@ class PgConnection final : public Connection {
     }
     return {};
   }
-  Result<void> commit() override {
-    auto r = execute("COMMIT", {});
-    if (!r.ok()) {
-      rollback();
-      return r.error();
-    }
-    return {};
-  }
   void rollback() noexcept override {
     if (PQtransactionStatus(conn_) != PQTRANS_IDLE) PQclear(PQexec(conn_, "ROLLBACK"));
   }

@@ -31,6 +31,15 @@ std::string as_text(const Value& v) {
   return {};
 }
 
+Result<void> Connection::commit() {
+  auto r = execute("COMMIT");
+  if (!r.ok()) {
+    rollback();
+    return r.error();
+  }
+  return {};
+}
+
 Value number_or_null(double v) {
   if (!std::isfinite(v)) return std::monostate{};
   return v;

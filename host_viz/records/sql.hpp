@@ -46,7 +46,8 @@ class Connection {
   /// (SQLite: BEGIN IMMEDIATE, waiting up to the busy timeout; PostgreSQL: BEGIN and an
   /// advisory transaction lock, so schema changes and the writes after them are serialised).
   virtual Result<void> begin_write() = 0;
-  virtual Result<void> commit() = 0;
+  /// Commits; a commit that fails is rolled back (the transaction is over either way).
+  [[nodiscard]] Result<void> commit();
   /// Ends a transaction without its changes; never fails (a lost connection rolls back anyway).
   virtual void rollback() noexcept = 0;
   /// "sqlite" or "postgresql".

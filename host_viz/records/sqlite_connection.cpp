@@ -36,14 +36,6 @@ class SqliteConnection final : public Connection {
     if (!r.ok()) return r.error();
     return {};
   }
-  Result<void> commit() override {
-    auto r = execute("COMMIT", {});
-    if (!r.ok()) {
-      rollback();
-      return r.error();
-    }
-    return {};
-  }
   void rollback() noexcept override {
     if (sqlite3_get_autocommit(db_) == 0) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
   }

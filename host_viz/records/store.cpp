@@ -9,6 +9,8 @@
 #include <map>
 #include <string_view>
 
+#include "records/utc_time.hpp"
+
 namespace lancet::records {
 namespace {
 
@@ -37,14 +39,7 @@ const std::array<std::vector<std::string_view>, kSchemaVersion> kMigrations{{
     },
 }};
 
-std::string iso_now() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buf;
-}
+std::string iso_now() { return iso_utc(std::time(nullptr)); }
 
 Value text_or_null(const std::string& s) {
   if (s.empty()) return std::monostate{};

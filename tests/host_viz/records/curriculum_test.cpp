@@ -6,6 +6,9 @@
 #include "records/content_hash.hpp"
 #include "records/curriculum.hpp"
 
+#include <string>
+#include <vector>
+
 namespace lancet::records {
 namespace {
 
@@ -25,52 +28,37 @@ TEST(Curriculum, ExampleLoadsTheProjectsScenarios) {
   EXPECT_EQ(c.value().steps[0].scenario_hash.size(), 64u);
 }
 
+// A curriculum's text: the header (lines 1-2), then each step as three lines and its `extra` ones.
+struct Step {
+  std::string file;
+  int required = 1;
+  std::string extra;
+};
+std::string curriculum_text(const std::vector<Step>& steps) {
+  std::string s = "schema_version = 1\nname = \"x\"\n";
+  for (const Step& st : steps) s += "[[step]]\nscenario = \"" + st.file + "\"\nrequired = " + std::to_string(st.required) + "\n" + st.extra;
+  return s;
+}
+const std::string kSkin = "../../host_viz/scenarios/skin_incision.toml";
+const std::string kCt = "../../host_viz/scenarios/ct_incision.toml";
+
 TEST(Curriculum, ConsecutiveDefaultsToRequired) {
-  auto c = parse_curriculum(R"(schema_version = 1
-name = "x"
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 4
-)",
-                            kSource);
+  auto c = parse_curriculum(curriculum_text({{kSkin, 4, ""}}), kSource);
   ASSERT_TRUE(c.ok()) << c.error().message;
   EXPECT_EQ(c.value().steps[0].consecutive, 4);
 }
 
 TEST(Curriculum, MissingScenarioIsNamed) {
-  auto c = parse_curriculum(R"(schema_version = 1
-name = "x"
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 1
-[[step]]
-scenario = "no_such_scenario.toml"
-required = 1
-)",
-                            kSource);
+  auto c = parse_curriculum(curriculum_text({{kSkin, 1, ""}, {"no_such_scenario.toml", 1, ""}}), kSource);
   ASSERT_FALSE(c.ok());
   const std::string& m = c.error().message;
-  EXPECT_NE(m.find("here.toml:7:"), std::string::npos) << m;
+  EXPECT_NE(m.find("here.toml:7:"), std::string::npos) << m;  // the second step's scenario line
   EXPECT_NE(m.find("step[1].scenario"), std::string::npos) << m;
   EXPECT_NE(m.find("no_such_scenario.toml"), std::string::npos) << m;
 }
 
-TEST(Curriculum, BadRulesAndRepeatsAreErrors) {
-  auto c = parse_curriculum(R"(schema_version = 1
-name = "x"
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 2
-consecutive = 3
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 0
-[[step]]
-scenario = "../../host_viz/scenarios/ct_incision.toml"
-required = 1
-consecutve = 1
-)",
-                            kSource);
+TEST(Curriculum, BadRulesAndUnknownKeysAreErrors) {
+  auto c = parse_curriculum(curriculum_text({{kSkin, 2, "consecutive = 3\n"}, {kCt, 0, ""}, {kSkin, 1, "consecutve = 1\n"}}), kSource);
   ASSERT_FALSE(c.ok());
   const std::string& m = c.error().message;
   EXPECT_NE(m.find("step[0].consecutive"), std::string::npos) << m;
@@ -79,16 +67,7 @@ consecutve = 1
 }
 
 TEST(Curriculum, RepeatedScenarioIsAnError) {
-  auto c = parse_curriculum(R"(schema_version = 1
-name = "x"
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 1
-[[step]]
-scenario = "../../host_viz/scenarios/skin_incision.toml"
-required = 2
-)",
-                            kSource);
+  auto c = parse_curriculum(curriculum_text({{kSkin, 1, ""}, {kSkin, 2, ""}}), kSource);
   ASSERT_FALSE(c.ok());
   EXPECT_NE(c.error().message.find("\"skin-incision\" again"), std::string::npos) << c.error().message;
 }
