@@ -65,6 +65,7 @@ int import_files(Store& store, const Args& a) {
       status = fail(attempt.error().message);
       continue;
     }
+    attempt.value().scored_by = LANCET_VERSION;
     auto stored = store.add_attempt(attempt.value());
     if (!stored.ok()) {
       status = fail(file + ": " + stored.error().message);

@@ -81,14 +81,14 @@ std::string export_csv(const std::vector<Attempt>& attempts, const std::vector<T
   std::map<std::string, const Trainee*> by_id;
   for (const Trainee& t : trainees) by_id[t.id] = &t;
   std::string out =
-      "trainee,name,cohort,scenario,scenario_hash,content_hash,recording,started,ended,duration_s,build,verdict,proficient,"
+      "trainee,name,cohort,scenario,scenario_hash,content_hash,recording,started,ended,duration_s,build,scored_by,verdict,proficient,"
       "metric,value,unit,better,band_mean,band_sd,band_k,band_limit,pass,hand\r\n";
   for (const Attempt& a : attempts) {
     const auto it = by_id.find(a.trainee_id);
     const Trainee* t = it != by_id.end() ? it->second : nullptr;
     std::string head;
     for (const std::string& f : {a.trainee_id, t != nullptr ? t->name : "", t != nullptr ? t->cohort : "", a.scenario, a.scenario_hash,
-                                 a.content_hash, a.recording, a.started, a.ended, csv_number(a.duration_s), a.build, a.verdict,
+                                 a.content_hash, a.recording, a.started, a.ended, csv_number(a.duration_s), a.build, a.scored_by, a.verdict,
                                  std::string(a.proficient ? "1" : "0")}) {
       head += csv_field(f) + ',';
     }

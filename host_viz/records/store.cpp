@@ -30,7 +30,7 @@ const std::array<std::vector<std::string_view>, kSchemaVersion> kMigrations{{
         "CREATE TABLE attempts (content_hash TEXT PRIMARY KEY, trainee_id TEXT REFERENCES trainees (id), "
         "scenario TEXT NOT NULL, scenario_hash TEXT NOT NULL, recording TEXT NOT NULL, started TEXT NOT NULL, "
         "ended TEXT NOT NULL, duration_s DOUBLE PRECISION, verdict TEXT NOT NULL, proficient BIGINT NOT NULL, "
-        "banded BIGINT NOT NULL, passed BIGINT NOT NULL, build TEXT NOT NULL, imported TEXT NOT NULL)",
+        "banded BIGINT NOT NULL, passed BIGINT NOT NULL, build TEXT NOT NULL, scored_by TEXT NOT NULL, imported TEXT NOT NULL)",
         "CREATE INDEX attempts_by_trainee ON attempts (trainee_id, scenario, started)",
         "CREATE TABLE attempt_metrics (content_hash TEXT NOT NULL REFERENCES attempts (content_hash) ON DELETE CASCADE, "
         "ordinal BIGINT NOT NULL, name TEXT NOT NULL, value DOUBLE PRECISION, unit TEXT NOT NULL, better TEXT NOT NULL, "
@@ -48,7 +48,7 @@ Value text_or_null(const std::string& s) {
 
 constexpr const char* kAttemptColumns =
     "a.content_hash, a.trainee_id, a.scenario, a.scenario_hash, a.recording, a.started, a.ended, a.duration_s, "
-    "a.verdict, a.proficient, a.banded, a.passed, a.build, a.imported";
+    "a.verdict, a.proficient, a.banded, a.passed, a.build, a.scored_by, a.imported";
 
 Attempt attempt_from(const Row& r) {
   Attempt a;
@@ -65,7 +65,8 @@ Attempt attempt_from(const Row& r) {
   a.banded = as_int(r[10]);
   a.passed = as_int(r[11]);
   a.build = as_text(r[12]);
-  a.imported = as_text(r[13]);
+  a.scored_by = as_text(r[13]);
+  a.imported = as_text(r[14]);
   return a;
 }
 
@@ -193,9 +194,9 @@ Result<bool> Store::add_attempt(const Attempt& a) {
   }
   auto n = c_->execute(
       "INSERT INTO attempts (content_hash, trainee_id, scenario, scenario_hash, recording, started, ended, duration_s, verdict, "
-      "proficient, banded, passed, build, imported) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (content_hash) DO NOTHING",
+      "proficient, banded, passed, build, scored_by, imported) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (content_hash) DO NOTHING",
       {a.content_hash, text_or_null(a.trainee_id), a.scenario, a.scenario_hash, a.recording, a.started, a.ended, sql::number_or_null(a.duration_s),
-       a.verdict, std::int64_t{a.proficient}, a.banded, a.passed, a.build, iso_now()});
+       a.verdict, std::int64_t{a.proficient}, a.banded, a.passed, a.build, a.scored_by, iso_now()});
   if (!n.ok()) return n.error();
   if (n.value() == 0) return false;  // stored before; the transaction ends with nothing written
   for (std::size_t i = 0; i < a.metrics.size(); ++i) {

@@ -8,7 +8,7 @@
 //   trainees(id, name, cohort)
 //   curriculum(position, scenario, scenario_hash, required, consecutive, name)  the ordered steps
 //   attempts(content_hash, trainee_id, scenario, scenario_hash, recording, started, ended,
-//            duration_s, verdict, proficient, banded, passed, build, imported)
+//            duration_s, verdict, proficient, banded, passed, build, scored_by, imported)
 //   attempt_metrics(content_hash, name, value, unit, better, band_mean, band_sd, band_k,
 //                   band_limit, pass, hand)
 // An attempt is keyed by its recording's content hash (SHA-256 of the file): storing the same
@@ -83,6 +83,7 @@ struct Attempt {
   bool proficient = false;    ///< every banded metric passes
   std::int64_t banded = 0, passed = 0;
   std::string build;          ///< the lancet version that recorded it
+  std::string scored_by;      ///< the lancet version that scored it (lancet-records'; "" when not known)
   std::string imported;       ///< ISO 8601 UTC, set by add_attempt
   std::vector<AttemptMetric> metrics;
 };

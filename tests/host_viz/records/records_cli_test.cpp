@@ -98,7 +98,8 @@ TEST_P(RecordsCliTest, ImportScoresAndStoresOnceByContentHash) {
   EXPECT_EQ(attempts[0].trainee_id, "t1");
   EXPECT_EQ(attempts[0].scenario, "skin-incision");
   EXPECT_EQ(attempts[0].content_hash.size(), 64u);
-  EXPECT_EQ(attempts[0].build, "test");
+  EXPECT_EQ(attempts[0].build, "test");  // the recording's
+  EXPECT_FALSE(attempts[0].scored_by.empty());  // lancet-records' own
   EXPECT_EQ(attempts[0].started, "2026-11-27T02:01:00Z");
   EXPECT_EQ(attempts[0].ended, "2026-11-27T02:01:02Z");  // 1.5 s, rounded
   EXPECT_FALSE(attempts[0].metrics.empty());

@@ -28,6 +28,7 @@ Attempt make_attempt(const std::string& hash, const std::string& trainee, const 
   a.banded = 2;
   a.passed = proficient ? 2 : 1;
   a.build = "0.1.0-test";
+  a.scored_by = "0.1.0-scorer";
   a.metrics.push_back(AttemptMetric{"task_time_s", 12.25, "s", "lower", true, 30, 10, 2, 50, true, "both"});
   a.metrics.push_back(AttemptMetric{"path_length_mm", 0.1, "mm", "lower", true, 100, 20, 2, 140, proficient, "right"});
   a.metrics.push_back(AttemptMetric{"jerk", std::numeric_limits<double>::quiet_NaN(), "m/s³", "lower", false, 0, 0, 0, 0, false, "right"});
@@ -133,6 +134,7 @@ TEST_P(StoreTest, AttemptRoundTripsWithItsMetrics) {
   EXPECT_TRUE(a.proficient);
   EXPECT_EQ(a.passed, 2);
   EXPECT_EQ(a.build, "0.1.0-test");
+  EXPECT_EQ(a.scored_by, "0.1.0-scorer");
   EXPECT_FALSE(a.imported.empty());
   ASSERT_EQ(a.metrics.size(), 3u);  // in the order given
   EXPECT_EQ(a.metrics[0].name, "task_time_s");
