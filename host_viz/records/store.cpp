@@ -199,15 +199,21 @@ Result<bool> Store::add_attempt(const Attempt& a) {
        a.verdict, std::int64_t{a.proficient}, a.banded, a.passed, a.build, a.scored_by, iso_now()});
   if (!n.ok()) return n.error();
   if (n.value() == 0) return false;  // stored before; the transaction ends with nothing written
-  for (std::size_t i = 0; i < a.metrics.size(); ++i) {
-    const AttemptMetric& m = a.metrics[i];
-    const auto band = [&](double v) { return m.has_band ? sql::number_or_null(v) : Value{}; };
-    auto r = c_->execute(
-        "INSERT INTO attempt_metrics (content_hash, ordinal, name, value, unit, better, band_mean, band_sd, band_k, band_limit, pass, hand) "
-        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-        {a.content_hash, static_cast<std::int64_t>(i), m.name, sql::number_or_null(m.value), m.unit, m.better, band(m.band_mean),
-         band(m.band_sd), band(m.band_k), band(m.band_limit), std::int64_t{m.pass}, m.hand});
-    if (!r.ok()) return r.error();
+  // Every metric in one statement: one round trip to a server however many there are.
+  if (!a.metrics.empty()) {
+    std::string statement =
+        "INSERT INTO attempt_metrics (content_hash, ordinal, name, value, unit, better, band_mean, band_sd, band_k, band_limit, pass, hand) VALUES ";
+    std::vector<Value> params;
+    params.reserve(12 * a.metrics.size());
+    for (std::size_t i = 0; i < a.metrics.size(); ++i) {
+      const AttemptMetric& m = a.metrics[i];
+      const auto band = [&](double v) { return m.has_band ? sql::number_or_null(v) : Value{}; };
+      statement += i == 0 ? "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)" : ", (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)";
+      for (Value& v : std::vector<Value>{a.content_hash, static_cast<std::int64_t>(i), m.name, sql::number_or_null(m.value), m.unit, m.better,
+                                         band(m.band_mean), band(m.band_sd), band(m.band_k), band(m.band_limit), std::int64_t{m.pass}, m.hand})
+        params.push_back(std::move(v));
+    }
+    if (auto r = c_->execute(statement, params); !r.ok()) return r.error();
   }
   if (auto r = tx.commit(); !r.ok()) return r.error();
   return true;
