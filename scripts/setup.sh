@@ -26,6 +26,9 @@ PACKAGES=(
   # session recording (HDF5: readable by h5py, MATLAB, HDFView; h5py reads it back in a test)
   # and the report's test in a real browser (headless Chromium renders it to a PNG)
   libhdf5-dev python3-h5py chromium
+  # training records (lancet-records): an SQLite file or a PostgreSQL server, attempts keyed by
+  # SHA-256 (OpenSSL's libcrypto); the server for the records' tests, started by the tests themselves
+  libsqlite3-dev libpq-dev libssl-dev postgresql
 )
 
 missing=()

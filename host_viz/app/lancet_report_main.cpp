@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "app/tool_main.hpp"
 #include "recording/hdf5_io.hpp"
 #include "score/metrics.hpp"
 #include "score/report.hpp"
@@ -159,13 +160,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // Reading returns errors; this is the last guard for anything else, so that bad input ends
-  // with a message and exit status 2, never an abort.
-  try {
-    return run(argc, argv);
-  } catch (const std::bad_alloc&) {
-    return fail("out of memory");
-  } catch (const std::exception& e) {
-    return fail(std::string("unexpected error: ") + e.what());
-  }
+  return lancet::app::guarded_main([&] { return run(argc, argv); }, [](const std::string& m) { return fail(m); });
 }

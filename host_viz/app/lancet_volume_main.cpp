@@ -23,6 +23,7 @@
 
 #include <unistd.h>
 
+#include "app/tool_main.hpp"
 #include "text/text.hpp"
 #include "volume/dicom.hpp"
 #include "volume/marching_cubes.hpp"
@@ -346,13 +347,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // The loaders return errors; this is the last guard for anything else (memory, threads), so that
-  // bad input ends with a message and exit status 2, never an abort.
-  try {
-    return run(argc, argv);
-  } catch (const std::bad_alloc&) {
-    return fail("out of memory");
-  } catch (const std::exception& e) {
-    return fail(std::string("unexpected error: ") + e.what());
-  }
+  return lancet::app::guarded_main([&] { return run(argc, argv); }, [](const std::string& m) { return fail(m); });
 }

@@ -34,6 +34,7 @@ using test::Child;
 const std::string kRt = std::string(LANCET_BINARY_DIR) + "/firmware_rt/lancet-rt";
 const std::string kViz = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-viz";
 const std::string kReport = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-report";
+const std::string kRecords = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-records";
 const std::string kSrc = LANCET_SOURCE_DIR;
 
 class RecordReplay : public test::ProcessTest {
@@ -158,6 +159,22 @@ TEST_F(RecordReplay, TheDemoIncisionReplaysBitExactly) {
   EXPECT_NE(read_file(path("other.log")).find("bone-drilling"), std::string::npos) << read_file(path("other.log"));
   EXPECT_TRUE(json_number(read_file(path("report.json")), "blood_loss_ml").has_value() ||
               read_file(path("report.json")).find("\"blood_loss_ml\"") != std::string::npos);
+  // The training records score it as the report does, and store it once.
+  const std::string json = read_file(path("report.json"));
+  const auto passed = json_number(json, "passed"), banded = json_number(json, "banded");
+  ASSERT_TRUE(passed && banded) << json;
+  const std::size_t v = json.find("\"verdict\": \"");
+  ASSERT_NE(v, std::string::npos) << json;
+  const std::string verdict = json.substr(v + 12, json.find('"', v + 12) - (v + 12));
+  for (const char* expected : {"", ", already stored"}) {
+    Child records({kRecords, "--db", path("records.db"), "import", file}, path("records.log"));
+    const auto st = records.wait_exit(60s);
+    ASSERT_TRUE(st.has_value() && WIFEXITED(*st) && WEXITSTATUS(*st) == 0) << read_file(path("records.log"));
+    char line[200];
+    std::snprintf(line, sizeof line, ": skin-incision, %s (%d of %d banded metrics pass)%s\n", verdict.c_str(), static_cast<int>(*passed),
+                  static_cast<int>(*banded), expected);
+    EXPECT_NE(read_file(path("records.log")).find(line), std::string::npos) << line << "\n" << read_file(path("records.log"));
+  }
 }
 
 // The two-handed demo (what ./lancet demo runs): both hands recorded, each hand's servo re-stepped
@@ -352,6 +369,11 @@ TEST_F(RecordReplay, BrokenAndForeignRecordingsAreRefused) {
   ASSERT_TRUE(rs.has_value() && WIFEXITED(*rs));
   EXPECT_EQ(WEXITSTATUS(*rs), 2) << read_file(path("cut_report.log"));
   EXPECT_NE(read_file(path("cut_report.log")).find(cut), std::string::npos) << read_file(path("cut_report.log"));
+  Child records({kRecords, "--db", path("records.db"), "import", cut}, path("cut_records.log"));
+  const auto cs = records.wait_exit(60s);
+  ASSERT_TRUE(cs.has_value() && WIFEXITED(*cs));
+  EXPECT_EQ(WEXITSTATUS(*cs), 2) << read_file(path("cut_records.log"));
+  EXPECT_NE(read_file(path("cut_records.log")).find(cut), std::string::npos) << read_file(path("cut_records.log"));
 
   auto rec = record::read_recording(file);
   ASSERT_TRUE(rec.ok()) << rec.error().message;
