@@ -15,6 +15,7 @@
 #include <fstream>
 #include <functional>
 #include <sstream>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -200,6 +201,7 @@ struct Degradation {
   const char* check;
   CheckStatus status;
   const char* fix_has;  ///< the fix names this ("" when the status is pass)
+  friend void PrintTo(const Degradation& d, std::ostream* os) { *os << d.what; }  // ctest's names
 };
 
 class HostCheckDegraded : public HostCheck, public ::testing::WithParamInterface<Degradation> {};
