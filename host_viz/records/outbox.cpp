@@ -59,14 +59,19 @@ Result<EntryMeta> read_meta(const fs::path& entry) {
   return m;
 }
 
-// The recording into the entry being built: renamed, or copied (also when a rename cannot cross
-// file systems, then the original removed).
+// The recording into the entry being built: renamed, or linked (a second name for the same
+// file: instant, and a recording is never written again), or copied where neither can cross file
+// systems (then, for a move, the original removed).
 Result<void> bring_in(const fs::path& from, const fs::path& to, bool move) {
   std::error_code ec;
   if (move) {
     fs::rename(from, to, ec);
     if (!ec) return {};
     if (ec != std::errc::cross_device_link) return Error{ErrorCode::kSystem, from.string() + ": cannot move into the outbox: " + ec.message()};
+  } else {
+    fs::create_hard_link(from, to, ec);
+    if (!ec) return {};
+    ec.clear();
   }
   fs::copy_file(from, to, ec);
   if (ec) return Error{ErrorCode::kSystem, from.string() + ": cannot copy into the outbox: " + ec.message()};

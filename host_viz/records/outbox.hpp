@@ -7,7 +7,7 @@
 // removed.
 //
 // On disk, the folder holds one entry per attempt, a folder named after when it was added:
-//   DIR/20261127T034501Z-4242-1/recording.h5   the recording (copied or moved in)
+//   DIR/20261127T034501Z-4242-1/recording.h5   the recording (moved, linked or copied in)
 //   DIR/20261127T034501Z-4242-1/entry          "trainee=ID\nsource=PATH\n" (whose; where it was made)
 // An entry is built in DIR/.new-* and renamed into place (atomic), so a crash never leaves a half
 // entry: only whole entries are delivered, and .new-* folders are left for a person to look at.
@@ -48,8 +48,8 @@ class Outbox {
 
   [[nodiscard]] const std::string& dir() const noexcept { return dir_; }
 
-  /// Puts the recording at `recording` into the outbox as `trainee`'s attempt: moved when `move`
-  /// (it must be on the outbox's file system), else copied. Returns the entry's folder. The entry
+  /// Puts the recording at `recording` into the outbox as `trainee`'s attempt: moved when `move`,
+  /// else linked (a second name for the file; copied when on another file system). Returns the entry's folder. The entry
   /// appears whole or not at all; on error (naming the file) the recording is where it was.
   [[nodiscard]] Result<std::string> add(const std::string& recording, const std::string& trainee, bool move);
 
