@@ -143,19 +143,20 @@ Station::Station(std::shared_ptr<Shared> shared) : shared_(std::move(shared)) {
 
 Station::~Station() { finish(std::chrono::seconds(5)); }
 
-std::string Station::recording_path() const {
+std::string Station::recording_path() {
   char when[32];
   const std::time_t now = std::time(nullptr);
   std::tm tm{};
   gmtime_r(&now, &tm);
   std::strftime(when, sizeof when, "%Y%m%dT%H%M%SZ", &tm);
-  return shared_->o.outbox + "/.recording-" + when + "-" + std::to_string(getpid()) + ".h5";
+  return shared_->o.outbox + "/.recording-" + when + "-" + std::to_string(getpid()) + "-" + std::to_string(++recordings_) + ".h5";
 }
 
+bool Station::records_into_outbox(const std::string& path) const { return path.rfind(shared_->o.outbox + "/.recording-", 0) == 0; }
+
 void Station::attempt_recorded(const std::string& path) {
-  const bool ours = path.rfind(shared_->o.outbox + "/.recording-", 0) == 0;
   records::Outbox box(shared_->o.outbox);
-  auto added = box.add(path, shared_->o.trainee, ours);
+  auto added = box.add(path, shared_->o.trainee, records_into_outbox(path));
   if (!added.ok()) {
     std::fprintf(stderr, "lancet-viz: records: %s: the attempt is not kept for the records\n", added.error().message.c_str());
     return;

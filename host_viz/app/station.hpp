@@ -38,8 +38,11 @@ class Station {
   Station(const Station&) = delete;
   Station& operator=(const Station&) = delete;
 
-  /// Where an attempt is recorded when no --record was given: a new name in the outbox folder.
-  [[nodiscard]] std::string recording_path() const;
+  /// Where an attempt is recorded when no --record was given: a new name in the outbox folder
+  /// each call.
+  [[nodiscard]] std::string recording_path();
+  /// Whether `path` is one of recording_path()'s.
+  [[nodiscard]] bool records_into_outbox(const std::string& path) const;
   /// A recording finished: into the outbox (moved when it is one of recording_path()'s, else
   /// linked or copied: the file stays where --record put it), and a delivery asked for.
   void attempt_recorded(const std::string& path);
@@ -57,6 +60,7 @@ class Station {
   std::shared_ptr<Shared> shared_;
   std::thread thread_;  ///< the deliveries; joined by finish, or left to end with the process
   bool finished_ = false;
+  int recordings_ = 0;  ///< recording_path()'s names so far
 };
 
 }  // namespace lancet::viz

@@ -362,7 +362,9 @@ void VizApp::manage_recording() {
       char name[64];
       const std::time_t wall = std::time(nullptr);
       std::strftime(name, sizeof name, "lancet-%Y%m%d-%H%M%S.h5", std::localtime(&wall));
-      arm_recording(name);
+      // A trainee's station without --record records every attempt into its outbox.
+      const bool outbox = station_ != nullptr && station_->records_into_outbox(o_.record_path);
+      arm_recording(outbox ? station_->recording_path() : name);
     }
   }
   // lancet-rt went away while recording: with --record, the next attempt is recorded once it is
