@@ -11,17 +11,14 @@
 #include <memory>
 #include <string>
 
-#include "../score/synthetic_recording.hpp"
+#include "attempt_recording.hpp"
 #include "process.hpp"
-#include "recording/hdf5_io.hpp"
 #include "temp_files.hpp"
 
 namespace lancet::records {
 namespace {
 
 namespace fs = std::filesystem;
-
-const std::string kScenario = std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml";
 
 class OutboxTest : public lancet::test::TempDirTest {
  protected:
@@ -35,18 +32,8 @@ class OutboxTest : public lancet::test::TempDirTest {
 
   // A recording of skin-incision whose content `n` makes differ.
   std::string recording(int n) {
-    record::Recording r = record::test::make_recording(800, [n](std::size_t i, double, ToolSample& s) {
-      s.stage = i < 200 ? Stage::kFree : Stage::kCutting;
-      s.tool.position = Vec3{-0.015 + 2e-5 * static_cast<double>(i), -0.012 + 1e-6 * n, 0};
-    });
-    record::test::mark_cut_progress(r);
-    r.created = "2026-11-27T03:0" + std::to_string(n) + ":00Z";
-    r.scenario_toml = lancet::test::read_file(kScenario);
-    r.scenario_file = kScenario;
-    r.scenario_name = "skin-incision";
     const std::string path = (dir_ / ("attempt" + std::to_string(n) + ".h5")).string();
-    auto w = record::write_recording(path, r);
-    EXPECT_TRUE(w.ok()) << w.error().message;
+    test::write_attempt_recording(path, n);
     return path;
   }
 
