@@ -44,12 +44,12 @@ int fail(std::string message) {
 
 struct Args {
   std::string db;
+  std::string outbox;  ///< deliver --outbox ("" the default beside --db)
   std::vector<std::string> files;
   std::string trainee;  ///< import --trainee, progress TRAINEE
   Trainee new_trainee;
   std::string curriculum_file;
   std::string output;  ///< export -o
-  std::string outbox;  ///< deliver --outbox ("" the default beside --db)
   bool csv = false;
 };
 
