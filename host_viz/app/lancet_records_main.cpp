@@ -5,6 +5,7 @@
 //   lancet-records curriculum load FILE.toml | curriculum show
 //   lancet-records progress TRAINEE
 //   lancet-records export --csv [-o FILE]
+//   lancet-records deliver [--outbox DIR]
 // --db defaults to ~/.local/share/lancet/records.db (records::default_database_path), created with
 // its folders. docs/RECORDS.md is the guide.
 // Exit status: 0 done; 2 bad arguments or bad input (a recording that cannot be read or scored, an
@@ -26,6 +27,7 @@
 #include "app/tool_main.hpp"
 #include "records/attempt_scoring.hpp"
 #include "records/curriculum.hpp"
+#include "records/outbox.hpp"
 #include "records/progress.hpp"
 #include "records/store.hpp"
 
@@ -42,6 +44,7 @@ int fail(std::string message) {
 
 struct Args {
   std::string db;
+  std::string outbox;  ///< deliver --outbox ("" the default beside --db)
   std::vector<std::string> files;
   std::string trainee;  ///< import --trainee, progress TRAINEE
   Trainee new_trainee;
@@ -129,6 +132,17 @@ int export_records(Store& store, const Args& a) {
   return 0;
 }
 
+// A station's outbox into the records: exit 0 when it is empty afterwards, 2 when attempts still
+// wait (the database cannot be reached) or some were moved aside (each named).
+int deliver_outbox(const Args& a) {
+  Outbox box(a.outbox.empty() ? default_outbox_path(a.db) : a.outbox);
+  const Delivery d = box.deliver(a.db, LANCET_VERSION);
+  for (const std::string& r : d.rejected) (void)fail(r + " (moved aside, not tried again)");
+  std::printf("%s: %zu attempts stored, %zu stored before, %zu waiting\n", box.dir().c_str(), d.stored, d.already_stored, d.waiting);
+  if (d.waiting > 0) return fail("attempts still wait in " + box.dir() + ": " + d.error);
+  return d.rejected.empty() ? 0 : 2;
+}
+
 int run(int argc, char** argv) {
   CLI::App app{"lancet-records: trainees, the curriculum and every scored attempt, in SQLite or PostgreSQL"};
   app.require_subcommand(1);
@@ -153,6 +167,8 @@ int run(int argc, char** argv) {
   auto* export_cmd = app.add_subcommand("export", "every attempt's every metric");
   export_cmd->add_flag("--csv", a.csv, "as CSV (the only format)")->required();
   export_cmd->add_option("-o,--output", a.output, "the file to write (default: stdout)");
+  auto* deliver_cmd = app.add_subcommand("deliver", "store the attempts waiting in a station's outbox (lancet-viz --trainee)");
+  deliver_cmd->add_option("--outbox", a.outbox, "the outbox folder (default: beside an SQLite --db, else ~/.local/share/lancet/outbox)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -167,6 +183,7 @@ int run(int argc, char** argv) {
     if (!c.ok()) return fail(c.error().message);
     curriculum = std::move(c.value());
   }
+  if (*deliver_cmd) return deliver_outbox(a);
   auto opened = Store::open(a.db);
   if (!opened.ok()) return fail(opened.error().message);
   Store& store = *opened.value();

@@ -9,6 +9,7 @@
 // replay, the window; the frame loop is app/viz_app.
 
 #include <atomic>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <memory>
@@ -16,6 +17,7 @@
 #include <utility>
 
 #include "app/sample_trace.hpp"
+#include "app/station.hpp"
 #include "app/viz_app.hpp"
 #include "app/viz_cli.hpp"
 #include "recording/hdf5_io.hpp"
@@ -80,6 +82,19 @@ int main(int argc, char** argv) {
   std::signal(SIGHUP, on_signal);
 
   lancet::viz::VizSources sources;
+  // --trainee: the station (the trainee checked, what waits delivered); without --record each
+  // attempt is recorded into its outbox.
+  std::unique_ptr<lancet::viz::Station> station;
+  if (!o.trainee.empty()) {
+    auto s = lancet::viz::Station::start({o.trainee, o.db, o.outbox, LANCET_VERSION});
+    if (!s.ok()) {
+      std::fprintf(stderr, "lancet-viz: %s\n", s.error().message.c_str());
+      return 2;
+    }
+    station = std::move(s).value();
+    if (o.record_path.empty()) o.record_path = station->recording_path();
+    sources.station = station.get();
+  }
   if (!o.trace_path.empty()) {
     auto trace = lancet::viz::SampleTrace::create(o.trace_path);
     if (!trace.ok()) {
@@ -126,5 +141,8 @@ int main(int argc, char** argv) {
 
   lancet::viz::VizApp app(o, win, std::move(sources), LANCET_VERSION);
   const int exit_code = app.run(g_stop);
-  return app.finish(exit_code);
+  const int code = app.finish(exit_code);
+  // The last attempt's delivery: a bounded wait, then it stays in the outbox.
+  if (station) station->finish(std::chrono::seconds(5));
+  return code;
 }

@@ -35,7 +35,9 @@ void RecorderControl::stop() {
                 recorder_->path().c_str(), done.ok() ? "" : ": ", done.ok() ? "" : done.error().message.c_str());
     std::fflush(stdout);
     message_ = "recorded " + recorder_->path();
+    const std::string path = recorder_->path();
     recorder_.reset();
+    if (done.ok() && on_recorded_) on_recorded_(path);
   }
   state_ = State::kOff;
 }

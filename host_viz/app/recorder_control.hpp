@@ -16,6 +16,7 @@
 #include <array>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -42,6 +43,8 @@ class RecorderControl {
 
   /// Arms a recording to `path`; the caller has just made the fresh scene it will record.
   void arm(std::string path);
+  /// Called with the file's path each time a recording is finished whole (none: nothing called).
+  void set_on_recorded(std::function<void(const std::string&)> on_recorded) { on_recorded_ = std::move(on_recorded); }
   /// Says why a recording could not be armed (shown on the panel).
   void set_message(std::string message) { message_ = std::move(message); }
   /// Finishes the file being written (if any) and turns recording off.
@@ -80,6 +83,7 @@ class RecorderControl {
   std::uint64_t frames_ = 0, last_seq_ = 0, frame_ticks_ = 0;
   std::vector<record::SceneEvent> events_;
   std::string message_;
+  std::function<void(const std::string&)> on_recorded_;
   /// By hand: (version, patch), newest last.
   std::array<std::deque<std::pair<std::uint64_t, std::unique_ptr<TissuePatch>>>, kHandCount> armed_patches_;
 };

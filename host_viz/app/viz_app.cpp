@@ -44,10 +44,12 @@ VizApp::VizApp(const VizOptions& o, render::Window& win, VizSources sources, std
       replay_(std::move(sources.replay)),
       trace_(std::move(sources.trace)),
       tool_(std::move(sources.tool)),
+      station_(sources.station),
       session_(session_params(o)),
       recorder_(o.record_path, sim().setup(), sim().scenario() != nullptr ? sim().scenario()->name : "", std::move(lancet_version)),
       live_(session_, recorder_, trace_.get()),
       clock_(o.replay_speed) {
+  if (station_ != nullptr) recorder_.set_on_recorded([this](const std::string& path) { station_->attempt_recorded(path); });
   const scenario::Scenario* scenario = sim().scenario();
   const std::vector<ToolMode> all{ToolMode::kProbe, ToolMode::kScalpel, ToolMode::kRetractor, ToolMode::kDrill, ToolMode::kSwab};
   offered_ = {scenario != nullptr ? scenario->tools : all, scenario != nullptr ? scenario->left_tools : all};
@@ -279,6 +281,9 @@ render::PanelState VizApp::panel_state(std::int64_t now, const ToolSample* lates
                rs ? static_cast<float>(rs->wake_p99_ns) * 1e-3f : 0.0f);
   wake_.update(rs, now);
   render::PanelState panel;
+  if (station_ != nullptr) {
+    for (auto& [text, alert] : station_->panel_lines()) panel.trainee.push_back({std::move(text), alert});
+  }
   if (sim().task() != nullptr) {
     panel.task_progress = static_cast<float>(sim().task()->status().progress);
     panel.task_label = sim().scenario()->task == scenario::TaskKind::kIncision ? "incision along the line" : "drill the window";
@@ -357,7 +362,9 @@ void VizApp::manage_recording() {
       char name[64];
       const std::time_t wall = std::time(nullptr);
       std::strftime(name, sizeof name, "lancet-%Y%m%d-%H%M%S.h5", std::localtime(&wall));
-      arm_recording(name);
+      // A trainee's station without --record records every attempt into its outbox.
+      const bool outbox = station_ != nullptr && station_->records_into_outbox(o_.record_path);
+      arm_recording(outbox ? station_->recording_path() : name);
     }
   }
   // lancet-rt went away while recording: with --record, the next attempt is recorded once it is

@@ -15,6 +15,7 @@
 #include "app/recorder_control.hpp"
 #include "app/replay_clock.hpp"
 #include "app/sample_trace.hpp"
+#include "app/station.hpp"
 #include "app/viz_cli.hpp"
 #include "app/viz_input.hpp"
 #include "app/viz_panel.hpp"
@@ -34,6 +35,7 @@ struct VizSources {
   std::unique_ptr<record::Replay> replay;    ///< --replay (null when live)
   std::unique_ptr<SampleTrace> trace;        ///< --trace (null: none)
   std::string tool;                          ///< the tool to pick when connected ("" none)
+  Station* station = nullptr;                ///< --trainee: where each recording goes (null: none); outlives the app
 };
 
 class VizApp {
@@ -72,6 +74,7 @@ class VizApp {
   std::unique_ptr<record::Replay> replay_;
   std::unique_ptr<SampleTrace> trace_;
   std::string tool_;
+  Station* station_;
   VizSession session_;
   RecorderControl recorder_;
   LiveFrame live_;

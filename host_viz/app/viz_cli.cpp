@@ -76,6 +76,15 @@ std::optional<int> parse_viz_cli(int argc, char** argv, VizOptions& o) {
                          ->excludes(scenario_opt);
   cli.add_option("--replay-speed", o.replay_speed, "replay at this multiple of real time (space pauses in the window)")
       ->check(CLI::Range(0.01, 1000.0))->capture_default_str()->needs(replay_opt);
+  auto* trainee_opt = cli.add_option("--trainee", o.trainee,
+                                     "record each attempt as this trainee's (without --record, into the outbox), score it and store it "
+                                     "in the records; the panel shows where the trainee stands in the curriculum (docs/RECORDS.md)")
+                          ->excludes(replay_opt);
+  cli.add_option("--db", o.db, "with --trainee: the records, an SQLite file or a postgresql:// URL (default: as lancet-records')")
+      ->needs(trainee_opt);
+  cli.add_option("--outbox", o.outbox,
+                 "with --trainee: where attempts wait until stored (default: beside an SQLite --db, else ~/.local/share/lancet/outbox)")
+      ->needs(trainee_opt);
   try {
     cli.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -34,6 +34,9 @@ struct VizOptions {
   std::string record_path;            ///< --record ("" none)
   std::string replay_path;            ///< --replay ("" none)
   double replay_speed = 1;            ///< multiple of real time
+  std::string trainee;                ///< --trainee: each recording is this trainee's attempt ("" none)
+  std::string db;                     ///< --db: the records ("" records::default_database_path())
+  std::string outbox;                 ///< --outbox ("" records::default_outbox_path(db))
 };
 
 /// The names of the views (--view, --screenshot-view), by view number.

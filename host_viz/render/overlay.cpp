@@ -177,6 +177,9 @@ PanelActions Overlay::build(const std::string& title, const std::vector<OverlayL
     // would move the editor's canvas under the pointer as its lines change.
     ImGui::SetNextWindowSizeConstraints(ImVec2(kPanelWidth, 0), ImVec2(kPanelWidth, FLT_MAX));
     ImGui::Begin("Controls", nullptr, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoSavedSettings);
+    ImGui::PushTextWrapPos(0.0f);  // (why the records cannot be reached may be a long line)
+    for (const OverlayLine& l : p.trainee) text_line(l);
+    ImGui::PopTextWrapPos();
     if (p.task_progress >= 0) {
       ImGui::TextUnformatted(p.task_label.c_str());
       ImGui::ProgressBar(p.task_progress, ImVec2(260, 0));

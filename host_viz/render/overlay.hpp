@@ -23,6 +23,9 @@ struct OverlayLine {
 /// history, the volume's view and transfer function. What the user clicked comes back in
 /// PanelActions (headless: nothing is clicked, the panel is drawn for the screenshot).
 struct PanelState {
+  /// lancet-viz --trainee: where the trainee stands in the curriculum, or that the records cannot
+  /// be reached (alert); empty: no trainee.
+  std::vector<OverlayLine> trainee;
   float task_progress = -1;             ///< 0..1; < 0: no task
   std::string task_label;
   std::vector<std::string> tools;       ///< offered, in key order

@@ -55,13 +55,9 @@ class PostgresServer {
       return;
     }
     pg_ctl_ = as_user + bin + "/pg_ctl -D " + data;
-    const std::string start = pg_ctl_ + " -w -t 60 -l " + dir_ + "/server.log -o \"-k " + dir_ + " -c listen_addresses=''" +
-                              (durable ? "" : " -c fsync=off") + "\" start > /dev/null 2>&1";
-    if (std::system(start.c_str()) != 0) {
-      error_ = "pg_ctl start failed (" + dir_ + "/server.log)";
-      return;
-    }
-    running_ = true;
+    start_ = pg_ctl_ + " -w -t 60 -l " + dir_ + "/server.log -o \"-k " + dir_ + " -c listen_addresses=''" +
+             (durable ? "" : " -c fsync=off") + "\" start > /dev/null 2>&1";
+    if (!start()) error_ = "pg_ctl start failed (" + dir_ + "/server.log)";
   }
   ~PostgresServer() {
     if (running_) (void)std::system((pg_ctl_ + " -w -m immediate stop > /dev/null 2>&1").c_str());
@@ -72,6 +68,17 @@ class PostgresServer {
   PostgresServer& operator=(const PostgresServer&) = delete;
 
   [[nodiscard]] bool running() const { return running_; }
+  /// Stops the server (fast shutdown: the connections are ended), as a lab's server going away;
+  /// start() brings it back with its data, at the same URL. True when done.
+  bool stop() {
+    if (!running_ || std::system((pg_ctl_ + " -w -m fast stop > /dev/null 2>&1").c_str()) != 0) return false;
+    running_ = false;
+    return true;
+  }
+  bool start() {
+    if (!running_ && !start_.empty() && std::system(start_.c_str()) == 0) running_ = true;
+    return running_;
+  }
   [[nodiscard]] const std::string& error() const { return error_; }
   /// The URL of database `db` on this server (the database "postgres" always exists).
   [[nodiscard]] std::string url(const std::string& db = "postgres") const { return "postgresql://lancet@/" + db + "?host=" + dir_; }
@@ -88,6 +95,7 @@ class PostgresServer {
 
   std::string dir_;
   std::string pg_ctl_;
+  std::string start_;  ///< the pg_ctl start command
   std::string error_;
   bool running_ = false;
 };
