@@ -131,7 +131,7 @@ std::string cusum_chart(const CusumResult& r, const CusumDesign& d, const Standi
   c.pad_y(0.06);
   std::string s = "<figure class=\"cusum\">" + c.open("CUSUM of failures", id, "attempt", "CUSUM", true);
   s += c.hline(d.h1, "h1", "h1 = " + text::format("%.2f", d.h1) + ": failure rate unacceptable");
-  s += c.hline(-d.h0, "h0", "-h0 = " + text::format("%.2f", -d.h0) + ": failure rate acceptable");
+  s += c.hline(-d.h0, "h0", "-h0 = " + text::format("%.2f", -d.h0) + ": failure rate acceptable", false);
   s += c.hline(0, "grid", "");
   if (st.proficient) {
     const double x = c.sx(static_cast<double>(st.proficient_at));
@@ -145,6 +145,7 @@ std::string cusum_chart(const CusumResult& r, const CusumDesign& d, const Standi
   if (r.acceptable_at > 0) s += "; reached -h0 (acceptable) at attempt " + std::to_string(r.acceptable_at);
   if (r.unacceptable_at > 0) s += "; reached h1 (unacceptable) at attempt " + std::to_string(r.unacceptable_at);
   if (st.proficient) s += "; the green vertical line: the curriculum's rule met";
+  s += ". Going down: failing less often than s = " + text::format("%.3f", d.s) + " of attempts; up: more often";
   return s + "</figcaption></figure>\n";
 }
 

@@ -105,10 +105,10 @@ std::string Chart::open(std::string_view label, std::string_view clip_id, std::s
   return s;
 }
 
-std::string Chart::hline(double y, std::string_view css_class, std::string_view label) const {
+std::string Chart::hline(double y, std::string_view css_class, std::string_view label, bool label_above) const {
   const double right = width - margin_right;
   return "<line class=\"" + std::string(css_class) + "\" x1=\"" + num(margin_left) + "\" x2=\"" + num(right) + "\" y1=\"" + num(sy(y)) + "\" y2=\"" +
-         num(sy(y)) + "\"/><text x=\"" + num(right - 3) + "\" y=\"" + num(sy(y) - 3) + "\" text-anchor=\"end\">" + text::xml_escape(label) +
+         num(sy(y)) + "\"/><text x=\"" + num(right - 3) + "\" y=\"" + num(label_above ? sy(y) - 3 : sy(y) + 11) + "\" text-anchor=\"end\">" + text::xml_escape(label) +
          "</text>\n";
 }
 

@@ -35,8 +35,9 @@ struct Chart {
   /// labels (x ticks on whole numbers when `whole_x`) and both axis titles.
   [[nodiscard]] std::string open(std::string_view label, std::string_view clip_id, std::string_view x_title, std::string_view y_title,
                                  bool whole_x) const;
-  /// A horizontal line across the data area at `y` with a label at its right end.
-  [[nodiscard]] std::string hline(double y, std::string_view css_class, std::string_view label) const;
+  /// A horizontal line across the data area at `y` with a label at its right end, above the line
+  /// or below it.
+  [[nodiscard]] std::string hline(double y, std::string_view css_class, std::string_view label, bool label_above = true) const;
 };
 
 }  // namespace lancet::records::html
