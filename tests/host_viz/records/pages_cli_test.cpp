@@ -16,34 +16,15 @@
 #include <vector>
 
 #include "headless_chromium.hpp"
-#include "process.hpp"
 #include "records/store.hpp"
+#include "records_cli.hpp"
 #include "synthetic_attempts.hpp"
-#include "test_database.hpp"
 
 namespace lancet::records::test {
 namespace {
 
-const std::string kRecords = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-records";
-
-class PagesCliTest : public BackendTest {
+class PagesCliTest : public CliTest {
  protected:
-  struct Run {
-    int status = -1;
-    std::string output;
-  };
-  Run cli(const std::vector<std::string>& args) {
-    std::vector<std::string> argv{kRecords, "--db", db_};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const std::string out = dir_ + "/out" + std::to_string(++runs_) + ".txt";
-    lancet::test::Child child(argv, out);
-    const auto st = child.wait_exit(std::chrono::minutes(3));
-    Run r;
-    if (st && WIFEXITED(*st)) r.status = WEXITSTATUS(*st);
-    r.output = lancet::test::read_file(out);
-    return r;
-  }
-
   // Cohort "k&1": "t1" learning incision (24 attempts) and on to suture (3); "t2" stuck on
   // incision (12 failures); "t3" with no attempts. "t4" in another cohort.
   void fill() {
@@ -63,12 +44,12 @@ class PagesCliTest : public BackendTest {
 
 TEST_P(PagesCliTest, ProgressAndCohortAsTextAndPages) {
   fill();
-  const Run text = cli({"progress", "t1"});
+  const CliRun text = cli({"progress", "t1"});
   EXPECT_EQ(text.status, 0) << text.output;
   EXPECT_NE(text.output.find("next: suture"), std::string::npos) << text.output;
 
   const std::string progress_page = dir_ + "/progress.html";
-  const Run page = cli({"progress", "t1", "-o", progress_page});
+  const CliRun page = cli({"progress", "t1", "-o", progress_page});
   ASSERT_EQ(page.status, 0) << page.output;
   const std::string html = lancet::test::read_file(progress_page);
   EXPECT_NE(html.find("Ann &lt;Lee&gt;"), std::string::npos);
@@ -76,7 +57,7 @@ TEST_P(PagesCliTest, ProgressAndCohortAsTextAndPages) {
   EXPECT_NE(html.find("<figure class=\"cusum\">"), std::string::npos);
   EXPECT_NE(html.find("data-metric=\"task_time_s\""), std::string::npos);
 
-  const Run cohort_text = cli({"cohort", "k&1", "--stuck-after", "12"});
+  const CliRun cohort_text = cli({"cohort", "k&1", "--stuck-after", "12"});
   EXPECT_EQ(cohort_text.status, 0) << cohort_text.output;
   EXPECT_NE(cohort_text.output.find("3 trainees"), std::string::npos) << cohort_text.output;
   EXPECT_EQ(cohort_text.output.find("t4"), std::string::npos) << cohort_text.output;
@@ -92,15 +73,15 @@ TEST_P(PagesCliTest, ProgressAndCohortAsTextAndPages) {
 
 TEST_P(PagesCliTest, BadInputIsAClearErrorWithStatus2) {
   fill();
-  const Run nobody = cli({"progress", "nobody", "-o", dir_ + "/p.html"});
+  const CliRun nobody = cli({"progress", "nobody", "-o", dir_ + "/p.html"});
   EXPECT_EQ(nobody.status, 2);
   EXPECT_NE(nobody.output.find("trainee \"nobody\" does not exist"), std::string::npos) << nobody.output;
   EXPECT_FALSE(std::filesystem::exists(dir_ + "/p.html"));
-  const Run empty = cli({"cohort", "ghosts"});
+  const CliRun empty = cli({"cohort", "ghosts"});
   EXPECT_EQ(empty.status, 2);
   EXPECT_NE(empty.output.find("cohort \"ghosts\" has no trainees"), std::string::npos) << empty.output;
   EXPECT_EQ(cli({"cohort", "k&1", "--stuck-after", "0"}).status, 2);
-  const Run unwritable = cli({"progress", "t1", "-o", dir_ + "/no/such/folder/p.html"});
+  const CliRun unwritable = cli({"progress", "t1", "-o", dir_ + "/no/such/folder/p.html"});
   EXPECT_EQ(unwritable.status, 2);
   EXPECT_NE(unwritable.output.find("cannot write the page"), std::string::npos) << unwritable.output;
 }
