@@ -92,7 +92,9 @@ std::string learning_curve(const Series& m, const std::string& id) {
   for (const AttemptMetric* a : m.at) {
     if (a == nullptr) continue;
     for (const double v : {a->value, a->has_band ? a->band_limit : NAN, a->has_band ? a->band_mean : NAN}) {
-      if (std::isfinite(v)) c.y0 = std::min(c.y0, v), c.y1 = std::max(c.y1, v);
+      if (!std::isfinite(v)) continue;
+      c.y0 = std::min(c.y0, v);
+      c.y1 = std::max(c.y1, v);
     }
   }
   if (!(c.y0 <= c.y1)) c.y0 = c.y1 = 0;  // nothing measured
@@ -127,7 +129,10 @@ std::string cusum_chart(const CusumResult& r, const CusumDesign& d, const Standi
   c.x1 = std::max<double>(1, static_cast<double>(r.sum.size()));
   c.y0 = -d.h0;
   c.y1 = d.h1;
-  for (const double v : r.sum) c.y0 = std::min(c.y0, v), c.y1 = std::max(c.y1, v);
+  for (const double v : r.sum) {
+    c.y0 = std::min(c.y0, v);
+    c.y1 = std::max(c.y1, v);
+  }
   c.pad_y(0.06);
   std::string s = "<figure class=\"cusum\">" + c.open("CUSUM of failures", id, "attempt", "CUSUM", true);
   s += c.hline(d.h1, "h1", "h1 = " + text::format("%.2f", d.h1) + ": failure rate unacceptable");
