@@ -3,7 +3,8 @@
 //   lancet-records [--db FILE|postgresql://...] import FILE.h5... [--trainee ID]
 //   lancet-records trainee add ID --name NAME [--cohort C] | trainee list
 //   lancet-records curriculum load FILE.toml | curriculum show
-//   lancet-records progress TRAINEE
+//   lancet-records progress TRAINEE [-o page.html]
+//   lancet-records cohort COHORT [-o page.html] [--stuck-after N]
 //   lancet-records export --csv [-o FILE]
 //   lancet-records deliver [--outbox DIR]
 // --db defaults to ~/.local/share/lancet/records.db (records::default_database_path), created with
@@ -17,6 +18,7 @@
 
 #include <cstdio>
 #include <exception>
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <new>
@@ -26,9 +28,11 @@
 
 #include "app/tool_main.hpp"
 #include "records/attempt_scoring.hpp"
+#include "records/cohort_page.hpp"
 #include "records/curriculum.hpp"
 #include "records/outbox.hpp"
 #include "records/progress.hpp"
+#include "records/progress_page.hpp"
 #include "records/store.hpp"
 
 namespace {
@@ -49,7 +53,9 @@ struct Args {
   std::string trainee;  ///< import --trainee, progress TRAINEE
   Trainee new_trainee;
   std::string curriculum_file;
-  std::string output;  ///< export -o
+  std::string output;  ///< export, progress and cohort -o
+  std::string cohort;  ///< cohort COHORT
+  std::size_t stuck_after = kDefaultStuckAfter;
   bool csv = false;
 };
 
@@ -101,17 +107,60 @@ int show_curriculum(Store& store) {
   return 0;
 }
 
-int show_progress(Store& store, const std::string& id) {
+// Writes `text` to `path`; true when it was written.
+bool write_file(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (out) out.write(text.data(), static_cast<std::streamsize>(text.size()));
+  if (out) out.close();
+  return static_cast<bool>(out);
+}
+
+// The folder `path` will be in, absolute (recording links on a page are made relative to it).
+std::string page_folder(const std::string& path) {
+  std::error_code ec;
+  const std::filesystem::path p = std::filesystem::absolute(path, ec);
+  return ec ? std::string() : p.parent_path().string();
+}
+
+int show_progress(Store& store, const std::string& id, const std::string& output) {
   auto t = store.find_trainee(id);
   if (!t.ok()) return fail(t.error().message);
   if (!t.value()) return fail(store.name() + ": trainee \"" + id + "\" does not exist");
   auto c = store.curriculum();
   if (!c.ok()) return fail(c.error().message);
   if (c.value().steps.empty()) return fail(store.name() + ": no curriculum loaded (lancet-records curriculum load FILE.toml)");
-  auto attempts = store.attempts(AttemptFilter{id, std::nullopt, false});
+  auto attempts = store.attempts(AttemptFilter{id, std::nullopt, !output.empty()});
   if (!attempts.ok()) return fail(attempts.error().message);
-  const std::string text = progress_text(progress(*t.value(), c.value(), attempts.value()));
-  std::fwrite(text.data(), 1, text.size(), stdout);
+  const Progress p = progress(*t.value(), c.value(), attempts.value());
+  if (output.empty()) {
+    const std::string text = progress_text(p);
+    std::fwrite(text.data(), 1, text.size(), stdout);
+    return 0;
+  }
+  if (!write_file(output, progress_html(p, attempts.value(), ProgressPageOptions{{}, page_folder(output)}))) return fail(output + ": cannot write the page");
+  return 0;
+}
+
+int show_cohort(Store& store, const Args& a) {
+  auto all = store.trainees();
+  if (!all.ok()) return fail(all.error().message);
+  std::vector<Trainee> members;
+  for (const Trainee& t : all.value()) {
+    if (t.cohort == a.cohort) members.push_back(t);
+  }
+  if (members.empty()) return fail(store.name() + ": cohort \"" + a.cohort + "\" has no trainees (lancet-records trainee add ID --name NAME --cohort " + a.cohort + ")");
+  auto c = store.curriculum();
+  if (!c.ok()) return fail(c.error().message);
+  if (c.value().steps.empty()) return fail(store.name() + ": no curriculum loaded (lancet-records curriculum load FILE.toml)");
+  auto attempts = store.attempts(AttemptFilter{std::nullopt, a.cohort, false});
+  if (!attempts.ok()) return fail(attempts.error().message);
+  const Cohort k = cohort(a.cohort, members, c.value(), attempts.value(), a.stuck_after);
+  if (a.output.empty()) {
+    const std::string text = cohort_text(k);
+    std::fwrite(text.data(), 1, text.size(), stdout);
+    return 0;
+  }
+  if (!write_file(a.output, cohort_html(k))) return fail(a.output + ": cannot write the page");
   return 0;
 }
 
@@ -164,6 +213,12 @@ int run(int argc, char** argv) {
   auto* curriculum_show = curriculum_cmd->add_subcommand("show", "the curriculum's steps and their rules");
   auto* progress_cmd = app.add_subcommand("progress", "a trainee's standing on each step of the curriculum and the next scenario");
   progress_cmd->add_option("trainee", a.trainee, "the trainee's id")->required();
+  progress_cmd->add_option("-o,--output", a.output, "write an HTML page (learning curves, CUSUM, attempts) instead of text");
+  auto* cohort_cmd = app.add_subcommand("cohort", "every trainee of a cohort: current step, attempts, last attempt, who is stuck");
+  cohort_cmd->add_option("cohort", a.cohort, "the cohort")->required();
+  cohort_cmd->add_option("-o,--output", a.output, "write an HTML page instead of text");
+  cohort_cmd->add_option("--stuck-after", a.stuck_after, "stuck: this many attempts at the current step without meeting it")
+      ->capture_default_str()->check(CLI::PositiveNumber);
   auto* export_cmd = app.add_subcommand("export", "every attempt's every metric");
   export_cmd->add_flag("--csv", a.csv, "as CSV (the only format)")->required();
   export_cmd->add_option("-o,--output", a.output, "the file to write (default: stdout)");
@@ -200,7 +255,8 @@ int run(int argc, char** argv) {
     return 0;
   }
   if (*curriculum_show) return show_curriculum(store);
-  if (*progress_cmd) return show_progress(store, a.trainee);
+  if (*progress_cmd) return show_progress(store, a.trainee, a.output);
+  if (*cohort_cmd) return show_cohort(store, a);
   if (*export_cmd) return export_records(store, a);
   return fail("no command");
 }

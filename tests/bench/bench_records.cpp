@@ -12,6 +12,9 @@
 //   lab's would run: every commit waits for its WAL flush); attempts/s and ms per attempt, and the
 //   ratio of a stored attempt to a scored one. Then the whole export's read (Store::attempts with
 //   metrics).
+// - progress_page: `progress TRAINEE -o page.html` for a trainee with --page-attempts N (default
+//   500) attempts, on each back end: ms (best of 3) and its ratio to scoring one attempt
+//   (records_page_bench.hpp).
 // PostgreSQL is left out (with the reason in the JSON) when it cannot be started.
 
 #include <algorithm>
@@ -30,6 +33,7 @@
 #include "recording/hdf5_io.hpp"
 #include "records/attempt_scoring.hpp"
 #include "records/store.hpp"
+#include "records_page_bench.hpp"
 #include "../host_viz/score/synthetic_recording.hpp"
 
 namespace {
@@ -100,9 +104,11 @@ void bench_store(const char* label, const std::string& db, const records::Attemp
 
 int main(int argc, char** argv) {
   int n = 1000;
+  int page_n = 500;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--quick") == 0) n = 100;
     if (std::strcmp(argv[i], "--attempts") == 0 && i + 1 < argc) n = std::max(1, std::atoi(argv[++i]));
+    if (std::strcmp(argv[i], "--page-attempts") == 0 && i + 1 < argc) page_n = std::max(1, std::atoi(argv[++i]));
   }
   char tmpl[] = "/tmp/lancet-bench-records-XXXXXX";
   if (mkdtemp(tmpl) == nullptr) return 1;
@@ -133,9 +139,18 @@ int main(int argc, char** argv) {
   }
   lancet::test::PostgresServer durable(true);
   if (durable.running()) {
-    bench_store("postgresql_fsync", durable.url(), attempt, n, score_ms, true);
+    bench_store("postgresql_fsync", durable.url(), attempt, n, score_ms, false);
   } else {
-    std::printf("  \"postgresql_fsync\": {\"error\": \"%s\"}\n", durable.error().c_str());
+    std::printf("  \"postgresql_fsync\": {\"error\": \"%s\"},\n", durable.error().c_str());
+  }
+  lancet::bench::bench_progress_page("progress_page_sqlite", dir + "/pages.db", attempt, page_n, score_ms, !pg.running());
+  if (pg.running()) {  // a fresh database for the one trainee
+    auto admin = records::sql::open_postgresql(pg.url());
+    if (admin.ok() && admin.value()->execute("CREATE DATABASE bench_pages").ok()) {
+      lancet::bench::bench_progress_page("progress_page_postgresql", pg.url("bench_pages"), attempt, page_n, score_ms, true);
+    } else {
+      std::printf("  \"progress_page_postgresql\": {\"error\": \"cannot create the database bench_pages\"}\n");
+    }
   }
   std::printf("}\n");
   std::error_code ec;

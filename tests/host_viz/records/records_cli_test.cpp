@@ -17,35 +17,17 @@
 #include "process.hpp"
 #include "recording/hdf5_io.hpp"
 #include "records/store.hpp"
+#include "records_cli.hpp"
 #include "test_database.hpp"
 
 namespace lancet::records::test {
 namespace {
 
-const std::string kRecords = std::string(LANCET_BINARY_DIR) + "/host_viz/lancet-records";
 const std::string kScenario = std::string(LANCET_SOURCE_DIR) + "/host_viz/scenarios/skin_incision.toml";
 const std::string kCurriculum = std::string(LANCET_SOURCE_DIR) + "/docs/examples/curriculum.toml";
 
-struct CliRun {
-  int status = -1;  ///< exit status (-1: did not exit)
-  std::string output;
-};
-
-class RecordsCliTest : public BackendTest {
+class RecordsCliTest : public CliTest {
  protected:
-  // Runs lancet-records --db <db> args... and waits for it.
-  CliRun cli(const std::vector<std::string>& args) {
-    std::vector<std::string> argv{kRecords, "--db", db_};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const std::string out = dir_ + "/out" + std::to_string(++runs_) + ".txt";
-    lancet::test::Child child(argv, out);
-    const auto st = child.wait_exit(std::chrono::minutes(3));
-    CliRun r;
-    if (st && WIFEXITED(*st)) r.status = WEXITSTATUS(*st);
-    r.output = lancet::test::read_file(out);
-    return r;
-  }
-
   // A recording of skin-incision (or of the scenario text given): a short cut along its line;
   // `n` makes the file's content differ.
   std::string recording(int n, const std::string& scenario_text = lancet::test::read_file(kScenario)) {
@@ -74,8 +56,6 @@ class RecordsCliTest : public BackendTest {
     auto s = store();
     return s ? s->attempts(AttemptFilter{std::nullopt, std::nullopt, false}).value().size() : 0;
   }
-
-  int runs_ = 0;
 };
 
 TEST_P(RecordsCliTest, ImportScoresAndStoresOnceByContentHash) {

@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "headless_chromium.hpp"
 #include "process.hpp"
 #include "score/report.hpp"
 #include "shared_data.hpp"
@@ -30,82 +31,13 @@ namespace lancet::score {
 namespace test = record::test;
 namespace {
 
+using lancet::test::chromium_or_skip;
+using lancet::test::page_errors;
+using lancet::test::read_bytes;
+using lancet::test::render;
+using lancet::test::Render;
+
 constexpr int kWidth = 1200, kHeight = 1600;
-
-// The full path of `name` on PATH, or "".
-std::string on_path(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::stringstream dirs(path != nullptr ? path : "");
-  std::string dir;
-  while (std::getline(dirs, dir, ':')) {
-    if (dir.empty()) continue;
-    const std::string candidate = dir + "/" + name;
-    struct stat st {};
-    if (::stat(candidate.c_str(), &st) == 0 && S_ISREG(st.st_mode) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
-  }
-  return {};
-}
-
-// chromium's path, or "" after recording a skip (a failure under CI=true).
-std::string chromium_or_skip() {
-  const std::string path = on_path("chromium");
-  if (!path.empty()) return path;
-  const std::string why = "chromium is not on PATH (Debian package chromium)";
-  if (lancet::test::running_under_ci()) {
-    [&] { FAIL() << why << ". CI=true: a CI run must have it."; }();
-  } else {
-    [&] { GTEST_SKIP() << why << ". Skipped (under CI=true this fails)."; }();
-  }
-  return {};
-}
-
-struct Render {
-  bool exited = false;
-  int status = -1;    // exit status when exited
-  std::string log;    // chromium's stdout and stderr
-};
-
-// Renders file://html into png with a fresh HOME (no profile of the user's is read or written).
-Render render(const std::string& chromium, const std::filesystem::path& dir, const std::string& html, const std::string& png) {
-  const std::filesystem::path home = dir / "home";
-  std::filesystem::create_directories(home);
-  const std::string log_path = (dir / "chromium.log").string();
-  lancet::test::Child child({chromium, "--headless", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr", "--v=0",
-                             "--window-size=" + std::to_string(kWidth) + "," + std::to_string(kHeight), "--screenshot=" + png,
-                             "file://" + html},
-                            log_path, {"HOME=" + home.string()});
-  Render r;
-  if (!child.started()) return r;
-  const auto st = child.wait_exit(std::chrono::seconds(120));  // on timeout the Child kills it
-  r.log = lancet::test::read_file(log_path);
-  if (st && WIFEXITED(*st)) {
-    r.exited = true;
-    r.status = WEXITSTATUS(*st);
-  }
-  return r;
-}
-
-// Lines of the log that report a script error on the page.
-std::vector<std::string> page_errors(const std::string& log) {
-  std::vector<std::string> out;
-  std::stringstream in(log);
-  std::string line;
-  while (std::getline(in, line)) {
-    std::string lower = line;
-    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    const bool uncaught = lower.find("uncaught") != std::string::npos;
-    const bool console_error = lower.find("error:") != std::string::npos && lower.find("console") != std::string::npos;
-    if (uncaught || console_error) out.push_back(line);
-  }
-  return out;
-}
-
-std::string read_bytes(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 std::uint32_t big_endian_u32(const std::string& b, std::size_t at) {
   std::uint32_t v = 0;
@@ -140,7 +72,7 @@ TEST_F(ReportBrowser, ChromiumRendersTheReport) {
   const std::string html = write("report.html", page);
   const std::string png = (dir_ / "report.png").string();
 
-  const Render r = render(chromium, dir_, html, png);
+  const Render r = render(chromium, dir_, html, png, kWidth, kHeight);
   ASSERT_TRUE(r.exited) << "chromium did not finish within 120 s; its log:\n" << r.log;
   EXPECT_EQ(r.status, 0) << r.log;
   EXPECT_TRUE(page_errors(r.log).empty()) << "the page logged errors:\n" << r.log;
@@ -178,7 +110,7 @@ TEST_F(ReportBrowser, TheLogCheckSeesAScriptError) {
   const std::string chromium = chromium_or_skip();
   if (chromium.empty()) return;
   const std::string html = write("throws.html", "<!DOCTYPE html><html><body><p>x</p><script>throw new Error('boom');</script></body></html>");
-  const Render r = render(chromium, dir_, html, (dir_ / "throws.png").string());
+  const Render r = render(chromium, dir_, html, (dir_ / "throws.png").string(), kWidth, kHeight);
   ASSERT_TRUE(r.exited) << r.log;
   EXPECT_FALSE(page_errors(r.log).empty()) << "chromium's log shows no script error; the check would miss one:\n" << r.log;
 }
