@@ -3,7 +3,7 @@
 //   lancet-records [--db FILE|postgresql://...] import FILE.h5... [--trainee ID]
 //   lancet-records trainee add ID --name NAME [--cohort C] | trainee list
 //   lancet-records curriculum load FILE.toml | curriculum show
-//   lancet-records progress TRAINEE [-o page.html]
+//   lancet-records progress TRAINEE [-o page.html [--reports]]
 //   lancet-records cohort COHORT [-o page.html] [--stuck-after N]
 //   lancet-records export --csv [-o FILE]
 //   lancet-records deliver [--outbox DIR]
@@ -57,6 +57,7 @@ struct Args {
   std::string cohort;  ///< cohort COHORT
   std::size_t stuck_after = kDefaultStuckAfter;
   bool csv = false;
+  bool reports = false;  ///< progress --reports
 };
 
 int import_files(Store& store, const Args& a) {
@@ -122,7 +123,32 @@ std::string page_folder(const std::string& path) {
   return ec ? std::string() : p.parent_path().string();
 }
 
-int show_progress(Store& store, const std::string& id, const std::string& output) {
+// lancet-report's page for each attempt, in PAGE's folder under "<page stem>-reports/<n>.html"
+// (n: the attempt's row on the page); the links relative to the page, "" where the recording could
+// not be read (said on stderr). Empty when the folder cannot be made.
+std::vector<std::string> write_reports(const std::vector<Attempt>& attempts, const std::string& page) {
+  const std::filesystem::path page_path(page);
+  const std::string folder = page_path.stem().string() + "-reports";
+  std::error_code ec;
+  std::filesystem::create_directories(page_path.parent_path() / folder, ec);
+  if (ec) {
+    std::fprintf(stderr, "lancet-records: %s: cannot make the reports' folder: %s\n", (page_path.parent_path() / folder).c_str(), ec.message().c_str());
+    return {};
+  }
+  std::vector<std::string> links(attempts.size());
+  for (std::size_t i = 0; i < attempts.size(); ++i) {
+    const std::string name = folder + "/" + std::to_string(i + 1) + ".html";
+    auto html = attempt_report_html(attempts[i].recording, std::filesystem::path(attempts[i].recording).filename().string());
+    if (!html.ok()) {
+      std::fprintf(stderr, "lancet-records: attempt %zu: no report: %s\n", i + 1, html.error().message.c_str());
+      continue;
+    }
+    if (write_file((page_path.parent_path() / name).string(), html.value())) links[i] = name;
+  }
+  return links;
+}
+
+int show_progress(Store& store, const std::string& id, const std::string& output, bool reports) {
   auto t = store.find_trainee(id);
   if (!t.ok()) return fail(t.error().message);
   if (!t.value()) return fail(store.name() + ": trainee \"" + id + "\" does not exist");
@@ -137,7 +163,9 @@ int show_progress(Store& store, const std::string& id, const std::string& output
     std::fwrite(text.data(), 1, text.size(), stdout);
     return 0;
   }
-  if (!write_file(output, progress_html(p, attempts.value(), ProgressPageOptions{{}, page_folder(output)}))) return fail(output + ": cannot write the page");
+  ProgressPageOptions options{{}, page_folder(output), {}};
+  if (reports) options.reports = write_reports(attempts.value(), output);
+  if (!write_file(output, progress_html(p, attempts.value(), options))) return fail(output + ": cannot write the page");
   return 0;
 }
 
@@ -214,6 +242,8 @@ int run(int argc, char** argv) {
   auto* progress_cmd = app.add_subcommand("progress", "a trainee's standing on each step of the curriculum and the next scenario");
   progress_cmd->add_option("trainee", a.trainee, "the trainee's id")->required();
   progress_cmd->add_option("-o,--output", a.output, "write an HTML page (learning curves, CUSUM, attempts) instead of text");
+  progress_cmd->add_flag("--reports", a.reports,
+                         "with -o: also write lancet-report's page for each attempt (beside the page, in <page>-reports/) and link them");
   auto* cohort_cmd = app.add_subcommand("cohort", "every trainee of a cohort: current step, attempts, last attempt, who is stuck");
   cohort_cmd->add_option("cohort", a.cohort, "the cohort")->required();
   cohort_cmd->add_option("-o,--output", a.output, "write an HTML page instead of text");
@@ -255,7 +285,10 @@ int run(int argc, char** argv) {
     return 0;
   }
   if (*curriculum_show) return show_curriculum(store);
-  if (*progress_cmd) return show_progress(store, a.trainee, a.output);
+  if (*progress_cmd) {
+    if (a.reports && a.output.empty()) return fail("progress --reports needs -o page.html: the reports are linked from the page");
+    return show_progress(store, a.trainee, a.output, a.reports);
+  }
   if (*cohort_cmd) return show_cohort(store, a);
   if (*export_cmd) return export_records(store, a);
   return fail("no command");

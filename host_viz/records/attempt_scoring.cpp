@@ -4,12 +4,14 @@
 
 #include <cmath>
 #include <ctime>
+#include <vector>
 
 #include "recording/hdf5_io.hpp"
 #include "records/content_hash.hpp"
 #include "records/utc_time.hpp"
 #include "scenarios/scenario.hpp"
 #include "score/metrics.hpp"
+#include "score/report.hpp"
 
 namespace lancet::records {
 namespace {
@@ -91,6 +93,20 @@ Result<Attempt> score_attempt(const std::string& path, const std::string& traine
   a.build = rec.lancet_version;
   for (const score::Metric& x : m.metrics) a.metrics.push_back(stored(x));
   return a;
+}
+
+Result<std::string> attempt_report_html(const std::string& path, const std::string& shown) {
+  auto read = record::read_recording(path);
+  if (!read.ok()) {
+    const std::string& m = read.error().message;
+    return Error{ErrorCode::kInvalid, m.find(path) == std::string::npos ? path + ": " + m : m};
+  }
+  const record::Recording& rec = read.value();
+  auto sc = scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);
+  if (rec.scenario_toml.empty() || !sc.ok()) return Error{ErrorCode::kInvalid, path + ": no scenario this build reads, so no report"};
+  std::vector<score::ReportInput> input;
+  input.push_back(score::ReportInput{shown, &rec, score::compute_metrics(rec, &sc.value())});
+  return score::report_html(input);
 }
 
 }  // namespace lancet::records

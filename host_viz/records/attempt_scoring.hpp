@@ -17,4 +17,9 @@ namespace lancet::records {
 /// recording's scenario (kInvalid, naming the scenario and the curriculum's).
 [[nodiscard]] Result<Attempt> score_attempt(const std::string& path, const std::string& trainee_id, const Curriculum& curriculum);
 
+/// lancet-report's page (score::report_html) for the recording at `path`, scored against the
+/// scenario it holds, under the name `shown`. Errors name the file: it cannot be read (gone, say,
+/// once its outbox entry was stored), or it holds no scenario this build reads.
+[[nodiscard]] Result<std::string> attempt_report_html(const std::string& path, const std::string& shown);
+
 }  // namespace lancet::records

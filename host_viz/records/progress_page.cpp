@@ -173,19 +173,29 @@ std::string step_section(std::size_t i, const StepProgress& sp, const std::vecto
   return s + "</div></section>\n";
 }
 
-std::string attempts_table(const std::vector<Attempt>& attempts, const std::string& page_dir) {
-  std::string s = "<h2>Attempts</h2>\n<p class=\"note\">lancet-report keeps no report page per recording: each link opens the "
-                  "recording itself (relative to this page's folder when it was imported by an absolute path, else as imported); "
-                  "<code>lancet-report RECORDING -o report.html</code> writes its report.</p>\n"
-                  "<table id=\"attempts\"><tr><th>#</th><th>started</th><th>scenario</th><th>at it</th><th>verdict</th>"
-                  "<th>passed / banded</th><th>duration</th><th>recording</th></tr>\n";
+std::string attempts_table(const std::vector<Attempt>& attempts, const std::string& page_dir, const std::vector<std::string>& reports) {
+  const bool with_reports = !reports.empty();
+  std::string s = "<h2>Attempts</h2>\n<p class=\"note\">";
+  s += with_reports ? "Each report is lancet-report's page for the attempt, written beside this page (none where the recording "
+                      "could no longer be read). "
+                    : "No report pages were written (<code>progress --reports</code> writes them): ";
+  s += "The recording links open the recording itself (relative to this page's folder when it was imported by an absolute path, "
+       "else as imported); <code>lancet-report RECORDING -o report.html</code> writes its report.</p>\n"
+       "<table id=\"attempts\"><tr><th>#</th><th>started</th><th>scenario</th><th>at it</th><th>verdict</th>"
+       "<th>passed / banded</th><th>duration</th>";
+  s += with_reports ? "<th>report</th><th>recording</th></tr>\n" : "<th>recording</th></tr>\n";
   std::map<std::string, std::size_t> count;
   for (std::size_t i = 0; i < attempts.size(); ++i) {
     const Attempt& a = attempts[i];
     s += "<tr><td class=\"num\">" + std::to_string(i + 1) + "</td><td>" + xml_escape(a.started) + "</td><td>" + xml_escape(a.scenario) +
          "</td><td class=\"num\">" + std::to_string(++count[a.scenario]) + "</td><td class=\"" + (a.proficient ? "met" : "notyet") + "\">" +
          xml_escape(a.verdict) + "</td><td class=\"num\">" + std::to_string(a.passed) + " / " + std::to_string(a.banded) + "</td><td class=\"num\">" +
-         html::num(a.duration_s) + " s</td><td><a href=\"" + html::file_href(a.recording, page_dir) + "\">" + xml_escape(a.recording) + "</a></td></tr>\n";
+         html::num(a.duration_s) + " s</td>";
+    if (with_reports) {
+      const std::string& r = i < reports.size() ? reports[i] : std::string();
+      s += r.empty() ? "<td class=\"note\">none</td>" : "<td><a class=\"report\" href=\"" + html::file_href(r, "") + "\">report</a></td>";
+    }
+    s += "<td><a href=\"" + html::file_href(a.recording, page_dir) + "\">" + xml_escape(a.recording) + "</a></td></tr>\n";
   }
   return s + "</table>\n";
 }
@@ -215,7 +225,7 @@ std::string progress_html(const Progress& p, const std::vector<Attempt>& attempt
     }
     s += step_section(i, p.steps[i], at, d);
   }
-  s += attempts_table(attempts, options.page_dir);
+  s += attempts_table(attempts, options.page_dir, options.reports);
   return s + html::page_tail();
 }
 

@@ -17,6 +17,9 @@ namespace lancet::records {
 struct ProgressPageOptions {
   CusumRule cusum;       ///< the CUSUM's design, stated on the page
   std::string page_dir;  ///< the page's folder: absolute recording paths are linked relative to it ("" : as stored)
+  /// Per attempt (the order of `attempts`), a link to its lancet-report page relative to the page,
+  /// or "" where none could be written; empty: no report pages were made.
+  std::vector<std::string> reports;
 };
 
 /// `p` is progress(trainee, curriculum, attempts); `attempts` are the trainee's, in the order made,

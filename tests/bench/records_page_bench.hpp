@@ -62,7 +62,7 @@ inline void bench_progress_page(const char* label, const std::string& db, const 
     }
     const auto t1 = Clock::now();
     const records::Progress p = records::progress(*t.value(), c.value(), attempts.value());
-    const std::string page = records::progress_html(p, attempts.value(), records::ProgressPageOptions{{}, "/data"});
+    const std::string page = records::progress_html(p, attempts.value(), records::ProgressPageOptions{{}, "/data", {}});
     const auto t2 = Clock::now();
     best_s = std::min(best_s, std::chrono::duration<double>(t2 - t0).count());
     best_html_s = std::min(best_html_s, std::chrono::duration<double>(t2 - t1).count());

@@ -93,7 +93,7 @@ TEST(ProgressPage, HoldsTheStandingCurvesCusumAndLinks) {
   const std::size_t met_at = p.steps[0].standing.proficient_at;
   std::size_t incision_passes = 0;
   for (int i = 0; i < 16; ++i) incision_passes += f.attempts[static_cast<std::size_t>(i)].proficient ? 1 : 0;
-  const std::string page = progress_html(p, f.attempts, ProgressPageOptions{{}, "/data"});
+  const std::string page = progress_html(p, f.attempts, ProgressPageOptions{{}, "/data", {}});
 
   EXPECT_EQ(page.rfind("<!DOCTYPE html>", 0), 0u);
   EXPECT_EQ(page.find("<script"), std::string::npos) << "no script, and the name is escaped";

@@ -109,6 +109,28 @@ TEST_P(RecordsCliTest, TraineesCurriculumProgressAndExport) {
   EXPECT_NE(text.find("t1,Al,,skin-incision,"), std::string::npos);
 }
 
+// progress -o PAGE --reports: lancet-report's page for each attempt, beside the page, linked from
+// its row; an attempt whose recording is gone gets none (and the page says so), not a failure.
+TEST_P(RecordsCliTest, ProgressPageLinksEachAttemptsReport) {
+  ASSERT_EQ(cli({"trainee", "add", "t1", "--name", "Al"}).status, 0);
+  ASSERT_EQ(cli({"curriculum", "load", kCurriculum}).status, 0);
+  const std::string kept = recording(1), gone = recording(2);
+  ASSERT_EQ(cli({"import", "--trainee", "t1", kept, gone}).status, 0);
+  std::filesystem::remove(gone);
+  EXPECT_EQ(cli({"progress", "t1", "--reports"}).status, 2) << "--reports without a page to link them from";
+  const std::string page = dir_ + "/t1.html";
+  const CliRun run = cli({"progress", "t1", "-o", page, "--reports"});
+  ASSERT_EQ(run.status, 0) << run.output;
+  EXPECT_NE(run.output.find("attempt 2: no report"), std::string::npos) << run.output;
+  const std::string html = lancet::test::read_file(page);
+  EXPECT_NE(html.find("<a class=\"report\" href=\"t1-reports/1.html\">report</a>"), std::string::npos) << html;
+  EXPECT_NE(html.find("<td class=\"note\">none</td>"), std::string::npos);
+  const std::string report = lancet::test::read_file(dir_ + "/t1-reports/1.html");
+  EXPECT_NE(report.find("attempt1.h5"), std::string::npos) << "lancet-report's page for that attempt";
+  EXPECT_NE(report.find("skin-incision"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/t1-reports/2.html"));
+}
+
 TEST_P(RecordsCliTest, TenConcurrentImportersStoreEveryAttemptOnce) {
   std::vector<std::string> files;
   for (int i = 0; i < 10; ++i) files.push_back(recording(i));
