@@ -11,6 +11,7 @@
 
 #include "lancet/shared_model/units.hpp"
 #include "lancet/shared_model/validate.hpp"
+#include "rt/rt_setup.hpp"
 
 namespace lancet::app {
 
@@ -111,16 +112,9 @@ std::string PatchIntake::start_thread(bool fifo, int priority, int avoid_cpu) {
     if (fifo) sp.sched_priority = priority;
     pthread_attr_setschedpolicy(&attr, fifo ? SCHED_FIFO : SCHED_OTHER);
     pthread_attr_setschedparam(&attr, &sp);
-    const long cpus = sysconf(_SC_NPROCESSORS_ONLN);
-    bool pinned = false;
-    if (avoid_cpu >= 0 && cpus > 1) {
-      cpu_set_t set;
-      if (sched_getaffinity(0, sizeof set, &set) == 0 && CPU_ISSET(avoid_cpu, &set) && CPU_COUNT(&set) > 1) {
-        CPU_CLR(avoid_cpu, &set);
-        pthread_attr_setaffinity_np(&attr, sizeof set, &set);
-        pinned = true;
-      }
-    }
+    cpu_set_t set;
+    const bool pinned = rt::allowed_cpus_without(avoid_cpu, set);
+    if (pinned) pthread_attr_setaffinity_np(&attr, sizeof set, &set);
     const int err = pthread_create(&thread_, &attr, &PatchIntake::entry, this);
     pthread_attr_destroy(&attr);
     if (err == 0) {

@@ -72,13 +72,17 @@ bool kernel_is_preempt_rt() {
 
 int default_rt_cpu() { return static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN)) - 1; }
 
-bool keep_off_cpu(int cpu) {
+bool allowed_cpus_without(int cpu, cpu_set_t& set) {
   if (cpu < 0 || cpu >= CPU_SETSIZE) return false;
-  cpu_set_t set;
   CPU_ZERO(&set);
   if (pthread_getaffinity_np(pthread_self(), sizeof set, &set) != 0 || !CPU_ISSET(cpu, &set) || CPU_COUNT(&set) < 2) return false;
   CPU_CLR(cpu, &set);
-  return pthread_setaffinity_np(pthread_self(), sizeof set, &set) == 0;
+  return true;
+}
+
+bool keep_off_cpu(int cpu) {
+  cpu_set_t set;
+  return allowed_cpus_without(cpu, set) && pthread_setaffinity_np(pthread_self(), sizeof set, &set) == 0;
 }
 
 std::vector<int> parse_cpu_list(const std::string& list) {

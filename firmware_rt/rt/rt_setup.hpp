@@ -93,6 +93,9 @@ int default_rt_cpu();
 /// when the thread may not run there anyway, or when no other CPU would be left. A thread that
 /// sets its own affinity (the servo's) is not bound by it.
 bool keep_off_cpu(int cpu);
+/// The calling thread's allowed CPUs less `cpu`, into `set`: what keep_off_cpu applies, for a
+/// thread to be created with it (pthread_attr_setaffinity_np). False under the same conditions.
+bool allowed_cpus_without(int cpu, cpu_set_t& set);
 /// CPUs in a list such as "1,3-5" (the /sys cpulist format); empty on a parse error.
 std::vector<int> parse_cpu_list(const std::string& list);
 
