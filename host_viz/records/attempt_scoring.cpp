@@ -50,20 +50,32 @@ AttemptMetric stored(const score::Metric& m) {
   return a;
 }
 
-}  // namespace
-
-Result<Attempt> score_attempt(const std::string& path, const std::string& trainee_id, const Curriculum& curriculum) {
-  auto hash = sha256_file(path);
-  if (!hash.ok()) return hash.error();
+// The recording at `path`; an error names the file.
+Result<record::Recording> read_named(const std::string& path) {
   auto read = record::read_recording(path);
   if (!read.ok()) {
     const std::string& m = read.error().message;
     return Error{ErrorCode::kInvalid, m.find(path) == std::string::npos ? path + ": " + m : m};
   }
+  return read;
+}
+
+// The scenario the recording holds, as lancet-report reads it.
+Result<scenario::Scenario> recorded_scenario(const record::Recording& rec, const std::string& path) {
+  return scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);
+}
+
+}  // namespace
+
+Result<Attempt> score_attempt(const std::string& path, const std::string& trainee_id, const Curriculum& curriculum) {
+  auto hash = sha256_file(path);
+  if (!hash.ok()) return hash.error();
+  auto read = read_named(path);
+  if (!read.ok()) return read.error();
   const record::Recording& rec = read.value();
   if (rec.scenario_toml.empty())
     return Error{ErrorCode::kInvalid, path + ": recorded without a scenario, so there is nothing to score it against"};
-  auto sc = scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);
+  auto sc = recorded_scenario(rec, path);
   if (!sc.ok()) {
     const std::string& m = sc.error().message;
     return Error{ErrorCode::kInvalid, path + ": its scenario \"" + rec.scenario_name + "\" is unknown to this build: " + m.substr(0, m.find('\n'))};
@@ -96,13 +108,10 @@ Result<Attempt> score_attempt(const std::string& path, const std::string& traine
 }
 
 Result<std::string> attempt_report_html(const std::string& path, const std::string& shown) {
-  auto read = record::read_recording(path);
-  if (!read.ok()) {
-    const std::string& m = read.error().message;
-    return Error{ErrorCode::kInvalid, m.find(path) == std::string::npos ? path + ": " + m : m};
-  }
+  auto read = read_named(path);
+  if (!read.ok()) return read.error();
   const record::Recording& rec = read.value();
-  auto sc = scenario::parse_scenario(rec.scenario_toml, rec.scenario_file.empty() ? path + ":/meta/scenario" : rec.scenario_file);
+  auto sc = recorded_scenario(rec, path);
   if (rec.scenario_toml.empty() || !sc.ok()) return Error{ErrorCode::kInvalid, path + ": no scenario this build reads, so no report"};
   std::vector<score::ReportInput> input;
   input.push_back(score::ReportInput{shown, &rec, score::compute_metrics(rec, &sc.value())});
