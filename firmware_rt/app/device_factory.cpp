@@ -6,6 +6,7 @@
 #include <utility>
 
 #include "device/canopen_arm.hpp"
+#include "device/falcon_arm.hpp"
 #include "device/modbus_arm.hpp"
 #include "device/sim_arm.hpp"
 #include "device/usb_arm.hpp"
@@ -41,6 +42,7 @@ Result<MadeDevice> make_backend(const arm::ArmConfig& config) {
     case arm::Backend::kModbus: return made(device::ModbusArm::create(config));
     case arm::Backend::kCanopen: return made(device::CanopenArm::create(config));
     case arm::Backend::kUsb: return made(device::UsbArm::create(config));
+    case arm::Backend::kFalcon: return made(device::FalconArm::create(config));
   }
   return Error{ErrorCode::kInvalid, config.source + ": unknown backend"};
 }

@@ -26,7 +26,7 @@ ArmConfig parse_root(const toml::table& root, Sink& sink) {
   Context ctx;
   ctx.backend = top.choice<Backend>("backend", kReq,
                                     {{"sim", Backend::kSim}, {"usb", Backend::kUsb}, {"modbus", Backend::kModbus},
-                                     {"canopen", Backend::kCanopen}});
+                                     {"canopen", Backend::kCanopen}, {"falcon", Backend::kFalcon}});
   if (ctx.backend) {
     cfg.backend = *ctx.backend;
     ctx.backend_name = std::string(backend_key(*ctx.backend));

@@ -26,7 +26,7 @@ namespace lancet::arm {
 // ---------------------------------------------------------------------------------------------
 // The config
 
-enum class Backend : std::uint8_t { kSim, kUsb, kModbus, kCanopen };
+enum class Backend : std::uint8_t { kSim, kUsb, kModbus, kCanopen, kFalcon };
 
 struct KinematicsConfig {
   KinematicModel model = KinematicModel::kPhantom;
@@ -152,6 +152,26 @@ struct UsbBusConfig {
   std::optional<ReportField> fault_reset;    ///< one report with fault_reset_value on rearm / activate
   std::uint32_t fault_reset_value = 0;
   std::optional<ReportField> heartbeat;      ///< counts up by one in every OUT report (wraps)
+};
+
+/// When the Falcon backend uploads the firmware.
+enum class FirmwareUpload : std::uint8_t {
+  kWhenNeeded,  ///< only when the Falcon does not already answer in normal mode (it keeps its firmware until unplugged)
+  kAlways,      ///< at every configure and reconnect
+};
+
+/// [bus.falcon]: a Novint Falcon, an FTDI USB-serial chip in front of the Falcon's own
+/// microcontroller (device/falcon_protocol.hpp).
+struct FalconBusConfig {
+  std::uint16_t vid = 0x0403, pid = 0xCB48;
+  int index = 0;                 ///< which Falcon, when several are plugged in (libusb's order)
+  std::string firmware;          ///< the firmware file the user supplies (relative: to the config's folder)
+  FirmwareUpload upload = FirmwareUpload::kWhenNeeded;
+  double timeout = 0.002;        ///< s, how long a read waits for the reply to the last command
+  /// Motor command counts per N·m of torque at a thigh (signed: libnifalcon's −10 000; positive
+  /// encoder counts raise the thigh angle, a positive command lowers it).
+  double motor_command_per_nm = -10'000;
+  double homing_timeout = 30;    ///< s that activate() waits for the three home switches
 };
 
 enum class ModbusTransport : std::uint8_t { kTcp, kRtu };
@@ -285,6 +305,7 @@ struct ArmConfig {
   std::optional<UsbBusConfig> usb;
   std::optional<ModbusBusConfig> modbus;
   std::optional<CanopenBusConfig> canopen;
+  std::optional<FalconBusConfig> falcon;
   SafetyConfig safety;
   std::vector<ButtonConfig> buttons;
 

@@ -153,6 +153,9 @@ class Device {
   void note_error(IoStatus status, std::int32_t node, std::uint32_t code, const char* text) noexcept;
   /// Backends: a late reply to an earlier request was recognised and thrown away. Real-time safe.
   void count_stale_reply() noexcept { ++counters_.stale_replies; }
+  /// Backends: the encoder counts jumped on purpose (a homing switch made them absolute), so the
+  /// next reading is taken as the new reference rather than checked against the old. Real-time safe.
+  void restart_plausibility() noexcept { q_ref_ns_ = 0; }
 
  private:
   void account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept;

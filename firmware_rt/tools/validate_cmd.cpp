@@ -14,6 +14,7 @@ std::string_view backend_name(arm::Backend b) {
     case arm::Backend::kUsb: return "usb";
     case arm::Backend::kModbus: return "modbus";
     case arm::Backend::kCanopen: return "canopen";
+    case arm::Backend::kFalcon: return "falcon";
   }
   return "?";
 }

@@ -11,6 +11,7 @@ std::string_view backend_key(Backend b) {
     case Backend::kUsb: return "usb";
     case Backend::kModbus: return "modbus";
     case Backend::kCanopen: return "canopen";
+    case Backend::kFalcon: return "falcon";
   }
   return "sim";
 }
@@ -27,9 +28,9 @@ void parse_bus(Section& top, ArmConfig& cfg, const Context& ctx, bool has_button
   }
   if (bt == nullptr) return;
   Section bus(top.sink(), *bt, "bus");
-  const std::string_view keys[] = {"sim", "usb", "modbus", "canopen"};
-  const Backend kinds[] = {Backend::kSim, Backend::kUsb, Backend::kModbus, Backend::kCanopen};
-  for (std::size_t i = 0; i < 4; ++i) {
+  const std::string_view keys[] = {"sim", "usb", "modbus", "canopen", "falcon"};
+  const Backend kinds[] = {Backend::kSim, Backend::kUsb, Backend::kModbus, Backend::kCanopen, Backend::kFalcon};
+  for (std::size_t i = 0; i < std::size(kinds); ++i) {
     const std::string_view key = keys[i];
     const bool matches = ctx.backend == kinds[i];
     const toml::node* n = bus.get(key);
@@ -55,6 +56,7 @@ void parse_bus(Section& top, ArmConfig& cfg, const Context& ctx, bool has_button
       case Backend::kUsb: cfg.usb = parse_usb(s, ctx, bits); break;
       case Backend::kModbus: cfg.modbus = parse_modbus(s, ctx, bits); break;
       case Backend::kCanopen: cfg.canopen = parse_canopen(s, ctx, has_buttons, bits); break;
+      case Backend::kFalcon: cfg.falcon = parse_falcon(s, ctx, bits); break;
     }
     if (matches) {
       button_bits = bits;

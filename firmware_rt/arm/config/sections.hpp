@@ -44,7 +44,7 @@ struct Context {
   std::string backend_name;
 };
 
-/// The backend's name in the file and its bus section's key: "sim", "usb", "modbus", "canopen".
+/// The backend's name in the file and its bus section's key: "sim", "usb", "modbus", "canopen", "falcon".
 [[nodiscard]] std::string_view backend_key(Backend b);
 
 // arm_sections.cpp
@@ -72,5 +72,6 @@ SimBusConfig parse_sim(Section& s);
 UsbBusConfig parse_usb(Section& s, const Context& ctx, std::optional<int>& button_bits);
 ModbusBusConfig parse_modbus(Section& s, const Context& ctx, std::optional<int>& button_bits);
 CanopenBusConfig parse_canopen(Section& s, const Context& ctx, bool has_buttons, std::optional<int>& button_bits);
+FalconBusConfig parse_falcon(Section& s, const Context& ctx, std::optional<int>& button_bits);
 
 }  // namespace lancet::arm::detail
