@@ -97,6 +97,68 @@ void print_state(const OpenArm& a, const device::JointState& s, std::FILE* out) 
                s.status);
 }
 
+/// USB devices lancetctl recognises, and the shipped config that drives each.
+struct KnownUsbDevice {
+  std::uint16_t vid, pid;
+  const char* what;
+};
+constexpr KnownUsbDevice kKnownUsb[] = {
+    {0x0403, 0xCB48, "Novint Falcon: hw_configs/novint_falcon.toml (backend falcon; set its firmware file)"},
+    {0x0403, 0x6001, "FTDI FT232 serial adapter (a Falcon whose EEPROM was rewritten shows as this: set pid = 0x6001 in [bus.falcon])"},
+    {0x1209, 0x0001, "Touch-class USB arm: hw_configs/usb_arm.toml (backend usb)"},
+};
+
+const char* known_usb(std::uint16_t vid, std::uint16_t pid) {
+  for (const KnownUsbDevice& k : kKnownUsb)
+    if (k.vid == vid && k.pid == pid) return k.what;
+  return nullptr;
+}
+
+/// lancetctl calibrate on a Falcon: its encoders are made absolute by home switches, not by
+/// offsets; this runs the homing and shows which motors are done.
+int run_falcon_homing(OpenArm& a, std::FILE* out) {
+  device::Device& dev = *a.dev.device;
+  const double limit = a.config.falcon->homing_timeout;
+  std::fprintf(out, "homing: move the grip slowly all the way in and out until each motor has passed its home switch "
+                    "(the LED turns from red to blue; at most %.0f s)\n", limit);
+  std::fflush(out);
+  const auto start = Clock::now();
+  std::uint32_t shown_bits = 0xFFFF;
+  device::JointState s{};
+  while (std::chrono::duration<double>(Clock::now() - start).count() < limit) {
+    if (dev.read(s) != device::IoStatus::kOk) {
+      std::fprintf(out, "homing: read failed: %s\n", dev.last_error().c_str());
+      return 1;
+    }
+    const std::uint32_t homed = s.status & 0x7u;
+    if (homed != shown_bits) {
+      std::fprintf(out, "  homed: motor 1 %s, motor 2 %s, motor 3 %s\n", (homed & 1u) ? "yes" : "no", (homed & 2u) ? "yes" : "no",
+                   (homed & 4u) ? "yes" : "no");
+      std::fflush(out);
+      shown_bits = homed;
+    }
+    if (homed == 0x7u) {
+      const Vec3 p = a.kin->position(std::span<const double>(s.q.data(), 3));
+      std::fprintf(out, "homed: the encoders are absolute now (the home switches set them); tool at %.2f %.2f %.2f mm. "
+                        "Nothing to write: a Falcon keeps no offsets. Homing is lost when it is unplugged.\n",
+                   p.x * 1e3, p.y * 1e3, p.z * 1e3);
+      return 0;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  std::fprintf(out, "homing: not done within %.0f s\n", limit);
+  return 1;
+}
+
+const char* model_name(arm::KinematicModel m) {
+  switch (m) {
+    case arm::KinematicModel::kPhantom: return "PHANToM";
+    case arm::KinematicModel::kDh: return "DH";
+    case arm::KinematicModel::kCartesian: return "Cartesian";
+    default: return "delta";
+  }
+}
+
 }  // namespace
 
 int run_list(std::FILE* out) {
@@ -112,8 +174,9 @@ int run_list(std::FILE* out) {
     for (ssize_t i = 0; i < n; ++i) {
       libusb_device_descriptor d{};
       if (libusb_get_device_descriptor(list[i], &d) != 0) continue;
-      std::fprintf(out, "  %04x:%04x  bus %03u address %03u  class 0x%02x\n", d.idVendor, d.idProduct, libusb_get_bus_number(list[i]),
-                   libusb_get_device_address(list[i]), d.bDeviceClass);
+      const char* known = known_usb(d.idVendor, d.idProduct);
+      std::fprintf(out, "  %04x:%04x  bus %03u address %03u  class 0x%02x%s%s\n", d.idVendor, d.idProduct, libusb_get_bus_number(list[i]),
+                   libusb_get_device_address(list[i]), d.bDeviceClass, known != nullptr ? "  " : "", known != nullptr ? known : "");
     }
     if (list != nullptr) libusb_free_device_list(list, 1);
     libusb_exit(ctx);
@@ -154,7 +217,7 @@ int run_probe(const std::string& path, std::FILE* out) {
   if (!a) return code;
   device::Device& dev = *a->dev.device;
   std::fprintf(out, "arm '%s' (%s): %s, %d joints, %s kinematics%s\n", a->config.name.c_str(), path.c_str(), dev.name().c_str(),
-               dev.joint_count(), a->config.kinematics.model == arm::KinematicModel::kPhantom ? "PHANToM" : "DH",
+               dev.joint_count(), model_name(a->config.kinematics.model),
                a->calibrated ? ", calibrated" : ", not calibrated (run lancetctl calibrate)");
   device::JointState s{};
   const device::IoStatus st = dev.read(s);
@@ -470,6 +533,7 @@ int run_calibrate(const std::string& path, std::span<const double> home, bool wr
   int code = 0;
   auto a = open_arm(path, out, code);
   if (!a) return code;
+  if (a->config.falcon) return run_falcon_homing(*a, out);
   const int n = a->dev.device->joint_count();
   if (!home.empty() && static_cast<int>(home.size()) != n) {
     std::fprintf(out, "calibrate: --home gives %zu values, the arm has %d joints\n", home.size(), n);

@@ -105,7 +105,8 @@ int main(int argc, char** argv) {
   std::vector<double> home;
   bool write_cal = false;
   CLI::App* calibrate = cli.add_subcommand(
-      "calibrate", "with the arm held in its home pose: encoder offsets that make the joints read that pose, saved next to the config");
+      "calibrate", "with the arm held in its home pose: encoder offsets that make the joints read that pose, saved next to the config "
+                   "(a Novint Falcon homes on its switches instead: this guides the homing and shows which motors are done)");
   calibrate->alias("home");
   calibrate->add_option("config", config_path, "the arm's TOML file")->required();
   calibrate->add_option("--home", home, "joint values of the home pose (deg; mm for prismatic joints); default all zero")->delimiter(',');
