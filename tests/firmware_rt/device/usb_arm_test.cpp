@@ -23,16 +23,9 @@
 
 #include "device/usb_arm.hpp"
 
-#include <errno.h>
 #include <libusb.h>
-#include <linux/usbdevice_fs.h>
-#include <stdlib.h>
-#include <string.h>
-#include <sys/ioctl.h>
-#include <unistd.h>
 
 #include <gtest/gtest.h>
-#include <umockdev.h>
 
 #include <algorithm>
 #include <array>
@@ -42,19 +35,17 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
-#include <deque>
-#include <fstream>
 #include <functional>
 #include <memory>
-#include <mutex>
-#include <sstream>
+#include <span>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "arm/arm_config.hpp"
 #include "device/arm_physics.hpp"
 #include "malloc_guard.hpp"
+#include "usb_testbed.hpp"
+#include "usbdevfs_emulator.hpp"
 #include "wait.hpp"
 
 #ifndef LANCET_SOURCE_DIR
@@ -70,19 +61,7 @@ using arm::FieldType;
 // ---------------------------------------------------------------------------------------------
 // Environment
 
-bool in_umockdev() {
-  const char* p = getenv("LD_PRELOAD");
-  return p != nullptr && strstr(p, "libumockdev-preload") != nullptr;
-}
-
 std::string source_path(const std::string& rel) { return std::string(LANCET_SOURCE_DIR) + "/" + rel; }
-
-std::string read_text(const std::string& path) {
-  std::ifstream f(path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 arm::ArmConfig shipped_usb_config() {
   auto c = arm::load_arm_config(source_path("hw_configs/usb_arm.toml"));
@@ -201,7 +180,9 @@ std::uint32_t with_bit(std::uint32_t word, const arm::StatusBit& b, bool active)
 }
 
 // ---------------------------------------------------------------------------------------------
-// The emulated arm: usbdevfs ioctls in, ArmPhysics behind them
+// The emulated arm: usbdevfs (UsbdevfsDevice) in front, ArmPhysics behind. It answers interrupt
+// OUT reports on the config's OUT endpoint and IN reports on its IN endpoint at once, and stalls
+// every control request (none is emulated).
 
 enum class Corruption { kNone, kShort, kWrongId };
 
@@ -217,9 +198,15 @@ struct EmulatorSnapshot {
   int driver_detaches = 0;
 };
 
-class ArmEmulator {
+lancet::test::UsbdevfsInterface arm_interface(const arm::UsbBusConfig& usb) {
+  using lancet::test::UsbEndpoint;
+  return {usb.interface_number, "usbhid",  // usbhid binds a freshly enumerated HID device
+          {{usb.endpoint_in, UsbEndpoint::Type::kInterrupt}, {usb.endpoint_out, UsbEndpoint::Type::kInterrupt}}};
+}
+
+class ArmEmulator : public lancet::test::UsbdevfsDevice {
  public:
-  explicit ArmEmulator(const arm::ArmConfig& cfg) : cfg_(cfg), usb_(*cfg.usb) {
+  explicit ArmEmulator(const arm::ArmConfig& cfg) : UsbdevfsDevice(arm_interface(*cfg.usb)), cfg_(cfg), usb_(*cfg.usb) {
     auto p = ArmPhysics::create(cfg);
     if (!p.ok()) {
       ADD_FAILURE() << p.error().message;
@@ -227,238 +214,57 @@ class ArmEmulator {
     }
     physics_ = std::move(p).value();
   }
-  ~ArmEmulator() {
-    for (auto& u : pending_) g_object_unref(u.data);
-    for (auto& u : done_) g_object_unref(u.data);
-  }
-  ArmEmulator(const ArmEmulator&) = delete;
-  ArmEmulator& operator=(const ArmEmulator&) = delete;
 
-  static gboolean on_ioctl(UMockdevIoctlBase*, UMockdevIoctlClient* client, gpointer self) {
-    return static_cast<ArmEmulator*>(self)->handle(client) ? TRUE : FALSE;
-  }
-
-  /// The node the arm is enumerated at now; ioctls on any other node (an old fd) get ENODEV.
-  void plugged_at(const std::string& devnode) {
-    std::lock_guard lk(m_);
-    live_ = devnode;
-    unplugged_ = false;
-    claimed_ = false;
-    driver_bound_ = true;  // usbhid binds a freshly enumerated HID device
-  }
-  /// Gone from the bus: transfers in flight fail with ENODEV, later ioctls too.
-  void unplug() {
-    std::lock_guard lk(m_);
-    unplugged_ = true;
-    for (auto& u : pending_) {
-      urb(u)->status = -ENODEV;
-      done_.push_back(u);
-    }
-    pending_.clear();
-  }
-  /// The next IN transfer is the last: the arm vanishes with it in flight (-ESHUTDOWN).
-  void vanish_on_next_in() {
-    std::lock_guard lk(m_);
-    vanish_next_in_ = true;
-  }
-  void withhold_in(bool on) {
-    std::lock_guard lk(m_);
-    withhold_ = on;
-  }
   void corrupt_next_in(Corruption c) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     corrupt_ = c;
   }
   void set_status(std::uint32_t s) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     status_ = s;
   }
   void set_buttons(std::uint32_t b) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     buttons_ = b;
   }
   void with_physics(const std::function<void(ArmPhysics&)>& f) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     f(*physics_);
   }
   EmulatorSnapshot snapshot() {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     poll_watchdog();
-    return snap_;
+    EmulatorSnapshot s = snap_;
+    const lancet::test::UsbdevfsState usb = state();
+    s.claimed = usb.claimed;
+    s.driver_bound = usb.driver_bound;
+    s.driver_detaches = usb.driver_detaches;
+    s.discards = usb.discards;
+    return s;
   }
   /// The firmware's keep-alive watchdog time (s; 0: off). Default: the config's drive_watchdog.
   void set_watchdog(double s) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     watchdog_s_ = s;
   }
   /// The firmware's clock (ns): it moves only when the test advances it.
   void advance_clock(std::int64_t ns) {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     clock_ns_ += ns;
     poll_watchdog();
   }
   [[nodiscard]] std::int64_t clock_ns() {
-    std::lock_guard lk(m_);
+    auto lk = lock();
     return clock_ns_;
   }
 
  private:
-  struct Urb {
-    UMockdevIoctlData* data;      // the submitted usbdevfs_urb (its buffer resolved as a child)
-    UMockdevIoctlClient* client;  // the fd it came from
-  };
-  static usbdevfs_urb* urb(const Urb& u) { return reinterpret_cast<usbdevfs_urb*>(u.data->data); }
-  static void complete(UMockdevIoctlClient* c, long ret, int err) { umockdev_ioctl_client_complete(c, ret, err); }
-
-  bool handle(UMockdevIoctlClient* client) {
-    const auto request = static_cast<unsigned long>(umockdev_ioctl_client_get_request(client));
-    UMockdevIoctlData* arg = umockdev_ioctl_client_get_arg(client);
-    std::lock_guard lk(m_);
-    const bool live = !unplugged_ && live_ == umockdev_ioctl_client_get_devnode(client);
-
-    if (request == USBDEVFS_REAPURB || request == USBDEVFS_REAPURBNDELAY) {
-      const auto it = std::find_if(done_.begin(), done_.end(), [&](const Urb& u) { return u.client == client; });
-      if (it == done_.end()) {
-        complete(client, -1, live ? EAGAIN : ENODEV);
-        return true;
-      }
-      const Urb u = *it;
-      done_.erase(it);
-      UMockdevIoctlData* ptr = umockdev_ioctl_data_resolve(arg, 0, sizeof(void*), nullptr);
-      umockdev_ioctl_data_set_ptr(ptr, 0, u.data);  // the client sees its own URB come back
-      g_object_unref(ptr);
-      g_object_unref(u.data);
-      complete(client, 0, 0);
-      return true;
-    }
-    if (request == USBDEVFS_DISCARDURB) {
-      const auto addr = *reinterpret_cast<const gulong*>(arg->data);
-      const auto it = std::find_if(pending_.begin(), pending_.end(),
-                                   [&](const Urb& u) { return u.client == client && u.data->client_addr == addr; });
-      if (it == pending_.end()) {
-        complete(client, -1, live ? EINVAL : ENODEV);
-        return true;
-      }
-      urb(*it)->status = -ENOENT;
-      done_.push_back(*it);
-      pending_.erase(it);
-      ++snap_.discards;
-      complete(client, 0, 0);
-      return true;
-    }
-    if (!live) {
-      complete(client, -1, ENODEV);
-      return true;
-    }
-    switch (request) {
-      case USBDEVFS_GET_CAPABILITIES: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(std::uint32_t), nullptr);
-        const std::uint32_t caps = USBDEVFS_CAP_ZERO_PACKET | USBDEVFS_CAP_BULK_CONTINUATION | USBDEVFS_CAP_NO_PACKET_SIZE_LIM |
-                                   USBDEVFS_CAP_BULK_SCATTER_GATHER | USBDEVFS_CAP_REAP_AFTER_DISCONNECT;
-        memcpy(d->data, &caps, sizeof caps);
-        g_object_unref(d);
-        complete(client, 0, 0);
-        return true;
-      }
-      case USBDEVFS_GETDRIVER: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_getdriver), nullptr);
-        auto* gd = reinterpret_cast<usbdevfs_getdriver*>(d->data);
-        const bool ours = gd->interface == static_cast<unsigned>(usb_.interface_number) && driver_bound_;
-        if (ours) snprintf(gd->driver, sizeof gd->driver, "usbhid");
-        g_object_unref(d);
-        complete(client, ours ? 0 : -1, ours ? 0 : ENODATA);
-        return true;
-      }
-      case USBDEVFS_IOCTL: {  // DISCONNECT / CONNECT a kernel driver
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_ioctl), nullptr);
-        const int code = reinterpret_cast<usbdevfs_ioctl*>(d->data)->ioctl_code;
-        g_object_unref(d);
-        if (code == static_cast<int>(USBDEVFS_DISCONNECT)) {
-          if (!driver_bound_) {
-            complete(client, -1, ENODATA);
-            return true;
-          }
-          driver_bound_ = false;
-          snap_.driver_bound = false;
-          ++snap_.driver_detaches;
-          complete(client, 0, 0);
-        } else if (code == static_cast<int>(USBDEVFS_CONNECT)) {
-          driver_bound_ = true;
-          snap_.driver_bound = true;
-          complete(client, 1, 0);
-        } else {
-          complete(client, -1, ENOTTY);
-        }
-        return true;
-      }
-      case USBDEVFS_CLAIMINTERFACE:
-      case USBDEVFS_RELEASEINTERFACE: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(unsigned), nullptr);
-        unsigned itf = 0;
-        memcpy(&itf, d->data, sizeof itf);
-        g_object_unref(d);
-        if (itf != static_cast<unsigned>(usb_.interface_number)) {
-          complete(client, -1, ENOENT);
-        } else if (request == USBDEVFS_CLAIMINTERFACE && driver_bound_) {
-          complete(client, -1, EBUSY);
-        } else {
-          claimed_ = request == USBDEVFS_CLAIMINTERFACE;
-          snap_.claimed = claimed_;
-          complete(client, 0, 0);
-        }
-        return true;
-      }
-      case USBDEVFS_CLEAR_HALT:
-      case USBDEVFS_RESETEP:
-      case USBDEVFS_RESET:
-      case USBDEVFS_SETINTERFACE:
-      case USBDEVFS_SETCONFIGURATION: complete(client, 0, 0); return true;
-      case USBDEVFS_SUBMITURB: submit(client, arg); return true;
-      default: complete(client, -1, ENOTTY); return true;
-    }
+  lancet::test::UrbReply on_out(std::uint8_t, std::span<const std::uint8_t> data) override {
+    consume_out(data.data(), data.size());
+    return lancet::test::UrbReply::done(data.size());
   }
-
-  void submit(UMockdevIoctlClient* client, UMockdevIoctlData* arg) {
-    UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
-    auto* u = reinterpret_cast<usbdevfs_urb*>(d->data);
-    const bool interrupt = u->type == USBDEVFS_URB_TYPE_INTERRUPT;
-    const bool is_in = interrupt && u->endpoint == usb_.endpoint_in;
-    const bool is_out = interrupt && u->endpoint == usb_.endpoint_out;
-    if (u->type == USBDEVFS_URB_TYPE_CONTROL) {  // no control requests are emulated: stall
-      u->status = -EPIPE;
-      u->actual_length = 0;
-      done_.push_back({d, client});
-      complete(client, 0, 0);
-      return;
-    }
-    if ((!is_in && !is_out) || u->buffer_length <= 0 || claimed_ == false) {
-      g_object_unref(d);
-      complete(client, -1, claimed_ ? ENOENT : EINVAL);
-      return;
-    }
-    UMockdevIoctlData* buf =
-        umockdev_ioctl_data_resolve(d, offsetof(usbdevfs_urb, buffer), static_cast<gsize>(u->buffer_length), nullptr);
-    const auto len = static_cast<std::size_t>(u->buffer_length);
-    if (is_out) {
-      consume_out(buf->data, len);
-      u->actual_length = u->buffer_length;
-      u->status = 0;
-      done_.push_back({d, client});
-    } else if (vanish_next_in_) {
-      vanish_next_in_ = false;
-      unplugged_ = true;
-      u->actual_length = 0;
-      u->status = -ESHUTDOWN;
-      done_.push_back({d, client});
-    } else if (withhold_) {
-      pending_.push_back({d, client});
-    } else {
-      u->actual_length = static_cast<int>(fill_in(buf->data, len));
-      u->status = 0;
-      done_.push_back({d, client});
-    }
-    g_object_unref(buf);
-    complete(client, 0, 0);
+  lancet::test::UrbReply on_in(std::uint8_t, std::span<std::uint8_t> buffer) override {
+    return lancet::test::UrbReply::done(fill_in(buffer.data(), buffer.size()));
   }
 
   // The firmware's keep-alive: once the heartbeat changed while enabled it must keep changing;
@@ -540,17 +346,12 @@ class ArmEmulator {
 
   const arm::ArmConfig cfg_;
   const arm::UsbBusConfig usb_;
-  std::mutex m_;
   std::unique_ptr<ArmPhysics> physics_;
-  std::string live_;
-  bool unplugged_ = false, claimed_ = false, driver_bound_ = true;
-  bool withhold_ = false, vanish_next_in_ = false;
   Corruption corrupt_ = Corruption::kNone;
   std::uint32_t status_ = 0, buttons_ = 0;
   double watchdog_s_ = usb_.drive_watchdog;
   bool armed_ = false;
   std::int64_t clock_ns_ = 0, heartbeat_at_ns_ = 0;
-  std::deque<Urb> pending_, done_;  // withheld IN URBs; URBs ready to reap
   EmulatorSnapshot snap_{};
 };
 
@@ -559,85 +360,30 @@ class ArmEmulator {
 
 constexpr const char* kArmSysPath = "/sys/devices/pci0000:00/0000:00:14.0/usb1/1-1";
 
+// The arm and its testbed, enumerated at bus 1 address 2 (with the root hub).
 class Bench {
  public:
-  explicit Bench(const arm::ArmConfig& cfg) : emu_(cfg) {
-    text_ = read_text(source_path("tests/firmware_rt/device/data/usb_arm.umockdev"));
-    tb_ = umockdev_testbed_new();
-    handler_ = umockdev_ioctl_base_new();
-    g_signal_connect_data(handler_, "handle-ioctl", reinterpret_cast<GCallback>(&ArmEmulator::on_ioctl), &emu_, nullptr, GConnectFlags{});
-    EXPECT_FALSE(text_.empty()) << "cannot read data/usb_arm.umockdev";
-    plug(2, true);
+  explicit Bench(const arm::ArmConfig& cfg)
+      : emu_(cfg), tb_(emu_, source_path("tests/firmware_rt/device/data/usb_arm.umockdev"), kArmSysPath) {
+    plug(2);
   }
-  ~Bench() {
-    g_signal_handlers_disconnect_matched(handler_, G_SIGNAL_MATCH_DATA, 0, 0, nullptr, nullptr, &emu_);
-    g_object_unref(tb_);
-    g_object_unref(handler_);
-  }
-  Bench(const Bench&) = delete;
-  Bench& operator=(const Bench&) = delete;
 
   ArmEmulator& emu() { return emu_; }
-
-  /// Enumerates the arm at bus 1, address `address` (and the root hub on the first call).
-  void plug(int address, bool with_hub = false) {
-    char node[48], a3[16], a1[16], minor[16];
-    snprintf(node, sizeof node, "/dev/bus/usb/001/%03d", address);
-    snprintf(a3, sizeof a3, "%03d", address);
-    snprintf(a1, sizeof a1, "%d", address);
-    snprintf(minor, sizeof minor, "%d", address - 1);
-    GError* err = nullptr;
-    ASSERT_TRUE(umockdev_testbed_attach_ioctl(tb_, node, handler_, &err)) << (err ? err->message : "");
-    emu_.plugged_at(node);
-    // Paragraphs of the file; the arm's (its path under 1-1) get the new address.
-    std::string out;
-    std::size_t pos = 0;
-    while (pos < text_.size()) {
-      std::size_t end = text_.find("\n\n", pos);
-      if (end == std::string::npos) end = text_.size();
-      std::string para = text_.substr(pos, end - pos) + "\n\n";
-      pos = end + 2;
-      const bool is_arm = para.find("/usb1/1-1") != std::string::npos;
-      if (!is_arm && !with_hub) continue;
-      if (is_arm) {
-        replace_all(para, "bus/usb/001/002", std::string("bus/usb/001/") + a3);
-        replace_all(para, "DEVNUM=002", std::string("DEVNUM=") + a3);
-        replace_all(para, "devnum=2\\n", std::string("devnum=") + a1 + "\\n");
-        replace_all(para, "dev=189:1\\n", std::string("dev=189:") + minor + "\\n");
-        replace_all(para, "MINOR=1\n", std::string("MINOR=") + minor + "\n");
-      }
-      out += para;
-    }
-    ASSERT_TRUE(umockdev_testbed_add_from_string(tb_, out.c_str(), &err)) << (err ? err->message : "");
-  }
+  /// Enumerates the arm at bus 1, address `address`.
+  void plug(int address) { (void)tb_.plug(address); }  // a refusal is already a test failure
   /// Pulls the cable: the emulator fails what is in flight, the testbed forgets the device.
-  void unplug() {
-    emu_.unplug();
-    remove_from_testbed();
-  }
-  void remove_from_testbed() {
-    // The interface first: removing the device alone would leave its /sys/bus link behind.
-    umockdev_testbed_remove_device(tb_, (std::string(kArmSysPath) + "/1-1:1.0").c_str());
-    umockdev_testbed_remove_device(tb_, kArmSysPath);
-  }
+  void unplug() { tb_.unplug(); }
+  void remove_from_testbed() { tb_.remove_from_testbed(); }
 
  private:
-  static void replace_all(std::string& s, const std::string& from, const std::string& to) {
-    for (std::size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size())) s.replace(p, from.size(), to);
-  }
-
-  ArmEmulator emu_;
-  std::string text_;
-  UMockdevTestbed* tb_ = nullptr;
-  UMockdevIoctlBase* handler_ = nullptr;
+  ArmEmulator emu_;             // outlives tb_, which routes the node's ioctls to it
+  lancet::test::UsbTestbed tb_;
 };
 
 class UsbArmTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!in_umockdev())
-      GTEST_SKIP() << "not running under umockdev (LD_PRELOAD has no libumockdev-preload): install the Debian package "
-                      "umockdev, or run this binary as `umockdev-wrapper " << "<test binary>`";
+    if (!lancet::test::in_umockdev()) GTEST_SKIP() << lancet::test::not_in_umockdev_reason();
   }
 
   void start(const arm::ArmConfig& cfg, FaultPolicy policy = {}) {
@@ -1346,35 +1092,8 @@ TEST_F(UsbArmTest, SteadyStateReadWriteAllocatesOnlyWhatLibusbDoesPerTransfer) {
 // ---------------------------------------------------------------------------------------------
 // Entry point: make sure the umockdev preload library is loaded, re-executing under the wrapper.
 
-namespace {
-
-// Returns only when the preload library is already there, or when the wrapper cannot be run.
-void reexec_under_umockdev_if_needed(char** argv) {
-  if (lancet::device::in_umockdev() || getenv("LANCET_UMOCKDEV_REEXEC") != nullptr) return;
-  char self[4096];
-  const ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
-  if (n <= 0) return;
-  self[n] = '\0';
-  setenv("LANCET_UMOCKDEV_REEXEC", "1", 1);  // once: never loop if the wrapper does not preload
-#if defined(__SANITIZE_ADDRESS__)
-  // The preload library comes before the ASan runtime in the library list: allow it.
-  std::string asan = getenv("ASAN_OPTIONS") != nullptr ? getenv("ASAN_OPTIONS") : "";
-  asan += std::string(asan.empty() ? "" : ":") + "verify_asan_link_order=0";
-  setenv("ASAN_OPTIONS", asan.c_str(), 1);
-#endif
-  static char wrapper[] = "umockdev-wrapper";
-  std::vector<char*> args{wrapper, self};
-  for (char** a = argv + 1; *a != nullptr; ++a) args.push_back(*a);
-  args.push_back(nullptr);
-  execvp(wrapper, args.data());
-  std::fprintf(stderr, "usb_arm_test: cannot run umockdev-wrapper (%s): the tests that need umockdev are skipped\n",
-               strerror(errno));
-}
-
-}  // namespace
-
 int main(int argc, char** argv) {
-  reexec_under_umockdev_if_needed(argv);
+  lancet::test::reexec_under_umockdev_if_needed(argv);
   ::testing::InitGoogleTest(&argc, argv);
   return RUN_ALL_TESTS();
 }
