@@ -279,9 +279,10 @@ void UsbdevfsDevice::submit_control(const Urb& urb) {
   s.index = static_cast<std::uint16_t>(p[4] | p[5] << 8);
   s.length = static_cast<std::uint16_t>(p[6] | p[7] << 8);
   const std::size_t n = std::min<std::size_t>(s.length, urb.length - 8);
-  const UrbReply r = on_control(s, std::span<std::uint8_t>(urb.buffer + 8, n));
+  UrbReply r = on_control(s, std::span<std::uint8_t>(urb.buffer + 8, n));
   if (r.kind == UrbReply::Kind::kNothingYet) misuse("on_control() answered nothing_yet(): control transfers never pend");
   if (r.kind == UrbReply::Kind::kDone && r.length > n) misuse("on_control() answered more than wLength bytes");
+  if (r.kind == UrbReply::Kind::kDone && !s.is_in()) r.length = n;  // an accepted OUT took its whole data stage
   finish(urb, r);
 }
 

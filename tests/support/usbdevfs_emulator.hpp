@@ -119,8 +119,10 @@ class UsbdevfsDevice {
   bool handle_ioctl(_UMockdevIoctlClient* client);
 
  protected:
-  /// A control transfer. `data` is the data stage (wLength bytes at most): IN fills it and
-  /// returns done(n); OUT reads it and returns done(0). Default: stall().
+  /// A control transfer, claimed or not. `data` is the data stage (wLength bytes, fewer only if
+  /// the client's buffer is shorter): IN fills it and returns done(n ≤ data.size()); OUT reads it
+  /// and returns done(0) to accept it (the whole data stage counts as transferred). Or stall(),
+  /// or failed(). Default: stall() (a device that emulates no control request).
   virtual UrbReply on_control(const ControlSetup& setup, std::span<std::uint8_t> data);
   /// A bulk / interrupt OUT on `endpoint`: returns done(bytes consumed) or failed().
   virtual UrbReply on_out(std::uint8_t endpoint, std::span<const std::uint8_t> data) = 0;
