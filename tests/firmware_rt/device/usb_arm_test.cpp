@@ -1,8 +1,9 @@
 // UsbArm against an emulated USB arm: unmodified libusb in this process talks to a device that
 // umockdev puts in a testbed (sysfs + /dev from data/usb_arm.umockdev: a root hub and a HID-class
 // arm 1209:0001 with interrupt endpoints 0x81 IN and 0x01 OUT), and every usbdevfs ioctl on the
-// arm's node is answered by ArmEmulator below, which runs an ArmPhysics driven by the currents of
-// the OUT reports and answers IN reports from its encoders.
+// arm's node is answered by ArmEmulator (usb_arm_emulator.hpp, on tests/support's
+// UsbdevfsDevice), which runs an ArmPhysics driven by the currents of the OUT reports and answers
+// IN reports from its encoders. Bench below plugs and unplugs it (tests/support's UsbTestbed).
 //
 // Running: the umockdev preload library must be in LD_PRELOAD. main() checks and, when it is not,
 // re-executes this binary under `umockdev-wrapper` (Debian package umockdev), adding
@@ -23,38 +24,25 @@
 
 #include "device/usb_arm.hpp"
 
-#include <errno.h>
 #include <libusb.h>
-#include <linux/usbdevice_fs.h>
-#include <stdlib.h>
-#include <string.h>
-#include <sys/ioctl.h>
-#include <unistd.h>
 
 #include <gtest/gtest.h>
-#include <umockdev.h>
 
-#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
-#include <cstring>
-#include <deque>
-#include <fstream>
-#include <functional>
 #include <memory>
-#include <mutex>
-#include <sstream>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "arm/arm_config.hpp"
 #include "device/arm_physics.hpp"
 #include "malloc_guard.hpp"
+#include "usb_arm_emulator.hpp"
+#include "usb_testbed.hpp"
 #include "wait.hpp"
 
 #ifndef LANCET_SOURCE_DIR
@@ -70,19 +58,7 @@ using arm::FieldType;
 // ---------------------------------------------------------------------------------------------
 // Environment
 
-bool in_umockdev() {
-  const char* p = getenv("LD_PRELOAD");
-  return p != nullptr && strstr(p, "libumockdev-preload") != nullptr;
-}
-
 std::string source_path(const std::string& rel) { return std::string(LANCET_SOURCE_DIR) + "/" + rel; }
-
-std::string read_text(const std::string& path) {
-  std::ifstream f(path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 arm::ArmConfig shipped_usb_config() {
   auto c = arm::load_arm_config(source_path("hw_configs/usb_arm.toml"));
@@ -153,491 +129,34 @@ arm::ArmConfig foreign_config() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Field codecs of the emulated firmware (written apart from UsbArm's on purpose)
-
-std::int64_t get_field(const std::uint8_t* p, FieldType t, ByteOrder o) {
-  const int size = arm::field_size(t);
-  std::uint64_t u = 0;
-  for (int i = 0; i < size; ++i) u |= static_cast<std::uint64_t>(p[o == ByteOrder::kLittle ? i : size - 1 - i]) << (8 * i);
-  const bool is_signed = t == FieldType::kI8 || t == FieldType::kI16 || t == FieldType::kI32;
-  const int bits = 8 * size;
-  if (is_signed && (u >> (bits - 1)) != 0) return static_cast<std::int64_t>(u) - (std::int64_t{1} << bits);
-  return static_cast<std::int64_t>(u);
-}
-
-void put_field(std::uint8_t* p, FieldType t, ByteOrder o, std::int64_t v) {
-  const int size = arm::field_size(t);
-  const auto u = static_cast<std::uint64_t>(v);  // modulo 2^bits: a counter wraps like hardware
-  for (int i = 0; i < size; ++i) p[o == ByteOrder::kLittle ? i : size - 1 - i] = static_cast<std::uint8_t>((u >> (8 * i)) & 0xFF);
-}
-
-// A field's value in physical units (scale · raw + bias), f32 included.
-double get_value(const std::uint8_t* p, const arm::ReportField& f) {
-  if (f.type == FieldType::kF32) {
-    const auto bits = static_cast<std::uint32_t>(get_field(p, FieldType::kU32, f.byte_order));
-    float v = 0;
-    std::memcpy(&v, &bits, sizeof v);
-    return f.scale * v + f.bias;
-  }
-  return f.scale * static_cast<double>(get_field(p, f.type, f.byte_order)) + f.bias;
-}
-
-void put_value(std::uint8_t* p, const arm::ReportField& f, double physical) {
-  const double raw = (physical - f.bias) / f.scale;
-  if (f.type == FieldType::kF32) {
-    const auto v = static_cast<float>(raw);
-    std::uint32_t bits = 0;
-    std::memcpy(&bits, &v, sizeof bits);
-    put_field(p, FieldType::kU32, f.byte_order, bits);
-    return;
-  }
-  put_field(p, f.type, f.byte_order, std::llround(raw));
-}
-
-std::uint32_t with_bit(std::uint32_t word, const arm::StatusBit& b, bool active) {
-  if (!b.mapped()) return word;
-  const std::uint32_t m = 1u << b.bit;
-  return active != b.active_low ? word | m : word & ~m;
-}
-
-// ---------------------------------------------------------------------------------------------
-// The emulated arm: usbdevfs ioctls in, ArmPhysics behind them
-
-enum class Corruption { kNone, kShort, kWrongId };
-
-struct EmulatorSnapshot {
-  std::array<std::int64_t, kMaxJoints> current_counts{};  ///< last OUT report's setpoints, raw (rounded)
-  std::array<double, kMaxJoints> setpoint{};              ///< the same in A or N·m (scale · raw + bias)
-  bool enabled = false;
-  std::uint32_t enable_raw = 0, heartbeat = 0;            ///< last OUT report's fields
-  bool tripped = false;                                   ///< the keep-alive watchdog made the arm torque-free (latched)
-  std::uint64_t trips = 0, resets = 0;                    ///< watchdog trips; fault-reset reports
-  std::uint64_t out_reports = 0, in_reports = 0, bad_out_reports = 0, discards = 0;
-  bool claimed = false, driver_bound = true;
-  int driver_detaches = 0;
-};
-
-class ArmEmulator {
- public:
-  explicit ArmEmulator(const arm::ArmConfig& cfg) : cfg_(cfg), usb_(*cfg.usb) {
-    auto p = ArmPhysics::create(cfg);
-    if (!p.ok()) {
-      ADD_FAILURE() << p.error().message;
-      return;
-    }
-    physics_ = std::move(p).value();
-  }
-  ~ArmEmulator() {
-    for (auto& u : pending_) g_object_unref(u.data);
-    for (auto& u : done_) g_object_unref(u.data);
-  }
-  ArmEmulator(const ArmEmulator&) = delete;
-  ArmEmulator& operator=(const ArmEmulator&) = delete;
-
-  static gboolean on_ioctl(UMockdevIoctlBase*, UMockdevIoctlClient* client, gpointer self) {
-    return static_cast<ArmEmulator*>(self)->handle(client) ? TRUE : FALSE;
-  }
-
-  /// The node the arm is enumerated at now; ioctls on any other node (an old fd) get ENODEV.
-  void plugged_at(const std::string& devnode) {
-    std::lock_guard lk(m_);
-    live_ = devnode;
-    unplugged_ = false;
-    claimed_ = false;
-    driver_bound_ = true;  // usbhid binds a freshly enumerated HID device
-  }
-  /// Gone from the bus: transfers in flight fail with ENODEV, later ioctls too.
-  void unplug() {
-    std::lock_guard lk(m_);
-    unplugged_ = true;
-    for (auto& u : pending_) {
-      urb(u)->status = -ENODEV;
-      done_.push_back(u);
-    }
-    pending_.clear();
-  }
-  /// The next IN transfer is the last: the arm vanishes with it in flight (-ESHUTDOWN).
-  void vanish_on_next_in() {
-    std::lock_guard lk(m_);
-    vanish_next_in_ = true;
-  }
-  void withhold_in(bool on) {
-    std::lock_guard lk(m_);
-    withhold_ = on;
-  }
-  void corrupt_next_in(Corruption c) {
-    std::lock_guard lk(m_);
-    corrupt_ = c;
-  }
-  void set_status(std::uint32_t s) {
-    std::lock_guard lk(m_);
-    status_ = s;
-  }
-  void set_buttons(std::uint32_t b) {
-    std::lock_guard lk(m_);
-    buttons_ = b;
-  }
-  void with_physics(const std::function<void(ArmPhysics&)>& f) {
-    std::lock_guard lk(m_);
-    f(*physics_);
-  }
-  EmulatorSnapshot snapshot() {
-    std::lock_guard lk(m_);
-    poll_watchdog();
-    return snap_;
-  }
-  /// The firmware's keep-alive watchdog time (s; 0: off). Default: the config's drive_watchdog.
-  void set_watchdog(double s) {
-    std::lock_guard lk(m_);
-    watchdog_s_ = s;
-  }
-  /// The firmware's clock (ns): it moves only when the test advances it.
-  void advance_clock(std::int64_t ns) {
-    std::lock_guard lk(m_);
-    clock_ns_ += ns;
-    poll_watchdog();
-  }
-  [[nodiscard]] std::int64_t clock_ns() {
-    std::lock_guard lk(m_);
-    return clock_ns_;
-  }
-
- private:
-  struct Urb {
-    UMockdevIoctlData* data;      // the submitted usbdevfs_urb (its buffer resolved as a child)
-    UMockdevIoctlClient* client;  // the fd it came from
-  };
-  static usbdevfs_urb* urb(const Urb& u) { return reinterpret_cast<usbdevfs_urb*>(u.data->data); }
-  static void complete(UMockdevIoctlClient* c, long ret, int err) { umockdev_ioctl_client_complete(c, ret, err); }
-
-  bool handle(UMockdevIoctlClient* client) {
-    const auto request = static_cast<unsigned long>(umockdev_ioctl_client_get_request(client));
-    UMockdevIoctlData* arg = umockdev_ioctl_client_get_arg(client);
-    std::lock_guard lk(m_);
-    const bool live = !unplugged_ && live_ == umockdev_ioctl_client_get_devnode(client);
-
-    if (request == USBDEVFS_REAPURB || request == USBDEVFS_REAPURBNDELAY) {
-      const auto it = std::find_if(done_.begin(), done_.end(), [&](const Urb& u) { return u.client == client; });
-      if (it == done_.end()) {
-        complete(client, -1, live ? EAGAIN : ENODEV);
-        return true;
-      }
-      const Urb u = *it;
-      done_.erase(it);
-      UMockdevIoctlData* ptr = umockdev_ioctl_data_resolve(arg, 0, sizeof(void*), nullptr);
-      umockdev_ioctl_data_set_ptr(ptr, 0, u.data);  // the client sees its own URB come back
-      g_object_unref(ptr);
-      g_object_unref(u.data);
-      complete(client, 0, 0);
-      return true;
-    }
-    if (request == USBDEVFS_DISCARDURB) {
-      const auto addr = *reinterpret_cast<const gulong*>(arg->data);
-      const auto it = std::find_if(pending_.begin(), pending_.end(),
-                                   [&](const Urb& u) { return u.client == client && u.data->client_addr == addr; });
-      if (it == pending_.end()) {
-        complete(client, -1, live ? EINVAL : ENODEV);
-        return true;
-      }
-      urb(*it)->status = -ENOENT;
-      done_.push_back(*it);
-      pending_.erase(it);
-      ++snap_.discards;
-      complete(client, 0, 0);
-      return true;
-    }
-    if (!live) {
-      complete(client, -1, ENODEV);
-      return true;
-    }
-    switch (request) {
-      case USBDEVFS_GET_CAPABILITIES: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(std::uint32_t), nullptr);
-        const std::uint32_t caps = USBDEVFS_CAP_ZERO_PACKET | USBDEVFS_CAP_BULK_CONTINUATION | USBDEVFS_CAP_NO_PACKET_SIZE_LIM |
-                                   USBDEVFS_CAP_BULK_SCATTER_GATHER | USBDEVFS_CAP_REAP_AFTER_DISCONNECT;
-        memcpy(d->data, &caps, sizeof caps);
-        g_object_unref(d);
-        complete(client, 0, 0);
-        return true;
-      }
-      case USBDEVFS_GETDRIVER: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_getdriver), nullptr);
-        auto* gd = reinterpret_cast<usbdevfs_getdriver*>(d->data);
-        const bool ours = gd->interface == static_cast<unsigned>(usb_.interface_number) && driver_bound_;
-        if (ours) snprintf(gd->driver, sizeof gd->driver, "usbhid");
-        g_object_unref(d);
-        complete(client, ours ? 0 : -1, ours ? 0 : ENODATA);
-        return true;
-      }
-      case USBDEVFS_IOCTL: {  // DISCONNECT / CONNECT a kernel driver
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_ioctl), nullptr);
-        const int code = reinterpret_cast<usbdevfs_ioctl*>(d->data)->ioctl_code;
-        g_object_unref(d);
-        if (code == static_cast<int>(USBDEVFS_DISCONNECT)) {
-          if (!driver_bound_) {
-            complete(client, -1, ENODATA);
-            return true;
-          }
-          driver_bound_ = false;
-          snap_.driver_bound = false;
-          ++snap_.driver_detaches;
-          complete(client, 0, 0);
-        } else if (code == static_cast<int>(USBDEVFS_CONNECT)) {
-          driver_bound_ = true;
-          snap_.driver_bound = true;
-          complete(client, 1, 0);
-        } else {
-          complete(client, -1, ENOTTY);
-        }
-        return true;
-      }
-      case USBDEVFS_CLAIMINTERFACE:
-      case USBDEVFS_RELEASEINTERFACE: {
-        UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(unsigned), nullptr);
-        unsigned itf = 0;
-        memcpy(&itf, d->data, sizeof itf);
-        g_object_unref(d);
-        if (itf != static_cast<unsigned>(usb_.interface_number)) {
-          complete(client, -1, ENOENT);
-        } else if (request == USBDEVFS_CLAIMINTERFACE && driver_bound_) {
-          complete(client, -1, EBUSY);
-        } else {
-          claimed_ = request == USBDEVFS_CLAIMINTERFACE;
-          snap_.claimed = claimed_;
-          complete(client, 0, 0);
-        }
-        return true;
-      }
-      case USBDEVFS_CLEAR_HALT:
-      case USBDEVFS_RESETEP:
-      case USBDEVFS_RESET:
-      case USBDEVFS_SETINTERFACE:
-      case USBDEVFS_SETCONFIGURATION: complete(client, 0, 0); return true;
-      case USBDEVFS_SUBMITURB: submit(client, arg); return true;
-      default: complete(client, -1, ENOTTY); return true;
-    }
-  }
-
-  void submit(UMockdevIoctlClient* client, UMockdevIoctlData* arg) {
-    UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
-    auto* u = reinterpret_cast<usbdevfs_urb*>(d->data);
-    const bool interrupt = u->type == USBDEVFS_URB_TYPE_INTERRUPT;
-    const bool is_in = interrupt && u->endpoint == usb_.endpoint_in;
-    const bool is_out = interrupt && u->endpoint == usb_.endpoint_out;
-    if (u->type == USBDEVFS_URB_TYPE_CONTROL) {  // no control requests are emulated: stall
-      u->status = -EPIPE;
-      u->actual_length = 0;
-      done_.push_back({d, client});
-      complete(client, 0, 0);
-      return;
-    }
-    if ((!is_in && !is_out) || u->buffer_length <= 0 || claimed_ == false) {
-      g_object_unref(d);
-      complete(client, -1, claimed_ ? ENOENT : EINVAL);
-      return;
-    }
-    UMockdevIoctlData* buf =
-        umockdev_ioctl_data_resolve(d, offsetof(usbdevfs_urb, buffer), static_cast<gsize>(u->buffer_length), nullptr);
-    const auto len = static_cast<std::size_t>(u->buffer_length);
-    if (is_out) {
-      consume_out(buf->data, len);
-      u->actual_length = u->buffer_length;
-      u->status = 0;
-      done_.push_back({d, client});
-    } else if (vanish_next_in_) {
-      vanish_next_in_ = false;
-      unplugged_ = true;
-      u->actual_length = 0;
-      u->status = -ESHUTDOWN;
-      done_.push_back({d, client});
-    } else if (withhold_) {
-      pending_.push_back({d, client});
-    } else {
-      u->actual_length = static_cast<int>(fill_in(buf->data, len));
-      u->status = 0;
-      done_.push_back({d, client});
-    }
-    g_object_unref(buf);
-    complete(client, 0, 0);
-  }
-
-  // The firmware's keep-alive: once the heartbeat changed while enabled it must keep changing;
-  // silent for longer than the watchdog time, the arm goes torque-free and latches a fault
-  // (comm_lost) until a fault reset. Checked on every report, snapshot and clock advance, against
-  // the test's clock.
-  void poll_watchdog() {
-    if (!armed_ || !(watchdog_s_ > 0) || !snap_.enabled) return;
-    if (static_cast<double>(clock_ns_ - heartbeat_at_ns_) <= watchdog_s_ * 1e9) return;
-    armed_ = false;
-    snap_.tripped = true;
-    snap_.enabled = false;
-    ++snap_.trips;
-  }
-
-  // The firmware's side of an OUT report: setpoints → joint torques → 1 ms of physics.
-  void consume_out(const std::uint8_t* b, std::size_t len) {
-    ++snap_.out_reports;
-    poll_watchdog();
-    if (len < usb_.out_size || (usb_.out_report_id && b[0] != *usb_.out_report_id)) {
-      ++snap_.bad_out_reports;
-      return;
-    }
-    const auto field = [&](const std::optional<arm::ReportField>& f) {
-      return f ? static_cast<std::uint32_t>(get_field(b + f->offset, f->type, f->byte_order)) : 0u;
-    };
-    if (usb_.fault_reset && field(usb_.fault_reset) == usb_.fault_reset_value) {
-      snap_.tripped = false;
-      ++snap_.resets;
-    }
-    snap_.enable_raw = field(usb_.enable);
-    const bool enabled = (!usb_.enable || snap_.enable_raw == usb_.enable_on) && !snap_.tripped;
-    if (usb_.heartbeat) {
-      const std::uint32_t hb = field(usb_.heartbeat);
-      if (hb != snap_.heartbeat || !enabled) {
-        heartbeat_at_ns_ = clock_ns_;
-        armed_ = enabled && hb != snap_.heartbeat;
-      }
-      snap_.heartbeat = hb;
-    }
-    const auto& f = usb_.setpoint;
-    JointCommand cmd{};
-    cmd.n = physics_->joint_count();
-    for (int j = 0; j < cmd.n; ++j) {
-      const auto uj = static_cast<std::size_t>(j);
-      const std::uint8_t* p = b + f.offset + uj * static_cast<std::size_t>(arm::field_size(f.type));
-      const double physical = get_value(p, f);
-      snap_.setpoint[uj] = physical;
-      snap_.current_counts[uj] = std::llround((physical - f.bias) / f.scale);
-      const double amps = usb_.setpoint_kind == arm::SetpointKind::kTorque ? physical / cfg_.actuators[uj].torque_constant : physical;
-      const double amps_per_nm = arm::motor_current_for_joint_torque(cfg_.joints[uj], cfg_.actuators[uj], 1.0);
-      cmd.tau[uj] = enabled ? amps / amps_per_nm : 0.0;
-    }
-    snap_.enabled = enabled;
-    physics_->step(cmd, 1e-3);
-  }
-
-  // An IN report from the physics' encoders; returns the bytes sent.
-  std::size_t fill_in(std::uint8_t* b, std::size_t len) {
-    ++snap_.in_reports;
-    poll_watchdog();
-    std::fill(b, b + len, std::uint8_t{0});
-    const std::size_t n = std::min<std::size_t>(len, usb_.in_size);
-    if (usb_.in_report_id) b[0] = corrupt_ == Corruption::kWrongId ? static_cast<std::uint8_t>(*usb_.in_report_id + 1) : *usb_.in_report_id;
-    const auto& f = usb_.encoder_counts;
-    for (int j = 0; j < physics_->joint_count(); ++j)
-      put_value(b + f.offset + static_cast<std::size_t>(j * arm::field_size(f.type)), f, static_cast<double>(physics_->encoder_counts(j)));
-    if (usb_.buttons) put_field(b + usb_.buttons->offset, usb_.buttons->type, usb_.buttons->byte_order, buttons_);
-    if (usb_.status) {
-      // What the test set, with the watchdog's latched fault on top.
-      std::uint32_t word = status_;
-      if (snap_.tripped) word = with_bit(with_bit(word, usb_.status_bits.fault, true), usb_.status_bits.comm_lost, true);
-      put_field(b + usb_.status->offset, usb_.status->type, usb_.status->byte_order, word);
-    }
-    const Corruption c = corrupt_;
-    corrupt_ = Corruption::kNone;
-    return c == Corruption::kShort ? n / 2 : n;
-  }
-
-  const arm::ArmConfig cfg_;
-  const arm::UsbBusConfig usb_;
-  std::mutex m_;
-  std::unique_ptr<ArmPhysics> physics_;
-  std::string live_;
-  bool unplugged_ = false, claimed_ = false, driver_bound_ = true;
-  bool withhold_ = false, vanish_next_in_ = false;
-  Corruption corrupt_ = Corruption::kNone;
-  std::uint32_t status_ = 0, buttons_ = 0;
-  double watchdog_s_ = usb_.drive_watchdog;
-  bool armed_ = false;
-  std::int64_t clock_ns_ = 0, heartbeat_at_ns_ = 0;
-  std::deque<Urb> pending_, done_;  // withheld IN URBs; URBs ready to reap
-  EmulatorSnapshot snap_{};
-};
-
-// ---------------------------------------------------------------------------------------------
 // The testbed: sysfs and /dev from data/usb_arm.umockdev, the emulator on the arm's node
 
 constexpr const char* kArmSysPath = "/sys/devices/pci0000:00/0000:00:14.0/usb1/1-1";
 
+// The arm and its testbed, enumerated at bus 1 address 2 (with the root hub).
 class Bench {
  public:
-  explicit Bench(const arm::ArmConfig& cfg) : emu_(cfg) {
-    text_ = read_text(source_path("tests/firmware_rt/device/data/usb_arm.umockdev"));
-    tb_ = umockdev_testbed_new();
-    handler_ = umockdev_ioctl_base_new();
-    g_signal_connect_data(handler_, "handle-ioctl", reinterpret_cast<GCallback>(&ArmEmulator::on_ioctl), &emu_, nullptr, GConnectFlags{});
-    EXPECT_FALSE(text_.empty()) << "cannot read data/usb_arm.umockdev";
-    plug(2, true);
+  explicit Bench(const arm::ArmConfig& cfg)
+      : emu_(cfg), tb_(emu_, source_path("tests/firmware_rt/device/data/usb_arm.umockdev"), kArmSysPath) {
+    plug(2);
   }
-  ~Bench() {
-    g_signal_handlers_disconnect_matched(handler_, G_SIGNAL_MATCH_DATA, 0, 0, nullptr, nullptr, &emu_);
-    g_object_unref(tb_);
-    g_object_unref(handler_);
-  }
-  Bench(const Bench&) = delete;
-  Bench& operator=(const Bench&) = delete;
 
   ArmEmulator& emu() { return emu_; }
-
-  /// Enumerates the arm at bus 1, address `address` (and the root hub on the first call).
-  void plug(int address, bool with_hub = false) {
-    char node[48], a3[16], a1[16], minor[16];
-    snprintf(node, sizeof node, "/dev/bus/usb/001/%03d", address);
-    snprintf(a3, sizeof a3, "%03d", address);
-    snprintf(a1, sizeof a1, "%d", address);
-    snprintf(minor, sizeof minor, "%d", address - 1);
-    GError* err = nullptr;
-    ASSERT_TRUE(umockdev_testbed_attach_ioctl(tb_, node, handler_, &err)) << (err ? err->message : "");
-    emu_.plugged_at(node);
-    // Paragraphs of the file; the arm's (its path under 1-1) get the new address.
-    std::string out;
-    std::size_t pos = 0;
-    while (pos < text_.size()) {
-      std::size_t end = text_.find("\n\n", pos);
-      if (end == std::string::npos) end = text_.size();
-      std::string para = text_.substr(pos, end - pos) + "\n\n";
-      pos = end + 2;
-      const bool is_arm = para.find("/usb1/1-1") != std::string::npos;
-      if (!is_arm && !with_hub) continue;
-      if (is_arm) {
-        replace_all(para, "bus/usb/001/002", std::string("bus/usb/001/") + a3);
-        replace_all(para, "DEVNUM=002", std::string("DEVNUM=") + a3);
-        replace_all(para, "devnum=2\\n", std::string("devnum=") + a1 + "\\n");
-        replace_all(para, "dev=189:1\\n", std::string("dev=189:") + minor + "\\n");
-        replace_all(para, "MINOR=1\n", std::string("MINOR=") + minor + "\n");
-      }
-      out += para;
-    }
-    ASSERT_TRUE(umockdev_testbed_add_from_string(tb_, out.c_str(), &err)) << (err ? err->message : "");
-  }
+  /// Enumerates the arm at bus 1, address `address`.
+  void plug(int address) { (void)tb_.plug(address); }  // a refusal is already a test failure
   /// Pulls the cable: the emulator fails what is in flight, the testbed forgets the device.
-  void unplug() {
-    emu_.unplug();
-    remove_from_testbed();
-  }
-  void remove_from_testbed() {
-    // The interface first: removing the device alone would leave its /sys/bus link behind.
-    umockdev_testbed_remove_device(tb_, (std::string(kArmSysPath) + "/1-1:1.0").c_str());
-    umockdev_testbed_remove_device(tb_, kArmSysPath);
-  }
+  void unplug() { tb_.unplug(); }
+  void remove_from_testbed() { tb_.remove_from_testbed(); }
 
  private:
-  static void replace_all(std::string& s, const std::string& from, const std::string& to) {
-    for (std::size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size())) s.replace(p, from.size(), to);
-  }
-
-  ArmEmulator emu_;
-  std::string text_;
-  UMockdevTestbed* tb_ = nullptr;
-  UMockdevIoctlBase* handler_ = nullptr;
+  ArmEmulator emu_;             // outlives tb_, which routes the node's ioctls to it
+  lancet::test::UsbTestbed tb_;
 };
 
 class UsbArmTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!in_umockdev())
-      GTEST_SKIP() << "not running under umockdev (LD_PRELOAD has no libumockdev-preload): install the Debian package "
-                      "umockdev, or run this binary as `umockdev-wrapper " << "<test binary>`";
+    if (!lancet::test::in_umockdev()) GTEST_SKIP() << lancet::test::not_in_umockdev_reason();
   }
 
   void start(const arm::ArmConfig& cfg, FaultPolicy policy = {}) {
@@ -1346,35 +865,8 @@ TEST_F(UsbArmTest, SteadyStateReadWriteAllocatesOnlyWhatLibusbDoesPerTransfer) {
 // ---------------------------------------------------------------------------------------------
 // Entry point: make sure the umockdev preload library is loaded, re-executing under the wrapper.
 
-namespace {
-
-// Returns only when the preload library is already there, or when the wrapper cannot be run.
-void reexec_under_umockdev_if_needed(char** argv) {
-  if (lancet::device::in_umockdev() || getenv("LANCET_UMOCKDEV_REEXEC") != nullptr) return;
-  char self[4096];
-  const ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
-  if (n <= 0) return;
-  self[n] = '\0';
-  setenv("LANCET_UMOCKDEV_REEXEC", "1", 1);  // once: never loop if the wrapper does not preload
-#if defined(__SANITIZE_ADDRESS__)
-  // The preload library comes before the ASan runtime in the library list: allow it.
-  std::string asan = getenv("ASAN_OPTIONS") != nullptr ? getenv("ASAN_OPTIONS") : "";
-  asan += std::string(asan.empty() ? "" : ":") + "verify_asan_link_order=0";
-  setenv("ASAN_OPTIONS", asan.c_str(), 1);
-#endif
-  static char wrapper[] = "umockdev-wrapper";
-  std::vector<char*> args{wrapper, self};
-  for (char** a = argv + 1; *a != nullptr; ++a) args.push_back(*a);
-  args.push_back(nullptr);
-  execvp(wrapper, args.data());
-  std::fprintf(stderr, "usb_arm_test: cannot run umockdev-wrapper (%s): the tests that need umockdev are skipped\n",
-               strerror(errno));
-}
-
-}  // namespace
-
 int main(int argc, char** argv) {
-  reexec_under_umockdev_if_needed(argv);
+  lancet::test::reexec_under_umockdev_if_needed(argv);
   ::testing::InitGoogleTest(&argc, argv);
   return RUN_ALL_TESTS();
 }
