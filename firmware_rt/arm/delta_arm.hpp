@@ -71,7 +71,7 @@ class DeltaArm {
   static constexpr int kJoints = 3;
   /// Newton stops once every leg's distance to its torus is at most this (m).
   static constexpr double kTolerance = 1e-13;
-  /// Newton steps at most (the Falcon's workspace needs 3 to 6).
+  /// Newton steps at most (the Falcon's workspace needs 1 to 5).
   static constexpr int kMaxIterations = 24;
 
   DeltaArm() = default;

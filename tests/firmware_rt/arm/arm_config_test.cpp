@@ -50,28 +50,21 @@ std::string shipped_text(const std::string& name) {
   return t;
 }
 
-// The sim arm with the Novint Falcon's delta kinematics in place of its PHANToM model (the
-// thigh limits cover the reachable workspace; base_offset puts the workspace centre at the origin).
-const char* const kDeltaKinematics = R"([kinematics]
-model = "delta"
-a_mm = 60.0
-b_mm = 102.5
-c_mm = 14.43
-d_mm = 11.25
-e_mm = 11.25
-f_mm = -25.0
-r_mm = 40.0
-s_mm = -23.09
-leg_angles_deg = [105.0, -15.0, -135.0]
-base_offset_mm = [0.0, 0.0, -111.0]
-
-)";
+// The sim arm with the Novint Falcon's delta kinematics in place of its PHANToM model: the
+// README's [kinematics] example for the Falcon (so the documented values load).
+std::string falcon_kinematics() {
+  const std::string readme = read_text(config_dir() + "README.md");
+  const auto begin = readme.find("[kinematics]\nmodel = \"delta\"");
+  const auto end = readme.find("```", begin);
+  EXPECT_TRUE(begin != std::string::npos && end != std::string::npos) << "the README's Falcon example";
+  return begin == std::string::npos || end == std::string::npos ? std::string() : readme.substr(begin, end - begin) + "\n";
+}
 
 std::string delta_text() {
   std::string t = shipped_text("sim_3dof.toml");
   const auto from = t.find("[kinematics]"), to = t.find("[[joints]]");
   EXPECT_TRUE(from != std::string::npos && to != std::string::npos);
-  t.replace(from, to - from, kDeltaKinematics);
+  t.replace(from, to - from, falcon_kinematics());
   return t;
 }
 
