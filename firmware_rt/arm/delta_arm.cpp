@@ -83,7 +83,8 @@ Residual residual(const Legs& legs, const DeltaGeometry& g, Vec3 p) noexcept {
   Residual r;
   for (std::size_t i = 0; i < 3; ++i) {
     r.leg[i] = distance(legs.torus[i], g.d + g.e, g.b, p);
-    r.max_abs = std::max(r.max_abs, std::abs(r.leg[i].h));
+    const double h = std::abs(r.leg[i].h);
+    if (!(h <= r.max_abs)) r.max_abs = h;  // a NaN leg too
   }
   if (!std::isfinite(r.max_abs)) r.max_abs = std::numeric_limits<double>::infinity();
   return r;

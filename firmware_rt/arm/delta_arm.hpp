@@ -54,8 +54,9 @@ struct DeltaGeometry {
 };
 
 /// What is wrong with a geometry, or nullptr when nothing is: a non-finite value, a or b <= 0, d or
-/// e < 0, two leg angles within 1° of each other (the legs would coincide), or no point of the z
-/// axis reachable (|f − s| >= b, or the thighs too short to reach it). Configure time.
+/// e < 0, two leg angles within 1° of each other (the legs would coincide), no point of the z axis
+/// reachable (|f − s| >= b, or the thighs too short to reach it), or a mechanism singular at its
+/// centre. Configure time.
 [[nodiscard]] const char* delta_geometry_problem(const DeltaGeometry& g) noexcept;
 
 /// The outcome of one forward solve.
@@ -63,7 +64,7 @@ struct DeltaSolve {
   Vec3 position{};       ///< m, device frame: the solution, or the best iterate when not converged
   double residual = 0;   ///< m, largest |h_i| at position (0 at an exact solution)
   int iterations = 0;    ///< Newton steps taken
-  bool converged = false;///< residual <= DeltaArm::kTolerance
+  bool converged = false;  ///< residual <= DeltaArm::kTolerance
 };
 
 class DeltaArm {
@@ -75,8 +76,8 @@ class DeltaArm {
   static constexpr int kMaxIterations = 24;
 
   DeltaArm() = default;
-  /// `g` must pass delta_geometry_problem (asserted); base_offset (m) is the model origin in the
-  /// device frame.
+  /// `g` must pass delta_geometry_problem (that its legs reach their axis is asserted);
+  /// base_offset (m) is the model origin in the device frame.
   explicit DeltaArm(const DeltaGeometry& g, Vec3 base_offset = {}) noexcept;
 
   [[nodiscard]] static constexpr int joint_count() noexcept { return kJoints; }
@@ -105,10 +106,12 @@ class DeltaArm {
   [[nodiscard]] Jacobian jacobian_at(std::span<const double> q, Vec3 p) const noexcept;
   /// The thigh angles (rad, in (−π, π]) that put the tool point at p (m, device frame), closed form
   /// (libnifalcon's root of the tan-half-angle quadratic, the knee outside); nullopt outside the
-  /// reachable set. Real-time safe.
+  /// reachable set. The mirror image of the workspace behind the motors (z < 0 in the model frame)
+  /// solves too, though no real arm gets there. Real-time safe.
   [[nodiscard]] std::optional<std::array<double, 3>> inverse(Vec3 p) const noexcept;
   /// The 2-norm condition number of jacobian(q) (>= 1; +inf at a singularity or where the forward
   /// solve does not converge): how far q is from losing a direction of motion or of force.
+  /// Real-time safe.
   [[nodiscard]] double condition_number(std::span<const double> q) const noexcept;
 
  private:
