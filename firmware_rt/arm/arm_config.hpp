@@ -37,10 +37,12 @@ struct KinematicsConfig {
   // model = dh
   std::vector<DhLink> links;    ///< one per joint (m, rad)
   Vec3 tool_offset{};           ///< m, tool point in the last link frame
+  // model = delta
+  DeltaGeometry delta{};        ///< m, rad (Stamper's a..f, r, s and the leg angles)
 
-  /// Joints of the model: 3 for phantom, links.size() for dh.
+  /// Joints of the model: 3 for phantom, delta (and cartesian), links.size() for dh.
   [[nodiscard]] int joint_count() const noexcept {
-    return model == KinematicModel::kPhantom ? 3 : static_cast<int>(links.size());
+    return model == KinematicModel::kDh ? static_cast<int>(links.size()) : 3;
   }
 };
 

@@ -219,11 +219,22 @@ Vec3 cartesian_position(std::span<const double> q) noexcept {
 }
 }  // namespace
 
+std::string_view model_name(KinematicModel m) noexcept {
+  switch (m) {
+    case KinematicModel::kDh: return "dh";
+    case KinematicModel::kPhantom: return "phantom";
+    case KinematicModel::kCartesian: return "cartesian";
+    case KinematicModel::kDelta: return "delta";
+  }
+  return "unknown";
+}
+
 int Kinematics::joint_count() const noexcept {
   switch (model_) {
     case KinematicModel::kDh: return dh_.joint_count();
     case KinematicModel::kPhantom: return PhantomArm::joint_count();
     case KinematicModel::kCartesian: return 3;
+    case KinematicModel::kDelta: return DeltaArm::joint_count();
   }
   return 0;
 }
@@ -233,6 +244,7 @@ Vec3 Kinematics::position(std::span<const double> q) const noexcept {
     case KinematicModel::kDh: return dh_.position(q);
     case KinematicModel::kPhantom: return phantom_.position(q);
     case KinematicModel::kCartesian: return cartesian_position(q);
+    case KinematicModel::kDelta: return delta_.position(q);
   }
   return {};
 }
@@ -242,6 +254,7 @@ Pose Kinematics::forward(std::span<const double> q) const noexcept {
     case KinematicModel::kDh: return dh_.forward(q);
     case KinematicModel::kPhantom: return phantom_.forward(q);
     case KinematicModel::kCartesian: return Pose{cartesian_position(q), Quat{}};
+    case KinematicModel::kDelta: return delta_.forward(q);
   }
   return {};
 }
@@ -256,8 +269,18 @@ Jacobian Kinematics::jacobian(std::span<const double> q) const noexcept {
       j.column[0] = {1, 0, 0}, j.column[1] = {0, 1, 0}, j.column[2] = {0, 0, 1};
       return j;
     }
+    case KinematicModel::kDelta: return delta_.jacobian(q);
   }
   return {};
+}
+
+Jacobian Kinematics::position_and_jacobian(std::span<const double> q, Vec3& position) const noexcept {
+  if (model_ == KinematicModel::kDelta) {
+    position = delta_.position(q);
+    return delta_.jacobian_at(q, position);
+  }
+  position = this->position(q);
+  return jacobian(q);
 }
 
 namespace {
@@ -271,6 +294,10 @@ Error invalid(const std::string& what) { return Error{ErrorCode::kInvalid, "make
 Result<Kinematics> make_kinematics(const ArmConfig& config) {
   const KinematicsConfig& k = config.kinematics;
   if (!finite(k.base_offset)) return invalid("kinematics.base_offset is not finite");
+  if (k.model == KinematicModel::kDelta) {
+    if (const char* problem = delta_geometry_problem(k.delta)) return invalid(std::string("kinematics (delta): ") + problem);
+    return Kinematics(DeltaArm(k.delta, k.base_offset));
+  }
   if (k.model == KinematicModel::kPhantom) {
     if (!(std::isfinite(k.l1) && k.l1 > 0)) return invalid("kinematics.l1 must be > 0 m, found " + std::to_string(k.l1));
     if (!(std::isfinite(k.l2) && k.l2 > 0)) return invalid("kinematics.l2 must be > 0 m, found " + std::to_string(k.l2));

@@ -1,8 +1,9 @@
 #pragma once
 // Arm kinematics built from a config: a general serial chain from Denavit-Hartenberg parameters
-// (standard convention, any number of joints up to kMaxJoints) and the closed-form 3-DOF
-// PHANToM-style arm, both giving the tool point, its pose and the Jacobian of the tool point, and
-// the Jacobian-transpose map from a tool force to joint torques. Models are small fixed-size values
+// (standard convention, any number of joints up to kMaxJoints), the closed-form 3-DOF
+// PHANToM-style arm and the three-leg delta (parallel) arm of the Novint Falcon (arm/delta_arm.hpp),
+// each giving the tool point, its pose and the Jacobian of the tool point, and the
+// Jacobian-transpose map from a tool force to joint torques. Models are small fixed-size values
 // built once at configure time (make_kinematics); forward, jacobian and joint_torques never
 // allocate and are real-time safe.
 //
@@ -17,7 +18,10 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <string_view>
 
+#include "arm/delta_arm.hpp"
+#include "arm/jacobian.hpp"
 #include "lancet/shared_model/geometry.hpp"
 #include "lancet/shared_model/messages.hpp"
 #include "lancet/shared_model/result.hpp"
@@ -25,12 +29,6 @@
 namespace lancet::arm {
 
 struct ArmConfig;
-
-/// Most joints any model handles; sizes the fixed arrays of the real-time path.
-using lancet::kMaxJoints;  // the one limit, shared with the wire (messages.hpp)
-
-/// Joint-space values (rad or m, N·m or N), entries [0, joint_count) used, the rest zero.
-using JointArray = std::array<double, kMaxJoints>;
 
 enum class JointType : std::uint8_t {
   kRevolute,   ///< the joint variable (rad) adds to theta
@@ -41,7 +39,11 @@ enum class KinematicModel : std::uint8_t {
   kDh,       ///< DhChain
   kPhantom,  ///< PhantomArm
   kCartesian,  ///< three prismatic joints along x, y, z: q is the position (the built-in simulated stylus)
+  kDelta,    ///< DeltaArm (appended: the values travel in the servo model's bytes)
 };
+
+/// The model's name as a config writes it: "dh", "phantom", "cartesian" (no config key), "delta".
+[[nodiscard]] std::string_view model_name(KinematicModel m) noexcept;
 
 /// Rigid transform: row-major rotation (r[3*row + col]) and translation (m).
 struct Transform {
@@ -57,21 +59,6 @@ Vec3 apply(const Transform& t, Vec3 v) noexcept;
 Quat to_quat(const std::array<double, 9>& r) noexcept;
 /// The pose (position, orientation) of a transform.
 Pose to_pose(const Transform& t) noexcept;
-
-/// Linear Jacobian of the tool point, 3 × n: column j = ∂p/∂q_j (m/rad for a revolute joint,
-/// dimensionless for a prismatic one). What haptics needs: τ = Jᵀ F.
-struct Jacobian {
-  int n = 0;
-  std::array<Vec3, kMaxJoints> column{};
-};
-
-/// Geometric Jacobian, 6 × n: linear (as Jacobian) over angular (rad/s of the tool frame per unit
-/// joint rate, base frame) parts.
-struct SpatialJacobian {
-  int n = 0;
-  std::array<Vec3, kMaxJoints> linear{};
-  std::array<Vec3, kMaxJoints> angular{};
-};
 
 /// One link in standard (distal) Denavit-Hartenberg form: frame i follows frame i-1 by
 ///   Rot_z(theta) · Trans_z(d) · Trans_x(a) · Rot_x(alpha)
@@ -162,11 +149,12 @@ struct PhantomArm {
 /// τ = Jᵀ [F; M] for a force F (N) and a moment M (N·m) on the tool frame. Real-time safe.
 [[nodiscard]] JointArray joint_torques(const SpatialJacobian& j, Vec3 force, Vec3 moment) noexcept;
 
-/// The arm's kinematic model as one value (either kind), so the servo loop holds it by value.
+/// The arm's kinematic model as one value (any kind), so the servo loop holds it by value.
 class Kinematics {
  public:
   explicit Kinematics(const DhChain& chain) noexcept : model_(KinematicModel::kDh), dh_(chain) {}
   explicit Kinematics(const PhantomArm& arm) noexcept : model_(KinematicModel::kPhantom), phantom_(arm) {}
+  explicit Kinematics(const DeltaArm& arm) noexcept : model_(KinematicModel::kDelta), delta_(arm) {}
   /// Three prismatic joints along x, y, z: position = q, Jacobian = identity.
   [[nodiscard]] static Kinematics cartesian() noexcept { return Kinematics(KinematicModel::kCartesian); }
 
@@ -174,27 +162,34 @@ class Kinematics {
   [[nodiscard]] int joint_count() const noexcept;
   /// The tool point (m, device frame). Real-time safe.
   [[nodiscard]] Vec3 position(std::span<const double> q) const noexcept;
-  /// The tool pose (identity orientation for the PHANToM model). Real-time safe.
+  /// The tool pose (identity orientation for the PHANToM and delta models). Real-time safe.
   [[nodiscard]] Pose forward(std::span<const double> q) const noexcept;
   /// Linear Jacobian of the tool point. Real-time safe.
   [[nodiscard]] Jacobian jacobian(std::span<const double> q) const noexcept;
+  /// position(q) and jacobian(q) from one forward solve (the delta model solves its forward
+  /// kinematics iteratively; the others just call both). The same bits as the two calls.
+  /// Real-time safe.
+  [[nodiscard]] Jacobian position_and_jacobian(std::span<const double> q, Vec3& position) const noexcept;
 
-  /// The model itself; nullptr when the model is of the other kind.
+  /// The model itself; nullptr when the model is of another kind.
   [[nodiscard]] const DhChain* dh_chain() const noexcept { return model_ == KinematicModel::kDh ? &dh_ : nullptr; }
   [[nodiscard]] const PhantomArm* phantom() const noexcept {
     return model_ == KinematicModel::kPhantom ? &phantom_ : nullptr;
   }
+  [[nodiscard]] const DeltaArm* delta() const noexcept { return model_ == KinematicModel::kDelta ? &delta_ : nullptr; }
 
  private:
   explicit Kinematics(KinematicModel m) noexcept : model_(m) {}
   KinematicModel model_;
   DhChain dh_{};
   PhantomArm phantom_{};
+  DeltaArm delta_{};
 };
 
 /// Builds the kinematic model of a loaded config (configure time). Fails with kInvalid, naming the
 /// field, when the config was built by hand and breaks what the loader checks (no links or more
-/// than kMaxJoints, non-positive or non-finite lengths).
+/// than kMaxJoints, non-positive or non-finite lengths, a delta geometry delta_geometry_problem
+/// rejects).
 Result<Kinematics> make_kinematics(const ArmConfig& config);
 
 }  // namespace lancet::arm

@@ -62,6 +62,12 @@ Result<std::unique_ptr<ArmPhysics>> ArmPhysics::create(const arm::ArmConfig& con
     p->peak_[static_cast<std::size_t>(j)] = amps_per_unit > 0 ? act.peak_current / amps_per_unit : 0.0;
     p->q_[static_cast<std::size_t>(j)] = std::clamp(0.0, joint.min, joint.max);
   }
+  // A parallel arm has no natural q = 0: start with the tool at the device-frame origin (where a
+  // config puts the workspace centre), or at the model's own centre when the origin is out of reach.
+  if (const arm::DeltaArm* delta = p->kin_.delta()) {
+    const auto q = delta->inverse(Vec3{});
+    p->reset(q ? *q : delta->inverse(delta->centre()).value_or(std::array<double, 3>{}));
+  }
   p->target_ = p->tool_position();
   return p;
 }

@@ -33,7 +33,9 @@ struct ArmPhysicsParams {
 
 class ArmPhysics {
  public:
-  /// From a loaded config: its kinematics, joints, actuators and [bus.sim] (when present).
+  /// From a loaded config: its kinematics, joints, actuators and [bus.sim] (when present). The arm
+  /// starts at rest at q = 0 (each joint clamped to its limits); a delta arm with the tool at the
+  /// device-frame origin (its centre() when the origin is out of reach).
   [[nodiscard]] static Result<std::unique_ptr<ArmPhysics>> create(const arm::ArmConfig& config);
 
   /// Advances by dt (s) under the commanded joint torques (N·m, N for prismatic). RT-safe.

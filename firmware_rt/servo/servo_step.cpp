@@ -104,8 +104,9 @@ void servo_step(const ServoModel& m, ServoData& d, const ServoInput& in, ServoOu
   const bool device_ok = in.read_status == device::IoStatus::kOk && !in.device_held;
   if (device_ok) {
     const std::span<const double> q(in.reading.q.data(), static_cast<std::size_t>(std::clamp(in.reading.n, 0, kMaxJoints)));
-    d.jacobian = m.kinematics.jacobian(q);
-    d.tool = m.kinematics.position(q) - m.device_origin;
+    Vec3 tool{};
+    d.jacobian = m.kinematics.position_and_jacobian(q, tool);
+    d.tool = tool - m.device_origin;
     Vec3 v{};
     for (int j = 0; j < d.jacobian.n && j < in.reading.n; ++j)
       v += d.jacobian.column[static_cast<std::size_t>(j)] * in.reading.qd[static_cast<std::size_t>(j)];
@@ -213,8 +214,12 @@ Result<ServoModel> model_from_blob(const ServoModelBlob& b) {
   if (m.fade.timeout_ns < 0 || m.fade.stale_after_ns < 0 || m.fade.fade_ns < 0) return bad("fade: a negative time");
   const int n = m.kinematics.joint_count();
   const auto kind = static_cast<unsigned>(m.kinematics.model());
-  if (kind > static_cast<unsigned>(arm::KinematicModel::kCartesian) || n < 1 || n > kMaxJoints)
+  if (kind > static_cast<unsigned>(arm::KinematicModel::kDelta) || n < 1 || n > kMaxJoints)
     return bad("kinematics: model " + std::to_string(kind) + " with " + std::to_string(n) + " joints");
+  if (const arm::DeltaArm* delta = m.kinematics.delta(); delta != nullptr) {
+    if (const char* problem = arm::delta_geometry_problem(delta->geometry())) return bad(std::string("kinematics (delta): ") + problem);
+    if (!is_finite(delta->base_offset())) return bad("kinematics (delta): base_offset not finite");
+  }
   if (!is_finite(m.device_origin)) return bad("device_origin: not finite");
   for (const double t : m.max_joint_torque)
     if (!fin(t) || t < 0) return bad("max_joint_torque: negative or not finite");

@@ -150,15 +150,6 @@ int run_falcon_homing(OpenArm& a, std::FILE* out) {
   return 1;
 }
 
-const char* model_name(arm::KinematicModel m) {
-  switch (m) {
-    case arm::KinematicModel::kPhantom: return "PHANToM";
-    case arm::KinematicModel::kDh: return "DH";
-    case arm::KinematicModel::kCartesian: return "Cartesian";
-    default: return "delta";
-  }
-}
-
 }  // namespace
 
 int run_list(std::FILE* out) {
@@ -211,13 +202,25 @@ int run_list(std::FILE* out) {
   return 0;
 }
 
+namespace {
+const char* kinematics_label(arm::KinematicModel m) {
+  switch (m) {
+    case arm::KinematicModel::kPhantom: return "PHANToM";
+    case arm::KinematicModel::kDh: return "DH";
+    case arm::KinematicModel::kCartesian: return "Cartesian";
+    case arm::KinematicModel::kDelta: return "delta";
+  }
+  return "unknown";
+}
+}  // namespace
+
 int run_probe(const std::string& path, std::FILE* out) {
   int code = 0;
   auto a = open_arm(path, out, code);
   if (!a) return code;
   device::Device& dev = *a->dev.device;
   std::fprintf(out, "arm '%s' (%s): %s, %d joints, %s kinematics%s\n", a->config.name.c_str(), path.c_str(), dev.name().c_str(),
-               dev.joint_count(), model_name(a->config.kinematics.model),
+               dev.joint_count(), kinematics_label(a->config.kinematics.model),
                a->calibrated ? ", calibrated" : ", not calibrated (run lancetctl calibrate)");
   device::JointState s{};
   const device::IoStatus st = dev.read(s);

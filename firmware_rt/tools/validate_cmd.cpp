@@ -39,9 +39,10 @@ int run_validate(const std::string& path, std::FILE* out) {
     return config.error().code == ErrorCode::kInvalid ? 1 : 2;
   }
   const arm::ArmConfig& c = config.value();
-  std::fprintf(out, "%s: ok: \"%s\", backend %.*s, %s model, %d joints, %zu buttons\n", path.c_str(), c.name.c_str(),
+  const std::string_view model = arm::model_name(c.kinematics.model);
+  std::fprintf(out, "%s: ok: \"%s\", backend %.*s, %.*s model, %d joints, %zu buttons\n", path.c_str(), c.name.c_str(),
                static_cast<int>(backend_name(c.backend).size()), backend_name(c.backend).data(),
-               c.kinematics.model == arm::KinematicModel::kPhantom ? "phantom" : "dh", c.joint_count(),
+               static_cast<int>(model.size()), model.data(), c.joint_count(),
                c.buttons.size());
   return 0;
 }

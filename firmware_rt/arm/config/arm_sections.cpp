@@ -2,6 +2,9 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
 #include <utility>
 
 #include "arm/config/sections.hpp"
@@ -9,27 +12,77 @@
 
 namespace lancet::arm::detail {
 
+namespace {
+
+constexpr std::array<std::string_view, 9> kDeltaKeys{"a_mm", "b_mm", "c_mm", "d_mm", "e_mm", "f_mm", "r_mm", "s_mm",
+                                                     "leg_angles_deg"};
+
+// model = "delta": Stamper's dimensions and the three leg angles, then the geometry as a whole.
+void parse_delta(Section& k, KinematicsConfig& out) {
+  constexpr Range kSigned{-10'000, 10'000};
+  constexpr Range kLength{0, 10'000};
+  const std::array<std::optional<double>, 8> mm{
+      k.number("a_mm", kReq, positive_up_to(10'000)), k.number("b_mm", kReq, positive_up_to(10'000)),
+      k.number("c_mm", kReq, kSigned), k.number("d_mm", kReq, kLength), k.number("e_mm", kReq, kLength),
+      k.number("f_mm", kReq, kSigned), k.number("r_mm", kReq, kSigned), k.number("s_mm", kReq, kSigned)};
+  DeltaGeometry& g = out.delta;
+  std::array<double*, 8> dims{&g.a, &g.b, &g.c, &g.d, &g.e, &g.f, &g.r, &g.s};
+  bool complete = true;
+  for (std::size_t i = 0; i < mm.size(); ++i) {
+    *dims[i] = mm[i].value_or(0) * kMm;
+    complete = complete && mm[i].has_value();
+  }
+  const std::string expected = "an array of 3 numbers in [-360, 360] (one angle per leg)";
+  if (const toml::array* a = k.array("leg_angles_deg", kReq, 3, 3, expected)) {
+    for (std::size_t i = 0; i < 3; ++i) {
+      const auto v = read_number(k.sink(), *a->get(i), indexed(k.field("leg_angles_deg"), i), Range{-360, 360});
+      g.leg_angles[i] = v.value_or(0) * kDeg;
+      complete = complete && v.has_value();
+    }
+  } else {
+    complete = false;
+  }
+  if (!complete) return;
+  if (const char* problem = delta_geometry_problem(g)) {
+    k.sink().add(k.where(), "kinematics", "a delta geometry whose legs can be assembled", std::string("one where ") + problem);
+  }
+}
+
+}  // namespace
+
 void parse_kinematics(Section& k, KinematicsConfig& out, Context& ctx) {
-  const auto model = k.choice<KinematicModel>("model", kReq, {{"phantom", KinematicModel::kPhantom}, {"dh", KinematicModel::kDh}});
+  const auto model = k.choice<KinematicModel>(
+      "model", kReq, {{"phantom", KinematicModel::kPhantom}, {"dh", KinematicModel::kDh}, {"delta", KinematicModel::kDelta}});
   if (auto v = k.vec3("base_offset_mm", kOpt, kMm)) out.base_offset = *v;
   if (!model) {
     k.skip({"l1_mm", "l2_mm", "links", "tool_offset_mm"});
+    for (const std::string_view key : kDeltaKeys) k.skip({key});
     return;
   }
   out.model = *model;
-  if (*model == KinematicModel::kPhantom) {
-    const auto l1 = k.number("l1_mm", kReq, positive_up_to(10'000));
-    const auto l2 = k.number("l2_mm", kReq, positive_up_to(10'000));
+  // Each model's own keys are errors under the others.
+  if (*model != KinematicModel::kPhantom) {
+    k.forbid("l1_mm", "model = \"phantom\"");
+    k.forbid("l2_mm", "model = \"phantom\"");
+  }
+  if (*model != KinematicModel::kDh) {
     k.forbid("links", "model = \"dh\"");
     k.forbid("tool_offset_mm", "model = \"dh\"");
-    out.l1 = l1.value_or(0) * kMm;
-    out.l2 = l2.value_or(0) * kMm;
+  }
+  if (*model != KinematicModel::kDelta) {
+    for (const std::string_view key : kDeltaKeys) k.forbid(key, "model = \"delta\"");
+  }
+  if (*model == KinematicModel::kPhantom) {
+    out.l1 = k.number("l1_mm", kReq, positive_up_to(10'000)).value_or(0) * kMm;
+    out.l2 = k.number("l2_mm", kReq, positive_up_to(10'000)).value_or(0) * kMm;
+  } else if (*model == KinematicModel::kDelta) {
+    parse_delta(k, out);
+  }
+  if (*model != KinematicModel::kDh) {  // three revolute joints
     ctx.n = 3;
     ctx.types.assign(3, JointType::kRevolute);
     return;
   }
-  k.forbid("l1_mm", "model = \"phantom\"");
-  k.forbid("l2_mm", "model = \"phantom\"");
   if (auto v = k.vec3("tool_offset_mm", kOpt, kMm)) out.tool_offset = *v;
   const auto links = k.tables("links", kReq, 1, kMaxJoints);
   if (!links) return;

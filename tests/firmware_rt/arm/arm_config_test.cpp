@@ -50,6 +50,24 @@ std::string shipped_text(const std::string& name) {
   return t;
 }
 
+// The sim arm with the Novint Falcon's delta kinematics in place of its PHANToM model: the
+// README's [kinematics] example for the Falcon (so the documented values load).
+std::string falcon_kinematics() {
+  const std::string readme = read_text(config_dir() + "README.md");
+  const auto begin = readme.find("[kinematics]\nmodel = \"delta\"");
+  const auto end = readme.find("```", begin);
+  EXPECT_TRUE(begin != std::string::npos && end != std::string::npos) << "the README's Falcon example";
+  return begin == std::string::npos || end == std::string::npos ? std::string() : readme.substr(begin, end - begin) + "\n";
+}
+
+std::string delta_text() {
+  std::string t = shipped_text("sim_3dof.toml");
+  const auto from = t.find("[kinematics]"), to = t.find("[[joints]]");
+  EXPECT_TRUE(from != std::string::npos && to != std::string::npos);
+  t.replace(from, to - from, falcon_kinematics());
+  return t;
+}
+
 // Replaces the first occurrence of `from` (which must exist).
 std::string replaced(std::string text, const std::string& from, const std::string& to) {
   const auto at = text.find(from);
@@ -123,6 +141,31 @@ TEST(ArmConfig, SimConfigLoadsInSiUnits) {
   ASSERT_EQ(c.buttons.size(), 2u);
   EXPECT_EQ(c.buttons[1].action, ButtonAction::kClutch);
   EXPECT_EQ(c.buttons[1].bit, 1);
+}
+
+TEST(ArmConfig, DeltaConfigLoadsInSiUnits) {
+  auto r = load_arm_config_text(delta_text(), "delta.toml");
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const ArmConfig& c = r.value();
+  EXPECT_EQ(c.kinematics.model, KinematicModel::kDelta);
+  EXPECT_EQ(c.joint_count(), 3);
+  const DeltaGeometry& g = c.kinematics.delta;
+  EXPECT_DOUBLE_EQ(g.a, 0.060);
+  EXPECT_DOUBLE_EQ(g.b, 0.1025);
+  EXPECT_DOUBLE_EQ(g.c, 0.01443);
+  EXPECT_DOUBLE_EQ(g.d, 0.01125);
+  EXPECT_DOUBLE_EQ(g.e, 0.01125);
+  EXPECT_DOUBLE_EQ(g.f, -0.025);
+  EXPECT_DOUBLE_EQ(g.r, 0.040);
+  EXPECT_DOUBLE_EQ(g.s, -0.02309);
+  EXPECT_DOUBLE_EQ(g.leg_angles[0], 105 * kDeg);
+  EXPECT_DOUBLE_EQ(g.leg_angles[2], -135 * kDeg);
+  EXPECT_DOUBLE_EQ(c.kinematics.base_offset.z, -0.111);
+  for (const JointConfig& j : c.joints) EXPECT_EQ(j.type, JointType::kRevolute);
+  auto k = make_kinematics(c);
+  ASSERT_TRUE(k.ok()) << k.error().message;
+  ASSERT_NE(k.value().delta(), nullptr);
+  EXPECT_EQ(k.value().joint_count(), 3);
 }
 
 TEST(ArmConfig, BusSectionsLoad) {
@@ -812,6 +855,47 @@ TEST_F(OneError, KinematicsChecks) {
   expect_one(check(t), line_of(t, "l1_mm = 0"), "kinematics.l1_mm", "(0, ");
 }
 
+TEST_F(OneError, DeltaKinematicsChecks) {
+  const std::string delta = delta_text();
+  ASSERT_TRUE(check(delta).ok()) << dump(check(delta));
+  // A value out of range, with the range in the message.
+  std::string t = replaced(delta, "b_mm = 102.5", "b_mm = 0");
+  expect_one(check(t), line_of(t, "b_mm = 0"), "kinematics.b_mm", "(0, ");
+  t = replaced(delta, "d_mm = 11.25", "d_mm = -1");
+  expect_one(check(t), line_of(t, "d_mm = -1"), "kinematics.d_mm", "[0, 10000]");
+  // Three leg angles, each within ±360°.
+  t = replaced(delta, "leg_angles_deg = [105.0, -15.0, -135.0]", "leg_angles_deg = [105.0, -15.0]");
+  ConfigReport r = check(t);
+  expect_one(r, line_of(t, "leg_angles_deg"), "kinematics.leg_angles_deg", "an array of 3 numbers");
+  EXPECT_EQ(r.errors[0].found, "array of 2");
+  t = replaced(delta, "leg_angles_deg = [105.0, -15.0, -135.0]", "leg_angles_deg = [105.0, -15.0, 400.0]");
+  expect_one(check(t), line_of(t, "leg_angles_deg"), "kinematics.leg_angles_deg[2]", "[-360, 360]");
+  // A missing dimension is reported at the table.
+  t = replaced(delta, "r_mm = 40.0\n", "");
+  expect_one(check(t), line_of(t, "[kinematics]"), "kinematics.r_mm", "required key is missing");
+  // The other models' keys are errors here, and the delta's keys under the other models.
+  t = replaced(delta, "a_mm = 60.0", "a_mm = 60.0\nl1_mm = 3");
+  expect_one(check(t), line_of(t, "l1_mm"), "kinematics.l1_mm", "model = \"phantom\"");
+  t = replaced(delta, "a_mm = 60.0", "a_mm = 60.0\ntool_offset_mm = [0.0, 0.0, 0.0]");
+  expect_one(check(t), line_of(t, "tool_offset_mm"), "kinematics.tool_offset_mm", "model = \"dh\"");
+  t = replaced(sim_, "l1_mm = 209.55 ", "a_mm = 60.0\nl1_mm = 209.55 ");
+  expect_one(check(t), line_of(t, "a_mm"), "kinematics.a_mm", "model = \"delta\"");
+  t = replaced(modbus_, "tool_offset_mm = [25.0, 0.0, 0.0]", "tool_offset_mm = [25.0, 0.0, 0.0]\nleg_angles_deg = [0, 120, 240]");
+  expect_one(check(t), line_of(t, "leg_angles_deg"), "kinematics.leg_angles_deg", "model = \"delta\"");
+  // A geometry whose legs cannot be assembled: reported at [kinematics], saying why.
+  t = replaced(delta, "f_mm = -25.0", "f_mm = 200.0");
+  r = check(t);
+  expect_one(r, line_of(t, "[kinematics]"), "kinematics", "common axis");
+  EXPECT_EQ(r.errors[0].expected, "a delta geometry whose legs can be assembled");
+  t = replaced(delta, "leg_angles_deg = [105.0, -15.0, -135.0]", "leg_angles_deg = [105.0, -15.0, 105.5]");
+  expect_one(check(t), line_of(t, "[kinematics]"), "kinematics", "coincide");
+  // The model is named in the choice's message.
+  t = replaced(delta, "model = \"delta\"", "model = \"detla\"");
+  r = check(t);
+  ASSERT_EQ(r.errors.size(), 1u) << dump(r);
+  EXPECT_NE(r.errors[0].message.find("did you mean \"delta\"?"), std::string::npos) << dump(r);
+}
+
 // --- report format, files, the command --------------------------------------------------------
 
 TEST(ArmConfig, FormatReportLines) {
@@ -864,6 +948,11 @@ TEST_F(ArmConfigFiles, ValidateCommandExitCodes) {
   EXPECT_EQ(rc, 1);
   EXPECT_NE(out.find(bad + ":16:13: joints[0].direction: expected one of -1, 1, found integer 2\n"), std::string::npos) << out;
   EXPECT_NE(out.find(bad + ": 31 errors\n"), std::string::npos) << out;
+
+  const std::string delta = write("delta.toml", delta_text());
+  out = run_to_string(delta, rc);
+  EXPECT_EQ(rc, 0) << out;
+  EXPECT_NE(out.find(": ok: \"sim-3dof\", backend sim, delta model, 3 joints, 2 buttons"), std::string::npos) << out;
 
   out = run_to_string((dir_ / "missing.toml").string(), rc);
   EXPECT_EQ(rc, 2);

@@ -345,6 +345,47 @@ TEST(Kinematics, MakeKinematicsRejectsBrokenHandBuiltConfigs) {
   auto ok = make_kinematics(c);
   ASSERT_TRUE(ok.ok());
   EXPECT_EQ(ok.value().joint_count(), 2);
+  // A delta geometry: the Falcon's builds; one whose shins cannot reach the legs' axis does not.
+  c.kinematics.model = KinematicModel::kDelta;
+  c.kinematics.delta = DeltaGeometry::novint_falcon();
+  c.kinematics.base_offset = {0, 0, -0.111};
+  EXPECT_EQ(c.kinematics.joint_count(), 3);
+  auto delta = make_kinematics(c);
+  ASSERT_TRUE(delta.ok()) << delta.error().message;
+  ASSERT_NE(delta.value().delta(), nullptr);
+  EXPECT_EQ(delta.value().delta()->base_offset().z, -0.111);
+  c.kinematics.delta.b = 0.001;  // shorter than |f − s|
+  auto bad = make_kinematics(c);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.error().code, ErrorCode::kInvalid);
+  EXPECT_NE(bad.error().message.find("kinematics (delta)"), std::string::npos) << bad.error().message;
+  c.kinematics.delta = DeltaGeometry::novint_falcon();
+  c.kinematics.base_offset.x = std::nan("");
+  EXPECT_FALSE(make_kinematics(c).ok()) << "non-finite base offset";
+}
+
+TEST(Kinematics, ModelNames) {
+  EXPECT_EQ(model_name(KinematicModel::kDh), "dh");
+  EXPECT_EQ(model_name(KinematicModel::kPhantom), "phantom");
+  EXPECT_EQ(model_name(KinematicModel::kCartesian), "cartesian");
+  EXPECT_EQ(model_name(KinematicModel::kDelta), "delta");
+}
+
+TEST(Kinematics, PositionAndJacobianIsBothCallsInOne) {
+  const std::vector<DhLink> links{{JointType::kRevolute, 0.3, 0.4, 0.1, 0}, {JointType::kPrismatic, 0.1, 0, 0.02, 0.3}};
+  const std::vector<double> q2{0.4, 0.05}, q3{0.1, 0.2, 0.3};
+  for (const auto& [kin, q] : {std::pair{Kinematics(DhChain(links)), q2}, std::pair{Kinematics(PhantomArm{0.2, 0.2, {}}), q3},
+                               std::pair{Kinematics::cartesian(), q3},
+                               std::pair{Kinematics(DeltaArm(DeltaGeometry::novint_falcon())), q3}}) {
+    SCOPED_TRACE(std::string(model_name(kin.model())));
+    Vec3 p{};
+    const Jacobian both = kin.position_and_jacobian(q, p);
+    const Jacobian j = kin.jacobian(q);
+    const Vec3 alone = kin.position(q);
+    EXPECT_EQ(p, alone);
+    EXPECT_EQ(both.n, j.n);
+    for (std::size_t i = 0; i < static_cast<std::size_t>(j.n); ++i) EXPECT_EQ(both.column[i], j.column[i]);
+  }
 }
 
 }  // namespace

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <numbers>
+#include <span>
 #include <string>
 
 #include "arm/arm_config.hpp"
@@ -333,6 +335,45 @@ TEST(SimArm, TorquesRenderTheExpectedToolForce) {
     EXPECT_NEAR(f.y, force.y, 1e-6);
     EXPECT_NEAR(f.z, force.z, 1e-6);
   }
+}
+
+// The Falcon's delta kinematics as the simulated mechanism (what an emulator of it runs).
+TEST(SimArm, ADeltaArmStartsAtTheOriginFollowsTheHandAndRendersForces) {
+  arm::ArmConfig c = sim_config();
+  c.kinematics.model = arm::KinematicModel::kDelta;
+  c.kinematics.delta = arm::DeltaGeometry::novint_falcon();
+  c.kinematics.base_offset = {0, 0, -0.111};  // the reachable cube's centre at the origin
+  for (auto& j : c.joints) j.min = -85 * std::numbers::pi / 180, j.max = 110 * std::numbers::pi / 180;
+  auto made = SimArm::create(c, {});
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  auto a = std::move(made).value();
+  a->set_fixed_dt(1e-3);
+  ASSERT_TRUE(a->configure().ok());
+  ASSERT_TRUE(a->activate().ok());
+  ArmPhysics& p = a->physics();
+  EXPECT_LT(norm(p.tool_position()), 1e-9) << "starts at the origin";
+  // The hand pulls the tool 3 cm away and it settles there.
+  const Vec3 target{0.03, -0.02, 0.025};
+  p.set_hand_target(target);
+  JointState s;
+  for (int i = 0; i < 3000; ++i) {
+    ASSERT_EQ(a->read(s), IoStatus::kOk);
+    ASSERT_EQ(a->write(torques(0, 0, 0)), IoStatus::kOk);
+  }
+  EXPECT_LT(norm(p.tool_position() - target), 1e-3);
+  EXPECT_LT(norm(p.tool_velocity()), 1e-3);
+  const Vec3 from_encoders = p.kinematics().position(std::span<const double>(s.q.data(), 3));
+  EXPECT_LT(norm(from_encoders - p.tool_position()), 1e-3);
+  // Torques Jᵀ F render F at the tool.
+  const double q[3] = {p.q(0), p.q(1), p.q(2)};
+  const Vec3 force{0.5, -0.4, 1.0};
+  const arm::JointArray tau = arm::joint_torques(p.kinematics().jacobian(std::span<const double>(q, 3)), force);
+  for (int j = 0; j < 3; ++j) ASSERT_LT(std::abs(tau[static_cast<std::size_t>(j)]), p.peak_torque(j));
+  p.reset(q);
+  ASSERT_EQ(a->write(torques(tau[0], tau[1], tau[2])), IoStatus::kOk);
+  EXPECT_NEAR(p.rendered_force().x, force.x, 1e-6);
+  EXPECT_NEAR(p.rendered_force().y, force.y, 1e-6);
+  EXPECT_NEAR(p.rendered_force().z, force.z, 1e-6);
 }
 
 TEST(SimArm, MotorTorqueIsClampedAtPeak) {

@@ -222,5 +222,44 @@ TEST(ServoStep, AModelFromTheWireIsCheckedBeforeUse) {
   EXPECT_NE(r.error().message.find("kinematics"), std::string::npos) << r.error().message;
 }
 
+// The Falcon's delta kinematics in the step: the hand's path in the device frame, read back as
+// thigh angles (the inverse), senses the same tool point and steps bit-identically twice; the
+// model round-trips through the wire and a delta geometry scribbled into it is refused.
+TEST(ServoStep, ADeltaArmSensesThroughItsKinematics) {
+  ServoModel m = stylus_model();
+  const arm::DeltaArm falcon(arm::DeltaGeometry::novint_falcon(), {0, 0, -0.111});
+  m.kinematics = arm::Kinematics(falcon);
+  m.max_joint_torque[0] = m.max_joint_torque[1] = m.max_joint_torque[2] = 1.0;
+  const auto patch = plane_patch(kPatchTime);
+  ServoData a, b;
+  ServoOutput oa, ob;
+  std::vector<std::uint8_t> cmds;
+  for (std::uint64_t i = 1; i <= 1500; ++i) {
+    ServoInput in = scripted_input(i, patch.get(), cmds);
+    const Vec3 p{in.reading.q[0], in.reading.q[1], in.reading.q[2]};
+    const auto q = falcon.inverse(p);
+    ASSERT_TRUE(q.has_value()) << "tick " << i;
+    in.reading.q = {(*q)[0], (*q)[1], (*q)[2]};
+    in.reading.qd = {};
+    servo_step(m, a, in, oa);
+    servo_step(m, b, in, ob);
+    ASSERT_EQ(state_hash(a), state_hash(b)) << "tick " << i;
+    ASSERT_EQ(std::memcmp(&oa.sample, &ob.sample, sizeof oa.sample), 0) << "tick " << i;
+    ASSERT_NEAR(norm(a.tool - p), 0.0, 1e-9) << "tick " << i;
+    ASSERT_EQ(oa.command.n, 3);
+  }
+  EXPECT_GT(a.contact_ticks, 100u);
+  EXPECT_GT(std::abs(oa.command.tau[0]) + std::abs(oa.command.tau[1]) + std::abs(oa.command.tau[2]), 0.0);
+  auto back = model_from_blob(to_blob(m));
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(back.value().kinematics.model(), arm::KinematicModel::kDelta);
+  arm::DeltaGeometry coincident = arm::DeltaGeometry::novint_falcon();
+  coincident.leg_angles[2] = coincident.leg_angles[0];
+  m.kinematics = arm::Kinematics(arm::DeltaArm(coincident));
+  auto r = model_from_blob(to_blob(m));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("kinematics (delta)"), std::string::npos) << r.error().message;
+}
+
 }  // namespace
 }  // namespace lancet::servo
