@@ -39,6 +39,7 @@ struct KinematicsConfig {
   Vec3 tool_offset{};           ///< m, tool point in the last link frame
   // model = delta
   DeltaGeometry delta{};        ///< m, rad (Stamper's a..f, r, s and the leg angles)
+  DeltaAxes delta_axes = DeltaAxes::kModel;  ///< `axes`: "model" or "z_up" (arm/delta_arm.hpp)
 
   /// Joints of the model: 3 for phantom, delta (and cartesian), links.size() for dh.
   [[nodiscard]] int joint_count() const noexcept {

@@ -136,7 +136,7 @@ const char* delta_geometry_problem(const DeltaGeometry& g) noexcept {
   return nullptr;
 }
 
-DeltaArm::DeltaArm(const DeltaGeometry& g, Vec3 base_offset) noexcept : g_(g), base_offset_(base_offset) {
+DeltaArm::DeltaArm(const DeltaGeometry& g, Vec3 base_offset, DeltaAxes axes) noexcept : g_(g), base_offset_(base_offset), axes_(axes) {
   for (std::size_t i = 0; i < 3; ++i) cos_phi_[i] = std::cos(g.leg_angles[i]), sin_phi_[i] = std::sin(g.leg_angles[i]);
   const AxisReach z = axis_reach(g);
   assert(z.lo < z.hi && "DeltaArm: the geometry reaches its axis (delta_geometry_problem)");
@@ -144,7 +144,7 @@ DeltaArm::DeltaArm(const DeltaGeometry& g, Vec3 base_offset) noexcept : g_(g), b
   // On the axis every leg is alike: one thigh angle, and the Jacobian there for the prediction.
   if (const auto qc = inverse(centre())) {
     centre_joint_ = (*qc)[0];
-    const Jacobian jc = jacobian_at(*qc, centre());
+    const Jacobian jc = model_jacobian(*qc, centre_);
     for (std::size_t i = 0; i < 3; ++i) centre_jacobian_[i] = jc.column[i];
   }
 }
@@ -216,7 +216,7 @@ DeltaSolve DeltaArm::solve(std::span<const double> q) const noexcept {
   if (!is_finite(start)) start = centre_;
   const NewtonResult best = newton(legs, g_, start, kTolerance, kMaxIterations);
   DeltaSolve out;
-  out.position = best.p + base_offset_;
+  out.position = to_device(best.p);
   out.residual = best.residual;
   out.iterations = best.iterations;
   out.converged = best.residual <= kTolerance;
@@ -228,9 +228,15 @@ Vec3 DeltaArm::position(std::span<const double> q) const noexcept { return solve
 Pose DeltaArm::forward(std::span<const double> q) const noexcept { return {position(q), Quat{}}; }
 
 Jacobian DeltaArm::jacobian_at(std::span<const double> q, Vec3 p) const noexcept {
+  Jacobian j = model_jacobian(q, to_model(p));
+  for (std::size_t i = 0; i < 3; ++i) j.column[i] = turn(j.column[i]);
+  return j;
+}
+
+Jacobian DeltaArm::model_jacobian(std::span<const double> q, Vec3 m) const noexcept {
   assert(q.size() == kJoints && "DeltaArm::jacobian_at: q has 3 entries");
   const Legs legs = make_legs(g_, cos_phi_, sin_phi_, q);
-  const Residual r = residual(legs, g_, p - base_offset_);
+  const Residual r = residual(legs, g_, m);
   const Adjugate adj = adjugate(r);
   Jacobian j;
   j.n = kJoints;
@@ -244,7 +250,7 @@ Jacobian DeltaArm::jacobian_at(std::span<const double> q, Vec3 p) const noexcept
 Jacobian DeltaArm::jacobian(std::span<const double> q) const noexcept { return jacobian_at(q, position(q)); }
 
 std::optional<std::array<double, 3>> DeltaArm::inverse(Vec3 p) const noexcept {
-  const Vec3 m = p - base_offset_;
+  const Vec3 m = to_model(p);
   std::array<double, 3> theta{};
   for (std::size_t i = 0; i < 3; ++i) {
     // The leg frame: (u, v, w) = R_i p + (−r, −s, 0).

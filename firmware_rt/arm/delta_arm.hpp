@@ -28,6 +28,7 @@
 // was computed before (Newton's start depends on q alone), as replay needs.
 
 #include <array>
+#include <cstdint>
 #include <optional>
 #include <span>
 
@@ -51,6 +52,13 @@ struct DeltaGeometry {
   /// The Novint Falcon's published values (libnifalcon): a = 60, b = 102.5, c = 14.43,
   /// d = e = 11.25, f = −25, r = 40, s = −23.09 mm; φ = 105°, −15°, −135°.
   [[nodiscard]] static DeltaGeometry novint_falcon() noexcept;
+};
+
+/// How the device frame's axes sit on the model's.
+enum class DeltaAxes : std::uint8_t {
+  kModel,  ///< the model's own: z along the legs' axis, from the motors toward the grip (libnifalcon's frame)
+  kZUp,    ///< turned so that z is up: device (x, y, z) = model (x, −z, y). For the Falcon on a desk:
+           ///< x to the user's right, y away from the user, z up
 };
 
 /// What is wrong with a geometry, or nullptr when nothing is: a non-finite value, a or b <= 0, d or
@@ -77,15 +85,17 @@ class DeltaArm {
 
   DeltaArm() = default;
   /// `g` must pass delta_geometry_problem (that its legs reach their axis is asserted);
-  /// base_offset (m) is the model origin in the device frame.
-  explicit DeltaArm(const DeltaGeometry& g, Vec3 base_offset = {}) noexcept;
+  /// base_offset (m) is the model origin in the device frame, whose axes sit on the model's as
+  /// `axes` says: device point = A · model point + base_offset.
+  explicit DeltaArm(const DeltaGeometry& g, Vec3 base_offset = {}, DeltaAxes axes = DeltaAxes::kModel) noexcept;
 
   [[nodiscard]] static constexpr int joint_count() noexcept { return kJoints; }
   [[nodiscard]] const DeltaGeometry& geometry() const noexcept { return g_; }
   [[nodiscard]] Vec3 base_offset() const noexcept { return base_offset_; }
+  [[nodiscard]] DeltaAxes axes() const noexcept { return axes_; }
   /// m, device frame: the middle of the workspace along the legs' axis (halfway between where the
   /// thighs fold and where they stretch, in closed form), where forward solves start.
-  [[nodiscard]] Vec3 centre() const noexcept { return centre_ + base_offset_; }
+  [[nodiscard]] Vec3 centre() const noexcept { return to_device(centre_); }
 
   /// Forward kinematics with its diagnostics: damped Newton on the three torus distances, at most
   /// kMaxIterations steps, from the first-order prediction centre() + J_c (q − q_c) (J_c, q_c: the
@@ -115,8 +125,19 @@ class DeltaArm {
   [[nodiscard]] double condition_number(std::span<const double> q) const noexcept;
 
  private:
+  /// A model-frame direction in the device frame's axes, and a model point in the device frame.
+  [[nodiscard]] Vec3 turn(Vec3 v) const noexcept { return axes_ == DeltaAxes::kZUp ? Vec3{v.x, -v.z, v.y} : v; }
+  [[nodiscard]] Vec3 to_device(Vec3 m) const noexcept { return turn(m) + base_offset_; }
+  [[nodiscard]] Vec3 to_model(Vec3 d) const noexcept {
+    const Vec3 v = d - base_offset_;
+    return axes_ == DeltaAxes::kZUp ? Vec3{v.x, v.z, -v.y} : v;
+  }
+  /// dp/dq in the model frame at model point m.
+  [[nodiscard]] Jacobian model_jacobian(std::span<const double> q, Vec3 m) const noexcept;
+
   DeltaGeometry g_{};
   Vec3 base_offset_{};
+  DeltaAxes axes_ = DeltaAxes::kModel;
   Vec3 centre_{};                          // model frame
   double centre_joint_ = 0;                // rad, every thigh's angle at the centre
   std::array<Vec3, 3> centre_jacobian_{};  // dp/dq at the centre

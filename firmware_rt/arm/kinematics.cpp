@@ -296,7 +296,7 @@ Result<Kinematics> make_kinematics(const ArmConfig& config) {
   if (!finite(k.base_offset)) return invalid("kinematics.base_offset is not finite");
   if (k.model == KinematicModel::kDelta) {
     if (const char* problem = delta_geometry_problem(k.delta)) return invalid(std::string("kinematics (delta): ") + problem);
-    return Kinematics(DeltaArm(k.delta, k.base_offset));
+    return Kinematics(DeltaArm(k.delta, k.base_offset, k.delta_axes));
   }
   if (k.model == KinematicModel::kPhantom) {
     if (!(std::isfinite(k.l1) && k.l1 > 0)) return invalid("kinematics.l1 must be > 0 m, found " + std::to_string(k.l1));

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <span>
 #include <string_view>
+#include <type_traits>
 
 #include "arm/delta_arm.hpp"
 #include "arm/jacobian.hpp"
@@ -181,10 +182,17 @@ class Kinematics {
  private:
   explicit Kinematics(KinematicModel m) noexcept : model_(m) {}
   KinematicModel model_;
-  DhChain dh_{};
+  // The delta shares the DH chain's bytes: sizeof(Kinematics), and with it the servo model's
+  // layout (servo::kServoModelLayout), stays what it was before the delta model, so recordings of
+  // earlier builds still replay. model_ says which member is live.
+  union {
+    DhChain dh_{};
+    DeltaArm delta_;
+  };
   PhantomArm phantom_{};
-  DeltaArm delta_{};
 };
+static_assert(sizeof(DeltaArm) <= sizeof(DhChain) && alignof(DeltaArm) <= alignof(DhChain), "the delta fits in the DH chain's bytes");
+static_assert(std::is_trivially_copyable_v<Kinematics>, "Kinematics travels as bytes (the servo model)");
 
 /// Builds the kinematic model of a loaded config (configure time). Fails with kInvalid, naming the
 /// field, when the config was built by hand and breaks what the loader checks (no links or more

@@ -221,7 +221,7 @@ int run_probe(const std::string& path, std::FILE* out) {
   device::Device& dev = *a->dev.device;
   std::fprintf(out, "arm '%s' (%s): %s, %d joints, %s kinematics%s\n", a->config.name.c_str(), path.c_str(), dev.name().c_str(),
                dev.joint_count(), kinematics_label(a->config.kinematics.model),
-               a->calibrated ? ", calibrated" : ", not calibrated (run lancetctl calibrate)");
+               a->config.falcon ? "" : a->calibrated ? ", calibrated" : ", not calibrated (run lancetctl calibrate)");
   device::JointState s{};
   const device::IoStatus st = dev.read(s);
   if (st != device::IoStatus::kOk) {
@@ -231,6 +231,11 @@ int run_probe(const std::string& path, std::FILE* out) {
     return 1;
   }
   print_state(*a, s, out);
+  if (a->config.falcon) {
+    std::fprintf(out, (s.status & 0x7u) == 0x7u ? "  homed: the counts are absolute\n"
+                                                : "  not homed (status bits 0..2): the counts are relative to where it powered up and the "
+                                                  "tool point means nothing yet; run lancetctl calibrate to home it\n");
+  }
   std::fprintf(out, "read took %.0f us\n", static_cast<double>(dev.counters().last_io_ns) / 1e3);
   return 0;
 }

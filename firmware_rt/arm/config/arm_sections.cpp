@@ -19,6 +19,7 @@ constexpr std::array<std::string_view, 9> kDeltaKeys{"a_mm", "b_mm", "c_mm", "d_
 
 // model = "delta": Stamper's dimensions and the three leg angles, then the geometry as a whole.
 void parse_delta(Section& k, KinematicsConfig& out) {
+  out.delta_axes = k.choice<DeltaAxes>("axes", kOpt, {{"model", DeltaAxes::kModel}, {"z_up", DeltaAxes::kZUp}}).value_or(DeltaAxes::kModel);
   constexpr Range kSigned{-10'000, 10'000};
   constexpr Range kLength{0, 10'000};
   const std::array<std::optional<double>, 8> mm{
@@ -57,6 +58,7 @@ void parse_kinematics(Section& k, KinematicsConfig& out, Context& ctx) {
   if (!model) {
     k.skip({"l1_mm", "l2_mm", "links", "tool_offset_mm"});
     for (const std::string_view key : kDeltaKeys) k.skip({key});
+    k.skip({"axes"});
     return;
   }
   out.model = *model;
@@ -71,6 +73,7 @@ void parse_kinematics(Section& k, KinematicsConfig& out, Context& ctx) {
   }
   if (*model != KinematicModel::kDelta) {
     for (const std::string_view key : kDeltaKeys) k.forbid(key, "model = \"delta\"");
+    k.forbid("axes", "model = \"delta\"");
   }
   if (*model == KinematicModel::kPhantom) {
     out.l1 = k.number("l1_mm", kReq, positive_up_to(10'000)).value_or(0) * kMm;

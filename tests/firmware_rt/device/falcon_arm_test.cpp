@@ -23,6 +23,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
+#include <cstdio>
+#include <thread>
+#include <tuple>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -33,6 +37,7 @@
 
 #include "arm/arm_config.hpp"
 #include "device/ftdi.hpp"
+#include "tools/bringup.hpp"
 #include "falcon_emulator.hpp"
 #include "malloc_guard.hpp"
 #include "usb_testbed.hpp"
@@ -300,6 +305,8 @@ TEST_F(FalconArmTest, ActivateWaitsForTheHomeSwitchesAndNamesTheMotorsLeft) {
   ASSERT_TRUE(r.ok()) << r.error().message;
   // The counts became absolute mid-stream: not a glitch.
   EXPECT_EQ(arm_->counters().glitches, 0u);
+  JointState js{};
+  ASSERT_EQ(arm_->read(js), IoStatus::kOk);  // the first command since: green, homing mode off
   const FalconSnapshot s = emu_->snapshot();
   EXPECT_FALSE(s.homing_mode);
   EXPECT_EQ(s.leds, falcon::kLedGreen);
@@ -445,12 +452,10 @@ TEST_F(FalconArmTest, UnplugFaultsTheArmAndReconnectUploadsTheFirmwareAgainAtThe
   JointState s{};
   bed_->unplug();
   emu_->power_cycle();
-  IoStatus st = IoStatus::kOk;
-  for (int i = 0; i < 3 && st != IoStatus::kDisconnected; ++i) {
-    (void)arm_->write(JointCommand{3, {}});
-    st = arm_->read(s);
-  }
-  EXPECT_EQ(st, IoStatus::kDisconnected);
+  // The write or the read after the unplug finds the Falcon gone (a disconnect faults the arm at
+  // once, so the call itself reports the fault; its cause is the disconnect).
+  (void)arm_->write(JointCommand{3, {}});
+  (void)arm_->read(s);
   ASSERT_EQ(arm_->state(), Lifecycle::kFault);
   EXPECT_EQ(arm_->fault_cause(), IoStatus::kDisconnected);
   EXPECT_TRUE(arm_->link_lost());
@@ -492,6 +497,86 @@ TEST_F(FalconArmTest, AnExchangeAllocatesOnlyWhatLibusbDoesPerTransfer) {
   if (!test::malloc_is_counted()) {
     EXPECT_EQ(allocs, 0u) << "operator new on the read/write path";
   }
+}
+
+// ---------------------------------------------------------------------------------------------
+// lancetctl's bring-up commands on the emulated Falcon (list, probe, calibrate = homing, monitor, jog)
+
+class FalconBringup : public FalconArmTest {
+ protected:
+  /// The config on disk (the tools read a file), pointing at this test's firmware.
+  std::string write_config() {
+    std::string text = read_text(source_path("hw_configs/novint_falcon.toml"));
+    const auto at = text.find("firmware = \"");
+    const auto end = text.find('"', at + 12);
+    text.replace(at, end + 1 - at, "firmware = \"" + (dir_ / "falcon.bin").string() + "\"");
+    const auto t = text.find("timeout_ms = 2.0");
+    text.replace(t, 16, "timeout_ms = 1000");
+    const std::string path = (dir_ / "falcon.toml").string();
+    std::ofstream(path) << text;
+    return path;
+  }
+  /// Runs a tool with its output in a file; returns (exit code, output).
+  template <class F>
+  std::pair<int, std::string> run(F&& tool) {
+    const std::string out = (dir_ / "out.txt").string();
+    std::FILE* f = std::fopen(out.c_str(), "w+");
+    const int code = tool(f);
+    std::fclose(f);
+    return {code, read_text(out)};
+  }
+  static std::string read_text(const std::string& path) {
+    std::ifstream f(path);
+    return std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  }
+};
+
+TEST_F(FalconBringup, ListProbeCalibrateMonitorAndJogWorkOnIt) {
+  start(options());
+  ASSERT_FALSE(HasFatalFailure());
+  arm_.reset();  // the tools open the Falcon themselves
+  const std::string cfg = write_config();
+
+  auto [code, out] = run([](std::FILE* f) { return tools::run_list(f); });
+  EXPECT_EQ(code, 0);
+  EXPECT_NE(out.find("0403:cb48  bus 001 address 002"), std::string::npos) << out;
+  EXPECT_NE(out.find("Novint Falcon: hw_configs/novint_falcon.toml"), std::string::npos) << out;
+
+  std::tie(code, out) = run([&](std::FILE* f) { return tools::run_probe(cfg, f); });
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("falcon arm 'novint-falcon', 3 joints, delta kinematics"), std::string::npos) << out;
+  EXPECT_NE(out.find("status 0x8"), std::string::npos) << out;  // homing mode, nothing homed yet
+  EXPECT_NE(out.find("not homed (status bits 0..2)"), std::string::npos) << out;
+  EXPECT_EQ(emu_->snapshot().uploads_completed, 1u);
+
+  // calibrate homes it: the hand strokes through the switches while it runs.
+  std::atomic<bool> done{false};
+  std::thread hand([&] {
+    for (int i = 0; !done; ++i) {
+      emu_->with_physics([&](ArmPhysics& p) { p.set_hand_target((i / 300) % 2 == 0 ? kStroke : Vec3{}); });
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  });
+  std::tie(code, out) = run([&](std::FILE* f) { return tools::run_calibrate(cfg, {}, false, f); });
+  done = true;
+  hand.join();
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("homed: motor 1 yes, motor 2 yes, motor 3 yes"), std::string::npos) << out;
+  EXPECT_NE(out.find("Nothing to write"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(arm::calibration_path(cfg)));
+  EXPECT_EQ(emu_->snapshot().uploads_completed, 1u);  // the firmware stayed: not uploaded again
+
+  emu_->with_physics([&](ArmPhysics& p) { p.set_hand_target({0.01, 0.0, 0.0}); });
+  std::tie(code, out) = run([&](std::FILE* f) { return tools::run_monitor(cfg, 0.3, 20, f); });
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("tool"), std::string::npos) << out;
+
+  // jog: a tenth of the joint's limit for half a second; the hand lets go so the thigh can move.
+  emu_->with_physics([&](ArmPhysics& p) { p.set_hand_holding(false); });
+  std::tie(code, out) = run([&](std::FILE* f) { return tools::run_jog(cfg, 0, 0.05, 0.5, true, f); });
+  EXPECT_EQ(code, 0) << out;
+  EXPECT_NE(out.find("joint 0 leg_1 moved"), std::string::npos) << out;
+  EXPECT_EQ(emu_->snapshot().motor, (std::array<std::int16_t, 3>{0, 0, 0}));  // torque off after
 }
 
 }  // namespace

@@ -87,6 +87,10 @@ void FalconEmulator::power_cycle() {
   snap_.homing_mode = false;
   snap_.uploaded = 0;
   ++snap_.power_cycles;
+  // Without power the motors give nothing.
+  snap_.motor = {};
+  snap_.tau = {};
+  snap_.felt = snap_.meant = {};
   to_host_.clear();
   command_bytes_.clear();
   hello_bytes_.clear();
