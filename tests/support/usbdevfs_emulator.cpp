@@ -20,6 +20,13 @@ usbdevfs_urb* urb_of(UMockdevIoctlData* d) { return reinterpret_cast<usbdevfs_ur
 
 void complete(UMockdevIoctlClient* c, long ret, int err) { umockdev_ioctl_client_complete(c, ret, err); }
 
+// The client's memory could not be read (the process died with the ioctl in flight, as a killed
+// lancet-rt does): EFAULT, and nothing of it is kept.
+bool client_gone(UMockdevIoctlClient* c) {
+  complete(c, -1, EFAULT);
+  return true;
+}
+
 // A programmer error in a hook (or its caller): say where and stop, in every build.
 [[noreturn]] void misuse(const char* what) {
   fprintf(stderr, "UsbdevfsDevice: %s\n", what);
@@ -126,6 +133,7 @@ bool UsbdevfsDevice::handle_ioctl(UMockdevIoctlClient* client) {
   switch (request) {
     case USBDEVFS_GET_CAPABILITIES: {
       UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(std::uint32_t), nullptr);
+      if (d == nullptr) return client_gone(client);
       const std::uint32_t caps = USBDEVFS_CAP_ZERO_PACKET | USBDEVFS_CAP_BULK_CONTINUATION | USBDEVFS_CAP_NO_PACKET_SIZE_LIM |
                                  USBDEVFS_CAP_BULK_SCATTER_GATHER | USBDEVFS_CAP_REAP_AFTER_DISCONNECT;
       memcpy(d->data, &caps, sizeof caps);
@@ -158,6 +166,10 @@ bool UsbdevfsDevice::reap(UMockdevIoctlClient* client, UMockdevIoctlData* arg, b
   const Urb u = *it;
   done_.erase(it);
   UMockdevIoctlData* ptr = umockdev_ioctl_data_resolve(arg, 0, sizeof(void*), nullptr);
+  if (ptr == nullptr) {
+    g_object_unref(u.data);
+    return client_gone(client);
+  }
   umockdev_ioctl_data_set_ptr(ptr, 0, u.data);  // the client sees its own URB come back
   g_object_unref(ptr);
   g_object_unref(u.data);
@@ -188,6 +200,10 @@ void UsbdevfsDevice::answer_driver_ioctl(UMockdevIoctlClient* client, unsigned l
   const auto ours = [&](unsigned itf) { return itf == static_cast<unsigned>(interface_.number); };
   if (request == USBDEVFS_GETDRIVER) {
     UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_getdriver), nullptr);
+    if (d == nullptr) {
+      client_gone(client);
+      return;
+    }
     auto* gd = reinterpret_cast<usbdevfs_getdriver*>(d->data);
     const bool bound = ours(gd->interface) && state_.driver_bound;
     if (bound) snprintf(gd->driver, sizeof gd->driver, "%s", interface_.kernel_driver.c_str());
@@ -197,6 +213,10 @@ void UsbdevfsDevice::answer_driver_ioctl(UMockdevIoctlClient* client, unsigned l
   }
   if (request == USBDEVFS_IOCTL) {
     UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_ioctl), nullptr);
+    if (d == nullptr) {
+      client_gone(client);
+      return;
+    }
     const int code = reinterpret_cast<usbdevfs_ioctl*>(d->data)->ioctl_code;
     g_object_unref(d);
     if (code == static_cast<int>(USBDEVFS_DISCONNECT)) {
@@ -216,6 +236,10 @@ void UsbdevfsDevice::answer_driver_ioctl(UMockdevIoctlClient* client, unsigned l
     return;
   }
   UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(unsigned), nullptr);
+  if (d == nullptr) {
+    client_gone(client);
+    return;
+  }
   unsigned itf = 0;
   memcpy(&itf, d->data, sizeof itf);
   g_object_unref(d);
@@ -245,6 +269,10 @@ const UsbEndpoint* UsbdevfsDevice::endpoint(std::uint8_t address, unsigned urb_t
 // answered before this was shared).
 void UsbdevfsDevice::submit(UMockdevIoctlClient* client, UMockdevIoctlData* arg) {
   UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(usbdevfs_urb), nullptr);
+  if (d == nullptr) {
+    client_gone(client);
+    return;
+  }
   usbdevfs_urb* u = urb_of(d);
   const bool control = u->type == USBDEVFS_URB_TYPE_CONTROL;
   const UsbEndpoint* ep = control ? nullptr : endpoint(u->endpoint, u->type);
@@ -256,6 +284,11 @@ void UsbdevfsDevice::submit(UMockdevIoctlClient* client, UMockdevIoctlData* arg)
   }
   const auto length = static_cast<std::size_t>(u->buffer_length);
   UMockdevIoctlData* buf = umockdev_ioctl_data_resolve(d, offsetof(usbdevfs_urb, buffer), length, nullptr);
+  if (buf == nullptr) {
+    g_object_unref(d);
+    client_gone(client);
+    return;
+  }
   const Urb urb{d, client, buf->data, length};
   g_object_unref(buf);  // `d` keeps it
   if (control) {

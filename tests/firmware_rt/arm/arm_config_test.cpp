@@ -437,10 +437,10 @@ TEST_F(OneError, WrongTypes) {
   expect_one(check(t), line_of(t, "\"11.6\""), "joints[0].gear_ratio", "found string \"11.6\"");
   t = replaced(sim_, "backend = \"sim\"", "backend = 1");
   // The backend is unknown now: only that is reported (the bus is not judged against it).
-  expect_one(check(t), line_of(t, "backend = 1"), "backend", "one of \"sim\", \"usb\", \"modbus\", \"canopen\"");
+  expect_one(check(t), line_of(t, "backend = 1"), "backend", "one of \"sim\", \"usb\", \"modbus\", \"canopen\", \"falcon\"");
   t = replaced(sim_, "backend = \"sim\"", "backend = \"modbsu\"");
   expect_one(check(t), line_of(t, "modbsu"), "backend",
-             "expected one of \"sim\", \"usb\", \"modbus\", \"canopen\", found string \"modbsu\" (did you mean \"modbus\"?)");
+             "expected one of \"sim\", \"usb\", \"modbus\", \"canopen\", \"falcon\", found string \"modbsu\" (did you mean \"modbus\"?)");
   t = replaced(sim_, "workspace_min_mm = [-100.0, -190.0, -135.0]", "workspace_min_mm = [-100.0, -190.0]");
   expect_one(check(t), line_of(t, "workspace_min_mm"), "safety.workspace_min_mm", "array of 2");
   t = replaced(sim_, "workspace_min_mm = [-100.0, -190.0, -135.0]", "workspace_min_mm = [-100.0, true, -135.0]");

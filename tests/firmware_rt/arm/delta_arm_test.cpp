@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "arm/arm_config.hpp"
 #include "arm/kinematics.hpp"
 #include "malloc_guard.hpp"
 
@@ -381,6 +382,42 @@ TEST(DeltaArm, InsideKinematics) {
   // The device-frame origin is the cube's centre: the thighs at 16.98° put the tool there.
   const double t = 16.97566307268439 * kDeg;
   expect_near(kin.position(std::vector<double>{t, t, t}), {}, 1e-12, "origin");
+}
+
+// axes = "z_up": the same mechanism, its device frame turned so that z is up (device (x, y, z) =
+// model (x, −z, y)) and the offset added after the turn; positions, Jacobian columns and the
+// inverse all turn alike, and the shipped Falcon config puts the reachable cube's centre at the
+// origin with the grip's travel toward the user along −y.
+TEST(DeltaArm, TheZUpAxesTurnPositionsJacobiansAndTheInverse) {
+  const DeltaArm model = falcon({0, 0, -0.111});
+  const DeltaArm up(DeltaGeometry::novint_falcon(), {0, 0.111, 0}, DeltaAxes::kZUp);
+  const auto turned = [](Vec3 v) { return Vec3{v.x, -v.z, v.y}; };
+  for (const Vec3 p : cube_grid({}, kReachableHalf, 4)) {
+    const auto q = model.inverse(p);
+    ASSERT_TRUE(q) << str(p);
+    expect_near(up.position(vec(*q)), turned(p), 1e-12, "position");
+    const Jacobian jm = model.jacobian(vec(*q)), ju = up.jacobian(vec(*q));
+    for (std::size_t i = 0; i < 3; ++i) expect_near(ju.column[i], turned(jm.column[i]), 1e-9, "column");
+    const auto back = up.inverse(turned(p));
+    ASSERT_TRUE(back);
+    for (std::size_t i = 0; i < 3; ++i) EXPECT_NEAR((*back)[i], (*q)[i], 1e-12);
+  }
+  expect_near(up.centre(), turned(model.centre()), 1e-15, "centre");
+  // The shipped config: the origin at the centre (all thighs at 16.98°), the grip pulled toward
+  // the user (the model's +z) reads as −y.
+  auto cfg = load_arm_config(std::string(LANCET_SOURCE_DIR) + "/hw_configs/novint_falcon.toml");
+  ASSERT_TRUE(cfg.ok()) << cfg.error().message;
+  EXPECT_EQ(cfg.value().kinematics.delta_axes, DeltaAxes::kZUp);
+  auto kin = make_kinematics(cfg.value());
+  ASSERT_TRUE(kin.ok());
+  const auto centre = kin.value().delta()->inverse({0, 0, 0});
+  ASSERT_TRUE(centre);
+  for (const double t : *centre) EXPECT_NEAR(t, 16.98 * kDeg, 0.01 * kDeg);
+  const auto toward_user = kin.value().delta()->inverse({0, -0.02, 0});
+  ASSERT_TRUE(toward_user);
+  const auto q_model = model.inverse({0, 0, 0.02});
+  ASSERT_TRUE(q_model);
+  for (std::size_t i = 0; i < 3; ++i) EXPECT_NEAR((*toward_user)[i], (*q_model)[i], 1e-12);
 }
 
 }  // namespace

@@ -108,6 +108,8 @@ FalconSnapshot FalconEmulator::snapshot() const {
   auto lk = lock();
   FalconSnapshot s = snap_;
   s.tool = physics_->tool_position();
+  s.drops_left = drop_;
+  s.corruptions_left = corrupt_;
   return s;
 }
 

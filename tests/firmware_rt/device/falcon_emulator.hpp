@@ -72,6 +72,7 @@ struct FalconSnapshot {
   Vec3 meant{};                            ///< N: J⁻ᵀ τ at the pose of the counts the host last read
   Vec3 tool{};                             ///< m, device frame
   std::uint64_t power_cycles = 0;
+  int drops_left = 0, corruptions_left = 0;  ///< of the bursts drop_replies() / corrupt_replies() asked for
 };
 
 class FalconEmulator final : public UsbdevfsDevice {

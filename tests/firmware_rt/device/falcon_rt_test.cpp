@@ -207,6 +207,7 @@ TEST_F(FalconRt, LancetRtDrivesTheEmulatedFalconAndSurvivesDroppedMalformedAndUn
   emu_->drop_replies(8);
   expect_fault(IoStatus::kTimeout, "no reply");
   ASSERT_FALSE(HasFatalFailure());
+  ASSERT_TRUE(test::eventually([&] { return emu_->snapshot().drops_left == 0; })) << "the burst is over";
   rearm();
   ASSERT_TRUE(test::eventually([&] { return pushing(); }, 2 * test::kHangTimeout, 1ms)) << test::read_file(path("rt.log"));
 
@@ -214,6 +215,7 @@ TEST_F(FalconRt, LancetRtDrivesTheEmulatedFalconAndSurvivesDroppedMalformedAndUn
   emu_->corrupt_replies(8);
   expect_fault(IoStatus::kProtocolError, "malformed");
   ASSERT_FALSE(HasFatalFailure());
+  ASSERT_TRUE(test::eventually([&] { return emu_->snapshot().corruptions_left == 0; })) << "the burst is over";
   rearm();
   ASSERT_TRUE(test::eventually([&] { return pushing(); }, 2 * test::kHangTimeout, 1ms)) << test::read_file(path("rt.log"));
 
