@@ -90,6 +90,7 @@ Stats measure_plain(int ticks, double rate) {
   libusb_context* ctx = nullptr;
   if (libusb_init(&ctx) != 0) return {0, 0, 0, 1};
   libusb_device_handle* h = libusb_open_device_with_vid_pid(ctx, 0x0403, 0xcb48);
+  if (h != nullptr) libusb_set_auto_detach_kernel_driver(h, 1);  // ftdi_sio is bound again after FalconArm
   if (h == nullptr || libusb_claim_interface(h, 0) != 0) {
     if (h != nullptr) libusb_close(h);
     libusb_exit(ctx);
