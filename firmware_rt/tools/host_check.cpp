@@ -202,6 +202,10 @@ ArmBus bus_of(const arm::ArmConfig& c) {
     b.kind = c.modbus->transport == arm::ModbusTransport::kTcp ? ArmBus::Kind::kModbusTcp : ArmBus::Kind::kModbusRtu;
     b.host = c.modbus->host;
     b.serial_device = c.modbus->device;
+  } else if (c.falcon) {  // a Novint Falcon is a USB device too (its FTDI chip)
+    b.kind = ArmBus::Kind::kUsb;
+    b.vid = c.falcon->vid;
+    b.pid = c.falcon->pid;
   } else if (c.canopen) {
     b.kind = ArmBus::Kind::kCan;
     b.can_interface = c.canopen->interface_name;
