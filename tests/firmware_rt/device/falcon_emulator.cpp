@@ -113,25 +113,6 @@ FalconSnapshot FalconEmulator::snapshot() const {
   return s;
 }
 
-std::optional<std::array<double, 3>> FalconEmulator::angles_at(Vec3 p) const {
-  // Newton on the forward kinematics from the power-up pose.
-  std::array<double, 3> q = options_.start_q;
-  for (int it = 0; it < 50; ++it) {
-    const Vec3 e = p - kin_.position(q);
-    if (norm(e) < 1e-12) return q;
-    // Δq = J⁻¹ e: solve with the rows of J (J Δq = e) through the transpose solver on Jᵀ.
-    const arm::Jacobian j = kin_.jacobian(q);
-    arm::Jacobian jt;
-    jt.n = 3;
-    jt.column[0] = {j.column[0].x, j.column[1].x, j.column[2].x};
-    jt.column[1] = {j.column[0].y, j.column[1].y, j.column[2].y};
-    jt.column[2] = {j.column[0].z, j.column[1].z, j.column[2].z};
-    const Vec3 dq = solve_transpose(jt, {e.x, e.y, e.z});
-    q[0] += dq.x, q[1] += dq.y, q[2] += dq.z;
-  }
-  return norm(p - kin_.position(q)) < 1e-9 ? std::optional(q) : std::nullopt;
-}
-
 // ---------------------------------------------------------------------------------------------
 // The chip
 

@@ -89,8 +89,6 @@ class FalconEmulator final : public UsbdevfsDevice {
   void power_cycle();
   void with_physics(const std::function<void(device::ArmPhysics&)>& f);
   [[nodiscard]] FalconSnapshot snapshot() const;
-  /// The thigh angles (rad) at a device-frame point, for placing home switches and poses.
-  [[nodiscard]] std::optional<std::array<double, 3>> angles_at(Vec3 p) const;
   [[nodiscard]] const arm::Kinematics& kinematics() const { return kin_; }
 
  protected:

@@ -48,19 +48,11 @@ const std::string kSrc = std::string(LANCET_SOURCE_DIR);
 constexpr const char* kSysPath = "/sys/devices/pci0000:00/0000:00:14.0/usb1/1-1";
 constexpr Vec3 kStroke{0, -0.03, 0};  // where the home switches are passed: 30 mm towards the user
 
-// Newton on the model: thigh angles at a device-frame point.
-std::array<double, 3> angles_at(const arm::Kinematics& k, Vec3 p, double start) {
-  std::array<double, 3> q{start, start, start};
-  for (int it = 0; it < 60; ++it) {
-    const Vec3 e = p - k.position(q);
-    const arm::Jacobian j = k.jacobian(q);
-    const Vec3 a = j.column[0], b = j.column[1], c = j.column[2];
-    const double det = dot(a, cross(b, c));
-    q[0] += dot(e, cross(b, c)) / det;
-    q[1] += dot(a, cross(e, c)) / det;
-    q[2] += dot(a, cross(b, e)) / det;
-  }
-  return q;
+// Thigh angles at a device-frame point (the model's closed-form inverse).
+std::array<double, 3> angles_at(const arm::Kinematics& k, Vec3 p) {
+  const auto q = k.delta()->inverse(p);
+  EXPECT_TRUE(q.has_value());
+  return q.value_or(std::array<double, 3>{});
 }
 
 class FalconRt : public test::ProcessTest {
@@ -86,8 +78,8 @@ class FalconRt : public test::ProcessTest {
     ASSERT_TRUE(k.ok());
     test::FalconEmulatorOptions o;
     o.firmware = fw;
-    o.start_q = angles_at(k.value(), {0, 0, 0}, config_.joints[0].offset + 0.3);
-    const auto stroke = angles_at(k.value(), kStroke, config_.joints[0].offset + 0.3);
+    o.start_q = angles_at(k.value(), {0, 0, 0});
+    const auto stroke = angles_at(k.value(), kStroke);
     for (std::size_t m = 0; m < 3; ++m) o.home_angles[m] = 0.5 * (o.start_q[m] + stroke[m]);
     emu_ = std::make_unique<FalconEmulator>(config_, o);
     bed_ = std::make_unique<test::UsbTestbed>(*emu_, kSrc + "/tests/firmware_rt/device/data/novint_falcon.umockdev", kSysPath);
@@ -252,9 +244,3 @@ TEST_F(FalconRt, LancetRtDrivesTheEmulatedFalconAndSurvivesDroppedMalformedAndUn
 
 }  // namespace
 }  // namespace lancet
-
-int main(int argc, char** argv) {
-  lancet::test::reexec_under_umockdev_if_needed(argv);
-  ::testing::InitGoogleTest(&argc, argv);
-  return RUN_ALL_TESTS();
-}

@@ -864,9 +864,3 @@ TEST_F(UsbArmTest, SteadyStateReadWriteAllocatesOnlyWhatLibusbDoesPerTransfer) {
 
 // ---------------------------------------------------------------------------------------------
 // Entry point: make sure the umockdev preload library is loaded, re-executing under the wrapper.
-
-int main(int argc, char** argv) {
-  lancet::test::reexec_under_umockdev_if_needed(argv);
-  ::testing::InitGoogleTest(&argc, argv);
-  return RUN_ALL_TESTS();
-}

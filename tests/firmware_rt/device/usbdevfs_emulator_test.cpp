@@ -412,9 +412,3 @@ TEST_F(UsbdevfsFalconTest, UnplugIsNoDeviceAndThePlugAgainAtAddress3IsFound) {
 
 }  // namespace
 }  // namespace lancet::test
-
-int main(int argc, char** argv) {
-  lancet::test::reexec_under_umockdev_if_needed(argv);
-  ::testing::InitGoogleTest(&argc, argv);
-  return RUN_ALL_TESTS();
-}
