@@ -4,9 +4,11 @@
 
 #include <sqlite3.h>
 
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <system_error>
+#include <thread>
 
 #include "records/sql.hpp"
 
@@ -110,8 +112,18 @@ Result<std::unique_ptr<Connection>> open_sqlite(const std::string& path, int bus
   if (rc != SQLITE_OK) return c->error("cannot open the database");
   sqlite3_busy_timeout(db, busy_timeout_ms);
   // WAL: one writer at a time, readers alongside it; NORMAL sync is durable at each checkpoint
-  // and never corrupts. The journal mode is the file's, so setting it again is a no-op.
-  for (const char* pragma : {"PRAGMA journal_mode=WAL", "PRAGMA synchronous=NORMAL", "PRAGMA foreign_keys=ON"}) {
+  // and never corrupts. The journal mode is the file's, so setting it again is a no-op. Switching a
+  // new file to WAL needs it to itself, and SQLite answers "database is locked" at once, without
+  // the busy handler, while another process is switching it (ten importers starting together on
+  // a new file): that one step is retried until the busy timeout.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(busy_timeout_ms);
+  for (;;) {
+    const int wal = sqlite3_exec(db, "PRAGMA journal_mode=WAL", nullptr, nullptr, nullptr);
+    if (wal == SQLITE_OK) break;
+    if ((wal & 0xFF) != SQLITE_BUSY || std::chrono::steady_clock::now() >= deadline) return c->error("\"PRAGMA journal_mode=WAL\" failed");
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  for (const char* pragma : {"PRAGMA synchronous=NORMAL", "PRAGMA foreign_keys=ON"}) {
     auto r = c->query(pragma, {});
     if (!r.ok()) return r.error();
   }
