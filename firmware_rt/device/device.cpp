@@ -160,6 +160,7 @@ void Device::account(IoStatus s, std::int64_t t0_ns, bool is_read) noexcept {
     fault_cause_ = s;
     fault_detail_ = last_error_;
     ++counters_.faults;
+    on_fault();
   }
 }
 

@@ -147,6 +147,10 @@ class Device {
   virtual Result<void> on_reconnect();       ///< default: kUnsupported, "<name>: reconnect is not supported"
   virtual IoStatus on_read(JointState& out) noexcept = 0;
   virtual IoStatus on_write(const JointCommand& cmd) noexcept = 0;
+  /// The device has just entered kFault (called inside the read or write that tripped it): what
+  /// the backend shows or holds for a fault (an LED). Real-time: must not block or allocate.
+  /// Default: nothing (every write from now on is a zero-torque one anyway).
+  virtual void on_fault() noexcept {}
 
   /// Backends: describe the error they are about to return from on_read / on_write (or the
   /// zero-torque write of a fault). `text` is copied (truncated to fit). Real-time safe.

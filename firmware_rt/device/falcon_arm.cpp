@@ -373,6 +373,11 @@ IoStatus FalconArm::on_read(JointState& out) noexcept {
   return s;
 }
 
+void FalconArm::on_fault() noexcept {
+  torque_on_ = false;
+  leds_ = falcon::kLedRed;
+}
+
 IoStatus FalconArm::on_write(const JointCommand& cmd) noexcept {
   falcon::Command c = zero_command();
   if (torque_on_) {

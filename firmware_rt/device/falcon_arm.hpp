@@ -21,6 +21,7 @@
 //   write()      τ (N·m per thigh) → motor command = direction · motor_command_per_nm · τ, rounded,
 //                clamped to int16; one asynchronous bulk OUT of 16 bytes.
 //   deactivate() zero commands, blue LED.
+//   a fault      (the Device base trips it) zero commands, red LED.
 //   reconnect()  (fault only) reopen the Falcon wherever it is now; a replugged Falcon has lost
 //                its firmware, so this uploads it again; zero commands.
 //   rearm()      reconnect when the link is gone, then activate.
@@ -92,6 +93,7 @@ class FalconArm final : public Device {
   Result<void> on_reconnect() override;
   IoStatus on_read(JointState& out) noexcept override;
   IoStatus on_write(const JointCommand& cmd) noexcept override;
+  void on_fault() noexcept override;  // torque off, red LED from the next command on
 
  private:
   FalconArm(const arm::ArmConfig& config, FaultPolicy policy);

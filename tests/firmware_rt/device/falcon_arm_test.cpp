@@ -427,6 +427,7 @@ TEST_F(FalconArmTest, ABurstOfBadRepliesFaultsTheArmAndTheFalconGetsZeroTorque) 
   (void)arm_->read(s);
   const FalconSnapshot e = emu_->snapshot();
   EXPECT_EQ(e.motor, (std::array<std::int16_t, 3>{0, 0, 0}));
+  EXPECT_EQ(e.leds, falcon::kLedRed);  // the Falcon shows the fault
   // Re-armed, forces come back.
   emu_->corrupt_replies(0);
   ASSERT_TRUE(arm_->rearm().ok());
@@ -434,6 +435,7 @@ TEST_F(FalconArmTest, ABurstOfBadRepliesFaultsTheArmAndTheFalconGetsZeroTorque) 
   ASSERT_EQ(arm_->write(JointCommand{3, {0.1, 0.1, 0.1}}), IoStatus::kOk);
   ASSERT_EQ(arm_->read(s), IoStatus::kOk);
   EXPECT_NE(emu_->snapshot().motor[0], 0);
+  EXPECT_EQ(emu_->snapshot().leds, falcon::kLedGreen);
 }
 
 TEST_F(FalconArmTest, UnplugFaultsTheArmAndReconnectUploadsTheFirmwareAgainAtTheNewAddress) {
