@@ -135,16 +135,11 @@ Result<void> FalconArm::normal_mode() {
 }
 
 Result<bool> FalconArm::firmware_answers(double window_s) {
-  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(window_s * 1e9);
-  while (now_ns() < deadline) {
-    const IoStatus s = send(zero_command());
-    if (s == IoStatus::kDisconnected) return Error{ErrorCode::kSystem, error_prefix() + ": gone while checking for its firmware"};
-    const std::int64_t slice = std::min(deadline, now_ns() + std::max<std::int64_t>(timeout_ns_, 20'000'000));
-    const IoStatus r = await_reply(slice);
-    if (r == IoStatus::kOk) return true;
-    if (r == IoStatus::kDisconnected) return Error{ErrorCode::kSystem, error_prefix() + ": gone while checking for its firmware"};
-  }
-  return false;
+  const std::uint64_t before = stats_.replies;
+  auto r = exchange_until(window_s, [&] { return stats_.replies > before; }, "no answer in normal mode");
+  if (r.ok()) return true;
+  if (r.error().code == ErrorCode::kNotReady) return false;  // the window passed without an answer
+  return r.error();
 }
 
 Result<void> FalconArm::loader_handshake() {
@@ -235,9 +230,9 @@ Result<void> FalconArm::on_configure() {
   return bring_up();
 }
 
-Result<void> FalconArm::exchange_until(double window_s, bool (*done)(const FalconArm&), const char* what) {
+Result<void> FalconArm::exchange_until(double window_s, const std::function<bool()>& done, const char* what) {
   const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(window_s * 1e9);
-  while (!done(*this)) {
+  while (!done()) {
     if (now_ns() >= deadline) return Error{ErrorCode::kNotReady, std::string(what)};
     const IoStatus s = send(zero_command());
     if (s == IoStatus::kOk) (void)await_reply(std::min(deadline, now_ns() + std::max<std::int64_t>(timeout_ns_, 20'000'000)));
@@ -249,8 +244,7 @@ Result<void> FalconArm::exchange_until(double window_s, bool (*done)(const Falco
 Result<void> FalconArm::on_activate() {
   if (!port_ || port_->lost()) return Error{ErrorCode::kNotReady, "the Falcon is not open (configure first)"};
   leds_ = falcon::kLedRed;
-  auto homed = exchange_until(bus_.homing_timeout, [](const FalconArm& a) { return a.have_reply_ && a.last_.homed == falcon::kAllHomed; },
-                              "homing");
+  auto homed = exchange_until(bus_.homing_timeout, [this] { return have_reply_ && last_.homed == falcon::kAllHomed; }, "homing");
   if (!homed.ok()) {
     char b[200];
     std::snprintf(b, sizeof b, ": not homed within %.0f s: motor %s has not passed its home switch. Move the grip slowly all the way "

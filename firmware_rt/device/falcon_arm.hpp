@@ -38,6 +38,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -63,18 +64,11 @@ class FalconArm final : public Device {
   [[nodiscard]] int joint_count() const noexcept override { return 3; }
   /// "bus 001 address 002" of the open Falcon, empty when none is open.
   [[nodiscard]] std::string device_location() const;
-  /// The firmware file configure() would upload (the config's path, resolved against its folder).
-  [[nodiscard]] const std::string& firmware_path() const noexcept { return firmware_path_; }
   /// Bounds every exchange from the next one on by `seconds` (> 0 and finite, else ignored). For
   /// tools and tests; not to be called while another thread drives the arm.
   void set_timeout(double seconds) noexcept;
-  /// Sets the LEDs shown from the next command on (falcon::kLedGreen | kLedBlue | kLedRed); the
-  /// backend sets them itself at each lifecycle step.
-  void set_leds(std::uint8_t leds) noexcept { leds_ = leds; }
   /// The homed bits of the last reply (bit i: motor i passed its home switch).
   [[nodiscard]] std::uint8_t homed() const noexcept { return last_.homed; }
-  /// The motor commands of the last packet sent.
-  [[nodiscard]] const std::array<std::int16_t, 3>& motor_commands() const noexcept { return sent_.motor; }
 
   struct Stats {
     std::uint64_t uploads = 0;           ///< firmware uploads done
@@ -103,7 +97,9 @@ class FalconArm final : public Device {
   Result<bool> firmware_answers(double window_s);  // a zero command answered within the window
   Result<void> upload_firmware();            // loader handshake, chunks with echo, normal mode, answered
   Result<void> loader_handshake();
-  Result<void> exchange_until(double window_s, bool (*done)(const FalconArm&), const char* what);
+  /// Zero commands, each answered or given up on, until done() or the window passes (kNotReady,
+  /// saying `what`); an error when the Falcon goes away. Not real-time.
+  Result<void> exchange_until(double window_s, const std::function<bool()>& done, const char* what);
   IoStatus send(const falcon::Command& c) noexcept;
   IoStatus await_reply(std::int64_t deadline_ns) noexcept;
   void decode(JointState& out) noexcept;

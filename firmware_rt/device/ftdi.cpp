@@ -153,9 +153,6 @@ Result<std::unique_ptr<Port>> Port::open(const PortId& id) {
   }
   libusb_device* dev = matches[static_cast<std::size_t>(id.index)];
   p->location_ = where(dev);
-  libusb_device_descriptor dd{};
-  (void)libusb_get_device_descriptor(dev, &dd);
-  p->bcd_device_ = dd.bcdDevice;
   // Both bulk endpoints on the interface, and the IN packet size.
   libusb_config_descriptor* cd = nullptr;
   bool in_ok = false, out_ok = false;
@@ -216,7 +213,7 @@ Port::~Port() {
   stop_streaming();
   if (out_in_flight_ && handle_ != nullptr) {
     libusb_cancel_transfer(out_);
-    handle_events_until(now_ns() + kCancelWaitNs, out_in_flight_);
+    (void)pump(now_ns() + kCancelWaitNs, [this] { return !out_in_flight_; });
   }
   // A transfer libusb still holds is leaked rather than freed under it (does not happen on a live bus).
   if (in_ != nullptr && !in_flight_) libusb_free_transfer(in_);
@@ -289,41 +286,22 @@ Result<void> Port::write_all(std::span<const std::uint8_t> data, double timeout_
 }
 
 Result<void> Port::read_exact(std::span<std::uint8_t> out, double timeout_s, const char* what) {
+  if (!streaming_) return Error{ErrorCode::kInvalid, id_.what + ": reading " + what + " needs start_streaming() first"};
   const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_s * 1e9);
   std::size_t got = 0;
-  const auto take_buffered = [&] {
+  for (;;) {
     const std::size_t n = std::min(rx_size_, out.size() - got);
     std::memcpy(out.data() + got, rx_.data(), n);
     take(n);
     got += n;
-  };
-  take_buffered();
-  while (got < out.size()) {
-    if (streaming_) {
-      const IoStatus s = wait_for(1, deadline);
-      take_buffered();
-      if (s == IoStatus::kOk) continue;
-      if (s == IoStatus::kDisconnected) return Error{ErrorCode::kSystem, id_.what + " at " + location_ + ": gone while reading " + what};
-      break;
-    }
-    std::array<std::uint8_t, 512> buf{};
-    int n = 0;
-    const std::int64_t left_ms = (deadline - now_ns()) / 1'000'000;
-    if (left_ms <= 0) break;
-    const int r = libusb_bulk_transfer(handle_, id_.endpoint_in, buf.data(), static_cast<int>(packet_size_), &n,
-                                       static_cast<unsigned>(left_ms));
-    if (r == LIBUSB_ERROR_TIMEOUT) break;
-    if (r != 0) {
-      if (r == LIBUSB_ERROR_NO_DEVICE) lost_ = true;
-      return Error{ErrorCode::kSystem, id_.what + " at " + location_ + ": reading " + what + " failed: " + libusb_error_name(r)};
-    }
-    got += strip_modem_status({buf.data(), static_cast<std::size_t>(n)}, packet_size_, out.subspan(got));
+    if (got == out.size()) return {};
+    const IoStatus s = wait_for(1, deadline);
+    if (s == IoStatus::kDisconnected) return Error{ErrorCode::kSystem, id_.what + " at " + location_ + ": gone while reading " + what};
+    if (s != IoStatus::kOk) break;
   }
-  if (got < out.size())
-    return Error{ErrorCode::kNotReady, id_.what + " at " + location_ + ": " + what + ": " + std::to_string(got) + " of " +
-                                          std::to_string(out.size()) + " bytes came within " + std::to_string(static_cast<int>(timeout_s * 1e3)) +
-                                          " ms"};
-  return {};
+  return Error{ErrorCode::kNotReady, id_.what + " at " + location_ + ": " + what + ": " + std::to_string(got) + " of " +
+                                        std::to_string(out.size()) + " bytes came within " + std::to_string(static_cast<int>(timeout_s * 1e3)) +
+                                        " ms"};
 }
 
 // --------------------------------------------------------------------------------------------
@@ -346,7 +324,7 @@ void Port::stop_streaming() noexcept {
   streaming_ = false;
   if (!in_flight_ || handle_ == nullptr) return;
   libusb_cancel_transfer(in_);
-  handle_events_until(now_ns() + kCancelWaitNs, in_flight_);
+  (void)pump(now_ns() + kCancelWaitNs, [this] { return !in_flight_; });
 }
 
 void Port::on_in_done() noexcept {
@@ -396,26 +374,21 @@ void Port::on_out_done() noexcept {
   }
 }
 
-void Port::handle_events_until(std::int64_t deadline_ns, const bool& flag) noexcept {
-  // Waits while `flag` is true (a transfer in flight), at most until the deadline.
-  while (flag) {
+template <class Done>
+bool Port::pump(std::int64_t deadline_ns, Done done) noexcept {
+  while (!done()) {
     const std::int64_t left = deadline_ns - now_ns();
-    if (left <= 0) return;
+    if (left <= 0) return true;
     timeval tv{0, static_cast<suseconds_t>(std::min<std::int64_t>(left / 1000 + 1, 100'000))};
-    int completed = 0;
-    if (libusb_handle_events_timeout_completed(ctx_, &tv, &completed) != 0) return;
+    if (libusb_handle_events_timeout_completed(ctx_, &tv, nullptr) != 0) return false;
   }
-}
-
-void Port::poll() noexcept {
-  timeval tv{0, 0};
-  (void)libusb_handle_events_timeout_completed(ctx_, &tv, nullptr);
+  return true;
 }
 
 IoStatus Port::submit_write(std::span<const std::uint8_t> data, std::int64_t deadline_ns) noexcept {
   if (lost_) return IoStatus::kDisconnected;
   if (data.size() > out_buf_.size()) return IoStatus::kProtocolError;
-  if (out_in_flight_) handle_events_until(deadline_ns, out_in_flight_);
+  (void)pump(deadline_ns, [this] { return !out_in_flight_; });
   if (out_in_flight_) {
     detail_ = "the previous write has not gone out";
     return IoStatus::kTimeout;
@@ -435,15 +408,11 @@ IoStatus Port::submit_write(std::span<const std::uint8_t> data, std::int64_t dea
 }
 
 IoStatus Port::wait_for(std::size_t bytes, std::int64_t deadline_ns) noexcept {
-  while (rx_size_ < bytes) {
-    if (lost_) return IoStatus::kDisconnected;
-    if (!streaming_) return IoStatus::kProtocolError;
-    const std::int64_t left = deadline_ns - now_ns();
-    if (left <= 0) return IoStatus::kTimeout;
-    timeval tv{0, static_cast<suseconds_t>(std::min<std::int64_t>(left / 1000 + 1, 100'000))};
-    if (libusb_handle_events_timeout_completed(ctx_, &tv, nullptr) != 0) return IoStatus::kProtocolError;
-  }
-  return IoStatus::kOk;
+  const bool events_ok = pump(deadline_ns, [&] { return rx_size_ >= bytes || lost_ || !streaming_; });
+  if (rx_size_ >= bytes) return IoStatus::kOk;
+  if (lost_) return IoStatus::kDisconnected;
+  if (!streaming_ || !events_ok) return IoStatus::kProtocolError;
+  return IoStatus::kTimeout;
 }
 
 void Port::take(std::size_t n) noexcept {

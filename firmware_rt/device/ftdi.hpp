@@ -100,8 +100,6 @@ class Port {
 
   /// "bus 001 address 002".
   [[nodiscard]] const std::string& location() const noexcept { return location_; }
-  [[nodiscard]] std::uint16_t bcd_device() const noexcept { return bcd_device_; }
-  [[nodiscard]] std::size_t packet_size() const noexcept { return packet_size_; }
 
   // ---- setup (blocking, not real-time); each failure names the request ----
   Result<void> control(std::uint8_t request, std::uint16_t value, const char* what);
@@ -117,8 +115,8 @@ class Port {
   Result<void> set_uart_mode() { return control(kBitMode, 0x0000, "bit mode UART"); }
   /// Writes all of `data` (bulk OUT, synchronous).
   Result<void> write_all(std::span<const std::uint8_t> data, double timeout_s, const char* what);
-  /// Reads exactly out.size() data bytes (the status bytes stripped), or fails once `timeout_s`
-  /// passes with fewer: the error says how many came. Bytes already taken in by the stream come first.
+  /// Reads exactly out.size() data bytes from the stream (start_streaming() first), or fails once
+  /// `timeout_s` passes with fewer: the error says how many came. Bytes already buffered come first.
   Result<void> read_exact(std::span<std::uint8_t> out, double timeout_s, const char* what);
 
   // ---- the exchange (real-time) ----
@@ -135,8 +133,6 @@ class Port {
   /// Handles libusb events until at least `bytes` data bytes are buffered, the device is gone, or
   /// `deadline_ns` passes. Returns kOk, kTimeout or kDisconnected.
   IoStatus wait_for(std::size_t bytes, std::int64_t deadline_ns) noexcept;
-  /// Handles the events that are ready now, without waiting.
-  void poll() noexcept;
   /// The buffered data bytes (oldest first); take() consumes from the front.
   [[nodiscard]] std::span<const std::uint8_t> rx() const noexcept { return {rx_.data(), rx_size_}; }
   void take(std::size_t n) noexcept;
@@ -161,13 +157,14 @@ class Port {
   void on_out_done() noexcept;
   friend void in_done_trampoline(libusb_transfer* t);
   friend void out_done_trampoline(libusb_transfer* t);
-  void handle_events_until(std::int64_t deadline_ns, const bool& done) noexcept;
+  /// Handles libusb's events until done() or the deadline; false when handling them failed.
+  template <class Done>
+  bool pump(std::int64_t deadline_ns, Done done) noexcept;
 
   libusb_context* ctx_ = nullptr;
   libusb_device_handle* handle_ = nullptr;
   PortId id_;
   std::string location_;
-  std::uint16_t bcd_device_ = 0;
   std::size_t packet_size_ = 64;
   bool claimed_ = false, detached_driver_ = false;
 
