@@ -121,9 +121,23 @@ class FalconArmTest : public ::testing::Test {
     if (plug) {
       ASSERT_TRUE(bed_->plug(2));
     }
+    make_arm(policy);
+  }
+  /// A FalconArm for cfg_ (the emulated Falcon stays as it is), with the encoder plausibility check
+  /// lancet-rt turns on (app::plausibility_of), so that a jump the Falcon makes on purpose (homing)
+  /// is seen to pass it.
+  void make_arm(FaultPolicy policy = {}) {
+    arm_.reset();
     auto a = FalconArm::create(cfg_, policy);
     ASSERT_TRUE(a.ok()) << a.error().message;
     arm_ = std::move(a).value();
+    Plausibility p;
+    p.n = 3;
+    for (std::size_t j = 0; j < 3; ++j) {
+      p.max_speed[j] = cfg_.joints[j].max_speed;
+      p.resolution[j] = std::abs(arm::joint_position_from_counts(cfg_.joints[j], 1) - arm::joint_position_from_counts(cfg_.joints[j], 0));
+    }
+    arm_->set_plausibility(p);
   }
   void configure() {
     const Result<void> r = arm_->configure();
@@ -211,11 +225,8 @@ TEST_F(FalconArmTest, AFalconWhoseFirmwareRunsIsNotUploadedAgainUnlessAskedTo) {
   EXPECT_EQ(emu_->snapshot().uploads_completed, 0u);
   EXPECT_FALSE(has_request(emu_->snapshot(), ftdi::kBaudRate, 0x4138));  // the loader's rate never set
   // upload = "always": the DTR pulse resets it into its loader, and the firmware goes in anyway.
-  arm_.reset();
   cfg_.falcon->upload = arm::FirmwareUpload::kAlways;
-  auto a = FalconArm::create(cfg_);
-  ASSERT_TRUE(a.ok());
-  arm_ = std::move(a).value();
+  make_arm();
   configure();
   EXPECT_EQ(arm_->stats().uploads, 1u);
   EXPECT_EQ(emu_->snapshot().uploads_completed, 1u);
@@ -281,9 +292,7 @@ TEST_F(FalconArmTest, ActivateWaitsForTheHomeSwitchesAndNamesTheMotorsLeft) {
   configure();
   arm_->set_timeout(kTimeout);
   cfg_.falcon->homing_timeout = 0.2;
-  auto quick = FalconArm::create(cfg_);  // the same Falcon, a short homing wait
-  ASSERT_TRUE(quick.ok());
-  arm_ = std::move(quick).value();
+  make_arm();  // the same Falcon, a short homing wait
   configure();
   Result<void> r = arm_->activate();
   ASSERT_FALSE(r.ok());
