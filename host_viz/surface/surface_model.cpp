@@ -4,6 +4,7 @@
 #include "volume/in_two_halves.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -97,6 +98,10 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   m->open_.assign(nv, P(0, 0, 0));
   m->wrinkle_.assign(nv, P(0, 0, 0));
   m->in_deformed_.assign(nv, 0);
+  m->haptic_.reserve(nv * 5 / 4 + 64);
+  m->haptic_.assign(mesh.property(m->rest_).data_vector().begin(), mesh.property(m->rest_).data_vector().end());
+  m->on_boundary_.resize(triangles.size());
+  for (std::size_t f = 0; f < triangles.size(); ++f) m->on_boundary_[f] = m->boundary_of(m->handle_[f]) ? 1 : 0;
   m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
   // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
   // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)
@@ -158,9 +163,6 @@ OpenMesh::Vec3f SurfaceModel::vertex_cross_sum(std::uint32_t v) const {
 
 Vec3 SurfaceModel::position(std::uint32_t v) const noexcept { return v3(mesh_.point(vh(v))); }
 Vec3 SurfaceModel::rest_position(std::uint32_t v) const noexcept { return v3(mesh_.property(rest_, vh(v))); }
-Vec3 SurfaceModel::haptic_position(std::uint32_t v) const noexcept {
-  return v3(mesh_.property(rest_, vh(v)) + open_[v] + wrinkle_[v]);
-}
 
 MeshView SurfaceModel::view() const noexcept {
   return MeshView{mesh_.n_vertices() > 0 ? mesh_.points()[0].data() : nullptr, mesh_.n_vertices(), faces_};
@@ -171,6 +173,21 @@ std::uint32_t SurfaceModel::stable_of(FH fh) const { return mesh_.property(stabl
 void SurfaceModel::set_current(std::uint32_t v) {
   const VH h = vh(v);
   mesh_.set_point(h, mesh_.property(rest_, h) + deform_[v] + open_[v] + wrinkle_[v]);
+  set_haptic(v);
+}
+
+void SurfaceModel::set_haptic(std::uint32_t v) { haptic_[v] = mesh_.property(rest_, vh(v)) + open_[v] + wrinkle_[v]; }
+
+bool SurfaceModel::boundary_of(FH fh) const {
+  for (auto h : mesh_.fh_range(fh))
+    if (mesh_.is_boundary(mesh_.opposite_halfedge_handle(h))) return true;
+  return false;
+}
+
+// After faces around v were reconnected: an edge whose boundary status changed has v at one end,
+// so every face that can have gained or lost a boundary edge is one of v's.
+void SurfaceModel::update_boundary_flags(std::uint32_t v) {
+  for (auto f : mesh_.vf_range(vh(v))) on_boundary_[stable_of(f)] = boundary_of(f) ? 1 : 0;
 }
 
 // After vertices moved or faces were reconnected: refit their faces in the BVH and renormalise
@@ -369,6 +386,7 @@ std::uint32_t SurfaceModel::new_copy(std::uint32_t v) {
   deform_.push_back(deform_[v]);
   open_.push_back(open_[v]);
   wrinkle_.push_back(wrinkle_[v]);
+  haptic_.push_back(OpenMesh::Vec3f(haptic_[v]));
   in_deformed_.push_back(0);
   if (mark_.size() < mesh_.n_vertices()) mark_.resize(mesh_.n_vertices() * 2, 0);
   if (in_deformed_[v] != 0) {
@@ -398,7 +416,11 @@ bool SurfaceModel::reattach(const std::vector<std::uint32_t>& faces, std::uint32
     handle_[faces[added]] = fh;
     faces_[faces[added]] = t;
   }
-  if (added == faces.size()) return true;
+  if (added == faces.size()) {
+    update_boundary_flags(from);
+    update_boundary_flags(to);
+    return true;
+  }
   for (std::size_t i = 0; i < added; ++i) mesh_.delete_face(handle_[faces[i]], false);
   for (std::size_t i = 0; i < faces.size(); ++i) {
     const auto& t = old_tris[i];
@@ -407,6 +429,8 @@ bool SurfaceModel::reattach(const std::vector<std::uint32_t>& faces, std::uint32
     handle_[faces[i]] = fh;
     faces_[faces[i]] = t;
   }
+  update_boundary_flags(from);
+  update_boundary_flags(to);
   return false;
 }
 
@@ -697,7 +721,7 @@ void SurfaceModel::build_wrinkle_map(std::size_t c) {
   wrinkle_cut_ = c;
   wrinkle_pairs_ = cut.pairs.size();
   wrinkle_vertices_ = mesh_.n_vertices();
-  for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0);
+  for (std::uint32_t v : wrinkled_) wrinkle_[v] = P(0, 0, 0), set_haptic(v);
   wrinkled_.clear();
   wrinkle_amp_.clear();
   gather_around_pairs(cut, static_cast<float>(params_.wrinkle_reach), scratch_touched_);
@@ -762,6 +786,12 @@ SurfaceStats SurfaceModel::stats() const {
     if (!(area > kMinArea) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) ++s.degenerate_faces;
     if (OpenMesh::dot(n, rest_normal_[f]) <= 0) ++s.flipped_faces;
   }
+  for (std::uint32_t v = 0; v < mesh_.n_vertices(); ++v) {
+    const P h = mesh_.property(rest_, vh(v)) + open_[v] + wrinkle_[v];
+    if (std::memcmp(&h, &haptic_[v], sizeof h) != 0) ++s.stale_haptic;
+  }
+  for (std::size_t f = 0; f < faces_.size(); ++f)
+    if ((on_boundary_[f] != 0) != boundary_of(handle_[f])) ++s.stale_boundary_flags;
   // Boundary loops: follow next_halfedge from each unvisited boundary halfedge.
   std::vector<std::uint8_t> seen(mesh_.n_halfedges(), 0);
   for (auto h : mesh_.halfedges()) {

@@ -114,6 +114,8 @@ struct SurfaceStats {
   std::size_t flipped_faces = 0;         ///< current normal against the face's rest normal
   std::size_t boundary_loops = 0;
   bool boundary_loops_closed = true;     ///< every boundary halfedge chain returns to its start
+  std::size_t stale_haptic = 0;          ///< vertices whose kept haptic position is not rest + opening + wrinkle (0 expected)
+  std::size_t stale_boundary_flags = 0;  ///< faces whose kept face_on_boundary() is not the mesh's (0 expected)
   double area = 0;                       ///< m², current positions
   double rest_area = 0;                  ///< m², rest positions
 };
@@ -138,7 +140,16 @@ class SurfaceModel {
   /// The surface the stylus is felt against: the current position without the dent the tool
   /// itself presses (rest + opening + wrinkle). The dent is what the trainee sees of the contact;
   /// exporting it to the haptics would let the surface, and the proxy on it, follow the tool down.
-  [[nodiscard]] Vec3 haptic_position(std::uint32_t v) const noexcept;
+  [[nodiscard]] Vec3 haptic_position(std::uint32_t v) const noexcept { return to_vec3(haptic_position_f(v)); }
+  /// The same in the mesh's floats, kept per vertex as rest, opening and wrinkle change (one load
+  /// where the patch export would gather three arrays).
+  [[nodiscard]] Vec3f haptic_position_f(std::uint32_t v) const noexcept {
+    const OpenMesh::Vec3f& p = haptic_[v];
+    return {p[0], p[1], p[2]};
+  }
+  /// Whether stable face f has an edge on the mesh's boundary (a cut's lip or the border): kept per
+  /// face as faces are reconnected.
+  [[nodiscard]] bool face_on_boundary(std::uint32_t f) const noexcept { return on_boundary_[f] != 0; }
   [[nodiscard]] MeshView view() const noexcept;
   [[nodiscard]] const TriangleBvh& bvh() const noexcept { return bvh_; }
   [[nodiscard]] const SurfaceParams& params() const noexcept { return params_; }
@@ -181,6 +192,9 @@ class SurfaceModel {
  private:
   SurfaceModel() = default;
   void set_current(std::uint32_t v);  // current = rest + deformation + opening + wrinkle
+  void set_haptic(std::uint32_t v);   // haptic = rest + opening + wrinkle
+  bool boundary_of(SurfaceMesh::FaceHandle fh) const;
+  void update_boundary_flags(std::uint32_t v);  // the faces around v
   void refresh(std::span<const std::uint32_t> vertices);  // positions → normals, BVH
   std::uint32_t stable_of(SurfaceMesh::FaceHandle fh) const;
   OpenMesh::Vec3f face_cross(std::uint32_t f, bool rest) const;
@@ -206,6 +220,8 @@ class SurfaceModel {
   std::vector<OpenMesh::Vec3f> rest_normal_;       ///< per stable face, for the flip check
   // Displacements on top of rest, per vertex (dense; vertices are few next to faces' data).
   std::vector<OpenMesh::Vec3f> deform_, open_, wrinkle_;
+  std::vector<OpenMesh::Vec3f> haptic_;            ///< rest + open_ + wrinkle_ (haptic_position)
+  std::vector<std::uint8_t> on_boundary_;          ///< per stable face (face_on_boundary)
   std::vector<std::uint32_t> deformed_;            ///< vertices with a deformation displacement
   std::vector<std::uint8_t> in_deformed_;
   std::vector<std::uint32_t> wrinkled_;

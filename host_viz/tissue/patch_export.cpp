@@ -64,7 +64,6 @@ std::size_t export_patch(const surface::TriangleMesh& mesh, Vec3 centre, const P
 std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const PatchExportParams& params,
                          PatchExportScratch& scratch, TissuePatch& out, const BrickSource& brick) {
   const surface::MeshView view = model.view();
-  const auto& mesh = model.mesh();
   auto& near = scratch.faces;
   // The BVH holds the drawn (dented) surface; the patch is the haptic one, without the tool's own
   // dent, which lies at most deform_max_depth from it: search that much wider, then keep by the
@@ -90,18 +89,10 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   const double surely = r2 * (1 - 1e-9), beyond = params.radius * (1 + 1e-9) + 1e-12;
   const Vec3 q = to_vec3(at);
   const auto dist2 = [](Vec3 a, Vec3 b) { return dot(a - b, a - b); };
-  // Each vertex's haptic position once per export (a vertex has about six triangles).
-  const std::size_t nv = model.mesh().n_vertices();
-  if (scratch.stamp.size() < nv) scratch.stamp.resize(nv, 0), scratch.haptic.resize(nv);
-  if (++scratch.epoch == 0) std::fill(scratch.stamp.begin(), scratch.stamp.end(), 0), scratch.epoch = 1;
-  const auto haptic = [&](std::uint32_t v) {
-    if (scratch.stamp[v] != scratch.epoch) scratch.stamp[v] = scratch.epoch, scratch.haptic[v] = to_vec3f(model.haptic_position(v));
-    return scratch.haptic[v];
-  };
   constexpr double kNotMeasured = -1;
   for (std::uint32_t f : near) {
     const auto& t = view.faces[f];
-    const std::array<Vec3f, 3> c = {haptic(t[0]), haptic(t[1]), haptic(t[2])};
+    const std::array<Vec3f, 3> c = {model.haptic_position_f(t[0]), model.haptic_position_f(t[1]), model.haptic_position_f(t[2])};
     const Vec3 a = to_vec3(c[0]), b = to_vec3(c[1]), e = to_vec3(c[2]);
     const double nearest = std::min({dist2(q, a), dist2(q, b), dist2(q, e)});
     double d2 = kNotMeasured;
@@ -126,10 +117,8 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
     PatchTriangle& pt = out.triangles[i];
     for (int k = 0; k < 3; ++k) pt.v[k] = c.v[static_cast<std::size_t>(k)];
     pt.material = model.face_material(c.face);
-    pt.flags = 0;
+    pt.flags = model.face_on_boundary(c.face) ? kTriangleOnCutEdge : 0;
     pt.id = c.face;
-    for (auto h : mesh.fh_range(model.face_handle(c.face)))
-      if (mesh.is_boundary(mesh.opposite_halfedge_handle(h))) pt.flags |= kTriangleOnCutEdge;
   }
   out.n_triangles = static_cast<std::uint32_t>(keep);
   out.brick.valid = 0;

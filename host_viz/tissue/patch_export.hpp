@@ -32,9 +32,6 @@ struct PatchExportScratch {
     std::uint32_t face;
   };
   std::vector<Corners> corners;                              ///< SurfaceModel export: each candidate's triangle
-  std::vector<Vec3f> haptic;          ///< SurfaceModel export: haptic position per vertex, valid where stamp == epoch
-  std::vector<std::uint32_t> stamp;   ///< per vertex: the export that filled haptic
-  std::uint32_t epoch = 0;
   std::vector<std::uint32_t> faces;                          ///< BVH query result
   std::vector<double> distances;                             ///< for the cut-off when too many
 };

@@ -49,6 +49,8 @@ void expect_invariants(const SurfaceModel& s, std::size_t faces, double rest_are
   EXPECT_EQ(st.degenerate_faces, 0u) << where;
   EXPECT_EQ(st.flipped_faces, 0u) << where;
   EXPECT_TRUE(st.boundary_loops_closed) << where;
+  EXPECT_EQ(st.stale_haptic, 0u) << where << ": a kept haptic position is not rest + opening + wrinkle";
+  EXPECT_EQ(st.stale_boundary_flags, 0u) << where << ": a kept boundary flag is not the mesh's";
   EXPECT_NEAR(st.rest_area, rest_area0, 0.01 * rest_area0) << where;
   if (!opened) {
     EXPECT_NEAR(st.area, rest_area0, 0.01 * rest_area0) << where;
@@ -244,6 +246,50 @@ TEST(SurfaceModel, WrinkleBesideACutDecays) {
     EXPECT_LT(norm(s->position(i) - opened[i]), 1e-6);
   }
   EXPECT_EQ(s->stats().flipped_faces, 0u);
+}
+
+// The patch export reads two things the model keeps rather than recomputes: each vertex's haptic
+// position (rest + opening + wrinkle) and each face's boundary flag. Both stay the mesh's through
+// cuts that cross and split fans, openings, pulls of one cut while another's wrinkle still lives
+// (the wrinkle map made anew), relaxing, and a pressing contact.
+TEST(SurfaceModel, KeptHapticPositionsAndBoundaryFlagsFollowEveryEdit) {
+  auto s = sheet(40);
+  const auto expect_kept = [&](const std::string& where) {
+    const SurfaceStats st = s->stats();
+    EXPECT_EQ(st.stale_haptic, 0u) << where;
+    EXPECT_EQ(st.stale_boundary_flags, 0u) << where;
+  };
+  std::size_t on_boundary = 0;
+  for (std::uint32_t f = 0; f < s->n_faces(); ++f) on_boundary += s->face_on_boundary(f) ? 1 : 0;
+  EXPECT_GT(on_boundary, 0u) << "the sheet's border";
+  expect_kept("made");
+  ASSERT_TRUE(s->begin_cut(on_sheet(-0.01, 0.0011)));
+  for (int i = 1; i <= 20; ++i) {
+    (void)s->cut_to(on_sheet(-0.01 + 0.001 * i, 0.0011));
+    expect_kept("cut step " + std::to_string(i));
+  }
+  s->end_cut();
+  ASSERT_DOUBLE_EQ(s->pull(0, 0.003), 0.003);
+  expect_kept("pulled");
+  for (int i = 0; i < 3; ++i) s->relax(0.05);
+  expect_kept("relaxing");
+  // A second cut across the first (the fans at the crossing split), pulled while the first's
+  // wrinkle is still dying away.
+  ASSERT_TRUE(s->begin_cut(on_sheet(0.0, -0.008)));
+  for (int i = 1; i <= 16; ++i) (void)s->cut_to(on_sheet(0.0003, -0.008 + 0.001 * i));
+  s->end_cut();
+  expect_kept("crossing cut");
+  ASSERT_GE(s->cuts().size(), 2u);
+  (void)s->pull(1, 0.002);
+  expect_kept("second pull");
+  s->update_contact(Contact{on_sheet(0.012, 0.006), {0, 0, -1}, 0.002}, 0.01);
+  expect_kept("pressed");
+  s->update_contact(std::nullopt, 0.5);
+  for (int i = 0; i < 100; ++i) s->relax(0.05);
+  expect_kept("relaxed");
+  std::size_t lips = 0;
+  for (std::uint32_t f = 0; f < s->n_faces(); ++f) lips += s->face_on_boundary(f) ? 1 : 0;
+  EXPECT_GT(lips, on_boundary) << "the cuts' lips are boundary too";
 }
 
 // The wrinkle's extent follows from the cut alone: the same pull after the last one has died away
