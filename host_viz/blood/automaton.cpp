@@ -187,6 +187,7 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   s_.born = std::move(born);
   s_.conc.assign(n, 0.0f);
   s_.flux.assign(net_.pipes(), 0.0f);
+  sending_.assign(n, 0);
   source_.assign(n, 0.0f);
   sink_.assign(n, 0.0f);
   active_.assign(net_.tiles(), 0);
@@ -206,6 +207,9 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   ledger_.now = now;
   head_.resize(n);
   update_heads(0, n);
+  // The same product, in the same order, that the flux pass formed per pipe and step.
+  gain_.resize(net_.pipes());
+  for (std::size_t k = 0; k < gain_.size(); ++k) gain_[k] = p_.dt * (p_.mobility * net_.conductance[k]);
 }
 
 void Automaton::set_geometry(std::span<const float> elevation, std::span<const float> area) {
@@ -313,32 +317,44 @@ void Automaton::fluxes(std::size_t t) {
   const std::size_t n = net_.cells();
   const float dt = p_.dt;
   const float keep = std::pow(p_.damping, dt);
-  const float mobility = p_.mobility, ref_depth = p_.ref_depth;
+  const float ref_depth = p_.ref_depth;
   // Plain pointers: the flux stores could otherwise alias every float the loop reads.
   const float* const head = head_.data();
-  const float* const conductance = net_.conductance.data();
+  const float* const gain = gain_.data();
   const std::uint32_t* const to = net_.to.data();
   float* const flux = s_.flux.data();
   bool flowing = false;
+  std::uint8_t* const sending = sending_.data();
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     const float v = s_.volume[i], a = net_.area[i];
+    // Most cells of a working tile are dry and send nothing: with no mobile blood (m = 0) a pipe's
+    // flux is max(0, keep · 0 + 0), so every pipe stays at exactly 0 and the loop is skipped.
+    if (sending[i] == 0 && !(v > net_.film[i])) {
+      s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
+      continue;
+    }
     const float mobile = std::max(0.0f, v - net_.film[i]);
     const float d = mobile / a / ref_depth;
     const float m = std::min(1.0f, d * d);
     const std::uint32_t first = net_.first[i], last = net_.first[i + 1];
     float sum = 0.0f;
     for (std::uint32_t k = first; k < last; ++k) {
-      const float f = std::max(0.0f, keep * flux[k] + dt * (mobility * conductance[k]) * m * (head[i] - head[to[k]]));
+      const float f = std::max(0.0f, keep * flux[k] + gain[k] * m * (head[i] - head[to[k]]));
       flux[k] = f;
       sum += f;
     }
     const float out = sum * dt;
+    bool sends = sum > 0.0f;  // every flux is >= 0: some pipe sends
     if (out > mobile) {
       const float scale = out > 0.0f ? 0.999999f * mobile / out : 0.0f;
-      for (std::uint32_t k = first; k < last; ++k) flux[k] *= scale;
+      sends = false;
+      for (std::uint32_t k = first; k < last; ++k) {
+        flux[k] *= scale;
+        sends = sends || flux[k] > 0.0f;
+      }
     }
-    if (sum > 0.0f)
-      for (std::uint32_t k = first; k < last && !flowing; ++k) flowing = flux[k] > 0.0f;
+    sending[i] = sends ? 1 : 0;
+    flowing = flowing || sends;
     s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
   }
   tile_flowing_[t] = flowing ? 1 : 0;
@@ -351,9 +367,15 @@ void Automaton::volumes(std::size_t t) {
   const float* const conc = s_.conc.data();
   const std::uint32_t* const twin = net_.twin.data();
   const std::uint32_t* const to = net_.to.data();
+  const std::uint8_t* const sending = sending_.data();
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
+    // A cell that sends nothing, among neighbours that send nothing, has no flux in or out.
+    const std::uint32_t first = net_.first[i], last = net_.first[i + 1];
+    bool moving = sending[i] != 0;
+    for (std::uint32_t k = first; k < last && !moving; ++k) moving = sending[to[k]] != 0;
+    if (!moving) continue;
     float in = 0.0f, out = 0.0f, born_in = 0.0f;
-    for (std::uint32_t k = net_.first[i]; k < net_.first[i + 1]; ++k) {
+    for (std::uint32_t k = first; k < last; ++k) {
       const float f_in = flux[twin[k]];
       in += f_in;
       born_in += f_in * conc[to[k]];

@@ -180,10 +180,12 @@ class Automaton {
   State s_;
   std::vector<float> source_, sink_;
   std::vector<float> head_;  // m per cell: elevation + volume / area, kept as the volumes change
+  std::vector<float> gain_;  // per pipe: dt · (mobility · conductance), the flux pass's factor of m · Δhead
   std::vector<std::uint8_t> active_, receive_;
   std::vector<double> tile_added_, tile_removed_;  // per tile, this step
   std::vector<double> tile_volume_;                // per tile, as of the last step that touched it
   std::vector<std::uint8_t> tile_has_rate_, candidate_;  // a source or sink; may be active next step
+  std::vector<std::uint8_t> sending_;       // per cell: some pipe of it sends (flux > 0), as its last fluxes pass left it
   std::vector<std::uint8_t> tile_flowing_;  // some pipe of the tile sends (flux > 0), as its last fluxes pass left it
   Ledger ledger_;
   std::uint64_t steps_ = 0;

@@ -295,9 +295,10 @@ void Bleeding::prepare(const TissueScene& scene, double dt) {
   prepared_steps_ = steps;
 }
 
-void Bleeding::step() {
+void Bleeding::step(int threads) {
+  if (threads <= 0) threads = p_.threads;
   for (int s = 0; s < prepared_steps_; ++s) {
-    automaton_.step(p_.threads);
+    automaton_.step(threads);
     swabbed_ += automaton_.last_sink_volume();
   }
   time_ += prepared_steps_ * static_cast<double>(p_.automaton.dt);

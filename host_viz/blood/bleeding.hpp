@@ -88,9 +88,11 @@ class Bleeding {
   void advance(const TissueScene& scene, double dt);
   /// advance() in two halves: prepare() does all that reads the scene (the network, the elevations,
   /// the sources and the swab) and may run beside other readers of the scene (the patch export);
-  /// step() then steps the automaton, without the scene.
+  /// step() then steps the automaton, without the scene, on `threads` automaton threads (0: the
+  /// params' threads; the blood does not depend on it). It touches nothing observe() does, so a
+  /// step may run on another thread while the next frame's samples are observed.
   void prepare(const TissueScene& scene, double dt);
-  void step();
+  void step(int threads = 0);
 
   /// Per vertex of `drawn` (the scene's draw_mesh: the surface's vertices first, then the
   /// grooves' walls and floors): blood depth (m) and mean age (s). Wall vertices under a groove's

@@ -18,8 +18,9 @@ void relax() noexcept {
 #endif
 }
 
-// Waits until `a` no longer holds `old`: a short spin (the next job or barrier usually comes within
-// microseconds: a pass over a few hundred tiles), then a futex wait.
+}  // namespace
+
+// The spin is a pass over a few hundred tiles' worth: the next job or barrier usually comes sooner.
 void await_change(const std::atomic<std::uint32_t>& a, std::uint32_t old) noexcept {
   constexpr int kSpins = 2000;
   for (int i = 0; i < kSpins; ++i) {
@@ -28,8 +29,6 @@ void await_change(const std::atomic<std::uint32_t>& a, std::uint32_t old) noexce
   }
   while (a.load(std::memory_order_acquire) == old) a.wait(old, std::memory_order_acquire);
 }
-
-}  // namespace
 
 WorkerPool::WorkerPool(int threads) : threads_(std::max(threads, 1)) {
   workers_.reserve(static_cast<std::size_t>(threads_ - 1));

@@ -18,6 +18,10 @@
 
 namespace lancet::blood {
 
+/// Waits until `a` no longer holds `old`: a short spin (what is awaited usually comes within
+/// microseconds), then a futex wait (std::atomic::wait). The pool's waits, and its neighbours'.
+void await_change(const std::atomic<std::uint32_t>& a, std::uint32_t old) noexcept;
+
 class WorkerPool {
  public:
   /// threads ≥ 1 participants: the caller and threads − 1 workers (started here; allocates).

@@ -43,6 +43,7 @@ Result<std::unique_ptr<SceneSim>> SceneSim::create(const SceneSetup& setup) {
 }
 
 void SceneSim::apply(std::span<const ToolSample> samples) {
+  wait_blood_prepared();  // the blood behind reads the scene until then
   if (samples.empty()) return;
   for (const ToolSample& t : samples)
     if ((t.events & event::kDrillRemove) != 0) last_removal_ = t.payload.position;
@@ -64,7 +65,10 @@ std::array<std::size_t, kHandCount> SceneSim::export_patches_and_prepare_blood(c
   std::size_t n = 0;
   for (std::size_t h = 0; h < kHandCount; ++h)
     if (patches[h] != nullptr) tasks[n++] = h;
-  if (bleeding_) tasks[n++] = kHandCount;
+  if (behind_)
+    behind_->post(blood_dt);  // prepared and stepped on its own thread, beside the patches
+  else if (bleeding_)
+    tasks[n++] = kHandCount;
   const auto run = [&](std::size_t task) {
     if (task == kHandCount) {
       bleeding_->prepare(scene, blood_dt);
@@ -86,10 +90,27 @@ std::array<std::size_t, kHandCount> SceneSim::export_patches_and_prepare_blood(c
 }
 
 void SceneSim::step_blood() {
-  if (bleeding_) bleeding_->step();
+  if (bleeding_ && !behind_) bleeding_->step();
+}
+
+void SceneSim::set_blood_behind(bool on) {
+  if (on && bleeding_ && !behind_) behind_ = std::make_unique<BloodBehind>(*bleeding_, *scene_);
+  if (!on && behind_) {
+    wait_blood_stepped();
+    behind_.reset();
+  }
+}
+
+void SceneSim::wait_blood_prepared() const noexcept {
+  if (behind_) waited_prepared_s_ += behind_->wait_prepared();
+}
+
+void SceneSim::wait_blood_stepped() const noexcept {
+  if (behind_) waited_stepped_s_ += behind_->wait_stepped();
 }
 
 void SceneSim::figures(record::FrameRecord& f) const {
+  wait_blood_stepped();
   if (task_) {
     const score::TaskStatus& t = task_->status();
     f.task_progress = t.progress;
@@ -110,6 +131,7 @@ void SceneSim::figures(record::FrameRecord& f) const {
 }
 
 void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<record::SceneEvent>& out) {
+  wait_blood_stepped();
   const auto make = [&](std::uint32_t kind, std::uint32_t index, Vec3 at, double value, const std::string& name) {
     record::SceneEvent e;
     e.frame = frame, e.t_ns = t_ns, e.kind = kind, e.index = index, e.position = at, e.value = value;
@@ -143,6 +165,7 @@ void SceneSim::take_events(std::uint64_t frame, std::int64_t t_ns, std::vector<r
 }
 
 std::uint64_t SceneSim::hash() const {
+  wait_blood_stepped();
   WordHasher h(0x243f6a8885a308d3ull);
   surface::TriangleMesh mesh;
   scene_->draw_mesh(mesh);

@@ -18,6 +18,7 @@
 #include "blood/bleeding.hpp"
 #include "blood/worker_pool.hpp"
 #include "score/task_monitor.hpp"
+#include "sim/blood_behind.hpp"
 #include "tissue/scenario_scene.hpp"
 #include "tissue/tissue_scene.hpp"
 #include "lancet/shared_model/result.hpp"
@@ -53,8 +54,20 @@ class SceneSim {
   /// and each comes out as it would alone.
   std::array<std::size_t, kHandCount> export_patches_and_prepare_blood(const std::array<TissuePatch*, kHandCount>& patches,
                                                                        const std::array<Vec3, kHandCount>& centres, double blood_dt);
-  /// Steps the blood that export_patches_and_prepare_blood prepared (nothing without blood).
+  /// Steps the blood that export_patches_and_prepare_blood prepared (nothing without blood, and
+  /// nothing with the blood behind, whose thread steps it).
   void step_blood();
+  /// On: from the next frame, the blood is prepared and stepped behind the caller, on a thread of
+  /// its own (sim/blood_behind.hpp): export_patches_and_prepare_blood hands it the frame's blood
+  /// time, the next apply() (or scene() for changing) waits until it is prepared, and whatever
+  /// reads the blood (hash, figures, take_events, bleeding()) until it is stepped. The same blood,
+  /// bit for bit. For a replay, which looks at the blood only at hashes; off (the default, and
+  /// what the live viz runs, which draws the blood every frame): waits for it and steps as before.
+  void set_blood_behind(bool on);
+  /// Seconds spent waiting for the blood behind so far: before changing the scene, and before
+  /// reading the blood.
+  [[nodiscard]] double blood_waited_for_scene_s() const noexcept { return waited_prepared_s_; }
+  [[nodiscard]] double blood_waited_for_blood_s() const noexcept { return waited_stepped_s_; }
   /// The task's and the blood's figures after this frame, into f (the rest of f is the caller's).
   void figures(record::FrameRecord& f) const;
   /// The tissue's events since the last call, appended to `out` (blood sources that began, vessels
@@ -63,10 +76,10 @@ class SceneSim {
   /// A hash of the drawn surface, the blood on it and the task's figures (never 0).
   [[nodiscard]] std::uint64_t hash() const;
 
-  [[nodiscard]] tissue::TissueScene& scene() noexcept { return *scene_; }
+  [[nodiscard]] tissue::TissueScene& scene() noexcept { return wait_blood_prepared(), *scene_; }
   [[nodiscard]] const tissue::TissueScene& scene() const noexcept { return *scene_; }
-  [[nodiscard]] blood::Bleeding* bleeding() noexcept { return bleeding_.get(); }
-  [[nodiscard]] const blood::Bleeding* bleeding() const noexcept { return bleeding_.get(); }
+  [[nodiscard]] blood::Bleeding* bleeding() noexcept { return wait_blood_stepped(), bleeding_.get(); }
+  [[nodiscard]] const blood::Bleeding* bleeding() const noexcept { return wait_blood_stepped(), bleeding_.get(); }
   [[nodiscard]] score::TaskMonitor* task() noexcept { return task_ ? &*task_ : nullptr; }
   [[nodiscard]] const score::TaskMonitor* task() const noexcept { return task_ ? &*task_ : nullptr; }
   [[nodiscard]] const scenario::Scenario* scenario() const noexcept { return scenario_ ? &*scenario_ : nullptr; }
@@ -81,6 +94,10 @@ class SceneSim {
   std::optional<score::TaskMonitor> task_;
   std::array<tissue::PatchExportScratch, kHandCount> patch_scratch_;  // by hand
   std::unique_ptr<blood::WorkerPool> pool_;  // the patches and the blood's preparation
+  std::unique_ptr<BloodBehind> behind_;       // with set_blood_behind(true); before bleeding_ dies
+  mutable double waited_prepared_s_ = 0, waited_stepped_s_ = 0;
+  void wait_blood_prepared() const noexcept;
+  void wait_blood_stepped() const noexcept;
   // What take_events has reported.
   std::size_t sources_seen_ = 0;
   std::vector<bool> stopped_seen_, damaged_seen_;

@@ -1,7 +1,8 @@
 // The bleeding automaton (CPU reference): the mass ledger over 10,000 steps with sources and
 // sinks, depths never negative, a mesh's network one pipe each way per edge (and no longer),
 // blood running down a tilted plane at the rate the pipe model predicts, a pool levelling out in a bowl, blood crossing a cut through the groove's cells
-// without loss, and results that do not depend on the threads or on skipping idle tiles.
+// without loss, results that do not depend on the threads or on skipping idle tiles, and a step
+// that is the plain equations over every cell, bit for bit.
 
 #include "blood/automaton.hpp"
 
@@ -209,6 +210,98 @@ TEST(BloodAutomaton, ThreadsAndSkippedIdleTilesChangeNothing) {
     if (v + 1 < kRuns) {
       EXPECT_EQ(runs[0].active_tiles(), runs[v].active_tiles());
     }
+  }
+}
+
+// The automaton's step, written out plainly from the equations (ALGORITHMS.md, the virtual pipes):
+// every cell every step, no tiles, nothing skipped. The automaton skips idle tiles, dry cells that
+// send nothing, and cells with no flux in or out; none of that may change a bit.
+struct PlainPipes {
+  const Network& net;
+  Params p;
+  std::vector<float> volume, born, flux, conc, head;
+  double time = 0;
+
+  PlainPipes(const Network& n, Params params) : net(n), p(params) {
+    volume.assign(n.cells(), 0.0f), born.assign(n.cells(), 0.0f), conc.assign(n.cells(), 0.0f);
+    flux.assign(n.pipes(), 0.0f);
+    head.resize(n.cells());
+    for (std::size_t i = 0; i < n.cells(); ++i) head[i] = n.elevation[i] + volume[i] / n.area[i];
+  }
+  void place(std::uint32_t i, float v) {
+    volume[i] += v, born[i] += v * static_cast<float>(time);
+    head[i] = net.elevation[i] + volume[i] / net.area[i];
+  }
+  void step(const std::vector<float>& source, const std::vector<float>& sink) {
+    const std::size_t n = net.cells();
+    const float dt = p.dt, now = static_cast<float>(time);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (source[i] > 0.0f) {
+        const float v = source[i] * dt;
+        volume[i] += v, born[i] += v * now;
+      }
+      if (sink[i] > 0.0f && volume[i] > 0.0f) {
+        const float f = std::min(1.0f, sink[i] * dt), v = volume[i] * f;
+        volume[i] -= v, born[i] -= born[i] * f;
+      }
+      head[i] = net.elevation[i] + volume[i] / net.area[i];
+    }
+    const float keep = std::pow(p.damping, dt);
+    for (std::size_t i = 0; i < n; ++i) {
+      const float mobile = std::max(0.0f, volume[i] - net.film[i]);
+      const float d = mobile / net.area[i] / p.ref_depth, m = std::min(1.0f, d * d);
+      float sum = 0.0f;
+      for (std::uint32_t k = net.first[i]; k < net.first[i + 1]; ++k) {
+        flux[k] = std::max(0.0f, keep * flux[k] + dt * (p.mobility * net.conductance[k]) * m * (head[i] - head[net.to[k]]));
+        sum += flux[k];
+      }
+      if (sum * dt > mobile)
+        for (std::uint32_t k = net.first[i]; k < net.first[i + 1]; ++k) flux[k] *= 0.999999f * mobile / (sum * dt);
+      conc[i] = volume[i] > 0.0f ? born[i] / volume[i] : 0.0f;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      float in = 0.0f, out = 0.0f, born_in = 0.0f;
+      for (std::uint32_t k = net.first[i]; k < net.first[i + 1]; ++k) {
+        in += flux[net.twin[k]], born_in += flux[net.twin[k]] * conc[net.to[k]];
+        out += flux[k];
+      }
+      if (in == 0.0f && out == 0.0f) continue;
+      volume[i] = std::max(volume[i] + dt * in - dt * out, 0.0f);
+      born[i] = std::max(born[i] + dt * born_in - dt * out * conc[i], 0.0f);
+      head[i] = net.elevation[i] + volume[i] / net.area[i];
+    }
+    time += p.dt;
+  }
+};
+
+TEST(BloodAutomaton, TheStepIsThePlainEquationsOverEveryCellBitForBit) {
+  // A tilted, rippled sheet mostly dry: a source runs down it past a swab, and a pool placed
+  // upslope spreads; 1,500 steps on one and on two threads.
+  const auto g = grid(64, 40, kH, [](float x, float y) { return -0.2f * x + 0.05f * std::sin(400.0f * y); });
+  const Network net = mesh_network(g.xyz, g.tri, kDown, 2e-5f);
+  std::vector<float> src(net.cells(), 0.0f), sink(net.cells(), 0.0f);
+  src[g.at(3, 20)] = 3e-8f;
+  sink[g.at(30, 21)] = 2.0f;
+  for (const int threads : {1, 2}) {
+    SCOPED_TRACE(std::to_string(threads) + " thread(s)");
+    Automaton a(net, Params{});
+    PlainPipes plain(net, Params{});
+    a.set_sources(src), a.set_sinks(sink);
+    a.place(g.at(10, 8), 4e-8f), plain.place(g.at(10, 8), 4e-8f);
+    std::size_t most_active = 0;
+    for (int s = 0; s < 1500; ++s) {
+      a.step(threads);
+      plain.step(src, sink);
+      most_active = std::max(most_active, a.active_tiles());
+    }
+    EXPECT_LT(most_active, a.network().tiles()) << "some tiles stayed idle";
+    std::size_t wet = 0;
+    for (float v : plain.volume) wet += v > 0.0f ? 1 : 0;
+    EXPECT_GT(wet, 20u) << "the blood spread";
+    EXPECT_LT(wet, net.cells() / 2) << "most of the sheet stayed dry";
+    EXPECT_EQ(a.state().volume, plain.volume);
+    EXPECT_EQ(a.state().born, plain.born);
+    EXPECT_EQ(a.state().flux, plain.flux);
   }
 }
 
