@@ -1,6 +1,7 @@
 #include "blood/automaton.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 namespace lancet::blood {
@@ -188,6 +189,7 @@ void Automaton::reshape(Network net, std::span<const std::uint32_t> from_old) {
   s_.conc.assign(n, 0.0f);
   s_.flux.assign(net_.pipes(), 0.0f);
   sending_.assign(n, 0);
+  neighbour_sends_.assign(n, 0);
   source_.assign(n, 0.0f);
   sink_.assign(n, 0.0f);
   active_.assign(net_.tiles(), 0);
@@ -355,6 +357,10 @@ void Automaton::fluxes(std::size_t t) {
     }
     sending[i] = sends ? 1 : 0;
     flowing = flowing || sends;
+    // Its neighbours may receive: the volumes pass looks at them (and clears the mark). A
+    // neighbour may lie in a tile another thread steps, hence the atomic store.
+    if (sends)
+      for (std::uint32_t k = first; k < last; ++k) std::atomic_ref<std::uint8_t>(neighbour_sends_[to[k]]).store(1, std::memory_order_relaxed);
     s_.conc[i] = v > 0.0f ? s_.born[i] / v : 0.0f;
   }
   tile_flowing_[t] = flowing ? 1 : 0;
@@ -368,12 +374,12 @@ void Automaton::volumes(std::size_t t) {
   const std::uint32_t* const twin = net_.twin.data();
   const std::uint32_t* const to = net_.to.data();
   const std::uint8_t* const sending = sending_.data();
+  std::uint8_t* const neighbour_sends = neighbour_sends_.data();
   for (std::size_t i = t * kTile; i < std::min(n, (t + 1) * kTile); ++i) {
     // A cell that sends nothing, among neighbours that send nothing, has no flux in or out.
     const std::uint32_t first = net_.first[i], last = net_.first[i + 1];
-    bool moving = sending[i] != 0;
-    for (std::uint32_t k = first; k < last && !moving; ++k) moving = sending[to[k]] != 0;
-    if (!moving) continue;
+    if (sending[i] == 0 && neighbour_sends[i] == 0) continue;
+    neighbour_sends[i] = 0;
     float in = 0.0f, out = 0.0f, born_in = 0.0f;
     for (std::uint32_t k = first; k < last; ++k) {
       const float f_in = flux[twin[k]];

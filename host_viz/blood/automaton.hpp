@@ -186,6 +186,7 @@ class Automaton {
   std::vector<double> tile_volume_;                // per tile, as of the last step that touched it
   std::vector<std::uint8_t> tile_has_rate_, candidate_;  // a source or sink; may be active next step
   std::vector<std::uint8_t> sending_;       // per cell: some pipe of it sends (flux > 0), as its last fluxes pass left it
+  std::vector<std::uint8_t> neighbour_sends_;  // per cell: a neighbour sent this step (set by the fluxes pass, cleared by the volumes pass)
   std::vector<std::uint8_t> tile_flowing_;  // some pipe of the tile sends (flux > 0), as its last fluxes pass left it
   Ledger ledger_;
   std::uint64_t steps_ = 0;
