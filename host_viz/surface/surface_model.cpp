@@ -75,7 +75,7 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // below, where add_face names the first triangle that does not fit.
   std::vector<VH> handles(positions.size());
   for (std::size_t i = 0; i < positions.size(); ++i) handles[i] = VH(static_cast<int>(i));
-  const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles);
+  const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles, &m->on_boundary_);
   for (std::size_t f = 0; built && f < triangles.size(); ++f) {
     const FH fh(static_cast<int>(f));
     mesh.property(m->stable_, fh) = static_cast<std::uint32_t>(f);
@@ -100,8 +100,10 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   m->in_deformed_.assign(nv, 0);
   m->haptic_.reserve(nv * 5 / 4 + 64);
   m->haptic_.assign(mesh.property(m->rest_).data_vector().begin(), mesh.property(m->rest_).data_vector().end());
-  m->on_boundary_.resize(triangles.size());
-  for (std::size_t f = 0; f < triangles.size(); ++f) m->on_boundary_[f] = m->boundary_of(m->handle_[f]) ? 1 : 0;
+  if (!built) {  // face by face above: the flags from the mesh
+    m->on_boundary_.resize(triangles.size());
+    for (std::size_t f = 0; f < triangles.size(); ++f) m->on_boundary_[f] = m->boundary_of(m->handle_[f]) ? 1 : 0;
+  }
   m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
   // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
   // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)

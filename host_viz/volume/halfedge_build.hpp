@@ -33,9 +33,11 @@ namespace lancet::volume {
 /// Appends the triangles to `mesh` (an OpenMesh mesh with those vertices already added, and no
 /// faces yet): `vertices[i]` is the handle of index i. Returns false, leaving the mesh without
 /// faces, when the triangles are not an oriented 2-manifold (with boundary); then use add_face.
+/// With `on_boundary`, also sets it to one byte per triangle: 1 where an edge of the triangle is
+/// on the boundary (no other triangle shares it), else 0.
 template <class Mesh>
 bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle> vertices,
-                         std::span<const std::array<std::uint32_t, 3>> triangles) {
+                         std::span<const std::array<std::uint32_t, 3>> triangles, std::vector<std::uint8_t>* on_boundary = nullptr) {
   using HH = typename Mesh::HalfedgeHandle;
   using FH = typename Mesh::FaceHandle;
   using VH = typename Mesh::VertexHandle;
@@ -178,6 +180,11 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // 4. Boundary vertices start their one-ring at the boundary.
   for (std::size_t v = 0; v < nv; ++v)
     if (boundary_out[v].is_valid()) mesh.set_halfedge_handle(VH(vertices[v]), boundary_out[v]);
+  if (on_boundary != nullptr) {
+    on_boundary->assign(nt, 0);
+    for (std::uint32_t c = 0; c < 3 * nt; ++c)
+      if (partner[c] == kNone) (*on_boundary)[c / 3] = 1;
+  }
   return true;
 }
 
