@@ -4,8 +4,8 @@
 #include "volume/in_two_halves.hpp"
 
 #include <algorithm>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <string>
