@@ -49,12 +49,24 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
                                               " given"};
   std::unique_ptr<SurfaceModel> m(new SurfaceModel());
   m->params_ = params;
-  // The BVH needs only the positions and the triangles as given (the mesh's points are the same
-  // numbers), so it is built on a thread of its own while this one builds the half-edge mesh; the
-  // jthread joins before any return (and before m could be destroyed).
+  // The BVH and the per-vertex arrays need only the positions and the triangles as given (the
+  // mesh's points are the same numbers), so they are made on a thread of its own while this one
+  // builds the half-edge mesh; the jthread joins before any return (and before m could be
+  // destroyed).
   std::jthread bvh_builder([&] {
     static_assert(sizeof(Vec3f) == 3 * sizeof(float));
     m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
+    const std::size_t nv = positions.size();
+    // Headroom for the copies cuts add, so a cut step never regrows a whole per-vertex array.
+    for (auto* a : {&m->deform_, &m->open_, &m->wrinkle_, &m->haptic_}) a->reserve(nv * 5 / 4 + 64);
+    m->in_deformed_.reserve(nv * 5 / 4 + 64);
+    m->deform_.assign(nv, P(0, 0, 0));
+    m->open_.assign(nv, P(0, 0, 0));
+    m->wrinkle_.assign(nv, P(0, 0, 0));
+    m->in_deformed_.assign(nv, 0);
+    m->haptic_.resize(nv);  // = rest
+    for (std::size_t i = 0; i < nv; ++i) m->haptic_[i] = P(positions[i].x, positions[i].y, positions[i].z);
+    m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
   });
   SurfaceMesh& mesh = m->mesh_;
   mesh.add_property(m->rest_);
@@ -76,11 +88,14 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   std::vector<VH> handles(positions.size());
   for (std::size_t i = 0; i < positions.size(); ++i) handles[i] = VH(static_cast<int>(i));
   const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles, &m->on_boundary_);
-  for (std::size_t f = 0; built && f < triangles.size(); ++f) {
-    const FH fh(static_cast<int>(f));
-    mesh.property(m->stable_, fh) = static_cast<std::uint32_t>(f);
-    m->handle_[f] = fh;
-  }
+  if (built)
+    volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
+      for (std::size_t f = begin; f < end; ++f) {
+        const FH fh(static_cast<int>(f));
+        mesh.property(m->stable_, fh) = static_cast<std::uint32_t>(f);
+        m->handle_[f] = fh;
+      }
+    });
   for (std::size_t f = 0; !built && f < triangles.size(); ++f) {
     const auto& t = triangles[f];
     const FH fh = mesh.add_face(vh(t[0]), vh(t[1]), vh(t[2]));
@@ -91,20 +106,10 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     m->handle_[f] = fh;
   }
   const std::size_t nv = mesh.n_vertices();
-  // Headroom for the copies cuts add, so a cut step never regrows a whole per-vertex array.
-  for (auto* a : {&m->deform_, &m->open_, &m->wrinkle_}) a->reserve(nv * 5 / 4 + 64);
-  m->in_deformed_.reserve(nv * 5 / 4 + 64);
-  m->deform_.assign(nv, P(0, 0, 0));
-  m->open_.assign(nv, P(0, 0, 0));
-  m->wrinkle_.assign(nv, P(0, 0, 0));
-  m->in_deformed_.assign(nv, 0);
-  m->haptic_.reserve(nv * 5 / 4 + 64);
-  m->haptic_.assign(mesh.property(m->rest_).data_vector().begin(), mesh.property(m->rest_).data_vector().end());
   if (!built) {  // face by face above: the flags from the mesh
     m->on_boundary_.resize(triangles.size());
     for (std::size_t f = 0; f < triangles.size(); ++f) m->on_boundary_[f] = m->boundary_of(m->handle_[f]) ? 1 : 0;
   }
-  m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
   // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
   // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)
   P lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());

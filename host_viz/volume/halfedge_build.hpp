@@ -70,26 +70,37 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     }
   const auto from = [&](std::uint32_t c) { return triangles[c / 3][c % 3]; };
   const auto to = [&](std::uint32_t c) { return triangles[c / 3][(c % 3 + 1) % 3]; };
-  // Pair each directed edge with its reverse: partner[c] (or none).
+  // Pair each directed edge with its reverse: partner[c] (or none). A corner lies in one bucket
+  // only, so the buckets are shared between two threads on a large mesh.
   constexpr std::uint32_t kNone = 0xffffffffu;
+  const bool two = worth_two_threads(nt);
   std::vector<std::uint32_t> partner(3 * nt, kNone);
-  for (std::size_t v = 0; v < nv; ++v) {
-    for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
-      const Entry ei = bucket[i];
-      const std::uint32_t c = ei.corner_dir & kCorner;
-      for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
-        const Entry ej = bucket[j];
-        if (ej.hi != ei.hi) continue;
-        if ((ej.corner_dir ^ ei.corner_dir) < kUp) return false;      // the same direction twice: not oriented
-        const std::uint32_t d = ej.corner_dir & kCorner;
-        if (partner[c] != kNone || partner[d] != kNone) return false;  // a third triangle on the edge
-        partner[c] = d;
-        partner[d] = c;
+  bool paired[2] = {true, true};
+  in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
+    for (std::size_t v = begin; v < end && paired[half]; ++v) {
+      for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
+        const Entry ei = bucket[i];
+        const std::uint32_t c = ei.corner_dir & kCorner;
+        for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
+          const Entry ej = bucket[j];
+          if (ej.hi != ei.hi) continue;
+          const std::uint32_t d = ej.corner_dir & kCorner;
+          // The same direction twice (not oriented), or a third triangle on the edge.
+          if ((ej.corner_dir ^ ei.corner_dir) < kUp || partner[c] != kNone || partner[d] != kNone) {
+            paired[half] = false;
+            break;
+          }
+          partner[c] = d;
+          partner[d] = c;
+        }
       }
     }
-  }
+  });
+  if (!paired[0] || !paired[1]) return false;
   // A manifold vertex's triangles form one fan: walking from one of its corners across shared
   // edges (both ways until a boundary) visits all of them. Two fans meeting at a vertex do not.
+  // (last[v]: the last corner leaving v, whose half-edge becomes v's outgoing one below.)
+  std::vector<std::uint32_t> last(nv, kNone);
   {
     const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
     const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
@@ -97,6 +108,7 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     for (std::uint32_t c = 0; c < 3 * nt; ++c) {
       ++count[from(c)];
       if (first[from(c)] == kNone) first[from(c)] = c;
+      last[from(c)] = c;
     }
     // One vertex's walk; false when its triangles are not one fan.
     const auto one_fan = [&](std::size_t v) {
@@ -126,7 +138,7 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     };
     // The walks read only; a large mesh shares them between two threads.
     bool fans[2] = {true, true};
-    in_two_halves(nv, worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int half) {
+    in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
       for (std::size_t v = begin; v < end && fans[half]; ++v) fans[half] = one_fan(v);
     });
     if (!fans[0] || !fans[1]) return false;
@@ -135,35 +147,51 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // 2. Edges, faces and their half-edge cycles. The edge count is known now (a paired corner
   // shares its edge): the arrays are reserved for exactly that, as growing them one edge at a
   // time would double their capacity whenever the caller's estimate falls short.
-  std::size_t n_edges = 0;
-  for (std::uint32_t c = 0; c < 3 * nt; ++c) n_edges += partner[c] == kNone || partner[c] > c ? 1 : 0;
+  // Edge e is made by the first corner that has it (one without a partner, or the lower of the
+  // two): its number counts such corners before it, in corner order, as new_edge one at a time
+  // would number them. Each half of the corners counts its own, so the halves run at once.
+  const auto owns = [&](std::uint32_t c) { return partner[c] == kNone || partner[c] > c; };
+  std::size_t owned[2] = {0, 0};
+  in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int h) {
+    for (std::size_t c = begin; c < end; ++c) owned[h] += owns(static_cast<std::uint32_t>(c)) ? 1 : 0;
+  });
   // All edges and faces are made at once (ArrayKernel::resize: one resize of each property array,
-  // where new_edge and new_face grow every property by one element a call), then filled in: edge e
-  // is made by the first corner that has it (in corner order, as new_edge one at a time would
-  // number them), its half-edge 2e runs that corner's way, 2e + 1 the partner's.
+  // where new_edge and new_face grow every property by one element a call), then filled in: edge
+  // e's half-edge 2e runs its corner's way, 2e + 1 the partner's. Every corner's half-edge is
+  // written once (by its edge's corner), every half-edge belongs to one face: the halves write
+  // apart.
   const std::size_t e0 = mesh.n_edges();
-  mesh.resize(mesh.n_vertices(), e0 + n_edges, nt);
+  mesh.resize(mesh.n_vertices(), e0 + owned[0] + owned[1], nt);
   std::vector<HH> half(3 * nt);  // corner → its half-edge (from → to)
-  std::size_t e = e0;
-  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
-    if (half[c].is_valid()) continue;
-    half[c] = HH(static_cast<int>(2 * e));
-    mesh.set_vertex_handle(half[c], vertices[to(c)]);
-    mesh.set_vertex_handle(mesh.opposite_halfedge_handle(half[c]), vertices[from(c)]);
-    if (partner[c] != kNone) half[partner[c]] = mesh.opposite_halfedge_handle(half[c]);
-    ++e;
-  }
-  for (std::size_t t = 0; t < nt; ++t) {
-    const FH f(static_cast<int>(t));
-    const HH h0 = half[3 * t], h1 = half[3 * t + 1], h2 = half[3 * t + 2];
-    mesh.set_halfedge_handle(f, h0);
-    for (const HH h : {h0, h1, h2}) mesh.set_face_handle(h, f);
-    mesh.set_next_halfedge_handle(h0, h1);
-    mesh.set_next_halfedge_handle(h1, h2);
-    mesh.set_next_halfedge_handle(h2, h0);
-    // Every vertex gets some outgoing half-edge; 4. replaces it by the boundary one where there is one.
-    for (std::uint32_t k = 0; k < 3; ++k) mesh.set_halfedge_handle(vertices[triangles[t][k]], half[3 * t + k]);
-  }
+  in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int h) {
+    std::size_t e = e0 + (h == 0 ? 0 : owned[0]);
+    for (std::size_t i = begin; i < end; ++i) {
+      const auto c = static_cast<std::uint32_t>(i);
+      if (!owns(c)) continue;
+      half[c] = HH(static_cast<int>(2 * e));
+      mesh.set_vertex_handle(half[c], vertices[to(c)]);
+      mesh.set_vertex_handle(mesh.opposite_halfedge_handle(half[c]), vertices[from(c)]);
+      if (partner[c] != kNone) half[partner[c]] = mesh.opposite_halfedge_handle(half[c]);
+      ++e;
+    }
+  });
+  in_two_halves(nt, two, [&](std::size_t begin, std::size_t end, int) {
+    for (std::size_t t = begin; t < end; ++t) {
+      const FH f(static_cast<int>(t));
+      const HH h0 = half[3 * t], h1 = half[3 * t + 1], h2 = half[3 * t + 2];
+      mesh.set_halfedge_handle(f, h0);
+      for (const HH h : {h0, h1, h2}) mesh.set_face_handle(h, f);
+      mesh.set_next_halfedge_handle(h0, h1);
+      mesh.set_next_halfedge_handle(h1, h2);
+      mesh.set_next_halfedge_handle(h2, h0);
+    }
+  });
+  // Every vertex's outgoing half-edge is its last corner's (as setting it corner by corner leaves
+  // it); 4. replaces it by the boundary one where there is one.
+  in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int) {
+    for (std::size_t v = begin; v < end; ++v)
+      if (last[v] != kNone) mesh.set_halfedge_handle(vertices[v], half[last[v]]);
+  });
   // 3. Boundary loops: the boundary half-edge of corner c runs to → from; the one leaving each
   // vertex is unique on a manifold.
   std::vector<HH> boundary_out(nv);
