@@ -67,6 +67,15 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     m->haptic_.resize(nv);  // = rest
     for (std::size_t i = 0; i < nv; ++i) m->haptic_[i] = P(positions[i].x, positions[i].y, positions[i].z);
     m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
+    // Each face's rest cross (b − a) × (c − a), as face_cross(f, true) forms it from the same
+    // numbers (the rest positions are the given ones).
+    m->rest_normal_.resize(triangles.size());
+    for (std::size_t f = 0; f < triangles.size(); ++f) {
+      const auto& t = triangles[f];
+      const auto at = [&](std::uint32_t v) { return P(positions[v].x, positions[v].y, positions[v].z); };
+      const P a = at(t[0]);
+      m->rest_normal_[f] = OpenMesh::cross(at(t[1]) - a, at(t[2]) - a);
+    }
   });
   SurfaceMesh& mesh = m->mesh_;
   mesh.add_property(m->rest_);
@@ -126,14 +135,11 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     const P& p = mesh.point(v);
     mesh.set_texcoord2D(v, OpenMesh::Vec2f(ext[ua] > 0 ? (p[ua] - lo[ua]) / ext[ua] : 0.f, ext[va] > 0 ? (p[va] - lo[va]) / ext[va] : 0.f));
   }
-  // Normals, rest face normals, the BVH.
+  // Normals: the rest crosses from the other thread (with the BVH and the per-vertex arrays).
   // (Current and rest positions are equal here, so a vertex's normal sums the faces' rest crosses
   // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
   // Each vertex and face is written by one thread only.)
-  m->rest_normal_.resize(triangles.size());
-  volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
-    for (std::size_t f = begin; f < end; ++f) m->rest_normal_[f] = m->face_cross(static_cast<std::uint32_t>(f), true);
-  });
+  bvh_builder.join();
   volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i) {
       P n(0, 0, 0);
@@ -149,7 +155,6 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
       n = len > 0 ? n / len : P(0, 0, 0);
     }
   });
-  bvh_builder.join();
   return m;
 }
 

@@ -21,6 +21,7 @@
 // same vertex cycles, the same one-rings in the same cyclic order); only the numbering of edges
 // differs. Allocates O(T) scratch; not real-time.
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <span>
@@ -104,7 +105,11 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   {
     const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
     const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
-    std::vector<std::uint32_t> count(nv, 0), first(nv, kNone);
+    // The buckets' offsets are spent: their arrays (already touched) count and find the corners.
+    std::vector<std::uint32_t>& count = fill;
+    std::vector<std::uint32_t>& first = start;
+    std::fill(count.begin(), count.end(), 0u);
+    std::fill(first.begin(), first.end(), kNone);
     for (std::uint32_t c = 0; c < 3 * nt; ++c) {
       ++count[from(c)];
       if (first[from(c)] == kNone) first[from(c)] = c;
@@ -162,23 +167,27 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // apart.
   const std::size_t e0 = mesh.n_edges();
   mesh.resize(mesh.n_vertices(), e0 + owned[0] + owned[1], nt);
-  std::vector<HH> half(3 * nt);  // corner → its half-edge (from → to)
-  in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int h) {
-    std::size_t e = e0 + (h == 0 ? 0 : owned[0]);
+  // Corner → its half-edge (from → to): kept in the spent buckets, one entry a corner (their pages
+  // are touched already, where a new array would fault in 4 bytes a corner again).
+  const auto half = [&](std::size_t c) { return HH(static_cast<int>(bucket[c].corner_dir)); };
+  const auto set_half = [&](std::size_t c, HH h) { bucket[c].corner_dir = static_cast<std::uint32_t>(h.idx()); };
+  in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int which) {
+    std::size_t e = e0 + (which == 0 ? 0 : owned[0]);
     for (std::size_t i = begin; i < end; ++i) {
       const auto c = static_cast<std::uint32_t>(i);
       if (!owns(c)) continue;
-      half[c] = HH(static_cast<int>(2 * e));
-      mesh.set_vertex_handle(half[c], vertices[to(c)]);
-      mesh.set_vertex_handle(mesh.opposite_halfedge_handle(half[c]), vertices[from(c)]);
-      if (partner[c] != kNone) half[partner[c]] = mesh.opposite_halfedge_handle(half[c]);
+      const HH h(static_cast<int>(2 * e));
+      set_half(c, h);
+      mesh.set_vertex_handle(h, vertices[to(c)]);
+      mesh.set_vertex_handle(mesh.opposite_halfedge_handle(h), vertices[from(c)]);
+      if (partner[c] != kNone) set_half(partner[c], mesh.opposite_halfedge_handle(h));
       ++e;
     }
   });
   in_two_halves(nt, two, [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t t = begin; t < end; ++t) {
       const FH f(static_cast<int>(t));
-      const HH h0 = half[3 * t], h1 = half[3 * t + 1], h2 = half[3 * t + 2];
+      const HH h0 = half(3 * t), h1 = half(3 * t + 1), h2 = half(3 * t + 2);
       mesh.set_halfedge_handle(f, h0);
       for (const HH h : {h0, h1, h2}) mesh.set_face_handle(h, f);
       mesh.set_next_halfedge_handle(h0, h1);
@@ -190,19 +199,19 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // it); 4. replaces it by the boundary one where there is one.
   in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t v = begin; v < end; ++v)
-      if (last[v] != kNone) mesh.set_halfedge_handle(vertices[v], half[last[v]]);
+      if (last[v] != kNone) mesh.set_halfedge_handle(vertices[v], half(last[v]));
   });
   // 3. Boundary loops: the boundary half-edge of corner c runs to → from; the one leaving each
   // vertex is unique on a manifold.
   std::vector<HH> boundary_out(nv);
   for (std::uint32_t c = 0; c < 3 * nt; ++c) {
     if (partner[c] != kNone) continue;
-    const HH b = mesh.opposite_halfedge_handle(half[c]);
+    const HH b = mesh.opposite_halfedge_handle(half(c));
     boundary_out[to(c)] = b;  // b leaves to(c); one per vertex (the fan check above)
   }
   for (std::uint32_t c = 0; c < 3 * nt; ++c) {
     if (partner[c] != kNone) continue;
-    const HH b = mesh.opposite_halfedge_handle(half[c]);  // runs to(c) → from(c)
+    const HH b = mesh.opposite_halfedge_handle(half(c));  // runs to(c) → from(c)
     mesh.set_next_halfedge_handle(b, boundary_out[from(c)]);
   }
   // 4. Boundary vertices start their one-ring at the boundary.
