@@ -31,78 +31,83 @@
 
 namespace lancet::volume {
 
-/// Appends the triangles to `mesh` (an OpenMesh mesh with those vertices already added, and no
-/// faces yet): `vertices[i]` is the handle of index i. Returns false, leaving the mesh without
-/// faces, when the triangles are not an oriented 2-manifold (with boundary); then use add_face.
-/// With `on_boundary`, also sets it to one byte per triangle: 1 where an edge of the triangle is
-/// on the boundary (no other triangle shares it), else 0.
-template <class Mesh>
-bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle> vertices,
-                         std::span<const std::array<std::uint32_t, 3>> triangles, std::vector<std::uint8_t>* on_boundary = nullptr) {
-  using HH = typename Mesh::HalfedgeHandle;
-  using FH = typename Mesh::FaceHandle;
-  using VH = typename Mesh::VertexHandle;
-  const std::size_t nv = vertices.size(), nt = triangles.size();
-  if (mesh.n_faces() != 0) return false;
-  // 1. Bucket the directed edges (corner k of triangle t: from t[k] to t[k+1]) by lower vertex.
-  std::vector<std::uint32_t> start(nv + 1, 0);
-  for (const auto& t : triangles) {
-    for (int k = 0; k < 3; ++k) {
-      const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
-      if (a >= nv || b >= nv || a == b) return false;
-      ++start[std::min(a, b) + 1];
-    }
-  }
-  for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-  // Each entry carries the edge's upper vertex and which way the corner runs (bit 31 of the
-  // corner: set when it runs from the lower vertex), so that pairing reads the bucket alone.
+namespace detail {
+
+/// Steps 1 and the fan check, on the triangles' corners alone (corner 3t + k of triangle t runs
+/// from t[k] to t[k+1]): each corner paired with its reverse, and each vertex's last corner. Its
+/// arrays are reused by the mesh's build afterwards (bucket: each corner's half-edge).
+struct CornerPairs {
+  static constexpr std::uint32_t kNone = 0xffffffffu, kUp = 0x80000000u, kCorner = 0x7fffffffu;
+  // An edge's bucket entry: its upper vertex, and which way the corner runs (bit 31 of the corner:
+  // set when it runs from the lower vertex), so that pairing reads the bucket alone.
   struct Entry {
     std::uint32_t corner_dir, hi;
   };
-  constexpr std::uint32_t kUp = 0x80000000u, kCorner = 0x7fffffffu;
-  if (3 * nt > kCorner) return false;
-  std::vector<Entry> bucket(3 * nt);
-  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
-  for (std::size_t t = 0; t < nt; ++t)
-    for (std::uint32_t k = 0; k < 3; ++k) {
-      const auto& tri = triangles[t];
-      const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
-      bucket[fill[std::min(a, b)]++] = {static_cast<std::uint32_t>(3 * t + k) | (a < b ? kUp : 0u), std::max(a, b)};
-    }
-  const auto from = [&](std::uint32_t c) { return triangles[c / 3][c % 3]; };
-  const auto to = [&](std::uint32_t c) { return triangles[c / 3][(c % 3 + 1) % 3]; };
-  // Pair each directed edge with its reverse: partner[c] (or none). A corner lies in one bucket
-  // only, so the buckets are shared between two threads on a large mesh.
-  constexpr std::uint32_t kNone = 0xffffffffu;
-  const bool two = worth_two_threads(nt);
-  std::vector<std::uint32_t> partner(3 * nt, kNone);
-  bool paired[2] = {true, true};
-  in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
-    for (std::size_t v = begin; v < end && paired[half]; ++v) {
-      for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
-        const Entry ei = bucket[i];
-        const std::uint32_t c = ei.corner_dir & kCorner;
-        for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
-          const Entry ej = bucket[j];
-          if (ej.hi != ei.hi) continue;
-          const std::uint32_t d = ej.corner_dir & kCorner;
-          // The same direction twice (not oriented), or a third triangle on the edge.
-          if ((ej.corner_dir ^ ei.corner_dir) < kUp || partner[c] != kNone || partner[d] != kNone) {
-            paired[half] = false;
-            break;
-          }
-          partner[c] = d;
-          partner[d] = c;
-        }
+  std::span<const std::array<std::uint32_t, 3>> triangles;
+  std::size_t nv = 0, nt = 0;
+  bool two = false;                        // large enough for two threads
+  std::vector<std::uint32_t> start, fill;  // bucket offsets (spent after pairing)
+  std::vector<Entry> bucket;
+  std::vector<std::uint32_t> partner;      // per corner: its reverse's corner (or kNone)
+  std::vector<std::uint32_t> last;         // per vertex: the last corner leaving it (or kNone)
+
+  CornerPairs(std::size_t vertices, std::span<const std::array<std::uint32_t, 3>> tris)
+      : triangles(tris), nv(vertices), nt(tris.size()), two(worth_two_threads(tris.size())) {}
+  [[nodiscard]] std::uint32_t from(std::uint32_t c) const { return triangles[c / 3][c % 3]; }
+  [[nodiscard]] std::uint32_t to(std::uint32_t c) const { return triangles[c / 3][(c % 3 + 1) % 3]; }
+
+  /// Buckets the corners by their lower vertex (a counting sort) and pairs each with its reverse.
+  /// False for an index out of range, a repeated vertex, an edge used twice the same way or by
+  /// a third triangle.
+  bool pair() {
+    start.assign(nv + 1, 0);
+    for (const auto& t : triangles) {
+      for (int k = 0; k < 3; ++k) {
+        const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
+        if (a >= nv || b >= nv || a == b) return false;
+        ++start[std::min(a, b) + 1];
       }
     }
-  });
-  if (!paired[0] || !paired[1]) return false;
-  // A manifold vertex's triangles form one fan: walking from one of its corners across shared
-  // edges (both ways until a boundary) visits all of them. Two fans meeting at a vertex do not.
-  // (last[v]: the last corner leaving v, whose half-edge becomes v's outgoing one below.)
-  std::vector<std::uint32_t> last(nv, kNone);
-  {
+    for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+    if (3 * nt > kCorner) return false;
+    bucket.resize(3 * nt);
+    fill.assign(start.begin(), start.end() - 1);
+    for (std::size_t t = 0; t < nt; ++t)
+      for (std::uint32_t k = 0; k < 3; ++k) {
+        const auto& tri = triangles[t];
+        const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
+        bucket[fill[std::min(a, b)]++] = {static_cast<std::uint32_t>(3 * t + k) | (a < b ? kUp : 0u), std::max(a, b)};
+      }
+    // A corner lies in one bucket only, so the buckets are shared between two threads.
+    partner.assign(3 * nt, kNone);
+    bool paired[2] = {true, true};
+    in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
+      for (std::size_t v = begin; v < end && paired[half]; ++v) {
+        for (std::uint32_t i = start[v]; i < start[v + 1]; ++i) {
+          const Entry ei = bucket[i];
+          const std::uint32_t c = ei.corner_dir & kCorner;
+          for (std::uint32_t j = i + 1; j < start[v + 1]; ++j) {
+            const Entry ej = bucket[j];
+            if (ej.hi != ei.hi) continue;
+            const std::uint32_t d = ej.corner_dir & kCorner;
+            // The same direction twice (not oriented), or a third triangle on the edge.
+            if ((ej.corner_dir ^ ei.corner_dir) < kUp || partner[c] != kNone || partner[d] != kNone) {
+              paired[half] = false;
+              break;
+            }
+            partner[c] = d;
+            partner[d] = c;
+          }
+        }
+      }
+    });
+    return paired[0] && paired[1];
+  }
+
+  /// A manifold vertex's triangles form one fan: walking from one of its corners across shared
+  /// edges (both ways until a boundary) visits all of them. Two fans meeting at a vertex do not.
+  /// Also finds each vertex's last corner. After pair().
+  bool one_fan_each() {
     const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
     const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
     // The buckets' offsets are spent: their arrays (already touched) count and find the corners.
@@ -110,6 +115,7 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     std::vector<std::uint32_t>& first = start;
     std::fill(count.begin(), count.end(), 0u);
     std::fill(first.begin(), first.end(), kNone);
+    last.assign(nv, kNone);
     for (std::uint32_t c = 0; c < 3 * nt; ++c) {
       ++count[from(c)];
       if (first[from(c)] == kNone) first[from(c)] = c;
@@ -146,12 +152,36 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
       for (std::size_t v = begin; v < end && fans[half]; ++v) fans[half] = one_fan(v);
     });
-    if (!fans[0] || !fans[1]) return false;
+    return fans[0] && fans[1];
   }
+};
 
-  // 2. Edges, faces and their half-edge cycles. The edge count is known now (a paired corner
-  // shares its edge): the arrays are reserved for exactly that, as growing them one edge at a
-  // time would double their capacity whenever the caller's estimate falls short.
+}  // namespace detail
+
+/// Appends the triangles to `mesh` (an OpenMesh mesh with those vertices already added, and no
+/// faces yet): `vertices[i]` is the handle of index i. Returns false, leaving the mesh without
+/// faces, when the triangles are not an oriented 2-manifold (with boundary); then use add_face.
+/// With `on_boundary`, also sets it to one byte per triangle: 1 where an edge of the triangle is
+/// on the boundary (no other triangle shares it), else 0.
+template <class Mesh>
+bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle> vertices,
+                         std::span<const std::array<std::uint32_t, 3>> triangles, std::vector<std::uint8_t>* on_boundary = nullptr) {
+  using HH = typename Mesh::HalfedgeHandle;
+  using FH = typename Mesh::FaceHandle;
+  using VH = typename Mesh::VertexHandle;
+  const std::size_t nv = vertices.size(), nt = triangles.size();
+  if (mesh.n_faces() != 0) return false;
+  detail::CornerPairs cp(nv, triangles);
+  if (!cp.pair() || !cp.one_fan_each()) return false;
+  constexpr std::uint32_t kNone = detail::CornerPairs::kNone;
+  const bool two = cp.two;
+  const std::vector<std::uint32_t>& partner = cp.partner;
+  const std::vector<std::uint32_t>& last = cp.last;
+  auto& bucket = cp.bucket;
+  const auto from = [&](std::uint32_t c) { return cp.from(c); };
+  const auto to = [&](std::uint32_t c) { return cp.to(c); };
+
+  // 2. Edges, faces and their half-edge cycles.
   // Edge e is made by the first corner that has it (one without a partner, or the lower of the
   // two): its number counts such corners before it, in corner order, as new_edge one at a time
   // would number them. Each half of the corners counts its own, so the halves run at once.
