@@ -49,11 +49,11 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
                                               " given"};
   std::unique_ptr<SurfaceModel> m(new SurfaceModel());
   m->params_ = params;
-  // The BVH and the per-vertex arrays need only the positions and the triangles as given (the
-  // mesh's points are the same numbers), so they are made on a thread of its own while this one
-  // builds the half-edge mesh; the jthread joins before any return (and before m could be
-  // destroyed).
-  std::jthread bvh_builder([&] {
+  // The BVH, the per-vertex arrays and the rest face crosses need only the positions and the
+  // triangles as given (the mesh's points are the same numbers), so they are made on a thread of
+  // their own while this one builds the half-edge mesh; the jthread joins before the normals, and
+  // before any return (so before m could be destroyed).
+  std::jthread helper([&] {
     static_assert(sizeof(Vec3f) == 3 * sizeof(float));
     m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
     const std::size_t nv = positions.size();
@@ -139,7 +139,7 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // (Current and rest positions are equal here, so a vertex's normal sums the faces' rest crosses
   // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
   // Each vertex and face is written by one thread only.)
-  bvh_builder.join();
+  helper.join();
   volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i) {
       P n(0, 0, 0);
