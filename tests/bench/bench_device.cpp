@@ -26,6 +26,7 @@
 #include "device/modbus_arm.hpp"
 #include "device/sim_arm.hpp"
 #include "lancet/shared_model/units.hpp"
+#include "latency_stats.hpp"
 
 #ifndef LANCET_SOURCE_DIR
 #define LANCET_SOURCE_DIR "."
@@ -71,11 +72,8 @@ Stats measure(std::span<device::Device* const> devs, int ticks, double rate) {
       while (monotonic_ns() < next) std::this_thread::yield();
     }
   }
-  std::sort(ns.begin(), ns.end());
-  const auto q = [&](double p) { return ns[std::min(ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(ns.size())))]; };
-  st.p50 = q(0.5);
-  st.p99 = q(0.99);
-  st.max = ns.back();
+  const bench::Latency l = bench::latency_of(ns);
+  st.p50 = l.p50, st.p99 = l.p99, st.max = l.max;
   for (device::Device* dev : devs) {
     const device::IoCounters c = dev->counters();
     st.counters.timeouts += c.timeouts;

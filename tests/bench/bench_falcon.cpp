@@ -26,6 +26,7 @@
 #include "arm/arm_config.hpp"
 #include "device/falcon_arm.hpp"
 #include "falcon_emulator.hpp"
+#include "latency_stats.hpp"
 #include "lancet/shared_model/units.hpp"
 #include "usb_testbed.hpp"
 
@@ -43,14 +44,8 @@ struct Stats {
 };
 
 Stats summarise(std::vector<double> ns, std::uint64_t errors) {
-  Stats s;
-  s.errors = errors;
-  if (ns.empty()) return s;
-  std::sort(ns.begin(), ns.end());
-  s.p50 = ns[ns.size() / 2];
-  s.p99 = ns[std::min(ns.size() - 1, ns.size() * 99 / 100)];
-  s.max = ns.back();
-  return s;
+  const bench::Latency l = bench::latency_of(ns);
+  return {l.p50, l.p99, l.max, errors};
 }
 
 void pace(std::int64_t& next, std::int64_t period) {
