@@ -1,5 +1,6 @@
 #include "surface/bvh.hpp"
 
+#include "volume/build_arrays.hpp"
 #include "volume/in_two_halves.hpp"
 
 #include <algorithm>
@@ -289,23 +290,32 @@ void morton_codes(const MeshView& m, Vec3f lo, const double scale[3], std::uint3
 
 // Sorts (code, face) pairs by code, stably (equal codes keep their face order): three passes of a
 // least-significant-digit radix sort over 10-bit digits. keys/faces are sorted in place; tmp_*
-// are scratch of the same size.
-void radix_sort(std::vector<std::uint32_t>& keys, std::vector<std::uint32_t>& faces, std::vector<std::uint32_t>& tmp_keys,
-                std::vector<std::uint32_t>& tmp_faces) {
+// are scratch of the same size. Each pass counts the digits of each half of the input apart and
+// gives half 1's entries of a digit the places after half 0's, so the halves scatter at once (on
+// two threads when `two`) and the order is the same either way.
+void radix_sort(volume::ScratchVector<std::uint32_t>& keys, std::vector<std::uint32_t>& faces, volume::ScratchVector<std::uint32_t>& tmp_keys,
+                std::vector<std::uint32_t>& tmp_faces, bool two) {
   constexpr int kDigit = 10;
   constexpr std::uint32_t kBuckets = 1u << kDigit;
   const std::size_t n = keys.size();
-  std::vector<std::uint32_t> count(kBuckets);
+  std::vector<std::uint32_t> count(2 * kBuckets);  // half h's counts, then its next places, at h·kBuckets
   for (int shift = 0; shift < 30; shift += kDigit) {
     std::fill(count.begin(), count.end(), 0u);
-    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
+    volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
+      std::uint32_t* c = count.data() + half * kBuckets;
+      for (std::size_t i = begin; i < end; ++i) ++c[(keys[i] >> shift) & (kBuckets - 1)];
+    });
     std::uint32_t sum = 0;
-    for (auto& c : count) sum += std::exchange(c, sum);
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t at = count[(keys[i] >> shift) & (kBuckets - 1)]++;
-      tmp_keys[at] = keys[i];
-      tmp_faces[at] = faces[i];
-    }
+    for (std::uint32_t b = 0; b < kBuckets; ++b)
+      for (std::uint32_t half = 0; half < 2; ++half) sum += std::exchange(count[half * kBuckets + b], sum);
+    volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
+      std::uint32_t* next = count.data() + half * kBuckets;
+      for (std::size_t i = begin; i < end; ++i) {
+        const std::uint32_t at = next[(keys[i] >> shift) & (kBuckets - 1)]++;
+        tmp_keys[at] = keys[i];
+        tmp_faces[at] = faces[i];
+      }
+    });
     keys.swap(tmp_keys);
     faces.swap(tmp_faces);
   }
@@ -360,12 +370,13 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   const double longest = std::max({double{cbox.hi.x} - cbox.lo.x, double{cbox.hi.y} - cbox.lo.y, double{cbox.hi.z} - cbox.lo.z});
   const double cells = longest > 0 ? kMortonCells / longest : 0.0;
   const double scale[3] = {cells, cells, cells};
-  std::vector<std::uint32_t> code(n), tmp_code(n), tmp_face(n);
+  volume::ScratchVector<std::uint32_t> code(n), tmp_code(n);  // each written in full before it is read
+  std::vector<std::uint32_t> tmp_face(n);
   volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int) {
     morton_codes(m, cbox.lo, scale, static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end), code.data());
   });
   for (std::uint32_t f = 0; f < n; ++f) order_[f] = f;
-  radix_sort(code, order_, tmp_code, tmp_face);
+  radix_sort(code, order_, tmp_code, tmp_face, two);
 
   // 2. The tree over the sorted faces, top down, depth first (the left child first), each node's
   //    children side by side: a range splits where its codes' highest differing bit turns on (the
@@ -375,7 +386,10 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
     std::uint32_t node, begin, end;
     std::size_t depth;
   };
-  nodes_.reserve(n);  // ≤ 4 faces a leaf gives about 0.6 nodes a face; a leaf of one face, up to 2
+  // ≤ 4 faces a leaf gives about 0.6 nodes a face; a leaf of one face, up to 2. The reserve is
+  // kept, not shrunk to fit (a copy of the whole tree): what lies past the nodes made is never
+  // touched, so it costs address space, not memory.
+  nodes_.reserve(n);
   parent_.reserve(n);
   nodes_.push_back({});
   parent_.push_back(0);
@@ -388,7 +402,6 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
     if (count <= kMaxLeafFaces) {
       nodes_[task.node].first = task.begin;
       nodes_[task.node].count = count;
-      for (std::uint32_t i = task.begin; i < task.end; ++i) leaf_of_[order_[i]] = task.node;
       continue;
     }
     std::uint32_t mid = task.begin + count / 2;
@@ -411,15 +424,16 @@ void TriangleBvh::build(const MeshView& m, bool threads) {
   }
   assert(depth_ <= kMaxDepth && "TriangleBvh::build: tree deeper than the traversal stacks");
 
-  // 3. The boxes, bottom up: the leaves from their faces (two threads for a large mesh), then the
-  //    internal nodes from their children.
+  // 3. The boxes, bottom up: the leaves from their faces, with each face's leaf (two threads for a
+  //    large mesh), then the internal nodes from their children.
   volume::in_two_halves(nodes_.size(), two, [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i)
-      if (nodes_[i].count > 0) refit_leaf(m, nodes_[i]);
+      if (nodes_[i].count > 0) {
+        refit_leaf(m, nodes_[i]);
+        for (std::uint32_t k = nodes_[i].first; k < nodes_[i].first + nodes_[i].count; ++k) leaf_of_[order_[k]] = static_cast<std::uint32_t>(i);
+      }
   });
   refit_internal();
-  nodes_.shrink_to_fit();
-  parent_.shrink_to_fit();
 }
 
 bool TriangleBvh::same_tree(const TriangleBvh& o) const {
@@ -718,7 +732,7 @@ bool TriangleBvh::check(const MeshView& m) const {
 }
 
 std::size_t TriangleBvh::size_bytes() const {
-  return nodes_.capacity() * sizeof(Node) + (parent_.capacity() + order_.capacity() + leaf_of_.capacity()) * sizeof(std::uint32_t);
+  return nodes_.size() * sizeof(Node) + (parent_.size() + order_.size() + leaf_of_.size()) * sizeof(std::uint32_t);
 }
 
 }  // namespace lancet::surface

@@ -118,7 +118,7 @@ class TriangleBvh {
   /// For tests; allocates.
   [[nodiscard]] bool check(const MeshView& m) const;
 
-  /// Heap bytes held by the tree.
+  /// Bytes of the tree's arrays in use (build() leaves reserve past them, never touched).
   [[nodiscard]] std::size_t size_bytes() const;
   [[nodiscard]] std::size_t node_count() const { return nodes_.size(); }
   [[nodiscard]] std::size_t face_count() const { return order_.size(); }

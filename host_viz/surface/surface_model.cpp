@@ -58,23 +58,22 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
     const std::size_t nv = positions.size();
     // Headroom for the copies cuts add, so a cut step never regrows a whole per-vertex array.
-    for (auto* a : {&m->deform_, &m->open_, &m->wrinkle_, &m->haptic_}) a->reserve(nv * 5 / 4 + 64);
+    for (auto* a : {&m->deform_, &m->open_, &m->wrinkle_}) a->reserve(nv * 5 / 4 + 64);
+    m->haptic_.reserve(nv * 5 / 4 + 64);
     m->in_deformed_.reserve(nv * 5 / 4 + 64);
-    m->deform_.assign(nv, P(0, 0, 0));
-    m->open_.assign(nv, P(0, 0, 0));
-    m->wrinkle_.assign(nv, P(0, 0, 0));
-    m->in_deformed_.assign(nv, 0);
-    m->haptic_.resize(nv);  // = rest
-    for (std::size_t i = 0; i < nv; ++i) m->haptic_[i] = P(positions[i].x, positions[i].y, positions[i].z);
-    m->mark_.assign(std::max(nv * 5 / 4 + 64, triangles.size()), 0);
+    m->deform_.resize(nv);  // zeros, not written (ZeroedVector)
+    m->open_.resize(nv);
+    m->wrinkle_.resize(nv);
+    m->in_deformed_.resize(nv);
+    for (std::size_t i = 0; i < nv; ++i) m->haptic_.emplace_back(positions[i].x, positions[i].y, positions[i].z);  // = rest
+    m->mark_.resize(std::max(nv * 5 / 4 + 64, triangles.size()));
     // Each face's rest cross (b − a) × (c − a), as face_cross(f, true) forms it from the same
     // numbers (the rest positions are the given ones).
-    m->rest_normal_.resize(triangles.size());
-    for (std::size_t f = 0; f < triangles.size(); ++f) {
-      const auto& t = triangles[f];
+    m->rest_normal_.reserve(triangles.size());  // written once each (no zeros first)
+    for (const auto& t : triangles) {
       const auto at = [&](std::uint32_t v) { return P(positions[v].x, positions[v].y, positions[v].z); };
       const P a = at(t[0]);
-      m->rest_normal_[f] = OpenMesh::cross(at(t[1]) - a, at(t[2]) - a);
+      m->rest_normal_.push_back(OpenMesh::cross(at(t[1]) - a, at(t[2]) - a));
     }
   });
   SurfaceMesh& mesh = m->mesh_;
@@ -96,7 +95,8 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // below, where add_face names the first triangle that does not fit.
   std::vector<VH> handles(positions.size());
   for (std::size_t i = 0; i < positions.size(); ++i) handles[i] = VH(static_cast<int>(i));
-  const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles, &m->on_boundary_);
+  volume::TriangleCorners corners;  // for the normals below
+  const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles, &m->on_boundary_, &corners);
   if (built)
     volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
       for (std::size_t f = begin; f < end; ++f) {
@@ -143,7 +143,11 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i) {
       P n(0, 0, 0);
-      for (auto f : mesh.vf_range(vh(static_cast<std::uint32_t>(i)))) n += m->rest_normal_[m->stable_of(f)];
+      const auto add = [&](std::uint32_t f) { n += m->rest_normal_[f]; };
+      if (built)  // the same walk as vf_range, on the build's compact corner arrays
+        corners.for_each_triangle_around(static_cast<std::uint32_t>(i), add);
+      else
+        for (auto f : mesh.vf_range(vh(static_cast<std::uint32_t>(i)))) add(m->stable_of(f));
       const float len = n.norm();
       mesh.set_normal(vh(static_cast<std::uint32_t>(i)), len > 0 ? n / len : P(0, 0, 1));
     }

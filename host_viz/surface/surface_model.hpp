@@ -34,6 +34,7 @@
 #include "lancet/shared_model/result.hpp"
 #include "surface/bvh.hpp"
 #include "surface/triangle_mesh.hpp"
+#include "volume/build_arrays.hpp"
 
 namespace lancet::surface {
 
@@ -218,12 +219,14 @@ class SurfaceModel {
   std::vector<std::uint16_t> material_;
   std::vector<SurfaceMesh::FaceHandle> handle_;
   std::vector<OpenMesh::Vec3f> rest_normal_;       ///< per stable face, for the flip check
-  // Displacements on top of rest, per vertex (dense; vertices are few next to faces' data).
-  std::vector<OpenMesh::Vec3f> deform_, open_, wrinkle_;
+  // Displacements on top of rest, per vertex (dense; vertices are few next to faces' data). Zero
+  // until a contact, a cut or a pull moves a vertex: ZeroedVector, so the pages of those far from
+  // the tool are never touched (they only grow, as vertices are only added).
+  volume::ZeroedVector<OpenMesh::Vec3f> deform_, open_, wrinkle_;
   std::vector<OpenMesh::Vec3f> haptic_;            ///< rest + open_ + wrinkle_ (haptic_position)
   std::vector<std::uint8_t> on_boundary_;          ///< per stable face (face_on_boundary)
   std::vector<std::uint32_t> deformed_;            ///< vertices with a deformation displacement
-  std::vector<std::uint8_t> in_deformed_;
+  volume::ZeroedVector<std::uint8_t> in_deformed_;
   std::vector<std::uint32_t> wrinkled_;
   std::vector<float> wrinkle_amp_;                 ///< per vertex in wrinkled_: its profile
   double wrinkle_level_ = 0;                       ///< current wrinkle amplitude (m)
@@ -239,7 +242,7 @@ class SurfaceModel {
   std::vector<std::uint32_t> scratch_faces_, scratch_vertices_, scratch_touched_;
   std::vector<std::uint32_t> scratch_indices_;  ///< faces_within_any's points on the way down
   std::vector<Vec3f> scratch_points_;
-  std::vector<std::uint8_t> mark_;
+  volume::ZeroedVector<std::uint8_t> mark_;  ///< per vertex or face, 0 but within one call
 };
 
 }  // namespace lancet::surface

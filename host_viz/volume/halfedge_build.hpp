@@ -17,6 +17,9 @@
 //   3. the boundary half-edges (edges with one triangle) are linked around each hole: the one that
 //      ends at vertex v is followed by the one that leaves v (one per vertex: one fan);
 //   4. each vertex's outgoing half-edge is its boundary one when it has one (OpenMesh's rule).
+// The passes over the corners and vertices run on two threads for a large mesh (all but the
+// prefix sum and the boundary links); where a pass counts (the buckets, the corners leaving each vertex), each half counts its own and the counts
+// are merged in corner order, so the result does not depend on the thread count.
 // The result equals what add_face gives face for face (same faces, in the same order, with the
 // same vertex cycles, the same one-rings in the same cyclic order); only the numbering of edges
 // differs. Allocates O(T) scratch; not real-time.
@@ -25,8 +28,10 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
+#include "volume/build_arrays.hpp"
 #include "volume/in_two_halves.hpp"
 
 namespace lancet::volume {
@@ -47,8 +52,8 @@ struct CornerPairs {
   std::size_t nv = 0, nt = 0;
   bool two = false;                        // large enough for two threads
   std::vector<std::uint32_t> start, fill;  // bucket offsets (spent after pairing)
-  std::vector<Entry> bucket;
-  std::vector<std::uint32_t> partner;      // per corner: its reverse's corner (or kNone)
+  ScratchVector<Entry> bucket;             // filled in full by pair()
+  ScratchVector<std::uint32_t> partner;    // per corner: its reverse's corner (or kNone)
   std::vector<std::uint32_t> last;         // per vertex: the last corner leaving it (or kNone)
 
   CornerPairs(std::size_t vertices, std::span<const std::array<std::uint32_t, 3>> tris)
@@ -60,26 +65,52 @@ struct CornerPairs {
   /// False for an index out of range, a repeated vertex, an edge used twice the same way or by
   /// a third triangle.
   bool pair() {
-    start.assign(nv + 1, 0);
-    for (const auto& t : triangles) {
-      for (int k = 0; k < 3; ++k) {
-        const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
-        if (a >= nv || b >= nv || a == b) return false;
-        ++start[std::min(a, b) + 1];
-      }
-    }
-    for (std::size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
     if (3 * nt > kCorner) return false;
+    // Each half of the triangles counts its corners per bucket apart (fill: half 1's counts), so
+    // that the halves then fill their buckets at once, half 1's corners after half 0's: the same
+    // bucket order as one pass in corner order.
+    start.assign(nv + 1, 0);
+    fill.assign(nv + 1, 0);
+    bool valid[2] = {true, true};
+    in_two_halves(nt, two, [&](std::size_t begin, std::size_t end, int half) {
+      std::uint32_t* count = (half == 0 ? start : fill).data();
+      for (std::size_t t = begin; t < end && valid[half]; ++t)
+        for (int k = 0; k < 3; ++k) {
+          const std::uint32_t a = triangles[t][static_cast<std::size_t>(k)], b = triangles[t][static_cast<std::size_t>((k + 1) % 3)];
+          if (a >= nv || b >= nv || a == b) {
+            valid[half] = false;
+            break;
+          }
+          ++count[std::min(a, b)];
+        }
+    });
+    if (!valid[0] || !valid[1]) return false;
+    // start[v]: bucket v's first entry; fill[v]: where half 1's entries of bucket v begin.
+    std::uint32_t sum = 0;
+    for (std::size_t v = 0; v <= nv; ++v) {
+      const std::uint32_t c0 = start[v], c1 = fill[v];
+      start[v] = sum;
+      fill[v] = sum + c0;
+      sum += c0 + c1;
+    }
     bucket.resize(3 * nt);
-    fill.assign(start.begin(), start.end() - 1);
-    for (std::size_t t = 0; t < nt; ++t)
-      for (std::uint32_t k = 0; k < 3; ++k) {
-        const auto& tri = triangles[t];
-        const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
-        bucket[fill[std::min(a, b)]++] = {static_cast<std::uint32_t>(3 * t + k) | (a < b ? kUp : 0u), std::max(a, b)};
-      }
+    in_two_halves(nt, two, [&](std::size_t begin, std::size_t end, int half) {
+      // Half 0 fills from each bucket's start (it moves start on; put back below), half 1 from fill.
+      std::uint32_t* at = (half == 0 ? start : fill).data();
+      for (std::size_t t = begin; t < end; ++t)
+        for (std::uint32_t k = 0; k < 3; ++k) {
+          const auto& tri = triangles[t];
+          const std::uint32_t a = tri[k], b = tri[(k + 1) % 3];
+          bucket[at[std::min(a, b)]++] = {static_cast<std::uint32_t>(3 * t + k) | (a < b ? kUp : 0u), std::max(a, b)};
+        }
+    });
+    // Half 0 has moved each start to where half 1's entries begin, which half 1's count says
+    // is where the bucket began: fill has moved to the bucket's end, the next bucket's start.
+    for (std::size_t v = nv; v > 0; --v) start[v] = fill[v - 1];
+    start[0] = 0;
     // A corner lies in one bucket only, so the buckets are shared between two threads.
-    partner.assign(3 * nt, kNone);
+    partner.resize(3 * nt);
+    in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int) { std::fill(partner.begin() + begin, partner.begin() + end, kNone); });
     bool paired[2] = {true, true};
     in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
       for (std::size_t v = begin; v < end && paired[half]; ++v) {
@@ -110,28 +141,40 @@ struct CornerPairs {
   bool one_fan_each() {
     const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
     const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
-    // The buckets' offsets are spent: their arrays (already touched) count and find the corners.
+    // The buckets' offsets are spent: their arrays (already touched) count the corners leaving
+    // each vertex, each half of the corners its own (count: half 0's, other: half 1's), and each
+    // half finds its last corner leaving each vertex (half 1's in last_of_half1); merged after.
     std::vector<std::uint32_t>& count = fill;
-    std::vector<std::uint32_t>& first = start;
+    std::vector<std::uint32_t>& other = start;
     std::fill(count.begin(), count.end(), 0u);
-    std::fill(first.begin(), first.end(), kNone);
+    std::fill(other.begin(), other.end(), 0u);
     last.assign(nv, kNone);
-    for (std::uint32_t c = 0; c < 3 * nt; ++c) {
-      ++count[from(c)];
-      if (first[from(c)] == kNone) first[from(c)] = c;
-      last[from(c)] = c;
-    }
+    std::vector<std::uint32_t> last_of_half1(nv, kNone);
+    in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int half) {
+      std::uint32_t* n = (half == 0 ? count : other).data();
+      std::uint32_t* l = (half == 0 ? last : last_of_half1).data();
+      for (auto c = static_cast<std::uint32_t>(begin); c < end; ++c) {
+        ++n[from(c)];
+        l[from(c)] = c;
+      }
+    });
+    in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int) {
+      for (std::size_t v = begin; v < end; ++v) {
+        count[v] += other[v];
+        if (last_of_half1[v] != kNone) last[v] = last_of_half1[v];
+      }
+    });
     // One vertex's walk; false when its triangles are not one fan.
     const auto one_fan = [&](std::size_t v) {
-      if (first[v] == kNone) return true;
+      if (last[v] == kNone) return true;
       std::uint32_t seen = 1;
       // Forward: from the corner leaving v, across the edge arriving at v in its triangle.
-      std::uint32_t c = first[v];
+      std::uint32_t c = last[v];
       bool closed = false;
       while (true) {
         const std::uint32_t n = partner[prev(c)];
         if (n == kNone) break;
-        if (n == first[v]) {
+        if (n == last[v]) {
           closed = true;
           break;
         }
@@ -139,7 +182,7 @@ struct CornerPairs {
         c = n;
       }
       if (!closed) {  // backward from the start, across its own edge
-        c = first[v];
+        c = last[v];
         while (partner[c] != kNone) {
           c = next(partner[c]);
           if (++seen > count[v]) return false;
@@ -158,14 +201,40 @@ struct CornerPairs {
 
 }  // namespace detail
 
+/// The corners of the mesh build_triangle_mesh made, to walk its one-rings on compact arrays
+/// rather than the mesh's: corner 3t + k of triangle t runs from t[k] to t[k+1] (vertex indices),
+/// and triangle t is the mesh's face t.
+struct TriangleCorners {
+  static constexpr std::uint32_t kNone = detail::CornerPairs::kNone;
+  ScratchVector<std::uint32_t> partner;  ///< per corner: the corner along its edge the other way, or kNone (a boundary edge)
+  std::vector<std::uint32_t> first;      ///< per vertex: the corner leaving it whose triangle vf_range visits first (kNone: none)
+
+  /// f(t) for every triangle t around vertex v, in the order of the mesh's vf_range(v): clockwise
+  /// (next of opposite) from the vertex's half-edge, which for a boundary vertex is the boundary.
+  template <class F>
+  void for_each_triangle_around(std::uint32_t v, F&& f) const {
+    const std::uint32_t s = first[v];
+    if (s == kNone) return;
+    std::uint32_t c = s;
+    do {
+      f(c / 3);
+      const std::uint32_t p = partner[c];  // runs back to v
+      if (p == kNone) return;              // the boundary: the fan's last triangle
+      c = p - p % 3 + (p % 3 + 1) % 3;     // the corner after it leaves v
+    } while (c != s);
+  }
+};
+
 /// Appends the triangles to `mesh` (an OpenMesh mesh with those vertices already added, and no
 /// faces yet): `vertices[i]` is the handle of index i. Returns false, leaving the mesh without
 /// faces, when the triangles are not an oriented 2-manifold (with boundary); then use add_face.
 /// With `on_boundary`, also sets it to one byte per triangle: 1 where an edge of the triangle is
-/// on the boundary (no other triangle shares it), else 0.
+/// on the boundary (no other triangle shares it), else 0. With `corners`, also hands over the
+/// corners' pairing (see TriangleCorners).
 template <class Mesh>
 bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle> vertices,
-                         std::span<const std::array<std::uint32_t, 3>> triangles, std::vector<std::uint8_t>* on_boundary = nullptr) {
+                         std::span<const std::array<std::uint32_t, 3>> triangles, std::vector<std::uint8_t>* on_boundary = nullptr,
+                         TriangleCorners* corners = nullptr) {
   using HH = typename Mesh::HalfedgeHandle;
   using FH = typename Mesh::FaceHandle;
   using VH = typename Mesh::VertexHandle;
@@ -175,7 +244,7 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   if (!cp.pair() || !cp.one_fan_each()) return false;
   constexpr std::uint32_t kNone = detail::CornerPairs::kNone;
   const bool two = cp.two;
-  const std::vector<std::uint32_t>& partner = cp.partner;
+  const auto& partner = cp.partner;
   const std::vector<std::uint32_t>& last = cp.last;
   auto& bucket = cp.bucket;
   const auto from = [&](std::uint32_t c) { return cp.from(c); };
@@ -251,6 +320,15 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     on_boundary->assign(nt, 0);
     for (std::uint32_t c = 0; c < 3 * nt; ++c)
       if (partner[c] == kNone) (*on_boundary)[c / 3] = 1;
+  }
+  if (corners != nullptr) {
+    // A vertex's half-edge is its last corner's (2.), or on a boundary the boundary half-edge
+    // leaving it (4.), from whose clockwise turn the circulator starts: the corner after the
+    // boundary corner arriving at the vertex.
+    corners->first = std::move(cp.last);
+    for (std::uint32_t c = 0; c < 3 * nt; ++c)
+      if (partner[c] == kNone) corners->first[to(c)] = c - c % 3 + (c % 3 + 1) % 3;
+    corners->partner = std::move(cp.partner);
   }
   return true;
 }

@@ -65,7 +65,8 @@ std::size_t expect_same_as_add_face(std::size_t n_vertices, const std::vector<Tr
     EXPECT_TRUE(a.add_face(va[t[0]], va[t[1]], va[t[2]]).is_valid());
   }
   const auto vb = add_vertices(b, n_vertices);
-  EXPECT_TRUE(build_triangle_mesh(b, std::span<const IsoMesh::VertexHandle>(vb), std::span<const Tri>(tris)));
+  TriangleCorners corners;
+  EXPECT_TRUE(build_triangle_mesh(b, std::span<const IsoMesh::VertexHandle>(vb), std::span<const Tri>(tris), nullptr, &corners));
   expect_consistent(b);
   EXPECT_EQ(a.n_faces(), b.n_faces());
   EXPECT_EQ(a.n_edges(), b.n_edges());
@@ -83,6 +84,13 @@ std::size_t expect_same_as_add_face(std::size_t n_vertices, const std::vector<Tr
     boundary += b.is_boundary(vh);
     EXPECT_EQ(one_ring(a, vh), one_ring(b, vh)) << "vertex " << v;
     if (one_ring(a, vh) != one_ring(b, vh)) return 0;
+    // The corners' walk visits the triangles around v in vf_range's order, from the same start
+    // (a sum over them then matches the circulator's bit for bit).
+    std::vector<int> circulated, walked;
+    for (auto f : b.vf_range(vh)) circulated.push_back(f.idx());
+    corners.for_each_triangle_around(static_cast<std::uint32_t>(v), [&](std::uint32_t t) { walked.push_back(static_cast<int>(t)); });
+    EXPECT_EQ(circulated, walked) << "vertex " << v;
+    if (circulated != walked) return 0;
   }
   // Boundary loops: the same half-edges follow each other.
   for (auto h : b.halfedges()) {
@@ -122,6 +130,22 @@ TEST(HalfedgeBuild, ThePhantomsClosedSkinEqualsTheAddFaceBuild) {
 
 TEST(HalfedgeBuild, AnOpenSkinCutByTheVolumesSidesEqualsTheAddFaceBuild) {
   const IsoSurface s = phantom_skin(false);
+  EXPECT_GT(expect_same_as_add_face(s.positions.size(), triangles_of(s)), 100u) << "open where the volume ends";
+}
+
+// Large enough that every pass runs its halves on two threads (where there are two cores): the
+// counts, buckets and last corners each half finds apart, merged, still give add_face's mesh.
+TEST(HalfedgeBuild, ASkinLargeEnoughForTwoThreadsEqualsTheAddFaceBuild) {
+  PhantomParams params;
+  params.dims = {192, 192, 96};
+  const LabelledVolume ph = make_phantom(params);
+  IsoOptions o;
+  o.iso = -300;
+  o.pad_border = false;
+  auto r = extract_isosurface(ph.volume, o, ph.material);
+  ASSERT_TRUE(r.ok());
+  const IsoSurface& s = r.value();
+  ASSERT_GE(s.triangles.size(), std::size_t{1} << 16) << "below the two-thread threshold";
   EXPECT_GT(expect_same_as_add_face(s.positions.size(), triangles_of(s)), 100u) << "open where the volume ends";
 }
 
