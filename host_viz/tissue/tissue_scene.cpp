@@ -182,7 +182,11 @@ Result<std::unique_ptr<TissueScene>> TissueScene::create(SceneDescription d) {
     s->placement_.sign = d.sign;
     if (!s->placement_.valid()) return invalid("axes: expected a permutation of x, y, z with signs ±1");
     // The skin's isosurface places the volume: its top at z = 0, the volume's centre at x = y = 0.
-    auto iso = volume::extract_isosurface(t.volume, iso_options(d.skin_iso), t.material);
+    // No gradient normals: the surface model makes its own from its faces (as every later change
+    // to it does), so sampling the volume's gradient for them would be work thrown away.
+    volume::IsoOptions skin_options = iso_options(d.skin_iso);
+    skin_options.normals = false;
+    auto iso = volume::extract_isosurface(t.volume, skin_options, t.material);
     if (!iso.ok()) return invalid(iso.error().message);
     if (iso.value().triangles.empty())
       return invalid("no skin at " + std::to_string(d.skin_iso) + " HU: the volume has nothing that dense (check skin_iso)");
