@@ -1536,7 +1536,8 @@ TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
   const std::array<std::string, 2> files{right, left};
   const std::uint64_t more = 200;
   enum class Run { kPassed, kStalled, kFailed };
-  // One run: both armsims, lancet-rt, the checks. kStalled: a timeout fault the run is not about.
+  // One run: both armsims, lancet-rt, the checks. kStalled: a timeout fault the run is not about,
+  // or a set-up that timed out.
   auto run = [&](int attempt) -> Run {
     std::array<std::string, 2> sim_log{base_ + "_armsim_right.log", base_ + "_armsim_left.log"};
     std::array<std::unique_ptr<test::Child>, 2> sims;
@@ -1582,6 +1583,12 @@ TEST_F(CanopenPrograms, TwoArmsOnOneBusShareTheRightArmsSyncAndFaultAlone) {
         }
         ADD_FAILURE() << when << ": hand " << h << " faulted: " << st.hand[h].fault_text << "\n" << rt_said();
         return Run::kFailed;
+      }
+      // lancet-rt gave up on an arm's set-up because its drives' heartbeats or TPDOs did not come
+      // within the boot timeout: a guest stalled that long is a stall too (three of them fail).
+      if (const std::string said = rt_said(); said.find("after NMT start and SYNC:") != std::string::npos) {
+        std::printf("  run %d, %s: a set-up timeout (a stalled guest)\n%s", attempt, when, said.c_str());
+        return Run::kStalled;
       }
       ADD_FAILURE() << when << ": lancet-rt ended or hung\n" << rt_said() << test::read_file(sim_log[0]) << test::read_file(sim_log[1]);
       return Run::kFailed;
