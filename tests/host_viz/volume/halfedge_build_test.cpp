@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <vector>
 
 #include "volume/iso_mesh.hpp"
@@ -106,9 +107,9 @@ std::size_t expect_same_as_add_face(std::size_t n_vertices, const std::vector<Tr
 
 std::vector<Tri> triangles_of(const IsoSurface& s) { return {s.triangles.begin(), s.triangles.end()}; }
 
-IsoSurface phantom_skin(bool pad) {
+IsoSurface phantom_skin(bool pad, std::array<int, 3> dims = {80, 80, 40}) {
   PhantomParams params;
-  params.dims = {80, 80, 40};
+  params.dims = dims;
   const LabelledVolume ph = make_phantom(params);
   IsoOptions o;
   o.iso = -300;
@@ -136,15 +137,7 @@ TEST(HalfedgeBuild, AnOpenSkinCutByTheVolumesSidesEqualsTheAddFaceBuild) {
 // Large enough that every pass runs its halves on two threads (where there are two cores): the
 // counts, buckets and last corners each half finds apart, merged, still give add_face's mesh.
 TEST(HalfedgeBuild, ASkinLargeEnoughForTwoThreadsEqualsTheAddFaceBuild) {
-  PhantomParams params;
-  params.dims = {192, 192, 96};
-  const LabelledVolume ph = make_phantom(params);
-  IsoOptions o;
-  o.iso = -300;
-  o.pad_border = false;
-  auto r = extract_isosurface(ph.volume, o, ph.material);
-  ASSERT_TRUE(r.ok());
-  const IsoSurface& s = r.value();
+  const IsoSurface s = phantom_skin(false, {192, 192, 96});
   ASSERT_GE(s.triangles.size(), std::size_t{1} << 16) << "below the two-thread threshold";
   EXPECT_GT(expect_same_as_add_face(s.positions.size(), triangles_of(s)), 100u) << "open where the volume ends";
 }
