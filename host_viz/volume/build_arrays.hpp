@@ -45,7 +45,8 @@ struct DefaultInitAllocator : std::allocator<T> {
   }
 };
 
-/// DefaultInitAllocator over calloc: new elements read as zero without being written.
+/// DefaultInitAllocator over fresh zero memory (mmap for a large block, calloc for a small one):
+/// new elements read as zero without being written.
 template <class T>
 struct ZeroedAllocator : DefaultInitAllocator<T> {
   using value_type = T;
