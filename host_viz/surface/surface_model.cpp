@@ -82,10 +82,13 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   mesh.reserve(positions.size() * 5 / 4, triangles.size() * 2, triangles.size() * 5 / 4);
   // All vertices at once (one resize of every vertex property, where add_vertex grows each by one).
   mesh.resize(positions.size(), 0, 0);
+  P lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());  // for the texture coordinates
   for (std::size_t i = 0; i < positions.size(); ++i) {
     const P p(positions[i].x, positions[i].y, positions[i].z);
     mesh.set_point(vh(static_cast<std::uint32_t>(i)), p);
     mesh.property(m->rest_, vh(static_cast<std::uint32_t>(i))) = p;
+    lo.minimize(p);
+    hi.maximize(p);
   }
   m->faces_.assign(triangles.begin(), triangles.end());
   m->material_.assign(triangles.size(), 0);
@@ -121,20 +124,18 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   }
   // Texture-atlas coordinates: the rest positions projected along the bounding box's thinnest
   // axis onto [0, 1]². (One chart; enough for a skin patch. Duplicated vertices keep theirs.)
-  P lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());
-  for (auto v : mesh.vertices()) {
-    lo.minimize(mesh.point(v));
-    hi.maximize(mesh.point(v));
-  }
   const P ext = hi - lo;
   int thin = 0;
   for (int a = 1; a < 3; ++a)
     if (ext[a] < ext[thin]) thin = a;
   const int ua = (thin + 1) % 3, va = (thin + 2) % 3;
-  for (auto v : mesh.vertices()) {
-    const P& p = mesh.point(v);
-    mesh.set_texcoord2D(v, OpenMesh::Vec2f(ext[ua] > 0 ? (p[ua] - lo[ua]) / ext[ua] : 0.f, ext[va] > 0 ? (p[va] - lo[va]) / ext[va] : 0.f));
-  }
+  volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
+    for (std::size_t i = begin; i < end; ++i) {
+      const P& p = mesh.point(vh(static_cast<std::uint32_t>(i)));
+      mesh.set_texcoord2D(vh(static_cast<std::uint32_t>(i)),
+                          OpenMesh::Vec2f(ext[ua] > 0 ? (p[ua] - lo[ua]) / ext[ua] : 0.f, ext[va] > 0 ? (p[va] - lo[va]) / ext[va] : 0.f));
+    }
+  });
   // Normals: the rest crosses from the other thread (with the BVH and the per-vertex arrays).
   // (Current and rest positions are equal here, so a vertex's normal sums the faces' rest crosses
   // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
