@@ -18,8 +18,9 @@
 //      ends at vertex v is followed by the one that leaves v (one per vertex: one fan);
 //   4. each vertex's outgoing half-edge is its boundary one when it has one (OpenMesh's rule).
 // The passes over the corners and vertices run on two threads for a large mesh (all but the
-// prefix sum and the boundary links); where a pass counts (the buckets, the corners leaving each vertex), each half counts its own and the counts
-// are merged in corner order, so the result does not depend on the thread count.
+// prefix sum and the boundary links); where a pass counts (the buckets, the corners leaving each
+// vertex), each half counts its own and the counts are merged in corner order, so the result
+// does not depend on the thread count.
 // The result equals what add_face gives face for face (same faces, in the same order, with the
 // same vertex cycles, the same one-rings in the same cyclic order); only the numbering of edges
 // differs. Allocates O(T) scratch; not real-time.
@@ -37,6 +38,11 @@
 namespace lancet::volume {
 
 namespace detail {
+
+/// The corner after c in its triangle (corner 3t + k of triangle t runs from t[k] to t[k+1]): it
+/// leaves the vertex c runs to. prev_corner: the one before, which runs to the vertex c leaves.
+constexpr std::uint32_t next_corner(std::uint32_t c) noexcept { return c - c % 3 + (c % 3 + 1) % 3; }
+constexpr std::uint32_t prev_corner(std::uint32_t c) noexcept { return c - c % 3 + (c % 3 + 2) % 3; }
 
 /// Steps 1 and the fan check, on the triangles' corners alone (corner 3t + k of triangle t runs
 /// from t[k] to t[k+1]): each corner paired with its reverse, and each vertex's last corner. Its
@@ -139,8 +145,6 @@ struct CornerPairs {
   /// edges (both ways until a boundary) visits all of them. Two fans meeting at a vertex do not.
   /// Also finds each vertex's last corner. After pair().
   bool one_fan_each() {
-    const auto next = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 1) % 3; };
-    const auto prev = [](std::uint32_t c) { return c - c % 3 + (c % 3 + 2) % 3; };
     // The buckets' offsets are spent: their arrays (already touched) count the corners leaving
     // each vertex, each half of the corners its own (count: half 0's, other: half 1's), and each
     // half finds its last corner leaving each vertex (half 1's in last_of_half1); merged after.
@@ -172,7 +176,7 @@ struct CornerPairs {
       std::uint32_t c = last[v];
       bool closed = false;
       while (true) {
-        const std::uint32_t n = partner[prev(c)];
+        const std::uint32_t n = partner[prev_corner(c)];
         if (n == kNone) break;
         if (n == last[v]) {
           closed = true;
@@ -184,7 +188,7 @@ struct CornerPairs {
       if (!closed) {  // backward from the start, across its own edge
         c = last[v];
         while (partner[c] != kNone) {
-          c = next(partner[c]);
+          c = next_corner(partner[c]);
           if (++seen > count[v]) return false;
         }
       }
@@ -220,7 +224,7 @@ struct TriangleCorners {
       f(c / 3);
       const std::uint32_t p = partner[c];  // runs back to v
       if (p == kNone) return;              // the boundary: the fan's last triangle
-      c = p - p % 3 + (p % 3 + 1) % 3;     // the corner after it leaves v
+      c = detail::next_corner(p);          // the corner after it leaves v
     } while (c != s);
   }
 };
@@ -327,7 +331,7 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     // boundary corner arriving at the vertex.
     corners->first = std::move(cp.last);
     for (std::uint32_t c = 0; c < 3 * nt; ++c)
-      if (partner[c] == kNone) corners->first[to(c)] = c - c % 3 + (c % 3 + 1) % 3;
+      if (partner[c] == kNone) corners->first[to(c)] = detail::next_corner(c);
     corners->partner = std::move(cp.partner);
   }
   return true;
