@@ -1,7 +1,6 @@
 #include "surface/bvh.hpp"
 
-#include "volume/build_arrays.hpp"
-#include "volume/in_two_halves.hpp"
+#include "surface/bvh_box.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -13,47 +12,13 @@
 namespace lancet::surface {
 namespace {
 
-constexpr std::uint32_t kNone = 0xffffffffu;
-// Cells a side of the Morton grid (10 bits an axis: 30-bit codes).
-constexpr std::uint32_t kMortonCells = 1024;
+using bvh_detail::vertex;
+
 // A triangle whose |ab × ac|² is below this fraction of (longest edge)⁴ is treated as its edges.
 constexpr double kDegenerate = 1e-14;
 
 double at(Vec3 v, int axis) { return axis == 0 ? v.x : (axis == 1 ? v.y : v.z); }
 float at(Vec3f v, int axis) { return axis == 0 ? v.x : (axis == 1 ? v.y : v.z); }
-
-Vec3f vertex(const MeshView& m, std::uint32_t i) {
-  assert(i < m.n_vertices && "TriangleBvh: face refers to a vertex past n_vertices");
-  const float* p = m.xyz + 3 * static_cast<std::size_t>(i);
-  return {p[0], p[1], p[2]};
-}
-
-struct Box {
-  Vec3f lo{std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
-           std::numeric_limits<float>::infinity()};
-  Vec3f hi{-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
-           -std::numeric_limits<float>::infinity()};
-
-  void grow(Vec3f p) {
-    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
-    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
-  }
-  void grow(const Box& b) {
-    grow(b.lo);
-    grow(b.hi);
-  }
-  [[nodiscard]] bool empty() const { return !(lo.x <= hi.x); }
-};
-
-Box face_box(const MeshView& m, std::uint32_t f) {
-  Box b;
-  for (std::uint32_t vi : m.faces[f]) b.grow(vertex(m, vi));
-  return b;
-}
-
-bool encloses(Vec3f lo, Vec3f hi, Vec3f p) {
-  return lo.x <= p.x && p.x <= hi.x && lo.y <= p.y && p.y <= hi.y && lo.z <= p.z && p.z <= hi.z;
-}
 
 // Squared distance from p to the box (0 inside), in double.
 double box_distance2(Vec3f lo, Vec3f hi, Vec3 p) {
@@ -261,66 +226,6 @@ SegmentHit make_segment_hit(std::uint32_t face, double t, double u, double v, Ve
   return {face, static_cast<float>(t), to_vec3f(q), static_cast<float>(u), static_cast<float>(v)};
 }
 
-// The 30-bit Morton code of a point quantised to 1024 cells a side: the bits of the three cell
-// indices interleaved (x lowest), so that sorting by code lays the cells out along a Z-order curve
-// and every prefix of the code names an octree cell.
-std::uint32_t spread_bits(std::uint32_t v) {
-  v &= 0x3ffu;
-  v = (v | (v << 16)) & 0x030000ffu;
-  v = (v | (v << 8)) & 0x0300f00fu;
-  v = (v | (v << 4)) & 0x030c30c3u;
-  v = (v | (v << 2)) & 0x09249249u;
-  return v;
-}
-
-// The faces' Morton codes (of their box centres within the box of all centres), from faces
-// [begin, end) into code[].
-void morton_codes(const MeshView& m, Vec3f lo, const double scale[3], std::uint32_t begin, std::uint32_t end, std::uint32_t* code) {
-  const auto cell = [](double q) {
-    // NaN and anything below the box go to cell 0; the clamp keeps the top edge in cell 1023.
-    return q >= 0 ? static_cast<std::uint32_t>(std::min(q, double{kMortonCells - 1})) : 0u;
-  };
-  for (std::uint32_t f = begin; f < end; ++f) {
-    const Box b = face_box(m, f);
-    const double cx = 0.5 * (double{b.lo.x} + b.hi.x), cy = 0.5 * (double{b.lo.y} + b.hi.y), cz = 0.5 * (double{b.lo.z} + b.hi.z);
-    code[f] = spread_bits(cell((cx - lo.x) * scale[0])) | spread_bits(cell((cy - lo.y) * scale[1])) << 1 |
-              spread_bits(cell((cz - lo.z) * scale[2])) << 2;
-  }
-}
-
-// Sorts (code, face) pairs by code, stably (equal codes keep their face order): three passes of a
-// least-significant-digit radix sort over 10-bit digits. keys/faces are sorted in place; tmp_*
-// are scratch of the same size. Each pass counts the digits of each half of the input apart and
-// gives half 1's entries of a digit the places after half 0's, so the halves scatter at once (on
-// two threads when `two`) and the order is the same either way.
-void radix_sort(volume::ScratchVector<std::uint32_t>& keys, std::vector<std::uint32_t>& faces, volume::ScratchVector<std::uint32_t>& tmp_keys,
-                std::vector<std::uint32_t>& tmp_faces, bool two) {
-  constexpr int kDigit = 10;
-  constexpr std::uint32_t kBuckets = 1u << kDigit;
-  const std::size_t n = keys.size();
-  std::vector<std::uint32_t> count(2 * kBuckets);  // half h's counts, then its next places, at h·kBuckets
-  for (int shift = 0; shift < 30; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0u);
-    volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
-      std::uint32_t* c = count.data() + half * kBuckets;
-      for (std::size_t i = begin; i < end; ++i) ++c[(keys[i] >> shift) & (kBuckets - 1)];
-    });
-    std::uint32_t sum = 0;
-    for (std::uint32_t b = 0; b < kBuckets; ++b)
-      for (std::uint32_t half = 0; half < 2; ++half) sum += std::exchange(count[half * kBuckets + b], sum);
-    volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
-      std::uint32_t* next = count.data() + half * kBuckets;
-      for (std::size_t i = begin; i < end; ++i) {
-        const std::uint32_t at = next[(keys[i] >> shift) & (kBuckets - 1)]++;
-        tmp_keys[at] = keys[i];
-        tmp_faces[at] = faces[i];
-      }
-    });
-    keys.swap(tmp_keys);
-    faces.swap(tmp_faces);
-  }
-}
-
 }  // namespace
 
 // =============================================================================================
@@ -342,168 +247,12 @@ std::optional<SegmentHit> segment_triangle(Vec3f a, Vec3f b, Vec3f p0, Vec3f p1,
 
 // ---------------------------------------------------------------------------------------------
 
-void TriangleBvh::build(const MeshView& m, bool threads) {
-  nodes_.clear();
-  parent_.clear();
-  depth_ = 0;
-  const std::size_t n = m.faces.size();
-  assert(n < kNone && "TriangleBvh::build: too many faces");
-  order_.resize(n);
-  leaf_of_.assign(n, kNone);
-  if (n == 0) return;
-  const bool two = threads && volume::worth_two_threads(n);
-
-  // 1. Every face's Morton code (its box centre in the box of all centres) and the faces sorted
-  //    by it, stably: neighbours in space become neighbours in order_.
-  Box half_boxes[2];
-  volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int half) {
-    Box& cb = half_boxes[half];
-    for (auto f = static_cast<std::uint32_t>(begin); f < end; ++f) {
-      const Box b = face_box(m, f);
-      cb.grow(Vec3f{0.5f * (b.lo.x + b.hi.x), 0.5f * (b.lo.y + b.hi.y), 0.5f * (b.lo.z + b.hi.z)});
-    }
-  });
-  Box cbox = half_boxes[0];
-  cbox.grow(half_boxes[1]);
-  // Cubic cells (one scale for the three axes, from the longest side): with a cell per axis the
-  // thin axis of a sheet would be split as often as its long ones, into slabs as wide as the sheet.
-  const double longest = std::max({double{cbox.hi.x} - cbox.lo.x, double{cbox.hi.y} - cbox.lo.y, double{cbox.hi.z} - cbox.lo.z});
-  const double cells = longest > 0 ? kMortonCells / longest : 0.0;
-  const double scale[3] = {cells, cells, cells};
-  volume::ScratchVector<std::uint32_t> code(n), tmp_code(n);  // each written in full before it is read
-  std::vector<std::uint32_t> tmp_face(n);
-  volume::in_two_halves(n, two, [&](std::size_t begin, std::size_t end, int) {
-    morton_codes(m, cbox.lo, scale, static_cast<std::uint32_t>(begin), static_cast<std::uint32_t>(end), code.data());
-  });
-  for (std::uint32_t f = 0; f < n; ++f) order_[f] = f;
-  radix_sort(code, order_, tmp_code, tmp_face, two);
-
-  // 2. The tree over the sorted faces, top down, depth first (the left child first), each node's
-  //    children side by side: a range splits where its codes' highest differing bit turns on (the
-  //    octree cell's halves), or at its middle where every code is equal. Each split uses up a bit
-  //    of 30, and the middle splits halve the count, so depth stays below 30 + log2(n) + 1.
-  struct Task {
-    std::uint32_t node, begin, end;
-    std::size_t depth;
-  };
-  // ≤ 4 faces a leaf gives about 0.6 nodes a face; a leaf of one face, up to 2. The reserve is
-  // kept, not shrunk to fit (a copy of the whole tree): what lies past the nodes made is never
-  // touched, so it costs address space, not memory.
-  nodes_.reserve(n);
-  parent_.reserve(n);
-  nodes_.push_back({});
-  parent_.push_back(0);
-  std::vector<Task> tasks{{0, 0, static_cast<std::uint32_t>(n), 1}};
-  while (!tasks.empty()) {
-    const Task task = tasks.back();
-    tasks.pop_back();
-    depth_ = std::max(depth_, task.depth);
-    const std::uint32_t count = task.end - task.begin;
-    if (count <= kMaxLeafFaces) {
-      nodes_[task.node].first = task.begin;
-      nodes_[task.node].count = count;
-      continue;
-    }
-    std::uint32_t mid = task.begin + count / 2;
-    const std::uint32_t differ = code[task.begin] ^ code[task.end - 1];
-    if (differ != 0) {
-      const std::uint32_t bit = 1u << (31 - std::countl_zero(differ));
-      mid = static_cast<std::uint32_t>(
-          std::partition_point(code.begin() + task.begin, code.begin() + task.end, [&](std::uint32_t c) { return (c & bit) == 0; }) -
-          code.begin());
-    }
-    const auto child = static_cast<std::uint32_t>(nodes_.size());
-    nodes_[task.node].first = child;
-    nodes_[task.node].count = 0;
-    nodes_.push_back({});
-    nodes_.push_back({});
-    parent_.push_back(task.node);
-    parent_.push_back(task.node);
-    tasks.push_back({child + 1, mid, task.end, task.depth + 1});
-    tasks.push_back({child, task.begin, mid, task.depth + 1});
-  }
-  assert(depth_ <= kMaxDepth && "TriangleBvh::build: tree deeper than the traversal stacks");
-
-  // 3. The boxes, bottom up: the leaves from their faces, with each face's leaf (two threads for a
-  //    large mesh), then the internal nodes from their children.
-  volume::in_two_halves(nodes_.size(), two, [&](std::size_t begin, std::size_t end, int) {
-    for (std::size_t i = begin; i < end; ++i)
-      if (nodes_[i].count > 0) {
-        refit_leaf(m, nodes_[i]);
-        for (std::uint32_t k = nodes_[i].first; k < nodes_[i].first + nodes_[i].count; ++k) leaf_of_[order_[k]] = static_cast<std::uint32_t>(i);
-      }
-  });
-  refit_internal();
-}
-
-bool TriangleBvh::same_tree(const TriangleBvh& o) const {
-  if (nodes_.size() != o.nodes_.size() || order_ != o.order_ || leaf_of_ != o.leaf_of_ || parent_ != o.parent_ || depth_ != o.depth_)
-    return false;
-  for (std::size_t i = 0; i < nodes_.size(); ++i) {
-    const Node &a = nodes_[i], &b = o.nodes_[i];
-    if (!(a.lo == b.lo) || !(a.hi == b.hi) || a.first != b.first || a.count != b.count) return false;
-  }
-  return true;
-}
-
-void TriangleBvh::refit_leaf(const MeshView& m, Node& node) const {
-  Box b;
-  for (std::uint32_t i = node.first; i < node.first + node.count; ++i) b.grow(face_box(m, order_[i]));
-  node.lo = b.lo;
-  node.hi = b.hi;
-}
-
-void TriangleBvh::refit(const MeshView& m) {
-  assert(m.faces.size() == order_.size() && "TriangleBvh::refit: face count changed since build");
-  for (Node& node : nodes_)
-    if (node.count > 0) refit_leaf(m, node);
-  refit_internal();
-}
-
-void TriangleBvh::refit_internal() {
-  // Children always come after their parent, so one backward sweep is bottom-up.
-  for (std::size_t i = nodes_.size(); i-- > 0;) {
-    Node& node = nodes_[i];
-    if (node.count == 0) {
-      const Node& l = nodes_[node.first];
-      const Node& r = nodes_[node.first + 1];
-      node.lo = {std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};
-      node.hi = {std::max(l.hi.x, r.hi.x), std::max(l.hi.y, r.hi.y), std::max(l.hi.z, r.hi.z)};
-    }
-  }
-}
-
-void TriangleBvh::refit_faces(const MeshView& m, std::span<const std::uint32_t> faces) {
-  assert(m.faces.size() == order_.size() && "TriangleBvh::refit_faces: face count changed since build");
-  for (std::uint32_t f : faces) {
-    assert(f < leaf_of_.size() && "TriangleBvh::refit_faces: face index out of range");
-    std::uint32_t i = leaf_of_[f];
-    Node& leaf = nodes_[i];
-    const Vec3f lo = leaf.lo, hi = leaf.hi;
-    refit_leaf(m, leaf);
-    if (leaf.lo == lo && leaf.hi == hi) continue;
-    // Every internal box is the exact union of its children, so once a box comes out unchanged
-    // its ancestors are unchanged too.
-    while (i != 0) {
-      i = parent_[i];
-      Node& node = nodes_[i];
-      const Node& l = nodes_[node.first];
-      const Node& r = nodes_[node.first + 1];
-      const Vec3f nlo{std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};
-      const Vec3f nhi{std::max(l.hi.x, r.hi.x), std::max(l.hi.y, r.hi.y), std::max(l.hi.z, r.hi.z)};
-      if (nlo == node.lo && nhi == node.hi) break;
-      node.lo = nlo;
-      node.hi = nhi;
-    }
-  }
-}
-
 // ---------------------------------------------------------------------------------------------
 // Queries. Each keeps a fixed stack on the C++ stack: a pop pushes at most two children, so it
 // never holds more than depth + 1 entries.
 
 template <class Leaf>
-void TriangleBvh::walk_boxes_within(Vec3 q, double r2, Leaf&& leaf) const {
+void TriangleBvh::walk_boxes_within(const MeshView& m, Vec3 q, double r2, Leaf&& leaf) const {
   // Boxes are culled with a hair of slack; the caller's test on each face decides.
   const double cull = r2 * (1 + 1e-9) + 1e-30;
   std::uint32_t stack[kMaxDepth + 2];
@@ -512,8 +261,10 @@ void TriangleBvh::walk_boxes_within(Vec3 q, double r2, Leaf&& leaf) const {
   while (top > 0) {
     const Node& node = nodes_[stack[--top]];
     if (box_distance2(node.lo, node.hi, q) > cull) continue;
-    if (node.count > 0) {
+    if (is_leaf(node)) {
       leaf(node);
+    } else if (node.count == kBlockNode) {
+      stack[top++] = open(m, node.first);
     } else {
       stack[top++] = node.first + 1;
       stack[top++] = node.first;
@@ -523,10 +274,10 @@ void TriangleBvh::walk_boxes_within(Vec3 q, double r2, Leaf&& leaf) const {
 
 void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out, bool tree_order) const {
   out.clear();
-  if (nodes_.empty() || !(r >= 0)) return;
+  if (!nodes_ || !(r >= 0)) return;
   const Vec3 q = to_vec3(p);
   const double r2 = double{r} * double{r};
-  walk_boxes_within(q, r2, [&](const Node& node) {
+  walk_boxes_within(m, q, r2, [&](const Node& node) {
     for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
       const std::uint32_t f = order_[i];
       if (closest_on_face(m, f, q).d2 <= r2) out.push_back(f);
@@ -535,10 +286,10 @@ void TriangleBvh::faces_within(const MeshView& m, Vec3f p, float r, std::vector<
   if (!tree_order) std::sort(out.begin(), out.end());
 }
 
-void TriangleBvh::faces_in_boxes_within(Vec3f p, float r, std::vector<std::uint32_t>& out) const {
+void TriangleBvh::faces_in_boxes_within(const MeshView& m, Vec3f p, float r, std::vector<std::uint32_t>& out) const {
   out.clear();
-  if (nodes_.empty() || !(r >= 0)) return;
-  walk_boxes_within(to_vec3(p), double{r} * double{r}, [&](const Node& node) {
+  if (!nodes_ || !(r >= 0)) return;
+  walk_boxes_within(m, to_vec3(p), double{r} * double{r}, [&](const Node& node) {
     out.insert(out.end(), order_.begin() + node.first, order_.begin() + node.first + node.count);
   });
 }
@@ -547,7 +298,7 @@ void TriangleBvh::faces_within_any(const MeshView& m, std::span<const Vec3f> poi
                                    std::vector<std::uint32_t>& out, std::vector<std::uint32_t>& scratch) const {
   out.clear();
   scratch.clear();
-  if (nodes_.empty() || !(r >= 0) || points.empty()) return;
+  if (!nodes_ || !(r >= 0) || points.empty()) return;
   const double r2 = double{r} * double{r};
   const double cull = r2 * (1 + 1e-9) + 1e-30;  // as walk_boxes_within: the face test decides
   for (std::uint32_t i = 0; i < points.size(); ++i) scratch.push_back(i);
@@ -560,7 +311,9 @@ void TriangleBvh::faces_within_any(const MeshView& m, std::span<const Vec3f> poi
       if (box_distance2(node.lo, node.hi, to_vec3(points[scratch[k]])) <= cull) scratch.push_back(scratch[k]);
     const std::size_t mine_end = scratch.size();
     if (mine_end > mine) {
-      if (node.count == 0) {
+      if (node.count == kBlockNode) {
+        self(self, open(m, node.first), mine, mine_end);
+      } else if (node.count == 0) {
         self(self, node.first, mine, mine_end);
         self(self, node.first + 1, mine, mine_end);
       } else {
@@ -581,7 +334,7 @@ void TriangleBvh::faces_within_any(const MeshView& m, std::span<const Vec3f> poi
 }
 
 std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, float max_distance) const {
-  if (nodes_.empty() || !(max_distance >= 0)) return std::nullopt;
+  if (!nodes_ || !(max_distance >= 0)) return std::nullopt;
   const Vec3 q = to_vec3(p);
   double best = double{max_distance} * double{max_distance};
   std::optional<PointHit> hit;
@@ -596,7 +349,11 @@ std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, f
     const Entry e = stack[--top];
     if (e.d2 > best) continue;
     const Node& node = nodes_[e.node];
-    if (node.count > 0) {
+    if (node.count == kBlockNode) {  // its one child: no nearer-first to choose
+      const std::uint32_t root = open(m, node.first);
+      const double d = box_distance2(nodes_[root].lo, nodes_[root].hi, q);
+      if (d <= best) stack[top++] = {root, d};
+    } else if (is_leaf(node)) {
       for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
         const std::uint32_t f = order_[i];
         const Closest c = closest_on_face(m, f, q);
@@ -621,7 +378,7 @@ std::optional<PointHit> TriangleBvh::closest_point(const MeshView& m, Vec3f p, f
 }
 
 std::optional<SegmentHit> TriangleBvh::first_hit(const MeshView& m, Vec3f a, Vec3f b) const {
-  if (nodes_.empty()) return std::nullopt;
+  if (!nodes_) return std::nullopt;
   const Segment s(a, b);
   if (!s.valid) return std::nullopt;
   double best = 1.0;
@@ -639,7 +396,11 @@ std::optional<SegmentHit> TriangleBvh::first_hit(const MeshView& m, Vec3f a, Vec
     const Entry e = stack[--top];
     if (e.t > best) continue;
     const Node& node = nodes_[e.node];
-    if (node.count > 0) {
+    if (node.count == kBlockNode) {
+      const std::uint32_t root = open(m, node.first);
+      double t = 0;
+      if (s.box(nodes_[root].lo, nodes_[root].hi, best, t)) stack[top++] = {root, t};
+    } else if (is_leaf(node)) {
       for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
         const std::uint32_t f = order_[i];
         const auto& tri = m.faces[f];
@@ -672,7 +433,7 @@ std::optional<SegmentHit> TriangleBvh::first_hit(const MeshView& m, Vec3f a, Vec
 
 void TriangleBvh::segment_hits(const MeshView& m, Vec3f a, Vec3f b, std::vector<SegmentHit>& out) const {
   out.clear();
-  if (nodes_.empty()) return;
+  if (!nodes_) return;
   const Segment s(a, b);
   if (!s.valid) return;
   std::uint32_t stack[kMaxDepth + 2];
@@ -682,7 +443,9 @@ void TriangleBvh::segment_hits(const MeshView& m, Vec3f a, Vec3f b, std::vector<
     const Node& node = nodes_[stack[--top]];
     double t_enter = 0;
     if (!s.box(node.lo, node.hi, 1.0, t_enter)) continue;
-    if (node.count > 0) {
+    if (node.count == kBlockNode) {
+      stack[top++] = open(m, node.first);
+    } else if (is_leaf(node)) {
       for (std::uint32_t i = node.first; i < node.first + node.count; ++i) {
         const std::uint32_t f = order_[i];
         const auto& tri = m.faces[f];
@@ -701,38 +464,5 @@ void TriangleBvh::segment_hits(const MeshView& m, Vec3f a, Vec3f b, std::vector<
 }
 
 // ---------------------------------------------------------------------------------------------
-
-bool TriangleBvh::check(const MeshView& m) const {
-  const std::size_t n = order_.size();
-  if (m.faces.size() != n || leaf_of_.size() != n || parent_.size() != nodes_.size()) return false;
-  if (n == 0) return nodes_.empty();
-  if (nodes_.empty() || depth_ > kMaxDepth) return false;
-  std::vector<std::uint8_t> seen(n, 0);
-  for (std::size_t i = 0; i < nodes_.size(); ++i) {
-    const Node& node = nodes_[i];
-    if (!(node.lo.x <= node.hi.x && node.lo.y <= node.hi.y && node.lo.z <= node.hi.z)) return false;
-    if (node.count > 0) {
-      if (node.count > kMaxLeafFaces || std::size_t{node.first} + node.count > n) return false;
-      for (std::uint32_t k = node.first; k < node.first + node.count; ++k) {
-        const std::uint32_t f = order_[k];
-        if (f >= n || seen[f]++ != 0 || leaf_of_[f] != i) return false;
-        for (std::uint32_t vi : m.faces[f]) {
-          if (vi >= m.n_vertices || !encloses(node.lo, node.hi, vertex(m, vi))) return false;
-        }
-      }
-    } else {
-      if (node.first <= i || std::size_t{node.first} + 1 >= nodes_.size()) return false;
-      for (std::uint32_t c : {node.first, node.first + 1}) {
-        if (parent_[c] != i) return false;
-        if (!encloses(node.lo, node.hi, nodes_[c].lo) || !encloses(node.lo, node.hi, nodes_[c].hi)) return false;
-      }
-    }
-  }
-  return std::all_of(seen.begin(), seen.end(), [](std::uint8_t s) { return s == 1; });
-}
-
-std::size_t TriangleBvh::size_bytes() const {
-  return nodes_.size() * sizeof(Node) + (parent_.size() + order_.size() + leaf_of_.size()) * sizeof(std::uint32_t);
-}
 
 }  // namespace lancet::surface

@@ -49,12 +49,16 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
                                               " given"};
   std::unique_ptr<SurfaceModel> m(new SurfaceModel());
   m->params_ = params;
-  // The BVH, the per-vertex arrays and the rest face crosses need only the positions and the
-  // triangles as given (the mesh's points are the same numbers), so they are made on a thread of
-  // their own while this one builds the half-edge mesh; the jthread joins before the normals, and
-  // before any return (so before m could be destroyed).
+  // The face arrays, the BVH, the per-vertex arrays and the rest face crosses need only the
+  // positions and the triangles as given (the mesh's points are the same numbers), so they are
+  // made on a thread of their own while this one builds the half-edge mesh; the jthread joins
+  // once the mesh's connectivity is made, and before any return (so before m could be destroyed).
   std::jthread helper([&] {
     static_assert(sizeof(Vec3f) == 3 * sizeof(float));
+    m->faces_.assign(triangles.begin(), triangles.end());
+    m->material_.assign(triangles.size(), 0);
+    if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
+    m->handle_.resize(triangles.size());
     m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
     const std::size_t nv = positions.size();
     // Headroom for the copies cuts add, so a cut step never regrows a whole per-vertex array.
@@ -90,16 +94,13 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
     lo.minimize(p);
     hi.maximize(p);
   }
-  m->faces_.assign(triangles.begin(), triangles.end());
-  m->material_.assign(triangles.size(), 0);
-  if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
-  m->handle_.resize(triangles.size());
   // The connectivity at once (volume/halfedge_build.hpp); what is not a manifold goes face by face
   // below, where add_face names the first triangle that does not fit.
   std::vector<VH> handles(positions.size());
   for (std::size_t i = 0; i < positions.size(); ++i) handles[i] = VH(static_cast<int>(i));
   volume::TriangleCorners corners;  // for the normals below
   const bool built = volume::build_triangle_mesh(mesh, std::span<const VH>(handles), triangles, &m->on_boundary_, &corners);
+  helper.join();
   if (built)
     volume::in_two_halves(triangles.size(), volume::worth_two_threads(triangles.size()), [&](std::size_t begin, std::size_t end, int) {
       for (std::size_t f = begin; f < end; ++f) {
@@ -140,7 +141,6 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // (Current and rest positions are equal here, so a vertex's normal sums the faces' rest crosses
   // around it, in its one-ring's order: vertex_cross_sum without computing each cross thrice.
   // Each vertex and face is written by one thread only.)
-  helper.join();
   volume::in_two_halves(nv, volume::worth_two_threads(nv), [&](std::size_t begin, std::size_t end, int) {
     for (std::size_t i = begin; i < end; ++i) {
       P n(0, 0, 0);

@@ -72,7 +72,7 @@ std::size_t export_patch(const surface::SurfaceModel& model, Vec3 centre, const 
   // within the radius of the haptic surface is within the reach of the drawn one).
   const double reach = params.radius + model.params().deform_max_depth;
   const Vec3f at = to_vec3f(centre);
-  model.bvh().faces_in_boxes_within(at, static_cast<float>(reach), near);
+  model.bvh().faces_in_boxes_within(model.view(), at, static_cast<float>(reach), near);
   auto& cand = scratch.candidates;
   auto& corners = scratch.corners;
   cand.clear();

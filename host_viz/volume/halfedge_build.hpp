@@ -29,6 +29,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -245,7 +246,23 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   const std::size_t nv = vertices.size(), nt = triangles.size();
   if (mesh.n_faces() != 0) return false;
   detail::CornerPairs cp(nv, triangles);
-  if (!cp.pair() || !cp.one_fan_each()) return false;
+  // Every edge has one or two corners, so a manifold has at least 3·nt/2 edges: that many, and the
+  // faces, are made (their arrays filled with OpenMesh's defaults, mostly the first touch of fresh
+  // pages, on one thread) while the corners pair up, and the few boundary edges added after.
+  const std::size_t e0 = mesh.n_edges(), v0 = mesh.n_vertices();
+  bool paired = false;
+  {
+    std::jthread sizer;
+    if (cp.two)
+      sizer = std::jthread([&] { mesh.resize(v0, e0 + 3 * nt / 2, nt); });
+    else
+      mesh.resize(v0, e0 + 3 * nt / 2, nt);
+    paired = cp.pair() && cp.one_fan_each();
+  }
+  if (!paired) {
+    mesh.resize(v0, e0, 0);  // as it came: no faces
+    return false;
+  }
   constexpr std::uint32_t kNone = detail::CornerPairs::kNone;
   const bool two = cp.two;
   const auto& partner = cp.partner;
@@ -264,12 +281,15 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     for (std::size_t c = begin; c < end; ++c) owned[h] += owns(static_cast<std::uint32_t>(c)) ? 1 : 0;
   });
   // All edges and faces are made at once (ArrayKernel::resize: one resize of each property array,
-  // where new_edge and new_face grow every property by one element a call), then filled in: edge
-  // e's half-edge 2e runs its corner's way, 2e + 1 the partner's. Every corner's half-edge is
-  // written once (by its edge's corner), every half-edge belongs to one face: the halves write
-  // apart.
-  const std::size_t e0 = mesh.n_edges();
-  mesh.resize(mesh.n_vertices(), e0 + owned[0] + owned[1], nt);
+  // where new_edge and new_face grow every property by one element a call; here only the boundary
+  // edges are left to add), then filled in: edge e's half-edge 2e runs its corner's way, 2e + 1
+  // the partner's. Every corner's half-edge is written once (by its edge's corner), every
+  // half-edge belongs to one face: the halves write apart. (A caller that reserved room for the
+  // edges, 3·nt/2 on a closed surface and a little more with a boundary, never has its arrays
+  // moved here; one that reserved fewer has them grown to the exact count by reserve() rather
+  // than doubled by resize().)
+  mesh.reserve(v0, e0 + owned[0] + owned[1], nt);
+  mesh.resize(v0, e0 + owned[0] + owned[1], nt);
   // Corner → its half-edge (from → to): kept in the spent buckets, one entry a corner (their pages
   // are touched already, where a new array would fault in 4 bytes a corner again).
   const auto half = [&](std::size_t c) { return HH(static_cast<int>(bucket[c].corner_dir)); };

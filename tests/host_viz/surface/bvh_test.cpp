@@ -14,6 +14,8 @@
 #include <map>
 #include <random>
 #include <set>
+#include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -458,6 +460,151 @@ TEST(TriangleBvh, TwoThreadsBuildTheSameTreeAsOne) {
   EXPECT_FALSE(one.same_tree(three));
 }
 
+// Every answer of a lazily built tree, against the eager tree's (lazy = false) on the same mesh:
+// the same faces in the same order (faces_in_boxes_within and faces_within's tree order give the
+// leaves' order, which the patch export hands the servo), the same closest points and crossings.
+void expect_same_answers(const TriangleBvh& lazy, const TriangleBvh& eager, const Mesh& m, Vec3f p, float r, Vec3f a, Vec3f b,
+                         const std::string& where) {
+  const MeshView mv = m.view();
+  std::vector<std::uint32_t> x, y, scratch;
+  lazy.faces_in_boxes_within(mv, p, r, x);
+  eager.faces_in_boxes_within(mv, p, r, y);
+  EXPECT_EQ(x, y) << where;
+  lazy.faces_within(mv, p, r, x, /*tree_order=*/true);
+  eager.faces_within(mv, p, r, y, /*tree_order=*/true);
+  EXPECT_EQ(x, y) << where;
+  const Vec3f pair[2] = {p, b};
+  lazy.faces_within_any(mv, pair, r, x, scratch);
+  eager.faces_within_any(mv, pair, r, y, scratch);
+  EXPECT_EQ(x, y) << where;
+  const auto cx = lazy.closest_point(mv, p), cy = eager.closest_point(mv, p);
+  ASSERT_EQ(cx.has_value(), cy.has_value()) << where;
+  if (cx) {
+    EXPECT_EQ(cx->face, cy->face) << where;
+    EXPECT_EQ(cx->distance, cy->distance) << where;
+  }
+  const auto hx = lazy.first_hit(mv, a, b), hy = eager.first_hit(mv, a, b);
+  ASSERT_EQ(hx.has_value(), hy.has_value()) << where;
+  if (hx) {
+    EXPECT_EQ(hx->face, hy->face) << where;
+    EXPECT_EQ(hx->t, hy->t) << where;
+  }
+  std::vector<SegmentHit> sx, sy;
+  lazy.segment_hits(mv, a, b, sx);
+  eager.segment_hits(mv, a, b, sy);
+  ASSERT_EQ(sx.size(), sy.size()) << where;
+  for (std::size_t i = 0; i < sx.size(); ++i) EXPECT_TRUE(sx[i].face == sy[i].face && sx[i].t == sy[i].t) << where;
+}
+
+// A large mesh is built in blocks, made only where queries reach: the answers are the eager
+// tree's, leaf order included, and once every block is made the tree is the eager one with a
+// node more a block (the block's own, above its root), one level deeper.
+TEST(TriangleBvh, ALazyTreeAnswersAsTheEagerOneAndMakesOnlyTheBlocksItReaches) {
+  const Mesh m = wavy_grid(200);  // 80 000 faces, 20 cm square
+  ASSERT_GE(m.faces.size(), TriangleBvh::kLazyFrom);
+  TriangleBvh lazy, eager;
+  lazy.build(m.view());
+  eager.build(m.view(), true, /*lazy=*/false);
+  EXPECT_EQ(eager.block_count(), 0u);
+  ASSERT_GE(lazy.block_count(), m.faces.size() / TriangleBvh::kBlockFaces);
+  EXPECT_EQ(lazy.blocks_made(), 0u);
+  EXPECT_LT(lazy.node_count(), lazy.block_count() * 2);  // the top only
+  // A tool working in one corner: a few blocks made.
+  std::mt19937 rng(41);
+  std::uniform_real_distribution<float> near(-0.095f, -0.08f), radius(0.0f, 0.006f), dz(-0.02f, 0.02f);
+  for (int q = 0; q < 60; ++q) {
+    const Vec3f p{near(rng), near(rng), dz(rng)};
+    const Vec3f a{p.x, p.y, 0.03f}, b{near(rng), near(rng), -0.03f};
+    expect_same_answers(lazy, eager, m, p, radius(rng), a, b, "corner query " + std::to_string(q));
+  }
+  EXPECT_GT(lazy.blocks_made(), 0u);
+  EXPECT_LT(lazy.blocks_made() * 10, lazy.block_count());
+  // Anywhere, with crossings through the whole sheet: still the eager answers, and brute force's.
+  std::uniform_real_distribution<float> u(-0.11f, 0.11f);
+  for (int q = 0; q < 100; ++q) {
+    const Vec3f p{u(rng), u(rng), dz(rng)};
+    expect_same_answers(lazy, eager, m, p, radius(rng), Vec3f{u(rng), u(rng), 0.03f}, Vec3f{u(rng), u(rng), -0.03f},
+                        "query " + std::to_string(q));
+  }
+  expect_queries_match(lazy, m, 42, 60);
+  const std::size_t eager_nodes = eager.node_count(), eager_depth = eager.depth();
+  lazy.expand(m.view());
+  EXPECT_EQ(lazy.blocks_made(), lazy.block_count());
+  EXPECT_EQ(lazy.node_count(), eager_nodes + lazy.block_count());
+  EXPECT_EQ(lazy.depth(), eager_depth + 1);
+  EXPECT_TRUE(lazy.check(m.view()));
+  // A copy keeps the blocks made, node for node.
+  const TriangleBvh copy = lazy;
+  EXPECT_TRUE(copy.same_tree(lazy));
+}
+
+// Faces of a block no query has reached move: refit_faces makes the block from where they are now
+// and fits the boxes above it, so the queries find them there (as the eager tree, refitted the
+// same way, and brute force do).
+TEST(TriangleBvh, RefitFacesMakesTheBlocksOfFacesThatMoved) {
+  Mesh m = wavy_grid(200);
+  const auto vf = m.vertex_faces();
+  TriangleBvh lazy, eager;
+  lazy.build(m.view());
+  eager.build(m.view(), true, false);
+  // Lift a 1 cm patch by 4 cm, far above its blocks' cells.
+  std::vector<std::uint32_t> touched;
+  const Vec3f centre{0.05f, 0.05f, 0};
+  for (std::uint32_t v = 0; v < m.n_vertices(); ++v) {
+    const Vec3f p = m.v(v);
+    if (std::hypot(p.x - centre.x, p.y - centre.y) > 0.01f) continue;
+    m.set(v, add(p, Vec3f{0, 0, 0.04f}));
+    touched.insert(touched.end(), vf[v].begin(), vf[v].end());
+  }
+  ASSERT_GT(touched.size(), 100u);
+  lazy.refit_faces(m.view(), touched);
+  eager.refit_faces(m.view(), touched);
+  EXPECT_GT(lazy.blocks_made(), 0u);
+  EXPECT_LT(lazy.blocks_made() * 10, lazy.block_count());
+  const Vec3f above{0.05f, 0.05f, 0.045f};
+  const auto hit = lazy.closest_point(m.view(), above);
+  ASSERT_TRUE(hit.has_value());
+  EXPECT_NEAR(hit->distance, brute_closest(m, above), 1e-7);
+  EXPECT_LT(hit->distance, 0.02f);  // the lifted patch (its waves ±1 cm), not the sheet 3.5 cm or more below
+  expect_same_answers(lazy, eager, m, above, 0.008f, Vec3f{0.05f, 0.05f, 0.1f}, Vec3f{0.05f, 0.05f, -0.1f}, "above the patch");
+  expect_queries_match(lazy, m, 43, 60);
+  EXPECT_TRUE(lazy.check(m.view()));
+}
+
+// Queries may run on several threads at once: the first to reach a block makes it while the other
+// waits, and both get the eager tree's answers (tsan runs this too).
+TEST(TriangleBvh, ThreadsQueryingALazyTreeAtOnceGetTheEagerAnswers) {
+  const Mesh m = wavy_grid(200);
+  TriangleBvh lazy, eager;
+  lazy.build(m.view());
+  eager.build(m.view(), true, false);
+  constexpr int kQueries = 300;
+  std::vector<Vec3f> points(kQueries);
+  std::mt19937 rng(44);
+  std::uniform_real_distribution<float> u(-0.1f, 0.1f);
+  for (Vec3f& p : points) p = {u(rng), u(rng), 0.005f};
+  // Both threads walk the same points, one forwards and one backwards, so they meet on blocks.
+  std::vector<std::uint32_t> got[2][kQueries];
+  const auto run = [&](int t) {
+    std::vector<std::uint32_t> out;
+    for (int i = 0; i < kQueries; ++i) {
+      const int q = t == 0 ? i : kQueries - 1 - i;
+      lazy.faces_in_boxes_within(m.view(), points[q], 0.004f, out);
+      got[t][q] = out;
+    }
+  };
+  std::thread other(run, 1);
+  run(0);
+  other.join();
+  std::vector<std::uint32_t> want;
+  for (int q = 0; q < kQueries; ++q) {
+    eager.faces_in_boxes_within(m.view(), points[q], 0.004f, want);
+    EXPECT_EQ(got[0][q], want) << "query " << q;
+    EXPECT_EQ(got[1][q], want) << "query " << q;
+  }
+  EXPECT_TRUE(lazy.check(m.view()));
+}
+
 // At a vertex every face around it is at distance 0: closest_point must answer the lowest face
 // index of those (what brute force picks), not whichever face the tree's traversal meets first,
 // so that the cut does not depend on the tree's shape.
@@ -512,7 +659,7 @@ TEST(TriangleBvh, FacesInBoxesHoldEveryFaceWithinInTreeOrder) {
     const Vec3f p{u(rng), u(rng), 0.2f * u(rng)};
     const float r = radius(rng);
     bvh.faces_within(m.view(), p, r, within, /*tree_order=*/true);
-    bvh.faces_in_boxes_within(p, r, boxes);
+    bvh.faces_in_boxes_within(m.view(), p, r, boxes);
     filtered.clear();
     for (std::uint32_t f : boxes) {
       const auto c = m.corners(f);
@@ -746,11 +893,15 @@ TEST(TriangleBvh, ZeroAreaFacesAreSafe) {
   EXPECT_NEAR(h->distance, std::hypot(0.0001, 0.001), 1e-8);
 }
 
-TEST(TriangleBvh, QueriesAndRefitsDoNotAllocate) {
-  Mesh m = wavy_grid(60);
+// On a small mesh, and on a large one whose blocks the queries and refits make as they go.
+class TriangleBvhAllocation : public ::testing::TestWithParam<int> {};
+
+TEST_P(TriangleBvhAllocation, QueriesAndRefitsDoNotAllocate) {
+  Mesh m = wavy_grid(GetParam());
   const auto vf = m.vertex_faces();
   TriangleBvh bvh;
   bvh.build(m.view());
+  EXPECT_EQ(bvh.block_count() > 0, m.faces.size() >= TriangleBvh::kLazyFrom);
   std::vector<std::uint32_t> within, touched;
   std::vector<SegmentHit> hits;
   within.reserve(m.faces.size());
@@ -782,6 +933,8 @@ TEST(TriangleBvh, QueriesAndRefitsDoNotAllocate) {
   EXPECT_GT(found, 200u);
   EXPECT_TRUE(bvh.check(m.view()));
 }
+
+INSTANTIATE_TEST_SUITE_P(SmallAndLazy, TriangleBvhAllocation, ::testing::Values(60, 200));
 
 }  // namespace
 }  // namespace lancet::surface
