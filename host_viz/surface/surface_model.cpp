@@ -34,6 +34,17 @@ constexpr double kCutReach = 0.02;  // m: a blade tip this close to the surface 
 Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f> positions,
                                                            std::span<const std::array<std::uint32_t, 3>> triangles,
                                                            std::span<const std::uint16_t> face_material, const SurfaceParams& params) {
+  return make(positions, triangles, face_material, params, nullptr, nullptr);
+}
+
+Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(TriangleMesh&& mesh, const SurfaceParams& params) {
+  return make(mesh.vertices, mesh.triangles, mesh.material, params, &mesh.triangles, &mesh.material);
+}
+
+Result<std::unique_ptr<SurfaceModel>> SurfaceModel::make(std::span<const Vec3f> positions, std::span<const std::array<std::uint32_t, 3>> triangles,
+                                                         std::span<const std::uint16_t> face_material, const SurfaceParams& params,
+                                                         std::vector<std::array<std::uint32_t, 3>>* own_triangles,
+                                                         std::vector<std::uint16_t>* own_material) {
   if (!face_material.empty() && face_material.size() != triangles.size())
     return Error{ErrorCode::kInvalid, "surface: face_material has " + std::to_string(face_material.size()) + " entries, expected " +
                                           std::to_string(triangles.size()) + " (one per triangle)"};
@@ -53,11 +64,19 @@ Result<std::unique_ptr<SurfaceModel>> SurfaceModel::create(std::span<const Vec3f
   // positions and the triangles as given (the mesh's points are the same numbers), so they are
   // made on a thread of their own while this one builds the half-edge mesh; the jthread joins
   // once the mesh's connectivity is made, and before any return (so before m could be destroyed).
+  // (Arrays handed over are moved: their elements stay where the spans see them.)
   std::jthread helper([&] {
     static_assert(sizeof(Vec3f) == 3 * sizeof(float));
-    m->faces_.assign(triangles.begin(), triangles.end());
-    m->material_.assign(triangles.size(), 0);
-    if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
+    if (own_triangles != nullptr)
+      m->faces_ = std::move(*own_triangles);
+    else
+      m->faces_.assign(triangles.begin(), triangles.end());
+    if (own_material != nullptr && !face_material.empty()) {
+      m->material_ = std::move(*own_material);
+    } else {
+      m->material_.assign(triangles.size(), 0);
+      if (!face_material.empty()) m->material_.assign(face_material.begin(), face_material.end());
+    }
     m->handle_.resize(triangles.size());
     m->bvh_.build(MeshView{positions.empty() ? nullptr : &positions.front().x, positions.size(), triangles});
     const std::size_t nv = positions.size();

@@ -130,6 +130,9 @@ class SurfaceModel {
                                                                     std::span<const std::array<std::uint32_t, 3>> triangles,
                                                                     std::span<const std::uint16_t> face_material = {},
                                                                     const SurfaceParams& params = {});
+  /// The same from a mesh handed over: its triangles and materials become the model's own arrays,
+  /// not copied (its normals are not used: the model makes its own from the faces).
+  [[nodiscard]] static Result<std::unique_ptr<SurfaceModel>> create(TriangleMesh&& mesh, const SurfaceParams& params = {});
 
   [[nodiscard]] const SurfaceMesh& mesh() const noexcept { return mesh_; }
   [[nodiscard]] std::size_t n_faces() const noexcept { return faces_.size(); }
@@ -191,6 +194,12 @@ class SurfaceModel {
   void to_triangle_mesh(TriangleMesh& out) const;
 
  private:
+  // create(), taking the triangles' and materials' arrays where the caller hands them over
+  // (own_*: the vectors the spans view, moved from; null: copied).
+  static Result<std::unique_ptr<SurfaceModel>> make(std::span<const Vec3f> positions, std::span<const std::array<std::uint32_t, 3>> triangles,
+                                                    std::span<const std::uint16_t> face_material, const SurfaceParams& params,
+                                                    std::vector<std::array<std::uint32_t, 3>>* own_triangles,
+                                                    std::vector<std::uint16_t>* own_material);
   SurfaceModel() = default;
   void set_current(std::uint32_t v);  // current = rest + deformation + opening + wrinkle
   void set_haptic(std::uint32_t v);   // haptic = rest + opening + wrinkle

@@ -11,6 +11,7 @@
 #include "tissue/block_volume.hpp"
 #include "volume/chainmail.hpp"
 #include "volume/drill.hpp"
+#include "volume/in_two_halves.hpp"
 #include "volume/marching_cubes.hpp"
 
 namespace lancet::tissue {
@@ -33,24 +34,6 @@ int handedness(const VolumePlacement& p) {
 }
 
 // A surface in the volume's frame, turned into the world by the placement.
-surface::TriangleMesh to_world(const volume::IsoSurface& iso, const VolumePlacement& placement) {
-  surface::TriangleMesh m;
-  const VolumePlacement turn{placement.axis, placement.sign, {}};
-  m.vertices.reserve(iso.positions.size());
-  for (std::size_t i = 0; i < iso.positions.size(); ++i) {
-    m.vertices.push_back(to_vec3f(placement.to_world(to_vec3(iso.positions[i]))));
-    m.normals.push_back(iso.normals.empty() ? Vec3f{0, 0, 1} : to_vec3f(turn.to_world(to_vec3(iso.normals[i]))));
-  }
-  const bool flip = handedness(placement) < 0;
-  m.triangles.reserve(iso.triangles.size());
-  for (auto t : iso.triangles) {
-    if (flip) std::swap(t[1], t[2]);
-    m.triangles.push_back(t);
-    m.material.push_back(iso.material.empty() ? 1 : iso.material[t[0]]);
-  }
-  return m;
-}
-
 // The live bone surface (OpenMesh, volume frame, with deleted elements) as a compact world mesh.
 surface::TriangleMesh to_world(const volume::IsoMesh& mesh, const VolumePlacement& placement) {
   surface::TriangleMesh m;
@@ -136,6 +119,30 @@ struct TissueScene::Groove {
 TissueScene::TissueScene() = default;
 TissueScene::~TissueScene() = default;
 
+surface::TriangleMesh place_skin(volume::IsoSurface&& iso, const volume::Volume& v, VolumePlacement& placement) {
+  const std::size_t nv = iso.positions.size();
+  const bool two = volume::worth_two_threads(iso.triangles.size());
+  const Vec3 centre = placement.to_world(v.position(0.5 * (v.dims[0] - 1), 0.5 * (v.dims[1] - 1), 0.5 * (v.dims[2] - 1)));
+  double top[2] = {-1e30, -1e30};
+  volume::in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int half) {
+    for (std::size_t i = begin; i < end; ++i) top[half] = std::max(top[half], placement.to_world(to_vec3(iso.positions[i])).z);
+  });
+  placement.offset = {-centre.x, -centre.y, -std::max(top[0], top[1])};
+  surface::TriangleMesh m;
+  m.vertices = std::move(iso.positions);
+  m.triangles = std::move(iso.triangles);
+  const bool flip = handedness(placement) < 0;
+  volume::in_two_halves(nv, two, [&](std::size_t begin, std::size_t end, int) {
+    for (std::size_t i = begin; i < end; ++i) m.vertices[i] = to_vec3f(placement.to_world(to_vec3(m.vertices[i])));
+  });
+  if (flip)
+    volume::in_two_halves(m.triangles.size(), two, [&](std::size_t begin, std::size_t end, int) {
+      for (std::size_t f = begin; f < end; ++f) std::swap(m.triangles[f][1], m.triangles[f][2]);
+    });
+  m.material.assign(m.triangles.size(), static_cast<std::uint16_t>(volume::kSkin));  // by definition
+  return m;
+}
+
 Result<std::unique_ptr<TissueScene>> TissueScene::create(SceneDescription d) {
   std::unique_ptr<TissueScene> s(new TissueScene());
   surface::TriangleMesh skin;
@@ -190,13 +197,7 @@ Result<std::unique_ptr<TissueScene>> TissueScene::create(SceneDescription d) {
     if (!iso.ok()) return invalid(iso.error().message);
     if (iso.value().triangles.empty())
       return invalid("no skin at " + std::to_string(d.skin_iso) + " HU: the volume has nothing that dense (check skin_iso)");
-    const auto& v = t.volume;
-    const Vec3 centre = s->placement_.to_world(v.position(0.5 * (v.dims[0] - 1), 0.5 * (v.dims[1] - 1), 0.5 * (v.dims[2] - 1)));
-    double top = -1e30;
-    for (const auto& p : iso.value().positions) top = std::max(top, s->placement_.to_world(to_vec3(p)).z);
-    s->placement_.offset = {-centre.x, -centre.y, -top};
-    skin = to_world(iso.value(), s->placement_);
-    std::fill(skin.material.begin(), skin.material.end(), static_cast<std::uint16_t>(volume::kSkin));  // by definition
+    skin = place_skin(std::move(iso).value(), t.volume, s->placement_);
   } else {
     skin = surface::make_tissue_block(d.block);
   }
@@ -208,7 +209,7 @@ Result<std::unique_ptr<TissueScene>> TissueScene::create(SceneDescription d) {
     skin = to_world(s->bone_->mesh(), s->placement_);
     if (skin.triangles.empty()) return invalid("no bone at " + std::to_string(d.bone_iso) + " HU (check bone_iso)");
   }
-  auto model = surface::SurfaceModel::create(skin.vertices, skin.triangles, skin.material, d.surface_params);
+  auto model = surface::SurfaceModel::create(std::move(skin), d.surface_params);
   if (!model.ok()) return invalid(model.error().message);
   s->surface_ = std::move(model).value();
   s->desc_ = std::move(d);

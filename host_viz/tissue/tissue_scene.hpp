@@ -206,6 +206,13 @@ class TissueScene {
   std::array<std::size_t, kHandCount> held_cut_{kNoCut, kNoCut};  ///< by hand: the cut its retractor holds
 };
 
+/// The skin's isosurface of volume v placed in the world as the scene places it: placement's
+/// offset is set so that the volume's centre lies at x = y = 0 and the skin's top at z = 0, the
+/// vertices are turned and moved there, the triangles flipped where the axes change handedness,
+/// every face skin. The isosurface's arrays are taken, not copied; no normals (the surface model
+/// makes its own from the faces). What TissueScene::create does between extraction and surface.
+surface::TriangleMesh place_skin(volume::IsoSurface&& iso, const volume::Volume& v, VolumePlacement& placement);
+
 /// Material labels from HU thresholds (air, muscle, cortical bone), for a CT without labels.
 std::vector<std::uint8_t> labels_from_hu(const volume::Volume& v, float skin_iso, float bone_iso);
 
