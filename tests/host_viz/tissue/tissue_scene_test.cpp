@@ -19,7 +19,9 @@
 #include "score/task_monitor.hpp"
 #include "tissue/scenario_scene.hpp"
 #include "tissue/scripted_sample.hpp"
+#include "volume/marching_cubes.hpp"
 #include "volume/mesh_tools.hpp"
+#include "volume/phantom.hpp"
 
 namespace lancet::tissue {
 namespace {
@@ -288,6 +290,52 @@ TEST(TissueScene, ThePhantomIsPlacedAsItsSkinSaysAndItsPatchCarriesTheBrick) {
   EXPECT_GT(scene->export_patch({0, 0, 0}, *patch), 0u);
   EXPECT_GT(patch->n_triangles, 0u);
   EXPECT_EQ(patch->brick.valid, 1u);
+}
+
+// place_skin takes the isosurface and places it as the scene does: every vertex where the placement
+// (with the offset it sets) sends it, the volume's centre at x = y = 0 and the top at z = 0, each
+// triangle's winding kept or, where the axes change handedness, reversed so it still faces out.
+TEST(TissueScene, PlaceSkinPutsTheSkinWhereThePlacementSaysAndKeepsItFacingOut) {
+  const volume::Volume v = volume::make_phantom(volume::PhantomParams{}).volume;
+  volume::IsoOptions o;
+  o.iso = -300;
+  o.normals = false;
+  const volume::IsoSurface iso = volume::extract_isosurface(v, o).value();
+  ASSERT_GT(iso.triangles.size(), 1000u);
+  for (const int sign : {1, -1}) {
+    VolumePlacement placement;
+    placement.axis = {2, 0, 1};
+    placement.sign = {1, sign, 1};
+    volume::IsoSurface taken = iso;
+    const surface::TriangleMesh m = place_skin(std::move(taken), v, placement);
+    ASSERT_EQ(m.vertices.size(), iso.positions.size());
+    ASSERT_EQ(m.triangles.size(), iso.triangles.size());
+    EXPECT_TRUE(m.normals.empty());
+    EXPECT_TRUE(std::all_of(m.material.begin(), m.material.end(), [](std::uint16_t x) { return x == volume::kSkin; }));
+    float top = -1;
+    for (std::size_t i = 0; i < m.vertices.size(); ++i) {
+      const Vec3f want = to_vec3f(placement.to_world(to_vec3(iso.positions[i])));
+      ASSERT_TRUE(m.vertices[i] == want) << "vertex " << i;
+      top = std::max(top, m.vertices[i].z);
+    }
+    EXPECT_EQ(top, 0.0f);
+    const Vec3 centre = placement.to_world(v.position(0.5 * (v.dims[0] - 1), 0.5 * (v.dims[1] - 1), 0.5 * (v.dims[2] - 1)));
+    EXPECT_NEAR(centre.x, 0, 1e-12);
+    EXPECT_NEAR(centre.y, 0, 1e-12);
+    // Facing out: the signed volume the faces enclose (a closed skin's) stays positive.
+    double volume6 = 0;
+    for (std::size_t f = 0; f < m.triangles.size(); ++f) {
+      const auto& t = m.triangles[f];
+      const Vec3 a = to_vec3(m.vertices[t[0]]), b = to_vec3(m.vertices[t[1]]), c = to_vec3(m.vertices[t[2]]);
+      volume6 += dot(a, cross(b, c));
+      const auto& was = iso.triangles[f];
+      if (sign > 0)
+        EXPECT_EQ(t, was);
+      else
+        EXPECT_EQ(t, (std::array<std::uint32_t, 3>{was[0], was[2], was[1]}));
+    }
+    EXPECT_GT(volume6, 0) << "sign " << sign;
+  }
 }
 
 // The drill: removals lancet-rt reports are carved into the volume, the labels follow, and the bone
