@@ -3,6 +3,7 @@
 // (HU when the source says the scan is CT, else the file's values), x fastest; geometry is in
 // metres. Allocating; not for the real-time path.
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -11,10 +12,16 @@
 #include <vector>
 
 #include "lancet/shared_model/geometry.hpp"
+#include "volume/build_arrays.hpp"
 
 namespace lancet::volume {
 
 enum class VoxelType : std::uint8_t { kU8, kI16, kU16, kF32 };
+
+/// A volume's values: a std::vector<float> whose resize() does not zero what it adds.
+using VoxelArray = ScratchVector<float>;
+/// Value by value against a plain vector (either way round).
+inline bool operator==(const VoxelArray& a, const std::vector<float>& b) { return std::equal(a.begin(), a.end(), b.begin(), b.end()); }
 
 struct Volume {
   std::array<int, 3> dims{};                        ///< nx, ny, nz
@@ -24,7 +31,9 @@ struct Volume {
   VoxelType source_type = VoxelType::kF32;          ///< what the file stored
   std::string value_unit = "raw";                   ///< "HU" when values are Hounsfield units (CT only), else "raw"
   std::string modality;                             ///< "CT", "MR", ... when the file says (DICOM Modality, MetaImage Modality); else empty
-  std::vector<float> data;                          ///< nx·ny·nz values, x fastest
+  /// nx·ny·nz values, x fastest. resize() leaves new values unset (a loader writes each voxel once,
+  /// on both cores, rather than after zeros): assign(n, value) to fill.
+  VoxelArray data;
   /// What the loader noticed and accepted (files it skipped, fields it inferred), one sentence
   /// each naming the file; the library never prints them, a program shows them to its user.
   std::vector<std::string> warnings;

@@ -246,7 +246,7 @@ TEST(MarchingCubes, BadInputIsAClearError) {
   auto labels = extract_isosurface(v, IsoOptions{}, short_labels);
   ASSERT_FALSE(labels.ok());
   EXPECT_NE(labels.error().message.find("expected 64"), std::string::npos);
-  v.data.resize(10);
+  v.data.assign(10, 0.0f);
   auto sized = extract_isosurface(v, IsoOptions{});
   ASSERT_FALSE(sized.ok());
   EXPECT_NE(sized.error().message.find("data has 10"), std::string::npos);
