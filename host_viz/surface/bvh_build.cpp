@@ -491,7 +491,8 @@ bool TriangleBvh::check(const MeshView& m) const {
 }
 
 std::size_t TriangleBvh::size_bytes() const {
-  return made_ * (sizeof(Node) + sizeof(std::uint32_t)) + (order_.size() + leaf_of_.size() + rank_.size() + code_.size()) * sizeof(std::uint32_t) +
+  const std::size_t made = node_count();
+  return made * (sizeof(Node) + sizeof(std::uint32_t)) + (order_.size() + leaf_of_.size() + rank_.size() + code_.size()) * sizeof(std::uint32_t) +
          blocks_.size() * sizeof(Block);
 }
 

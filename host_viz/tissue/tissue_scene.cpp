@@ -33,8 +33,8 @@ int handedness(const VolumePlacement& p) {
   return (inversions % 2 == 0 ? 1 : -1) * s;
 }
 
-// A surface in the volume's frame, turned into the world by the placement.
-// The live bone surface (OpenMesh, volume frame, with deleted elements) as a compact world mesh.
+// The live bone surface (OpenMesh, volume frame, with deleted elements) as a compact world mesh,
+// turned into the world by the placement.
 surface::TriangleMesh to_world(const volume::IsoMesh& mesh, const VolumePlacement& placement) {
   surface::TriangleMesh m;
   const VolumePlacement turn{placement.axis, placement.sign, {}};
