@@ -274,12 +274,19 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // 2. Edges, faces and their half-edge cycles.
   // Edge e is made by the first corner that has it (one without a partner, or the lower of the
   // two): its number counts such corners before it, in corner order, as new_edge one at a time
-  // would number them. Each half of the corners counts its own, so the halves run at once.
+  // would number them. Each half of the corners counts its own, so the halves run at once, and
+  // lists its boundary corners (no partner), for 3. and 4. below: the halves joined, corner order.
   const auto owns = [&](std::uint32_t c) { return partner[c] == kNone || partner[c] > c; };
   std::size_t owned[2] = {0, 0};
+  std::vector<std::uint32_t> open[2];
   in_two_halves(3 * nt, two, [&](std::size_t begin, std::size_t end, int h) {
-    for (std::size_t c = begin; c < end; ++c) owned[h] += owns(static_cast<std::uint32_t>(c)) ? 1 : 0;
+    for (auto c = static_cast<std::uint32_t>(begin); c < end; ++c) {
+      owned[h] += owns(c) ? 1 : 0;
+      if (partner[c] == kNone) open[h].push_back(c);
+    }
   });
+  open[0].insert(open[0].end(), open[1].begin(), open[1].end());
+  const std::vector<std::uint32_t>& boundary = open[0];
   // All edges and faces are made at once (ArrayKernel::resize: one resize of each property array,
   // where new_edge and new_face grow every property by one element a call; here only the boundary
   // edges are left to add), then filled in: edge e's half-edge 2e runs its corner's way, 2e + 1
@@ -327,13 +334,11 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
   // 3. Boundary loops: the boundary half-edge of corner c runs to → from; the one leaving each
   // vertex is unique on a manifold.
   std::vector<HH> boundary_out(nv);
-  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
-    if (partner[c] != kNone) continue;
+  for (const std::uint32_t c : boundary) {
     const HH b = mesh.opposite_halfedge_handle(half(c));
     boundary_out[to(c)] = b;  // b leaves to(c); one per vertex (the fan check above)
   }
-  for (std::uint32_t c = 0; c < 3 * nt; ++c) {
-    if (partner[c] != kNone) continue;
+  for (const std::uint32_t c : boundary) {
     const HH b = mesh.opposite_halfedge_handle(half(c));  // runs to(c) → from(c)
     mesh.set_next_halfedge_handle(b, boundary_out[from(c)]);
   }
@@ -342,16 +347,14 @@ bool build_triangle_mesh(Mesh& mesh, std::span<const typename Mesh::VertexHandle
     if (boundary_out[v].is_valid()) mesh.set_halfedge_handle(VH(vertices[v]), boundary_out[v]);
   if (on_boundary != nullptr) {
     on_boundary->assign(nt, 0);
-    for (std::uint32_t c = 0; c < 3 * nt; ++c)
-      if (partner[c] == kNone) (*on_boundary)[c / 3] = 1;
+    for (const std::uint32_t c : boundary) (*on_boundary)[c / 3] = 1;
   }
   if (corners != nullptr) {
     // A vertex's half-edge is its last corner's (2.), or on a boundary the boundary half-edge
     // leaving it (4.), from whose clockwise turn the circulator starts: the corner after the
     // boundary corner arriving at the vertex.
     corners->first = std::move(cp.last);
-    for (std::uint32_t c = 0; c < 3 * nt; ++c)
-      if (partner[c] == kNone) corners->first[to(c)] = detail::next_corner(c);
+    for (const std::uint32_t c : boundary) corners->first[to(c)] = detail::next_corner(c);
     corners->partner = std::move(cp.partner);
   }
   return true;
