@@ -204,6 +204,9 @@ class TriangleBvh {
   void make_block(const MeshView& m, std::uint32_t block) const;     // under the lock or exclusive access
   void refit_leaf(const MeshView& m, Node& node) const;
   void refit_up(std::uint32_t i, bool stop_when_unchanged);  // the boxes of i's ancestors
+  // Sets the box of an internal node to its two children's union, of a made block's node to its
+  // root's box.
+  void fit_to_children(Node& node) const;
   template <class Leaf>
   void walk_boxes_within(const MeshView& m, Vec3 q, double r2, Leaf&& leaf) const;  // leaf(node) for every leaf within sqrt(r2) of q
   template <class Fn>

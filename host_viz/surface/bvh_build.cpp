@@ -310,17 +310,21 @@ void TriangleBvh::fit_nodes(const MeshView& m, std::uint32_t begin, std::uint32_
   // takes its root's box; one not made keeps the box of its cell.
   for (std::uint32_t i = end; i-- > begin;) {
     Node& node = nodes_[i];
-    if (node.count == 0) {
-      const Node& l = nodes_[node.first];
-      const Node& r = nodes_[node.first + 1];
-      node.lo = {std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};
-      node.hi = {std::max(l.hi.x, r.hi.x), std::max(l.hi.y, r.hi.y), std::max(l.hi.z, r.hi.z)};
-    } else if (node.count == kBlockNode && blocks_[node.first].used > 0) {
-      const Node& root = nodes_[blocks_[node.first].root];
-      node.lo = root.lo;
-      node.hi = root.hi;
-    }
+    if (node.count == 0 || (node.count == kBlockNode && blocks_[node.first].used > 0)) fit_to_children(node);
   }
+}
+
+void TriangleBvh::fit_to_children(Node& node) const {
+  if (node.count == kBlockNode) {
+    const Node& root = nodes_[blocks_[node.first].root];
+    node.lo = root.lo;
+    node.hi = root.hi;
+    return;
+  }
+  const Node& l = nodes_[node.first];
+  const Node& r = nodes_[node.first + 1];
+  node.lo = {std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};
+  node.hi = {std::max(l.hi.x, r.hi.x), std::max(l.hi.y, r.hi.y), std::max(l.hi.z, r.hi.z)};
 }
 
 void TriangleBvh::make_block(const MeshView& m, std::uint32_t k) const {
@@ -414,20 +418,9 @@ void TriangleBvh::refit_up(std::uint32_t i, bool stop_when_unchanged) {
   while (i != 0) {
     i = parent_[i];
     Node& node = nodes_[i];
-    Vec3f lo, hi;
-    if (node.count == kBlockNode) {
-      const Node& root = nodes_[blocks_[node.first].root];
-      lo = root.lo;
-      hi = root.hi;
-    } else {
-      const Node& l = nodes_[node.first];
-      const Node& r = nodes_[node.first + 1];
-      lo = {std::min(l.lo.x, r.lo.x), std::min(l.lo.y, r.lo.y), std::min(l.lo.z, r.lo.z)};
-      hi = {std::max(l.hi.x, r.hi.x), std::max(l.hi.y, r.hi.y), std::max(l.hi.z, r.hi.z)};
-    }
-    if (stop_when_unchanged && lo == node.lo && hi == node.hi) break;
-    node.lo = lo;
-    node.hi = hi;
+    const Vec3f lo = node.lo, hi = node.hi;
+    fit_to_children(node);
+    if (stop_when_unchanged && node.lo == lo && node.hi == hi) break;
   }
 }
 
