@@ -18,6 +18,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -58,6 +59,7 @@ class TwoProcess : public test::ProcessTest {
       argv.insert(argv.end(), {"--viz-timeout-ms", std::to_string(kTimeoutMs)});
     argv.insert(argv.end(), extra.begin(), extra.end());
     auto rt = std::make_unique<Child>(argv, path("rt.log"));
+    rt_ = rt.get();
     // Wait until its segment is ready, and keep it open to watch the servo.
     EXPECT_TRUE(test::eventually([&] {
       auto ch = SharedChannel::open(shm_);
@@ -74,7 +76,9 @@ class TwoProcess : public test::ProcessTest {
     // Mesa's GL driver leaks a little at context teardown and is unloaded before LeakSanitizer
     // reports, so the report cannot be suppressed by name: leak checking is off for lancet-viz in
     // sanitizer builds (its session logic is leak-checked by the host_viz unit tests).
-    return std::make_unique<Child>(argv, path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"});
+    auto viz = std::make_unique<Child>(argv, path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"});
+    viz_ = viz.get();
+    return viz;
   }
   /// lancet-rt's latest status (a zero one before the first).
   RtStatus status() {
@@ -100,11 +104,35 @@ class TwoProcess : public test::ProcessTest {
   }
   /// Waits until the viz has applied `ticks` servo ticks after the first one it applied with a
   /// patch in use by the servo (the scripted hand's clock starts there with
-  /// --script-waits-for-tissue).
-  bool wait_viz_applied_after_tissue(std::uint64_t ticks) {
+  /// --script-waits-for-tissue). Fails at once, saying how, where either process ends first.
+  ::testing::AssertionResult wait_viz_applied_after_tissue(std::uint64_t ticks) {
     bool ok = false;
-    const RtStatus first = wait_status([](const RtStatus& st) { return st.hand[0].patch_version != 0; }, ok);
-    return ok && test::eventually([&] { return viz_applied() >= first.tick + ticks; }, std::chrono::seconds(180));
+    const RtStatus first = wait_status([this](const RtStatus& st) { return st.hand[0].patch_version != 0 || ended(); }, ok);
+    if (ended()) return ::testing::AssertionFailure() << ended_how();
+    if (!ok) return ::testing::AssertionFailure() << "no tissue patch reached the servo";
+    // Well inside the test's own time-out, so that a hang is reported here with the logs.
+    (void)test::eventually([&] { return viz_applied() >= first.tick + ticks || ended(); }, std::chrono::seconds(120));
+    if (ended()) return ::testing::AssertionFailure() << ended_how();
+    if (viz_applied() < first.tick + ticks)
+      return ::testing::AssertionFailure() << "the viz applied " << viz_applied() - first.tick << " of " << ticks << " ticks in 120 s";
+    return ::testing::AssertionSuccess();
+  }
+  /// Whether the last lancet-viz or lancet-rt started has ended (a run's wait stops there).
+  bool ended() {
+    using namespace std::chrono_literals;
+    return (viz_ != nullptr && viz_->wait_exit(0ms).has_value()) || (rt_ != nullptr && rt_->wait_exit(0ms).has_value());
+  }
+  std::string ended_how() {
+    using namespace std::chrono_literals;
+    std::string how;
+    for (auto [child, name] : {std::pair{viz_, "lancet-viz"}, std::pair{rt_, "lancet-rt"}}) {
+      const auto st = child != nullptr ? child->wait_exit(0ms) : std::nullopt;
+      if (!st) continue;
+      how += std::string(name) + (WIFSIGNALED(*st) ? " was killed by signal " + std::to_string(WTERMSIG(*st)) + " (" + strsignal(WTERMSIG(*st)) + ")"
+                                                   : " exited with status " + std::to_string(WEXITSTATUS(*st))) +
+             " before the run was over\n";
+    }
+    return how + "rt.log:\n" + read_file(path("rt.log"));
   }
   /// Asks the viz to end (SIGINT, as Ctrl-C does) and checks that it did, cleanly.
   void stop_viz(Child& viz) {
@@ -122,6 +150,8 @@ class TwoProcess : public test::ProcessTest {
 
  private:
   std::optional<SharedChannel> channel_;
+  Child* viz_ = nullptr;  // the last started (each test's own, alive through its body)
+  Child* rt_ = nullptr;
 };
 
 TEST_F(TwoProcess, SamplesPatchForceAndScreenshot) {
