@@ -12,6 +12,8 @@
 #include <gtest/gtest.h>
 #include <stb/stb_image.h>
 #include <sys/mman.h>
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -50,6 +52,13 @@ class TwoProcess : public test::ProcessTest {
   void SetUp() override {
     // lancet-viz renders headless through EGL: no X server, and none may be assumed.
     unsetenv("DISPLAY");
+    // Core files as large as the system allows, so that a crash of lancet-viz can be read after
+    // (see ended_how).
+    rlimit core{};
+    if (getrlimit(RLIMIT_CORE, &core) == 0) {
+      core.rlim_cur = core.rlim_max;
+      (void)setrlimit(RLIMIT_CORE, &core);
+    }
     ProcessTest::SetUp();
   }
 
@@ -76,7 +85,8 @@ class TwoProcess : public test::ProcessTest {
     // Mesa's GL driver leaks a little at context teardown and is unloaded before LeakSanitizer
     // reports, so the report cannot be suppressed by name: leak checking is off for lancet-viz in
     // sanitizer builds (its session logic is leak-checked by the host_viz unit tests).
-    auto viz = std::make_unique<Child>(argv, path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"});
+    // In this test's folder: a core it dumps lands there (core_pattern "core"), for ended_how().
+    auto viz = std::make_unique<Child>(argv, path("viz.log"), std::vector<std::string>{"LSAN_OPTIONS=detect_leaks=0"}, dir_.string());
     viz_ = viz.get();
     return viz;
   }
@@ -131,8 +141,24 @@ class TwoProcess : public test::ProcessTest {
       how += std::string(name) + (WIFSIGNALED(*st) ? " was killed by signal " + std::to_string(WTERMSIG(*st)) + " (" + strsignal(WTERMSIG(*st)) + ")"
                                                    : " exited with status " + std::to_string(WEXITSTATUS(*st))) +
              " before the run was over\n";
+      if (child == viz_ && WIFSIGNALED(*st)) how += viz_backtrace();
     }
     return how + "rt.log:\n" + read_file(path("rt.log"));
+  }
+  /// Every thread's stack in the core lancet-viz dumped in this test's folder, read with gdb
+  /// (a rare crash is then explained by the run that had it), or why there is none.
+  std::string viz_backtrace() {
+    std::error_code ec;
+    for (const auto& e : std::filesystem::directory_iterator(dir_, ec)) {
+      const std::string name = e.path().filename().string();
+      if (name.rfind("core", 0) != 0) continue;
+      if (access("/usr/bin/gdb", X_OK) != 0) return "its core is " + e.path().string() + " (gdb is not installed to read it)\n";
+      const std::string out = path("viz-backtrace.txt");
+      const std::string gdb = "/usr/bin/gdb -batch -q -ex 'thread apply all bt 30' '" + kViz + "' '" + e.path().string() + "' > '" + out + "' 2>&1";
+      (void)std::system(gdb.c_str());
+      return "its threads at the crash (gdb on " + e.path().string() + ", also in " + out + "):\n" + read_file(out).substr(0, 60'000) + "\n";
+    }
+    return "it left no core file in " + dir_.string() + " (core_pattern: " + read_file("/proc/sys/kernel/core_pattern") + ")\n";
   }
   /// Asks the viz to end (SIGINT, as Ctrl-C does) and checks that it did, cleanly.
   void stop_viz(Child& viz) {

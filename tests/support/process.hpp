@@ -24,11 +24,13 @@ namespace lancet::test {
 /// A child process; killed (SIGKILL) on destruction if still running.
 class Child {
  public:
-  /// Starts argv[0] with the environment plus `extra_env` ("NAME=value" entries, which win).
+  /// Starts argv[0] with the environment plus `extra_env` ("NAME=value" entries, which win), in
+  /// `cwd` where one is given (where a core file it dumps lands, with core_pattern "core").
   Child(const std::vector<std::string>& argv, const std::string& output_path,
-        const std::vector<std::string>& extra_env = {}) {
+        const std::vector<std::string>& extra_env = {}, const std::string& cwd = {}) {
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
+    if (!cwd.empty()) posix_spawn_file_actions_addchdir_np(&fa, cwd.c_str());
     posix_spawn_file_actions_addopen(&fa, 1, output_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     posix_spawn_file_actions_adddup2(&fa, 1, 2);
     std::vector<char*> args;
