@@ -23,6 +23,8 @@ PACKAGES=(
   # Debian's /usr/bin/python3, and the ray caster's side-by-side with VTK, whose GPU mapper
   # renders only through GLX: xvfb for that benchmark alone)
   libgtest-dev libgmock-dev libbenchmark-dev rt-tests python3-vtk9 xvfb
+  # a crashed lancet-viz's core read into the two-process tests' failure (every thread's stack)
+  gdb
   # session recording (HDF5: readable by h5py, MATLAB, HDFView; h5py reads it back in a test)
   # and the report's test in a real browser (headless Chromium renders it to a PNG)
   libhdf5-dev python3-h5py chromium
