@@ -47,18 +47,18 @@ TEST(SceneSim, BothHandsPatchesMadeAtOnceAreEachTheOneMadeAlone) {
   std::uint64_t seq = 0;
   std::size_t removals = 0, triangles = 0;
   for (int frame = 0; frame < 40; ++frame) {
-    // Eight ticks a frame: the right hand presses the skin, then drills down from the bone's top;
-    // the left presses the skin 23 mm away, all along.
+    // Eight ticks a frame, 320 in all: the right hand presses the skin down to 3 mm (120 ticks),
+    // then drills 4 mm down from the bone's top; the left presses the skin 27 mm away, all along.
     std::vector<ToolSample> batch;
     Vec3 right{}, left{};
     for (int k = 0; k < 8; ++k) {
       ++seq;
-      const double s = (frame * 8 + k) / 320.0;
-      if (frame < 15) {
-        right = *top + Vec3{0, 0, 0.0005 - 0.0035 * s * 320 / 120};
+      const int t = frame * 8 + k;
+      if (t < 120) {
+        right = *top + Vec3{0, 0, 0.0005 - 0.0035 * t / 120.0};
         batch.push_back(tick(seq, Hand::kRight, right, Stage::kDeform));
       } else {
-        right = bone_top + Vec3{0, 0, -0.004 * (s - 0.375)};
+        right = bone_top + Vec3{0, 0, -0.004 * (t - 120) / 200.0};
         ToolSample& d = batch.emplace_back(tick(seq, Hand::kRight, right, Stage::kDrilling));
         d.mode = ToolMode::kDrill;
         d.events = k % 4 == 0 ? event::kDrillRemove : 0u;
@@ -66,7 +66,7 @@ TEST(SceneSim, BothHandsPatchesMadeAtOnceAreEachTheOneMadeAlone) {
         d.payload.magnitude = 0.0025;
         removals += k % 4 == 0 ? 1 : 0;
       }
-      left = *left_top + Vec3{0, 0, 0.0005 - 0.0025 * s};
+      left = *left_top + Vec3{0, 0, 0.0005 - 0.0025 * t / 320.0};
       batch.push_back(tick(seq, Hand::kLeft, left, Stage::kDeform));
     }
     at_once->apply(batch);
