@@ -14,21 +14,10 @@
 #include <vector>
 
 #include "sim/scene_sim.hpp"
+#include "tissue/scripted_sample.hpp"
 
 namespace lancet::sim {
 namespace {
-
-ToolSample tick(std::uint64_t seq, Hand hand, Vec3 at, Stage stage) {
-  ToolSample s{};
-  s.seq = seq;
-  s.t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
-  s.hand = hand;
-  s.stage = stage;
-  s.tool.position = at;
-  s.proxy.position = stage == Stage::kDeform ? at + Vec3{0, 0, 0.001} : at;
-  s.reset_mode = kNoReset;
-  return s;
-}
 
 TEST(SceneSim, BothHandsPatchesMadeAtOnceAreEachTheOneMadeAlone) {
   SceneSetup setup;
@@ -53,21 +42,22 @@ TEST(SceneSim, BothHandsPatchesMadeAtOnceAreEachTheOneMadeAlone) {
     Vec3 right{}, left{};
     for (int k = 0; k < 8; ++k) {
       ++seq;
+      const auto t_ns = static_cast<std::int64_t>(seq) * 1'000'000;
+      const Vec3 lift{0, 0, 0.001};  // a pressing hand's proxy, on the surface above its tool
       const int t = frame * 8 + k;
       if (t < 120) {
         right = *top + Vec3{0, 0, 0.0005 - 0.0035 * t / 120.0};
-        batch.push_back(tick(seq, Hand::kRight, right, Stage::kDeform));
+        batch.push_back(tissue::scripted_sample(seq, t_ns, ToolMode::kProbe, Stage::kDeform, right + lift, right, 0));
       } else {
         right = bone_top + Vec3{0, 0, -0.004 * (t - 120) / 200.0};
-        ToolSample& d = batch.emplace_back(tick(seq, Hand::kRight, right, Stage::kDrilling));
-        d.mode = ToolMode::kDrill;
-        d.events = k % 4 == 0 ? event::kDrillRemove : 0u;
-        d.payload.position = right;
-        d.payload.magnitude = 0.0025;
-        removals += k % 4 == 0 ? 1 : 0;
+        const bool removes = k % 4 == 0;
+        batch.push_back(tissue::scripted_sample(seq, t_ns, ToolMode::kDrill, Stage::kDrilling, right, right, removes ? event::kDrillRemove : 0u));
+        batch.back().payload.magnitude = 0.0025;  // the burr's radius
+        removals += removes ? 1 : 0;
       }
       left = *left_top + Vec3{0, 0, 0.0005 - 0.0025 * t / 320.0};
-      batch.push_back(tick(seq, Hand::kLeft, left, Stage::kDeform));
+      batch.push_back(tissue::scripted_sample(seq, t_ns, ToolMode::kProbe, Stage::kDeform, left + lift, left, 0));
+      batch.back().hand = Hand::kLeft;
     }
     at_once->apply(batch);
     alone->apply(batch);
